@@ -1,0 +1,93 @@
+"""The feedback loop under analysis: plant + controller, continuous or sampled-data.
+
+Unity negative feedback, controller in the forward path::
+
+    r --> (+) --> C --> [ZOH] --> G (with delay) --+--> y
+           ^-------------------------------------- |
+
+* continuous loop: ``C(s)`` and ``G(s)``, any delay (exact ``exp(-s*tau)``);
+* sampled-data loop: ``C(z)`` at ``dt`` driving the continuous ``G(s)`` through a
+  zero-order hold; the delay must be whole samples. The loop seen at the samples
+  is ``C(z) * ZOH[G](z) * z^-d``; the output between samples comes from ``G(s)``;
+* discrete plant ``G(z)`` at the same ``dt``: between-sample output uses the
+  continuous plant whose ZOH equivalent is ``G(z)``, when one exists.
+
+The characteristic polynomial is formed without cancelling controller zeros
+against plant poles, so hidden unstable modes are not lost.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .controllers import ControllerTF
+from .errors import InvalidControllerError
+from .plant import Plant, delay_in_samples
+
+__all__ = ["Loop", "build_loop"]
+
+
+@dataclass(frozen=True, eq=False)
+class Loop:
+    """Open-loop polynomials and what is needed to simulate the closed loop."""
+
+    plant: Plant
+    controller: ControllerTF
+    dt: float | None
+    ln: np.ndarray  # open-loop numerator  nC*nG
+    ld: np.ndarray  # open-loop denominator dC*dG (times z^d in discrete time)
+    delay_s: float  # continuous delay; 0 in discrete time (folded into ld)
+    delay_samples: int
+    plant_ct: Plant | None  # continuous plant for between-sample output (no delay), or None
+    plant_d: Plant | None  # discrete plant at dt (no delay folded), or None for continuous loops
+
+    @property
+    def is_discrete(self) -> bool:
+        return self.dt is not None
+
+    @property
+    def charpoly(self) -> np.ndarray:
+        return np.polyadd(self.ld, self.ln)
+
+    def freqresp(self, w: np.ndarray) -> np.ndarray:
+        """Open-loop ``L`` at ``w`` rad/s (delay exact)."""
+        w = np.asarray(w, dtype=float)
+        x = 1j * w if self.dt is None else np.exp(1j * w * self.dt)
+        L = np.polyval(self.ln, x) / np.polyval(self.ld, x)
+        if self.delay_s:
+            L = L * np.exp(-1j * w * self.delay_s)
+        return L
+
+    def nyquist_w(self) -> float | None:
+        return np.pi / self.dt if self.dt else None
+
+
+def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
+    """Combine a plant and a controller into a :class:`Loop`, with clear errors."""
+    nc, dc = np.asarray(controller.num, float), np.asarray(controller.den, float)
+    if controller.dt is None:
+        if plant.is_discrete:
+            raise InvalidControllerError(
+                f"plant is discrete (dt={plant.dt}) but the controller is continuous: give a controller in z"
+            )
+        return Loop(
+            plant=plant, controller=controller, dt=None,
+            ln=np.polymul(nc, plant.num), ld=np.polymul(dc, plant.den),
+            delay_s=plant.delay_s, delay_samples=0, plant_ct=plant, plant_d=None,
+        )
+    dt = controller.dt
+    pd = plant.zoh(dt)  # validates dt match for discrete plants and whole-sample delay
+    d = delay_in_samples(pd.delay_s, dt)
+    if plant.is_discrete:
+        ce = plant.continuous_equivalent()
+        pct = None if ce is None else Plant(num=ce.num, den=ce.den, dt=None, delay_s=0.0)
+    else:
+        pct = Plant(num=plant.num, den=plant.den, dt=None, delay_s=0.0)
+    ld = np.polymul(dc, np.concatenate([pd.den, np.zeros(d)]))
+    return Loop(
+        plant=plant, controller=controller, dt=dt,
+        ln=np.polymul(nc, pd.num), ld=ld, delay_s=0.0, delay_samples=d,
+        plant_ct=pct, plant_d=Plant(num=pd.num, den=pd.den, dt=dt, delay_s=0.0),
+    )
