@@ -1,0 +1,164 @@
+"""The ``tuner`` command line.
+
+Exit codes: 0 success; 1 a checked spec is not met (``verify``, or ``--check``);
+2 bad input (the message names the problem; no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from contextlib import contextmanager
+from typing import Any, Iterator, Sequence
+
+from .errors import TunerError
+
+__all__ = ["main"]
+
+log = logging.getLogger("tuner")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse exits 2 with usage: keep, but no traceback
+        self.print_usage(sys.stderr)
+        self.exit(2, f"tuner: error: {message}\n")
+
+
+def _add_spec_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("spec (defaults: the quadrotor thesis)")
+    g.add_argument("--pm", type=float, default=None, metavar="DEG", help="minimum phase margin (60)")
+    g.add_argument("--gm", type=float, default=None, metavar="DB", help="minimum gain margin (6)")
+    g.add_argument("--overshoot", type=float, default=None, metavar="PCT", help="maximum overshoot %% (10)")
+    g.add_argument("--band", type=float, default=None, metavar="PCT", help="settling band %% (2)")
+    g.add_argument("--control-peak", type=float, default=None, help="maximum |u| after a unit step")
+    g.add_argument("--ms", type=float, default=None, help="maximum sensitivity peak Ms")
+    g.add_argument("--bandwidth", type=float, default=None, metavar="RAD_S", help="minimum closed-loop bandwidth")
+    g.add_argument("--objective", default=None, choices=["settling_time", "itae", "iae", "bandwidth"])
+
+
+def _spec_from_args(a: argparse.Namespace):
+    from pydantic import ValidationError
+
+    from .spec import Spec
+
+    fields = {
+        "phase_margin_min_deg": a.pm, "gain_margin_min_db": a.gm, "overshoot_max_pct": a.overshoot,
+        "settling_band_pct": a.band, "control_peak_max": a.control_peak, "ms_max": a.ms,
+        "bandwidth_min_rad_s": a.bandwidth, "objective": a.objective,
+    }
+    try:
+        return Spec(**{k: v for k, v in fields.items() if v is not None})
+    except ValidationError as e:
+        err = e.errors()[0]
+        raise TunerError(f"spec: {err['loc'][0]}: {err['msg']}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="tuner", description="Optimisation-based controller tuning with an independent verifier.")
+    p.add_argument("-v", "--verbose", action="store_true")
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+
+    a = sub.add_parser("analyze", help="verify a controller on a plant: margins, step metrics, spec checks")
+    a.add_argument("--plant", required=True, help="plant expression in s, or in z with --dt")
+    a.add_argument("--dt", type=float, default=None, help="sample time of the controller (and of a z plant)")
+    a.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds")
+    a.add_argument("--controller", required=True, help="controller expression (in z with --dt, else in s)")
+    a.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    a.add_argument("--check", action="store_true", help="exit 1 when the spec is not met")
+    _add_spec_args(a)
+
+    for name, mod in _EXTRA_COMMANDS:
+        __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
+    return p
+
+
+_EXTRA_COMMANDS: list[tuple[str, str]] = []
+
+
+def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console(highlight=False)
+    t = Table(title=title, show_header=True)
+    t.add_column("figure")
+    t.add_column("value", justify="right")
+    for k, v in rows:
+        t.add_row(k, v)
+    con.print(t)
+    if checks:
+        c = Table(title="checks", show_header=True)
+        for col in ("constraint", "required", "achieved", "ok"):
+            c.add_column(col)
+        for ch in checks:
+            c.add_row(ch["name"], f"{ch['op']} {fmt(ch['required'])}", fmt(ch["achieved"]),
+                      "[green]ok[/green]" if ch["ok"] else "[red]FAIL[/red]")
+        con.print(c)
+
+
+@contextmanager
+def field(name: str) -> Iterator[None]:
+    """Prefix a :class:`TunerError` raised inside with the argument it came from."""
+    try:
+        yield
+    except TunerError as e:
+        raise TunerError(f"{name}: {e}") from e
+
+
+def fmt(v: Any) -> str:
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def analysis_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
+    return [(k, fmt(v)) for k, v in metrics.items()]
+
+
+def _cmd_analyze(a: argparse.Namespace) -> int:
+    from .analysis import analyze, jsonable
+    from .controllers import controller_from_expr
+    from .plant import plant_from_expr
+
+    spec = _spec_from_args(a)
+    with field("--plant"):
+        plant = plant_from_expr(a.plant, dt=a.dt, delay=a.delay)
+    with field("--controller"):
+        ctrl = controller_from_expr(a.controller, dt=a.dt)
+    res = analyze(plant, ctrl, spec)
+    out = res.to_dict()
+    if a.json:
+        print(json.dumps(jsonable(out), indent=2))
+    else:
+        print_table(f"plant {plant.describe()}", analysis_rows(out["metrics"]), out["checks"])
+        verdict = "meets the spec" if res.meets_spec else "does NOT meet the spec: " + ", ".join(
+            f"{c.name} = {fmt(c.achieved)} (required {c.op} {fmt(c.required)})" for c in res.failing
+        )
+        print(f"controller {verdict}")
+    return 1 if (a.check and not res.meets_spec) else 0
+
+
+_COMMANDS = {"analyze": _cmd_analyze}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    handler = _COMMANDS.get(args.cmd) or getattr(args, "handler", None)
+    try:
+        return int(handler(args))
+    except TunerError as e:
+        print(f"tuner: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("tuner: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
