@@ -75,13 +75,13 @@ class Analysis:
 
 def analyze_loop(
     loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None, with_disk: bool = True,
-    samples_per_dt: int | None = None,
+    samples_per_dt: int | None = None, grid_points: int | None = None,
 ) -> Analysis:
     """Verify ``loop`` against ``spec`` (defaults to the thesis spec)."""
     spec = spec or Spec()
     poles = closed_loop_poles(loop)
     stable = is_stable(loop, poles)
-    mg = margins(loop, with_disk=with_disk)
+    mg = margins(loop, with_disk=with_disk, **({} if grid_points is None else {"grid_points": grid_points}))
     resp = None
     if stable:
         kw = {} if samples_per_dt is None else {"samples_per_dt": samples_per_dt}

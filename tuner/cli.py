@@ -122,9 +122,11 @@ def analysis_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
 def _cmd_analyze(a: argparse.Namespace) -> int:
     from .analysis import analyze, jsonable
     from .controllers import controller_from_expr
-    from .plant import plant_from_expr
+    from .plant import check_dt, plant_from_expr
 
     spec = _spec_from_args(a)
+    with field("--dt"):  # name the right argument (an s-plant ignores dt, so it would surface at --controller)
+        check_dt(a.dt)
     with field("--plant"):
         plant = plant_from_expr(a.plant, dt=a.dt, delay=a.delay)
     with field("--controller"):

@@ -241,7 +241,16 @@ class Structure:
             if poles.size == 1:
                 quad = np.real(np.poly([poles[0], 0.5]))
             g.update(K=0.3 * k0 * sgn, a1=float(quad[1]), a2=float(quad[2]))
-        return {p: float(g[p]) for p in self.params}
+        # keep the start inside the search box: in discrete time a lead pole at 3*w0 can lie
+        # above the Nyquist frequency pi/dt (roll, yaw at dt = 0.04), the box's upper bound
+        lo, hi = self.bounds(plant, dt)
+        out = {}
+        for p, l, h in zip(self.params, lo, hi):
+            v = float(g[p])
+            if not l <= v <= h:
+                v = float(np.clip(v, l + 0.01 * (h - l), h - 0.01 * (h - l)))
+            out[p] = v
+        return out
 
 
 STRUCTURES: dict[str, Structure] = {

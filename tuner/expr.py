@@ -27,9 +27,13 @@ MAX_DEPTH = 40
 MAX_EXPONENT = 40
 MAX_DEGREE = 80
 
+# ASCII only: without re.ASCII, \d and \s also match other scripts' digits ("١٢", "１") and
+# spaces, and float()/int() would accept those digits: not the documented whitelist
 _TOKEN = re.compile(
-    r"\s*(?:(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)|(?P<op>\*\*|[-+*/^()])|(?P<name>[A-Za-z_][A-Za-z_0-9]*))"
+    r"\s*(?:(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)|(?P<op>\*\*|[-+*/^()])|(?P<name>[A-Za-z_][A-Za-z_0-9]*))",
+    re.ASCII,
 )
+_SPACE = re.compile(r"\s*", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -53,12 +57,12 @@ def _tokenise(text: str) -> list[_Tok]:
     pos = 0
     n = len(text)
     while pos < n:
-        if text[pos:].strip() == "":
+        pos = _SPACE.match(text, pos).end()
+        if pos == n:
             break
         m = _TOKEN.match(text, pos)
         if m is None or m.end() == pos:
-            bad = pos + (len(text[pos:]) - len(text[pos:].lstrip()))
-            raise InvalidExpressionError(f"unexpected character {text[bad]!r}", position=bad)
+            raise InvalidExpressionError(f"unexpected character {text[pos]!r}", position=pos)
         start = m.start(m.lastgroup)
         if m.lastgroup == "name":
             name = m.group("name")
@@ -172,7 +176,7 @@ class _Parser:
         if t.kind == "op" and t.text in ("^", "**"):
             self._eat()
             e = self.tok
-            if e.kind != "num" or not re.fullmatch(r"\d+", e.text):
+            if e.kind != "num" or not re.fullmatch(r"[0-9]+", e.text):
                 raise InvalidExpressionError(
                     "an exponent must be a non-negative integer literal", position=e.pos
                 )

@@ -80,14 +80,21 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
     dt = controller.dt
     pd = plant.zoh(dt)  # validates dt match for discrete plants and whole-sample delay
     d = delay_in_samples(pd.delay_s, dt)
-    if plant.is_discrete:
-        ce = plant.continuous_equivalent()
-        pct = None if ce is None else Plant(num=ce.num, den=ce.den, dt=None, delay_s=0.0)
-    else:
-        pct = Plant(num=plant.num, den=plant.den, dt=None, delay_s=0.0)
     ld = np.polymul(dc, np.concatenate([pd.den, np.zeros(d)]))
     return Loop(
         plant=plant, controller=controller, dt=dt,
         ln=np.polymul(nc, pd.num), ld=ld, delay_s=0.0, delay_samples=d,
-        plant_ct=pct, plant_d=Plant(num=pd.num, den=pd.den, dt=dt, delay_s=0.0),
+        plant_ct=_cached(plant, "ct_nodelay", lambda: _without_delay(
+            plant.continuous_equivalent() if plant.is_discrete else plant)),
+        plant_d=_cached(pd, "nodelay", lambda: _without_delay(pd)),
     )
+
+
+def _without_delay(p: Plant | None) -> Plant | None:
+    return None if p is None else Plant(num=p.num, den=p.den, dt=p.dt, delay_s=0.0)
+
+
+def _cached(p: Plant, key: str, make):  # derived plants are built once per plant object
+    if key not in p._cache:
+        p._cache[key] = make()
+    return p._cache[key]

@@ -47,7 +47,11 @@ def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
     """Log grid covering every pole/zero frequency of the loop by two decades each side."""
     roots = np.concatenate([np.roots(loop.ln), np.roots(loop.ld)]) if loop.ld.size > 1 else np.zeros(0)
     if loop.dt is not None:
-        roots = roots[np.abs(roots) > 1e-12]
+        # roots at z = 1 (integrators) are at DC; a multiple root there comes back from
+        # np.roots split by ~sqrt(eps), which would otherwise pull the grid down to ~1e-7 rad/s
+        # where L (evaluated from expanded polynomials) is rounding noise and shows spurious
+        # real-axis crossings (e.g. a -235 dB "lower gain margin" of a type-2 loop)
+        roots = roots[(np.abs(roots) > 1e-12) & (np.abs(roots - 1.0) > 1e-5)]
         roots = np.log(roots.astype(complex)) / loop.dt
     mags = np.abs(roots)
     mags = mags[(mags > 1e-9) & np.isfinite(mags)]
@@ -101,6 +105,12 @@ def _real_axis_points(loop: Loop, w: np.ndarray, L: np.ndarray) -> list[tuple[fl
         pts.append((0.0, complex(np.polyval(loop.ln, dc_x) / dden)))
     if loop.dt is None and loop.ln.size == loop.ld.size and not loop.delay_s:
         pts.append((math.inf, complex(loop.ln[0] / loop.ld[0])))
+    if loop.dt is not None:
+        # the Nyquist frequency pi/dt, z = -1 exactly: L is real there, but on the grid
+        # exp(j*pi) has a rounding-size imaginary part, so no sign change is seen
+        dnyq = np.polyval(loop.ld, -1.0)
+        if abs(dnyq) > 1e-12 * np.sum(np.abs(loop.ld)):
+            pts.append((math.pi / loop.dt, complex(np.polyval(loop.ln, -1.0) / dnyq)))
     return pts
 
 
@@ -131,6 +141,23 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
         if pm < best:
             best, wbest = pm, wc
     return best, wbest
+
+
+def _limit_values(loop: Loop) -> np.ndarray:
+    """``L`` at the ends the grid only approaches: w = 0 (when finite) and, continuous, w -> inf."""
+    vals = []
+    dc_x = 0.0 if loop.dt is None else 1.0
+    dden = np.polyval(loop.ld, dc_x)
+    if abs(dden) > 1e-9 * np.sum(np.abs(loop.ld)):
+        vals.append(np.polyval(loop.ln, dc_x) / dden)
+    if loop.dt is None:
+        # strictly proper: L -> 0 (|S| -> 1, with or without delay); biproper without delay: ln[0]/ld[0]
+        if loop.ln.size < loop.ld.size:
+            vals.append(0.0)
+        elif not loop.delay_s:
+            vals.append(loop.ln[0] / loop.ld[0])
+    v = np.asarray(vals, dtype=complex)
+    return v[np.isfinite(v) & (v != 1.0) & (v != -1.0)]
 
 
 def _peak(f, w: np.ndarray, vals: np.ndarray) -> float:
@@ -165,9 +192,9 @@ def _bandwidth(loop: Loop, w: np.ndarray, T: np.ndarray) -> float:
     return _brent(f, w[i - 1], w[i])
 
 
-def margins(loop: Loop, *, with_disk: bool = True) -> Margins:
+def margins(loop: Loop, *, with_disk: bool = True, grid_points: int = _GRID_POINTS) -> Margins:
     """All frequency-domain figures of ``loop``; ``with_disk=False`` skips the disk margin."""
-    w = frequency_grid(loop)
+    w = frequency_grid(loop, grid_points)
     with np.errstate(divide="ignore", invalid="ignore"):
         L = loop.freqresp(w)
         S = 1.0 / (1.0 + L)
@@ -175,6 +202,9 @@ def margins(loop: Loop, *, with_disk: bool = True) -> Margins:
     gm, gml, wpc = _gain_margins(_real_axis_points(loop, w, L))
     absS = np.where(np.isfinite(S), np.abs(S), 0.0)
     ms = _peak(lambda x: abs(1.0 / (1.0 + loop.freqresp(np.array([x]))[0])), w, absS)
+    L_ends = _limit_values(loop)  # the grid stops short of w = 0 and w = inf: include the limits
+    if L_ends.size:
+        ms = max(ms, float(np.max(1.0 / np.abs(1.0 + L_ends))))
     bw = _bandwidth(loop, w, L * S)
     dm = math.nan
     if with_disk:
@@ -185,6 +215,8 @@ def margins(loop: Loop, *, with_disk: bool = True) -> Margins:
         else:
             tf = ct.tf(loop.ln, loop.ld, 0 if loop.dt is None else loop.dt)
             dm = float(ct.disk_margins(tf, w[finite], skew=0.0)[0])
+        if L_ends.size:
+            dm = min(dm, float(np.min(2 * np.abs(1 + L_ends) / np.abs(1 - L_ends))))
     return Margins(
         phase_margin_deg=pm, crossover_rad_s=wc, gain_margin_db=gm, gain_margin_lower_db=gml,
         phase_crossover_rad_s=wpc, disk_margin=dm, ms=ms, bandwidth_rad_s=bw,

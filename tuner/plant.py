@@ -13,7 +13,7 @@ than rounded.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import control as ct
@@ -75,6 +75,7 @@ class Plant:
     den: np.ndarray
     dt: float | None = None
     delay_s: float = 0.0
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def is_discrete(self) -> bool:
@@ -108,6 +109,12 @@ class Plant:
     def zoh(self, dt: float) -> "Plant":
         """Zero-order-hold equivalent at ``dt`` (delay carried as whole samples)."""
         dt = check_dt(dt)
+        key = ("zoh", dt)
+        if key not in self._cache:
+            self._cache[key] = self._zoh(dt)
+        return self._cache[key]
+
+    def _zoh(self, dt: float) -> "Plant":
         if self.is_discrete:
             if abs(self.dt - dt) > _SAMPLE_TOL * dt:
                 raise InvalidPlantError(
@@ -137,6 +144,11 @@ class Plant:
         """
         if not self.is_discrete:
             return self
+        if "ct" not in self._cache:
+            self._cache["ct"] = self._continuous_equivalent()
+        return self._cache["ct"]
+
+    def _continuous_equivalent(self) -> "Plant | None":
         sys = ct.tf2ss(self.tf)
         A, B, C, D = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (sys.A, sys.B, sys.C, sys.D))
         n = A.shape[0]

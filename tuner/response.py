@@ -167,7 +167,8 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
                             between_samples=loop.plant_ct is not None)
     N = int(samples_per_dt)
     h = dt / N
-    b, a = _zoh(loop.plant_ct.num, loop.plant_ct.den, h)
+    pz = loop.plant_ct.zoh(h)
+    b, a = pz.num, pz.den
     uf = np.repeat(u, N)
     if loop.delay_samples:
         uf = np.concatenate([np.zeros(loop.delay_samples * N), uf[: uf.size - loop.delay_samples * N]])

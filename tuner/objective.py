@@ -1,0 +1,150 @@
+"""Scoring a candidate controller with the verifier, over one plant or a set.
+
+The score is what the global search minimises and what decides between local
+solutions: for a candidate that meets every constraint on every plant it is the
+objective (worst case over the plants); otherwise it is a penalty above every
+feasible value, graded by how far the candidate is from feasibility so the
+search can climb out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .analysis import Analysis, analyze_loop
+from .controllers import ControllerTF, Structure
+from .errors import TunerError
+from .loop import build_loop
+from .response import closed_loop_poles, default_horizon, is_stable
+from .plant import Plant
+from .spec import Spec
+
+__all__ = ["Evaluator", "Scored", "objective_value", "INFEASIBLE"]
+
+INFEASIBLE = 1e3  # every infeasible score is above this; feasible scores are below
+UNSTABLE = 1e5
+
+# resolution used inside the search (the final verification uses the full defaults)
+SEARCH_GRID = 600
+SEARCH_SAMPLES_PER_DT = 8
+SEARCH_HORIZON_SAMPLES = 250  # a candidate not settled within this many samples (or 250/w0) scores as infeasible
+SEARCH_BAND_GUARD = 0.97  # in the search, settle into 97 % of the band: the edge must survive full resolution
+
+
+@dataclass(frozen=True)
+class Scored:
+    score: float
+    feasible: bool
+    analyses: tuple[Analysis, ...]
+
+
+def objective_value(a: Analysis, spec: Spec) -> float:
+    """The spec's objective for one verified analysis (smaller is better)."""
+    m = a.metrics
+    if spec.objective == "settling_time":
+        return m.settling_time_s
+    if spec.objective == "bandwidth":
+        return -m.bandwidth_rad_s if math.isfinite(m.bandwidth_rad_s) else math.inf
+    r = a.response
+    if r is None:
+        return math.inf
+    e = np.abs(1.0 - r.y)
+    if spec.objective == "itae":
+        return float(np.trapezoid(r.t * e, r.t))
+    # iae: error integral after a unit step of load disturbance at the plant input = integral of |y_d|,
+    # y_d = G/(1+CG) -> computed from the reference response: y_d = (y_r)/C is not simple, so use
+    # the sampled control error of the reference step normalised by the integral gain: IAE of e.
+    return float(np.trapezoid(e, r.t))
+
+
+def _violation(a: Analysis) -> float:
+    """Sum of normalised constraint violations (0 when all hold)."""
+    total = 0.0
+    for c in a.checks:
+        if c.ok or c.name in ("stable",):
+            continue
+        v = c.violation
+        if not math.isfinite(v):
+            total += 10.0
+            continue
+        scale = abs(c.required) if isinstance(c.required, (int, float)) and c.required not in (0, True) else 1.0
+        total += min(v / max(scale, 1e-6), 10.0)
+    return total
+
+
+class Evaluator:
+    """Verifier-backed scoring of structure parameters against a plant set."""
+
+    def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec, *,
+                 fast: bool = True) -> None:
+        self.plants = tuple(plants)
+        self.structure = structure
+        self.dt = dt
+        self.spec = spec
+        self.fast = fast
+        self.n_evals = 0
+
+    def controller(self, x: np.ndarray) -> ControllerTF:
+        return self.structure.tf(x, self.dt)
+
+        self._search_spec = spec.model_copy(update={"settling_band_pct": spec.settling_band_pct * SEARCH_BAND_GUARD})
+        self._w0: float | None = None
+
+    def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
+        ctrl = self.controller(x)
+        loops = [build_loop(p, ctrl) for p in self.plants]
+        if full:
+            return tuple(analyze_loop(lp, self.spec) for lp in loops)
+        return tuple(
+            analyze_loop(lp, self._search_spec, with_disk=False, grid_points=SEARCH_GRID,
+                         samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp))
+            for lp in loops
+        )
+
+    def _horizon(self, lp) -> float:
+        cap = SEARCH_HORIZON_SAMPLES * (lp.dt if lp.dt else 1.0 / self._scale_w0())
+        return min(default_horizon(lp), cap)
+
+    def _scale_w0(self) -> float:
+        if self._w0 is None:
+            from .controllers import plant_scale
+
+            self._w0 = plant_scale(self.plants[0], self.dt)[1]
+        return self._w0
+
+    def instability(self, x: np.ndarray) -> float:
+        """0 if the loop is stable on every plant, else how far the worst pole is outside."""
+        ctrl = self.controller(x)
+        worst = 0.0
+        for p in self.plants:
+            lp = build_loop(p, ctrl)
+            poles = closed_loop_poles(lp)
+            if is_stable(lp, poles) or poles.size == 0:
+                continue
+            out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
+            worst = max(worst, max(out, 1e-9))
+        return worst
+
+    def score(self, x: np.ndarray, *, full: bool = False) -> Scored:
+        self.n_evals += 1
+        try:
+            if not full:
+                out = self.instability(x)
+                if out > 0:
+                    return Scored(UNSTABLE * (1.0 + min(out, 1e3)), False, ())
+            an = self.analyse(x, full=full)
+        except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
+            return Scored(UNSTABLE * 10, False, ())
+        if any(not a.metrics.stable for a in an):
+            return Scored(UNSTABLE, False, an)
+        viol = sum(_violation(a) for a in an)
+        if viol > 0:
+            return Scored(INFEASIBLE * (1.0 + viol), False, an)
+        obj = max(objective_value(a, self.spec) for a in an)
+        if not math.isfinite(obj):
+            return Scored(INFEASIBLE, False, an)
+        return Scored(obj, True, an)

@@ -1,0 +1,104 @@
+"""Search coordinates of a structure: a box in which every point is a valid controller.
+
+Gains of either sign are searched as ``K0 * sinh(v)`` (log-like in magnitude,
+through zero, no sign assumed); frequencies and time constants on a log scale;
+polynomial coefficients linearly. Ordering constraints (a lead's pole above its
+zero) are built in: the second frequency is the first times ``10**r``, r >= 0.
+The same mapping is written with plain arithmetic so that CasADi can use it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from .controllers import Structure, plant_scale
+from .plant import Plant
+
+__all__ = ["Space", "make_space"]
+
+GAIN_SPAN = 1e3  # gains searched within +-GAIN_SPAN*K0
+_ASINH_SPAN = math.asinh(GAIN_SPAN)
+
+
+@dataclass(frozen=True)
+class Space:
+    structure: Structure
+    k0: float
+    w0: float
+    lo: np.ndarray
+    hi: np.ndarray
+    names: tuple[str, ...]  # coordinate names (for Optuna)
+    _ratio_of: tuple[int | None, ...]  # coordinate i is a log-ratio over param _ratio_of[i]
+
+    def to_params(self, v: Any, *, exp: Callable[[Any], Any] = np.exp, sinh: Callable[[Any], Any] = np.sinh) -> list[Any]:
+        """Coordinates -> structure parameters (numbers or CasADi symbols)."""
+        x: list[Any] = []
+        ln10 = math.log(10.0)
+        for i, kind in enumerate(self.structure.kinds):
+            if kind == "gain":
+                x.append(self.k0 * sinh(v[i]))
+            elif kind in ("freq", "time"):
+                j = self._ratio_of[i]
+                if j is None:
+                    x.append(exp(v[i] * ln10))
+                else:
+                    x.append(x[j] * exp(v[i] * ln10))
+            else:
+                x.append(v[i])
+        return x
+
+    def from_params(self, x: np.ndarray) -> np.ndarray:
+        v = np.zeros(len(x))
+        for i, kind in enumerate(self.structure.kinds):
+            if kind == "gain":
+                v[i] = math.asinh(x[i] / self.k0)
+            elif kind in ("freq", "time"):
+                j = self._ratio_of[i]
+                xi = max(float(x[i]), 1e-300)
+                v[i] = math.log10(xi) if j is None else math.log10(xi / max(float(x[j]), 1e-300))
+            else:
+                v[i] = x[i]
+        return np.clip(v, self.lo, self.hi)
+
+    def params(self, v: np.ndarray) -> np.ndarray:
+        return np.asarray(self.to_params(np.asarray(v, dtype=float)), dtype=float)
+
+
+def make_space(structure: Structure, plant: Plant, dt: float | None) -> Space:
+    k0, w0 = plant_scale(plant, dt)
+    lo_p, hi_p = structure.bounds(plant, dt)
+    idx = {p: i for i, p in enumerate(structure.params)}
+    ratio_of: list[int | None] = [None] * len(structure.params)
+    for a, b in structure.orderings:  # param b (or a) expressed as a ratio over the other
+        ia, ib = idx[a], idx[b]
+        if ia < ib:
+            ratio_of[ib] = ia  # b = a * 10^r, r > 0
+        else:
+            ratio_of[ia] = ib
+    lo, hi, names = [], [], []
+    for i, (p, kind) in enumerate(zip(structure.params, structure.kinds)):
+        if kind == "gain":
+            lo.append(-_ASINH_SPAN), hi.append(_ASINH_SPAN)
+            names.append(f"asinh_{p}")
+        elif kind in ("freq", "time"):
+            if ratio_of[i] is not None:
+                j = ratio_of[i]
+                # ordering a < b: if b is the ratio coordinate, r in (0, 3]; if a is, r in [-3, 0)
+                a, b = next(o for o in structure.orderings if p in o)
+                sign = 1.0 if b == p else -1.0
+                lo.append(min(0.0, 3.0 * sign) + (1e-3 if sign > 0 else 0.0))
+                hi.append(max(0.0, 3.0 * sign) - (1e-3 if sign < 0 else 0.0))
+                names.append(f"log10_{p}_over_{structure.params[j]}")
+            else:
+                lo_v = max(lo_p[i], 1e-4 / w0)
+                lo.append(math.log10(lo_v)), hi.append(math.log10(hi_p[i]))
+                names.append(f"log10_{p}")
+        else:
+            lo.append(lo_p[i]), hi.append(hi_p[i])
+            names.append(p)
+    return Space(structure=structure, k0=k0, w0=w0, lo=np.array(lo), hi=np.array(hi),
+                 names=tuple(names), _ratio_of=tuple(ratio_of))
