@@ -22,18 +22,32 @@ import math
 import numpy as np
 from scipy import linalg, signal
 
-GRID_POINTS = 400_000
+GRID_POINTS = 250_000
+
+
+def _shift_to_one(p):
+    """Coefficients of q(x) = p(x + 1): polynomials in x = z - 1."""
+    q = np.zeros(1)
+    for c in np.asarray(p, float):  # Horner: q <- q*(x+1) + c
+        q = np.polyadd(np.polymul(q, [1.0, 1.0]), [c])
+    return q
 
 
 def eval_L(num, den, w, dt=None):
-    """L at frequencies ``w`` (rad/s); discrete loops use z = exp(j w dt), with z = -1 exact at pi/dt."""
+    """L at frequencies ``w`` (rad/s).
+
+    Discrete loops are evaluated in x = z - 1 = 2j sin(theta/2) exp(j theta/2), theta = w dt,
+    which has no cancellation near z = 1 (where the expanded polynomials of a type-2 loop lose
+    every digit), and gives z = -1 exactly at theta = pi.
+    """
     w = np.asarray(w, dtype=float)
     if dt is None:
         x = 1j * w
-    else:
-        x = np.exp(1j * w * dt)
-        x[np.isclose(w, math.pi / dt, rtol=0, atol=1e-15 * math.pi / dt)] = -1.0
-    return np.polyval(num, x) / np.polyval(den, x)
+        return np.polyval(num, x) / np.polyval(den, x)
+    th = w * dt
+    x = 2j * np.sin(th / 2) * np.exp(0.5j * th)
+    x[np.isclose(th, math.pi, rtol=0, atol=1e-15)] = -2.0
+    return np.polyval(_shift_to_one(num), x) / np.polyval(_shift_to_one(den), x)
 
 
 def dense_grid(dt=None, wmin=1e-5, wmax=1e5, n=GRID_POINTS):
@@ -175,3 +189,37 @@ def fine_step(plant_num, plant_den, u, dt, n_per_sample):
             x = Ad @ x + Bd * uk
     t = np.arange(len(ys)) * h
     return t, np.asarray(ys)
+
+
+# -- loops built without the library ---------------------------------------------------------
+
+def zoh(num, den, dt):
+    """ZOH equivalent of a continuous num/den by the augmented matrix exponential.
+
+    Returns (numd, dend), dend monic, numd with leading zeros removed.
+    """
+    A, B, C, D = signal.tf2ss(np.asarray(num, float), np.asarray(den, float))
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n:] = A, B
+    E = linalg.expm(M * dt)
+    b, a = signal.ss2tf(E[:n, :n], E[:n, n:], C, D)
+    b = np.atleast_1d(np.squeeze(b))
+    b[np.abs(b) < 1e-14 * np.max(np.abs(b))] = 0.0
+    return np.trim_zeros(b, "f") / a[0], a / a[0]
+
+
+def open_loop(plant_num, plant_den, c_num, c_den, dt=None, plant_is_discrete=False):
+    """Open-loop num/den of C*G (sampled-data: C(z) * ZOH[G](z)), no cancellation."""
+    gn, gd = np.asarray(plant_num, float), np.asarray(plant_den, float)
+    if dt is not None and not plant_is_discrete:
+        gn, gd = zoh(gn, gd, dt)
+    return np.polymul(np.asarray(c_num, float), gn), np.polymul(np.asarray(c_den, float), gd)
+
+
+def polyprod(*factors):
+    """Product of polynomials given as coefficient lists."""
+    out = np.ones(1)
+    for f in factors:
+        out = np.polymul(out, np.asarray(f, float))
+    return out

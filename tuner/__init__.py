@@ -17,7 +17,7 @@ from .spec import Spec
 __all__ = [
     "Analysis", "Metrics", "analyze", "jsonable", "STRUCTURES", "ControllerTF", "controller_from_expr",
     "controller_tf", "get_structure", "TunerError", "InvalidControllerError", "InvalidExpressionError",
-    "InvalidPlantError", "InvalidSpecError", "Plant", "make_plant", "plant_from_expr", "Spec",
+    "InvalidPlantError", "InvalidSpecError", "Plant", "make_plant", "plant_from_expr", "Spec", "tune",
 ]
 
 __version__ = "0.1.0"

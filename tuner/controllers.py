@@ -34,7 +34,10 @@ import numpy as np
 from .errors import InvalidControllerError
 from .plant import Plant, check_dt
 
+GAIN_SPAN = 100.0
+
 __all__ = [
+    "GAIN_SPAN",
     "ControllerTF",
     "Structure",
     "STRUCTURES",
@@ -158,6 +161,11 @@ class Structure:
     discrete_only: bool = False
     orderings: tuple[tuple[str, str], ...] = ()  # (a, b): a < b
     integrating: bool = False
+    gain_units: tuple[int, ...] = ()  # per parameter: the gain scales as K0 * w0**unit (Ki: +1, Kd: -1)
+
+    def gain_scale(self, k0: float, w0: float) -> np.ndarray:
+        units = self.gain_units or (0,) * len(self.params)
+        return np.array([k0 * w0 ** u for u in units])
 
     def tf(self, values: Mapping[str, float] | Sequence[float], dt: float | None) -> ControllerTF:
         x = self.vector(values)
@@ -208,13 +216,13 @@ class Structure:
         return {p: float(v) for p, v in zip(self.params, x)}
 
     def bounds(self, plant: Plant, dt: float | None) -> tuple[np.ndarray, np.ndarray]:
-        """Search box from the plant's scale: gains +-1e3 K0, frequencies around w0."""
+        """Search box from the plant's scale: gains +-GAIN_SPAN times their unit (K0 * w0**unit)."""
         k0, w0 = plant_scale(plant, dt)
         wmax = (math.pi / dt) if dt else 1e3 * w0
         lo, hi = [], []
-        for kind in self.kinds:
+        for kind, scale in zip(self.kinds, self.gain_scale(k0, w0)):
             if kind == "gain":
-                lo.append(-1e3 * k0), hi.append(1e3 * k0)
+                lo.append(-GAIN_SPAN * scale), hi.append(GAIN_SPAN * scale)
             elif kind == "freq":
                 lo.append(1e-3 * w0), hi.append(min(wmax, 1e2 * w0))
             elif kind == "time":
@@ -257,9 +265,10 @@ STRUCTURES: dict[str, Structure] = {
     s.name: s
     for s in (
         Structure("p", ("Kp",), ("gain",), _p),
-        Structure("pi", ("Kp", "Ki"), ("gain", "gain"), _pi, integrating=True),
-        Structure("pd", ("Kp", "Kd", "Tf"), ("gain", "gain", "time"), _pd),
-        Structure("pid", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid, integrating=True),
+        Structure("pi", ("Kp", "Ki"), ("gain", "gain"), _pi, integrating=True, gain_units=(0, 1)),
+        Structure("pd", ("Kp", "Kd", "Tf"), ("gain", "gain", "time"), _pd, gain_units=(0, -1, 0)),
+        Structure("pid", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid, integrating=True,
+                  gain_units=(0, 1, -1, 0)),
         Structure("pid_z", ("K", "a1", "a2"), ("gain", "coef", "coef"), _pid_z, discrete_only=True, integrating=True),
         Structure("lead", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wz", "wp"),)),
         Structure("lag", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wp", "wz"),)),

@@ -79,20 +79,18 @@ def _violation(a: Analysis) -> float:
 class Evaluator:
     """Verifier-backed scoring of structure parameters against a plant set."""
 
-    def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec, *,
-                 fast: bool = True) -> None:
+    def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec) -> None:
         self.plants = tuple(plants)
         self.structure = structure
         self.dt = dt
         self.spec = spec
-        self.fast = fast
         self.n_evals = 0
-
-    def controller(self, x: np.ndarray) -> ControllerTF:
-        return self.structure.tf(x, self.dt)
 
         self._search_spec = spec.model_copy(update={"settling_band_pct": spec.settling_band_pct * SEARCH_BAND_GUARD})
         self._w0: float | None = None
+
+    def controller(self, x: np.ndarray) -> ControllerTF:
+        return self.structure.tf(x, self.dt)
 
     def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
         ctrl = self.controller(x)

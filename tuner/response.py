@@ -130,8 +130,15 @@ def _lfilt(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
 def _fine_delay_loop(loop: Loop, horizon: float) -> Loop:
     m = max(1, int(round(loop.delay_s / (horizon / CONTINUOUS_POINTS))))
     h = loop.delay_s / m
-    cd = ct.sample_system(ct.tf(loop.controller.num, loop.controller.den), h, method="tustin")
-    ctrl = ControllerTF(num=np.atleast_1d(np.squeeze(cd.num[0][0])), den=np.atleast_1d(np.squeeze(cd.den[0][0])), dt=h)
+    cn, cden = np.atleast_1d(loop.controller.num), np.atleast_1d(loop.controller.den)
+    if cden.size == 1:
+        # a static gain: control's Tustin returns it as k(z-1)/(z-1), and that uncancelled
+        # pole at z = 1 made every P-controlled delay loop look unstable
+        ctrl = ControllerTF(num=cn / cden[0], den=np.ones(1), dt=h)
+    else:
+        cd = ct.sample_system(ct.tf(cn, cden), h, method="tustin")
+        ctrl = ControllerTF(num=np.atleast_1d(np.squeeze(cd.num[0][0])), den=np.atleast_1d(np.squeeze(cd.den[0][0])),
+                            dt=h)
     return build_loop(loop.plant, ctrl)
 
 

@@ -1,6 +1,10 @@
 """Search coordinates of a structure: a box in which every point is a valid controller.
 
-Gains of either sign are searched as ``K0 * sinh(v)`` (log-like in magnitude,
+Gains of either sign are searched as ``unit * 2e-3 * sinh(v ln 10)``, i.e.
+``unit * sign(v) * 10**(|v| - 3)`` away from zero: uniform in ``v`` is
+log-uniform in magnitude from 1e-3 to 1e2 units, smooth through zero
+(``unit = K0 * w0**k``, ``k`` = +1 for an integral gain, -1 for a derivative
+gain, 0 otherwise) (log-like in magnitude,
 through zero, no sign assumed); frequencies and time constants on a log scale;
 polynomial coefficients linearly. Ordering constraints (a lead's pole above its
 zero) are built in: the second frequency is the first times ``10**r``, r >= 0.
@@ -15,13 +19,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .controllers import Structure, plant_scale
+from .controllers import GAIN_SPAN, Structure, plant_scale
 from .plant import Plant
 
 __all__ = ["Space", "make_space"]
 
-GAIN_SPAN = 1e3  # gains searched within +-GAIN_SPAN*K0
-_ASINH_SPAN = math.asinh(GAIN_SPAN)
+DECADES_BELOW = 3.0  # gains from 1e-3 unit ...
+_LN10 = math.log(10.0)
+_V_SPAN = math.log10(GAIN_SPAN) + DECADES_BELOW  # ... to GAIN_SPAN unit
+_G = 0.5 * 10 ** -DECADES_BELOW  # g = unit * 2*_G*sinh(v ln10) ~ unit * sign(v) 10^(|v|-3)
 
 
 @dataclass(frozen=True)
@@ -29,18 +35,21 @@ class Space:
     structure: Structure
     k0: float
     w0: float
+    units: tuple[float, ...]  # per parameter: K0 * w0**unit for gains, 1 otherwise
     lo: np.ndarray
     hi: np.ndarray
     names: tuple[str, ...]  # coordinate names (for Optuna)
     _ratio_of: tuple[int | None, ...]  # coordinate i is a log-ratio over param _ratio_of[i]
 
-    def to_params(self, v: Any, *, exp: Callable[[Any], Any] = np.exp, sinh: Callable[[Any], Any] = np.sinh) -> list[Any]:
-        """Coordinates -> structure parameters (numbers or CasADi symbols)."""
+    def to_params(self, v: Any, *, exp: Callable[[Any], Any] = np.exp, sinh: Callable[[Any], Any] = np.sinh,
+                  units: Any = None) -> list[Any]:
+        """Coordinates -> structure parameters (numbers or CasADi symbols; ``units`` may be symbols)."""
+        units = self.units if units is None else units
         x: list[Any] = []
         ln10 = math.log(10.0)
         for i, kind in enumerate(self.structure.kinds):
             if kind == "gain":
-                x.append(self.k0 * sinh(v[i]))
+                x.append(units[i] * (2 * _G) * sinh(v[i] * _LN10))
             elif kind in ("freq", "time"):
                 j = self._ratio_of[i]
                 if j is None:
@@ -55,7 +64,7 @@ class Space:
         v = np.zeros(len(x))
         for i, kind in enumerate(self.structure.kinds):
             if kind == "gain":
-                v[i] = math.asinh(x[i] / self.k0)
+                v[i] = math.asinh(x[i] / self.units[i] / (2 * _G)) / _LN10
             elif kind in ("freq", "time"):
                 j = self._ratio_of[i]
                 xi = max(float(x[i]), 1e-300)
@@ -82,7 +91,7 @@ def make_space(structure: Structure, plant: Plant, dt: float | None) -> Space:
     lo, hi, names = [], [], []
     for i, (p, kind) in enumerate(zip(structure.params, structure.kinds)):
         if kind == "gain":
-            lo.append(-_ASINH_SPAN), hi.append(_ASINH_SPAN)
+            lo.append(-_V_SPAN), hi.append(_V_SPAN)
             names.append(f"asinh_{p}")
         elif kind in ("freq", "time"):
             if ratio_of[i] is not None:
@@ -100,5 +109,6 @@ def make_space(structure: Structure, plant: Plant, dt: float | None) -> Space:
         else:
             lo.append(lo_p[i]), hi.append(hi_p[i])
             names.append(p)
-    return Space(structure=structure, k0=k0, w0=w0, lo=np.array(lo), hi=np.array(hi),
+    units = tuple(float(u) for u in structure.gain_scale(k0, w0))
+    return Space(structure=structure, k0=k0, w0=w0, units=units, lo=np.array(lo), hi=np.array(hi),
                  names=tuple(names), _ratio_of=tuple(ratio_of))

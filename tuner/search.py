@@ -1,0 +1,85 @@
+"""Everything Optuna: the seeded global stage that finds the basins.
+
+The sampler and the storage are injectable (in-memory TPE by default; a storage
+URL such as ``sqlite:///study.db`` or ``postgresql://...`` is accepted). Trials
+are scored by the verifier through :class:`tuner.objective.Evaluator`; the best
+few *distinct* candidates (by distance in the normalised coordinates) are
+handed to the local stage.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import optuna
+
+from .objective import Evaluator
+from .space import Space
+
+__all__ = ["GlobalResult", "global_search", "default_sampler"]
+
+log = logging.getLogger(__name__)
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+
+@dataclass(frozen=True)
+class GlobalResult:
+    top: list[tuple[float, np.ndarray]]  # (score, coordinates), best first, distinct
+    best_score: float
+    n_evals: int
+
+
+def default_sampler(seed: int, n_params: int) -> optuna.samplers.BaseSampler:
+    return optuna.samplers.TPESampler(
+        seed=seed, multivariate=True, group=False, n_startup_trials=max(10, 4 * n_params),
+        constant_liar=False,
+    )
+
+
+def global_search(
+    ev: Evaluator, space: Space, *, seed: int, n_trials: int, deadline: float | None = None,
+    sampler: Any = None, storage: Any = None, study_name: str | None = None, x0: Sequence[np.ndarray] = (),
+    top_k: int = 3,
+) -> GlobalResult:
+    """Seeded search over ``space``; returns the best ``top_k`` distinct candidates."""
+    sampler = sampler or default_sampler(seed, len(space.names))
+    study = optuna.create_study(direction="minimize", sampler=sampler, storage=storage,
+                                study_name=study_name, load_if_exists=study_name is not None)
+    dists = {n: optuna.distributions.FloatDistribution(float(lo), float(hi))
+             for n, lo, hi in zip(space.names, space.lo, space.hi)}
+    for v in x0:
+        study.enqueue_trial({n: float(np.clip(x, lo, hi)) for n, x, lo, hi in
+                             zip(space.names, v, space.lo, space.hi)}, skip_if_exists=True)
+    scored: list[tuple[float, np.ndarray]] = []
+    for _ in range(n_trials):
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+        trial = study.ask(dists)
+        v = np.array([trial.params[n] for n in space.names])
+        s = ev.score(space.params(v)).score
+        study.tell(trial, s)
+        scored.append((s, v))
+    # previous trials in a shared storage count too
+    if storage is not None:
+        for t in study.get_trials(deep_copy=False, states=(optuna.trial.TrialState.COMPLETE,)):
+            if all(n in t.params for n in space.names):
+                scored.append((float(t.value), np.array([t.params[n] for n in space.names])))
+    scored.sort(key=lambda sv: sv[0])
+    return GlobalResult(top=_distinct(scored, space, top_k), best_score=scored[0][0] if scored else math.inf,
+                        n_evals=len(scored))
+
+
+def _distinct(scored: list[tuple[float, np.ndarray]], space: Space, k: int) -> list[tuple[float, np.ndarray]]:
+    span = np.maximum(space.hi - space.lo, 1e-12)
+    out: list[tuple[float, np.ndarray]] = []
+    for s, v in scored:
+        if all(np.linalg.norm((v - w) / span) > 0.05 for _, w in out):
+            out.append((s, v))
+        if len(out) >= k:
+            break
+    return out
