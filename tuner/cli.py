@@ -69,12 +69,23 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--check", action="store_true", help="exit 1 when the spec is not met")
     _add_spec_args(a)
 
-    for name, mod in _EXTRA_COMMANDS:
+    t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec")
+    t.add_argument("--plant", required=True, action="append",
+                   help="plant expression; repeat for robust tuning over a plant set (nominal first)")
+    t.add_argument("--dt", type=float, default=None, help="controller sample time (and of z plants)")
+    t.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds (all plants)")
+    t.add_argument("--structure", required=True, help="p, pi, pd, pid, pid_z, lead, lag, leadlag")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
+    t.add_argument("--json", action="store_true")
+    _add_spec_args(t)
+
+    for mod in _EXTRA_COMMANDS:
         __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
     return p
 
 
-_EXTRA_COMMANDS: list[tuple[str, str]] = []
+_EXTRA_COMMANDS: list[str] = []  # modules with add_parser(sub) registering more sub-commands
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
@@ -144,7 +155,43 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     return 1 if (a.check and not res.meets_spec) else 0
 
 
-_COMMANDS = {"analyze": _cmd_analyze}
+def _cmd_tune(a: argparse.Namespace) -> int:
+    from .plant import plant_from_expr
+    from .tune import tune
+
+    spec = _spec_from_args(a)
+    plants = []
+    for i, text in enumerate(a.plant):
+        with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
+            plants.append(plant_from_expr(text, dt=a.dt, delay=a.delay))
+    if not (0 < a.budget <= 3600):
+        raise TunerError("--budget: must be > 0 and <= 3600 seconds")
+    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget)
+    out = res.to_json()
+    if a.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    gains = ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items())
+    c = res.controller
+    var = "z" if c.dt else "s"
+    print(f"{res.structure}: {gains}")
+    print(f"C({var}) = [{', '.join(f'{x:.6g}' for x in c.num)}] / [{', '.join(f'{x:.6g}' for x in c.den)}]"
+          + (f", dt = {c.dt:g}" if c.dt else ""))
+    for i, an in enumerate(res.analyses):
+        d = an.to_dict()
+        title = "nominal plant" if i == 0 else f"plant #{i + 1}"
+        print_table(title, analysis_rows(d["metrics"]), d["checks"])
+    s = res.solver
+    print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
+          f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
+    if res.meets_spec:
+        print("meets the spec on every plant" if len(plants) > 1 else "meets the spec")
+    else:
+        print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
+    return 0
+
+
+_COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -232,23 +232,41 @@ class Structure:
         return np.array(lo), np.array(hi)
 
     def initial_guess(self, plant: Plant, dt: float | None) -> dict[str, float]:
-        """Ziegler-Nichols-like start from the plant's ultimate point (sign from the plant)."""
+        """A pole-cancellation start (IMC / lambda-tuning style), sign from the plant.
+
+        The controller's zeros go on the plant's slowest stable poles (two for
+        PID/pid_z/lead-lag, one for PI/PD/lead); the gain puts the loop's
+        crossover at a third of the plant's ultimate frequency ``w0``.
+        """
         k0, w0 = plant_scale(plant, dt)
         sgn = plant_sign(plant)
-        kp = 0.3 * k0 * sgn
-        ti, td = 2.0 / w0, 0.25 / w0
-        g = {"Kp": kp, "Ki": kp / ti, "Kd": kp * td, "Tf": 0.1 * td, "K": kp, "wz": 0.3 * w0, "wp": 3.0 * w0,
-             "wz1": 0.3 * w0, "wp1": 3.0 * w0, "wz2": 0.1 * w0, "wp2": 0.01 * w0}
-        if self.name in ("lag",):
-            g.update(wz=0.1 * w0, wp=0.01 * w0)
+        poles = _slow_poles(plant, w0)
+        z1 = float(abs(poles[0]))  # one-zero structures: the slowest pole's frequency
+        _, c1, c2 = np.real(np.poly(poles))  # two-zero structures: s^2 + c1 s + c2
+        g = {"Kp": 1.0, "Ki": z1, "Kd": 0.0, "Tf": 0.0, "K": 1.0, "wz": z1, "wp": min(10 * z1, 3 * w0),
+             "wz1": z1, "wp1": min(10 * z1, 3 * w0), "wz2": 0.1 * z1, "wp2": 0.01 * z1}
+        if self.name in ("pid", "pd"):
+            # Kd s^2 + Kp s + Ki = Kd (s^2 + c1 s + c2)   (pd: Kd s + Kp = Kd (s + z1))
+            g.update(Kd=1.0, Kp=c1 if self.name == "pid" else z1, Ki=c2,
+                     Tf=(0.1 / w0) if dt is None else 0.0)
+        if self.name == "lag":
+            g.update(wz=0.1 * z1, wp=0.01 * z1)
         if self.name == "pid_z":
-            p = plant if plant.is_discrete else plant.zoh(dt)
-            poles = np.roots(p.den)
-            poles = poles[np.abs(poles) < 1.0][:2] if poles.size else poles
-            quad = np.real(np.poly(poles)) if poles.size == 2 else np.array([1.0, -1.0, 0.25])
-            if poles.size == 1:
-                quad = np.real(np.poly([poles[0], 0.5]))
-            g.update(K=0.3 * k0 * sgn, a1=float(quad[1]), a2=float(quad[2]))
+            if dt is None:
+                raise InvalidControllerError("pid_z is discrete: give dt")
+            _, a1, a2 = np.real(np.poly(np.exp(poles * dt)))
+            g.update(a1=float(a1), a2=float(a2))
+        # overall gain: crossover of the loop at w0/3
+        wc = w0 / 3.0
+        x = np.array([g[p] for p in self.params], dtype=float)
+        c1 = self.tf(x, dt)
+        p_eff = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)
+        mag = abs(c1.freqresp(np.array([wc]))[0] * p_eff.freqresp(np.array([wc]))[0])
+        k = sgn / mag if np.isfinite(mag) and mag > 0 else sgn * k0 * 0.1
+        for i, kind in enumerate(self.kinds):
+            if kind == "gain":
+                x[i] *= k
+        g = dict(zip(self.params, x))
         # keep the start inside the search box: in discrete time a lead pole at 3*w0 can lie
         # above the Nyquist frequency pi/dt (roll, yaw at dt = 0.04), the box's upper bound
         lo, hi = self.bounds(plant, dt)
@@ -324,12 +342,32 @@ def _low_freq_coeffs(plant: Plant) -> tuple[np.ndarray, np.ndarray]:
     return np.poly1d(plant.num)(shift).coeffs, np.poly1d(plant.den)(shift).coeffs
 
 
+def _slow_poles(plant: Plant, w0: float) -> np.ndarray:
+    """The plant's two slowest stable, non-integrating poles in the s-plane (a complex pair counts
+    as two); made-up real poles at fractions of ``w0`` when the plant has fewer."""
+    poles = np.roots(plant.den).astype(complex)
+    if plant.dt is not None:
+        poles = poles[np.abs(poles) > 1e-9]
+        poles = np.log(poles) / plant.dt
+    cand = sorted((p for p in poles if p.real < -1e-9 * max(1.0, abs(p))), key=abs)
+    if cand and abs(cand[0].imag) > 1e-9:
+        return np.array([cand[0], np.conj(cand[0])])
+    fill = [-0.3 * w0, -0.9 * w0]
+    out = [p for p in cand[:2] if abs(p.imag) <= 1e-9]
+    return np.array((out + fill)[:2], dtype=complex)
+
+
 def plant_sign(plant: Plant) -> float:
-    """Sign of the plant's low-frequency gain (ratio of lowest-order coefficients)."""
+    """Feedback sign for the plant: the sign of its low-frequency gain (ratio of lowest-order
+    coefficients), flipped once per unstable real pole (1/(s-1) has gain -1 at DC yet needs a
+    positive controller gain to be stabilised)."""
     n, d = _low_freq_coeffs(plant)
     nl = n[np.flatnonzero(np.abs(n) > 1e-14 * np.max(np.abs(n)))[-1]]
     dl = d[np.flatnonzero(np.abs(d) > 1e-14 * np.max(np.abs(d)))[-1]]
-    return float(np.sign(nl * dl)) or 1.0
+    poles = np.roots(plant.den)
+    unstable_real = poles[(np.abs(poles.imag) < 1e-9) & ((poles.real > 1e-9) if plant.dt is None
+                                                          else (np.abs(poles) > 1 + 1e-9))]
+    return (float(np.sign(nl * dl)) or 1.0) * (-1.0) ** unstable_real.size
 
 
 def plant_scale(plant: Plant, dt: float | None) -> tuple[float, float]:
@@ -354,12 +392,16 @@ def plant_scale(plant: Plant, dt: float | None) -> tuple[float, float]:
     ph = np.unwrap(np.angle(g * plant_sign(plant)))
     ph -= 2 * np.pi * np.round(ph[0] / (2 * np.pi))
     w0 = None
-    for target in (-np.pi, -0.75 * np.pi):
-        idx = np.flatnonzero(ph <= target)
+    for target in (-np.pi, -0.75 * np.pi):  # first frequency where the phase falls through target
+        idx = np.flatnonzero((ph[:-1] > target) & (ph[1:] <= target))
         if idx.size:
-            w0 = float(w[idx[0]])
+            w0 = float(w[idx[0] + 1])
             break
-    if w0 is None:
-        w0 = min(wref, 0.3 * wnyq) if wnyq else wref
+    if w0 is None:  # no such crossing (e.g. 1/s^2): the plant's unity-gain frequency, else its poles
+        mag = np.abs(g)
+        idx = np.flatnonzero((mag[:-1] >= 1.0) & (mag[1:] < 1.0))
+        w0 = float(w[idx[0] + 1]) if idx.size else (min(wref, 0.3 * wnyq) if wnyq else wref)
+        if wnyq:
+            w0 = min(w0, 0.3 * wnyq)
     k0 = 1.0 / max(float(np.abs(p.freqresp(np.array([w0]))[0])), 1e-300)
     return k0, w0

@@ -92,11 +92,12 @@ class Evaluator:
     def controller(self, x: np.ndarray) -> ControllerTF:
         return self.structure.tf(x, self.dt)
 
-    def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
+    def analyse(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> tuple[Analysis, ...]:
+        """The verifier's analyses on every plant: at full resolution (``full``), else the search's."""
         ctrl = self.controller(x)
         loops = [build_loop(p, ctrl) for p in self.plants]
         if full:
-            return tuple(analyze_loop(lp, self.spec) for lp in loops)
+            return tuple(analyze_loop(lp, self.spec, with_disk=with_disk) for lp in loops)
         return tuple(
             analyze_loop(lp, self._search_spec, with_disk=False, grid_points=SEARCH_GRID,
                          samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp))
@@ -127,14 +128,14 @@ class Evaluator:
             worst = max(worst, max(out, 1e-9))
         return worst
 
-    def score(self, x: np.ndarray, *, full: bool = False) -> Scored:
+    def score(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> Scored:
         self.n_evals += 1
         try:
             if not full:
                 out = self.instability(x)
                 if out > 0:
                     return Scored(UNSTABLE * (1.0 + min(out, 1e3)), False, ())
-            an = self.analyse(x, full=full)
+            an = self.analyse(x, full=full, with_disk=with_disk)
         except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
             return Scored(UNSTABLE * 10, False, ())
         if any(not a.metrics.stable for a in an):

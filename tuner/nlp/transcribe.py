@@ -272,10 +272,10 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
                 xc = cs.vertcat(*xc_new)
         y = cs.vertcat(*ys)
         t = cs.DM(np.arange(K * N) / N) * gp["h"]
-        add(y - 1 - gp["os"], -cs.inf, 0.0)
-        # settling envelope: |y_i - 1| <= band - slack wherever mask_i = 1 (t_i >= Ts)
-        add(mask * (y - 1) + slack - gp["band"], -cs.inf, 0.0)
-        add(mask * (1 - y) + slack - gp["band"], -cs.inf, 0.0)
+        # upper: y_i - 1 <= overshoot before Ts, <= band - slack from Ts on (the band is the tighter one);
+        # lower: 1 - y_i <= band - slack from Ts on (vacuous before)
+        add(y - 1 - (1 - mask) * gp["os"] - mask * (gp["band"] - slack), -cs.inf, 0.0)
+        add(mask * (1 - y + slack - gp["band"]), -cs.inf, 0.0)
         if key.control_peak:
             uu = cs.vertcat(*us)
             add(uu / gp["cpk"], -1.0, 1.0)
