@@ -42,14 +42,18 @@ class Space:
     _ratio_of: tuple[int | None, ...]  # coordinate i is a log-ratio over param _ratio_of[i]
 
     def to_params(self, v: Any, *, exp: Callable[[Any], Any] = np.exp, sinh: Callable[[Any], Any] = np.sinh,
-                  units: Any = None) -> list[Any]:
-        """Coordinates -> structure parameters (numbers or CasADi symbols; ``units`` may be symbols)."""
+                  units: Any = None, linear_gains: bool = False) -> list[Any]:
+        """Coordinates -> structure parameters (numbers or CasADi symbols; ``units`` may be symbols).
+
+        ``linear_gains``: gains are ``unit * w`` instead of the log-like map (the NLP's coordinates:
+        the controller's coefficients are linear in the gains, which keeps IPOPT's model smooth).
+        """
         units = self.units if units is None else units
         x: list[Any] = []
         ln10 = math.log(10.0)
         for i, kind in enumerate(self.structure.kinds):
             if kind == "gain":
-                x.append(units[i] * (2 * _G) * sinh(v[i] * _LN10))
+                x.append(units[i] * (v[i] if linear_gains else (2 * _G) * sinh(v[i] * _LN10)))
             elif kind in ("freq", "time"):
                 j = self._ratio_of[i]
                 if j is None:
@@ -60,21 +64,29 @@ class Space:
                 x.append(v[i])
         return x
 
-    def from_params(self, x: np.ndarray) -> np.ndarray:
+    def from_params(self, x: np.ndarray, *, linear_gains: bool = False) -> np.ndarray:
         v = np.zeros(len(x))
         for i, kind in enumerate(self.structure.kinds):
             if kind == "gain":
-                v[i] = math.asinh(x[i] / self.units[i] / (2 * _G)) / _LN10
+                w = x[i] / self.units[i]
+                v[i] = w if linear_gains else math.asinh(w / (2 * _G)) / _LN10
             elif kind in ("freq", "time"):
                 j = self._ratio_of[i]
                 xi = max(float(x[i]), 1e-300)
                 v[i] = math.log10(xi) if j is None else math.log10(xi / max(float(x[j]), 1e-300))
             else:
                 v[i] = x[i]
-        return np.clip(v, self.lo, self.hi)
+        lo, hi = self.bounds(linear_gains=linear_gains)
+        return np.clip(v, lo, hi)
 
-    def params(self, v: np.ndarray) -> np.ndarray:
-        return np.asarray(self.to_params(np.asarray(v, dtype=float)), dtype=float)
+    def bounds(self, *, linear_gains: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        if not linear_gains:
+            return self.lo, self.hi
+        g = np.array([k == "gain" for k in self.structure.kinds])
+        return np.where(g, -GAIN_SPAN, self.lo), np.where(g, GAIN_SPAN, self.hi)
+
+    def params(self, v: np.ndarray, *, linear_gains: bool = False) -> np.ndarray:
+        return np.asarray(self.to_params(np.asarray(v, dtype=float), linear_gains=linear_gains), dtype=float)
 
 
 def make_space(structure: Structure, plant: Plant, dt: float | None) -> Space:

@@ -206,7 +206,7 @@ def designed_starts(space: Space, plant: Plant, dt: float | None) -> list[np.nda
     g = st.initial_guess(plant, dt)
     x0 = np.array([g[p] for p in st.params])
     starts = []
-    for decades in (0.0, -0.5, -1.0, 0.5, -1.5):
+    for decades in (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5):
         x = x0.copy()
         for i, kind in enumerate(st.kinds):
             if kind == "gain":

@@ -116,9 +116,10 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
     pbase = np.concatenate([np.asarray(glob, float)] + [np.asarray(b, float).ravel() for b in blocks] + [wms])
     tgrid = np.arange(K * N) / N * step
     # -- start and bounds ---------------------------------------------------------------------
-    xs = np.concatenate([v0, [0.0], wcs, wps])
-    lbx = np.concatenate([space.lo, [-1.0], [1e-6 * space.w0] * len(wcs), [w / 3 for w in wps]])
-    ubx = np.concatenate([space.hi, [band], [wmax] * len(wcs), [min(3 * w, wmax) for w in wps]])
+    vlo, vhi = space.bounds(linear_gains=True)
+    xs = np.concatenate([space.from_params(x0, linear_gains=True), [0.0], wcs, wps])
+    lbx = np.concatenate([vlo, [-1.0], [1e-6 * space.w0] * len(wcs), [w / 3 for w in wps]])
+    ubx = np.concatenate([vhi, [band], [wmax] * len(wcs), [min(3 * w, wmax) for w in wps]])
     xs = np.clip(xs, lbx, ubx)
     sl = prob.x_layout["slack"].start
 
@@ -148,8 +149,11 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
     def out_of_time() -> bool:
         return deadline is not None and time.perf_counter() > deadline
 
+    def to_search(x: np.ndarray) -> np.ndarray:  # NLP coordinates -> the search's coordinates
+        return space.from_params(space.params(x[prob.x_layout["v"]], linear_gains=True))
+
     def keep(x: np.ndarray) -> None:
-        res.candidates.append(np.clip(x[prob.x_layout["v"]], space.lo, space.hi))
+        res.candidates.append(to_search(x))
 
     if out_of_time():
         res.status = "no time left"
@@ -176,7 +180,7 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
             hi, best = mid, r[1]
             keep(best)
             # the solution may settle earlier than asked: jump there (judged by the verifier)
-            sc = ev.score(space.params(best[prob.x_layout["v"]]))
+            sc = ev.score(space.params(to_search(best)))
             if sc.feasible and spec.objective == "settling_time" and lo < sc.score < hi:
                 hi = sc.score
         else:

@@ -6,8 +6,8 @@ optional constraints). Plant data, dt, the spec's numbers and the time grid
 enter as parameters, so re-solving from another start, or for another plant of
 the same order, does not rebuild anything (``BUILDS`` counts real builds).
 
-Decision variables: the structure's search coordinates ``v`` (see
-:mod:`tuner.space`), the band slack, and per plant the gain-crossover
+Decision variables: the structure's coordinates ``v`` (see :mod:`tuner.space`;
+gains linear in their plant-based unit, frequencies logarithmic), the band slack, and per plant the gain-crossover
 frequency ``wc`` (and the phase-crossover frequency ``wp`` where the loop has
 one below Nyquist).
 
@@ -180,7 +180,7 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
     pvec = cs.vertcat(G, units, P, Wms, mask)
 
     # the controller, from the same coefficient formulas as the verifier
-    x_par = space.to_params([v[i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=units)
+    x_par = space.to_params([v[i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=units, linear_gains=True)
     dt_ctrl = None if key.continuous else gp["dt"]
     cnum, cden = st.coeffs(x_par, dt_ctrl, cs.exp)
     if key.continuous:
