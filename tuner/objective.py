@@ -19,7 +19,7 @@ from .analysis import Analysis, analyze_loop
 from .controllers import ControllerTF, Structure
 from .errors import TunerError
 from .loop import build_loop
-from .response import closed_loop_poles, default_horizon, is_stable
+from .response import closed_loop_poles, default_horizon, is_stable, step_response
 from .plant import Plant
 from .spec import Spec
 
@@ -52,13 +52,11 @@ def objective_value(a: Analysis, spec: Spec) -> float:
     r = a.response
     if r is None:
         return math.inf
-    e = np.abs(1.0 - r.y)
-    if spec.objective == "itae":
-        return float(np.trapezoid(r.t * e, r.t))
-    # iae: error integral after a unit step of load disturbance at the plant input = integral of |y_d|,
-    # y_d = G/(1+CG) -> computed from the reference response: y_d = (y_r)/C is not simple, so use
-    # the sampled control error of the reference step normalised by the integral gain: IAE of e.
-    return float(np.trapezoid(e, r.t))
+    if spec.objective == "itae":  # of the reference step
+        return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
+    # iae: integral of |y| after a unit step load disturbance at the plant input, on the same horizon
+    d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
+    return float(np.trapezoid(np.abs(d.y), d.t))
 
 
 def _violation(a: Analysis) -> float:

@@ -142,32 +142,38 @@ def _fine_delay_loop(loop: Loop, horizon: float) -> Loop:
     return build_loop(loop.plant, ctrl)
 
 
-def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt: int = SAMPLES_PER_DT) -> StepResponse:
-    """Unit step response of the closed loop (assumed stable; the caller checks)."""
+def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt: int = SAMPLES_PER_DT,
+                  load: bool = False) -> StepResponse:
+    """Unit step response of the closed loop (assumed stable; the caller checks).
+
+    ``load=True``: response to a unit step load disturbance added at the plant input (the
+    reference stays 0); ``u`` is then the plant's total input, controller output + disturbance.
+    """
     T = default_horizon(loop) if horizon_s is None else float(horizon_s)
     if loop.dt is None and loop.delay_s:
         fine = _fine_delay_loop(loop, T)
-        r = step_response(fine, horizon_s=T, samples_per_dt=1)
-        return StepResponse(t=r.t, y=r.y, u=r.u, t_samples=None, y_samples=None, y_final=_dc(loop),
+        r = step_response(fine, horizon_s=T, samples_per_dt=1, load=load)
+        return StepResponse(t=r.t, y=r.y, u=r.u, t_samples=None, y_samples=None, y_final=_dc(loop, load=load),
                             between_samples=True)
-    yf = _dc(loop)
+    yf = _dc(loop, load=load)
     cp = loop.charpoly
     pl = loop.plant
+    cn, cd = loop.controller.num, loop.controller.den
     if loop.dt is None:
         h = T / CONTINUOUS_POINTS
         n = CONTINUOUS_POINTS + 1
         step = np.ones(n)
-        by, ay = _zoh(loop.ln, cp, h)
-        bu, au = _zoh(np.polymul(loop.controller.num, pl.den), cp, h)
+        by, ay = _zoh(np.polymul(pl.num, cd) if load else loop.ln, cp, h)
+        bu, au = _zoh(np.polymul(cd if load else cn, pl.den), cp, h)
         t = np.arange(n) * h
         return StepResponse(t=t, y=_lfilt(by, ay, step), u=_lfilt(bu, au, step), t_samples=None,
                             y_samples=None, y_final=yf, between_samples=True)
     dt = loop.dt
     K = int(math.ceil(T / dt)) + 1
     step = np.ones(K)
-    nu = np.polymul(loop.controller.num, np.concatenate([loop.plant_d.den, np.zeros(loop.delay_samples)]))
+    nu = np.polymul(cd if load else cn, np.concatenate([loop.plant_d.den, np.zeros(loop.delay_samples)]))
     u = _lfilt(nu, cp, step)
-    ys = _lfilt(loop.ln, cp, step)
+    ys = _lfilt(np.polymul(loop.plant_d.num, cd) if load else loop.ln, cp, step)
     ts = np.arange(K) * dt
     if loop.plant_ct is None or samples_per_dt <= 1:
         return StepResponse(t=ts, y=ys, u=u, t_samples=ts, y_samples=ys, y_final=yf,
@@ -185,10 +191,12 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
                         between_samples=True)
 
 
-def _dc(loop: Loop) -> float:
+def _dc(loop: Loop, *, load: bool = False) -> float:
     x = 0.0 if loop.dt is None else 1.0
     cp = np.polyval(loop.charpoly, x)
-    return float(np.polyval(loop.ln, x) / cp) if cp != 0 else math.nan
+    pnum = loop.plant.num if loop.plant_d is None else loop.plant_d.num
+    num = np.polymul(pnum, loop.controller.den) if load else loop.ln
+    return float(np.polyval(num, x) / cp) if cp != 0 else math.nan
 
 
 def _cross(t: np.ndarray, y: np.ndarray, i: int, level: float) -> float:
