@@ -249,6 +249,16 @@ class Structure:
             # Kd s^2 + Kp s + Ki = Kd (s^2 + c1 s + c2)   (pd: Kd s + Kp = Kd (s + z1))
             g.update(Kd=1.0, Kp=c1 if self.name == "pid" else z1, Ki=c2,
                      Tf=(0.1 / w0) if dt is None else 0.0)
+        if dt is not None and self.name in ("pid", "pi"):
+            # in discrete time put the zeros exactly on the ZOH plant's poles: with Tf = 0 the
+            # backward-Euler PID numerator is (Kp + Ki dt + Kd/dt) z^2 - (Kp + 2 Kd/dt) z + Kd/dt
+            zp = np.exp(poles * dt)
+            if self.name == "pid":
+                _, a1, a2 = np.real(np.poly(zp))
+                g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=0.0)
+            else:  # (Kp + Ki dt) z - Kp = z - e^{-z1 dt}
+                e1 = float(np.exp(-z1 * dt))
+                g.update(Kp=e1, Ki=(1 - e1) / dt)
         if self.name == "lag":
             g.update(wz=0.1 * z1, wp=0.01 * z1)
         if self.name == "pid_z":
