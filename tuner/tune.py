@@ -168,7 +168,7 @@ def tune(
 
     from .search import global_search
 
-    n_trials = n_trials or 20 * len(st.params)
+    n_trials = n_trials or 12 * len(st.params)
     found = global_search(ev, space, seed=seed, n_trials=n_trials, deadline=deadline, sampler=sampler,
                           storage=storage, x0=designed_starts(space, plants[0], dt), top_k=n_starts)
     info: dict[str, Any] = {"seed": seed, "global_evaluations": found.n_evals, "global_best": found.best_score}
