@@ -171,8 +171,8 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
     keep(r[1])
     if r[0] < 0:
         return res
-    best, lo = r[1], 0.2 * hi
-    tol = step / N
+    best, lo = r[1], 0.3 * hi
+    tol = step / 2  # half a sample (the verifier then judges between samples)
     while hi - lo > tol and not out_of_time():
         mid = 0.5 * (lo + hi)
         r = solve(mid, best)
