@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-_EXTRA_COMMANDS: list[str] = []  # modules with add_parser(sub) registering more sub-commands
+_EXTRA_COMMANDS: list[str] = ["study_cli"]  # modules with add_parser(sub) registering more sub-commands
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
@@ -166,6 +166,8 @@ def _cmd_tune(a: argparse.Namespace) -> int:
             plants.append(plant_from_expr(text, dt=a.dt, delay=a.delay))
     if not (0 < a.budget <= 3600):
         raise TunerError("--budget: must be > 0 and <= 3600 seconds")
+    if not (0 <= a.seed < 2**32):  # Optuna's sampler seeds numpy, which rejects anything else
+        raise TunerError("--seed: must be an integer from 0 to 2**32 - 1")
     res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget)
     out = res.to_json()
     if a.json:

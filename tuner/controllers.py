@@ -286,6 +286,9 @@ class Structure:
             if not l <= v <= h:
                 v = float(np.clip(v, l + 0.01 * (h - l), h - 0.01 * (h - l)))
             out[p] = v
+        for a, b in self.orderings:  # clipping may have collapsed an ordered pair: reopen it
+            if out[a] >= out[b]:
+                out[a] = max(out[b] / 3.0, float(lo[self.params.index(a)]))
         return out
 
 

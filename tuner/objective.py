@@ -59,18 +59,26 @@ def objective_value(a: Analysis, spec: Spec) -> float:
     return float(np.trapezoid(np.abs(d.y), d.t))
 
 
+# how a violation is normalised: by the requirement, except where the requirement is no scale
+_UNIT = {"steady_state_error": 1.0}  # the reference step is 1
+
+
 def _violation(a: Analysis) -> float:
-    """Sum of normalised constraint violations (0 when all hold)."""
+    """Sum of normalised constraint violations (0 when all hold), graded so the search can tell
+    how far from feasible a candidate is."""
     total = 0.0
     for c in a.checks:
-        if c.ok or c.name in ("stable",):
+        if c.ok or c.name == "stable":
             continue
         v = c.violation
         if not math.isfinite(v):
             total += 10.0
             continue
-        scale = abs(c.required) if isinstance(c.required, (int, float)) and c.required not in (0, True) else 1.0
-        total += min(v / max(scale, 1e-6), 10.0)
+        scale = _UNIT.get(c.name)
+        if scale is None:
+            req = c.required if isinstance(c.required, (int, float)) and not isinstance(c.required, bool) else 1.0
+            scale = abs(req) if math.isfinite(req) and req != 0 else 1.0
+        total += min(v / scale, 10.0)
     return total
 
 

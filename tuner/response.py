@@ -38,6 +38,7 @@ __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "ste
 SAMPLES_PER_DT = 20
 CONTINUOUS_POINTS = 4000
 MAX_SAMPLES = 20000
+STABILITY_STEPS_PER_DELAY = 40
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,7 +74,9 @@ def closed_loop_poles(loop: Loop) -> np.ndarray:
     simulation (delay exact), mapped back with ``s = log(z)/h``.
     """
     if loop.delay_s:
-        fine = _fine_delay_loop(loop, default_horizon(loop))
+        # the delay as STABILITY_STEPS_PER_DELAY whole steps (Tustin controller, ZOH plant): a
+        # polynomial of modest degree, so this stays cheap inside the search
+        fine = _fine_delay_loop(loop, loop.delay_s / STABILITY_STEPS_PER_DELAY * CONTINUOUS_POINTS)
         z = np.roots(fine.charpoly)
         z = z[np.abs(z) > 1e-300]
         return np.log(z.astype(complex)) / fine.dt

@@ -64,14 +64,14 @@ def global_search(
         s = ev.score(space.params(v)).score
         study.tell(trial, s)
         scored.append((s, v))
-    # previous trials in a shared storage count too
-    if storage is not None:
-        for t in study.get_trials(deep_copy=False, states=(optuna.trial.TrialState.COMPLETE,)):
-            if all(n in t.params for n in space.names):
-                scored.append((float(t.value), np.array([t.params[n] for n in space.names])))
+    n_run = len(scored)
+    if storage is not None:  # a shared storage: every completed trial of the study counts (ours included)
+        scored = [(float(t.value), np.array([t.params[n] for n in space.names]))
+                  for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+                  if all(n in t.params for n in space.names)]
     scored.sort(key=lambda sv: sv[0])
     return GlobalResult(top=_distinct(scored, space, top_k), best_score=scored[0][0] if scored else math.inf,
-                        n_evals=len(scored))
+                        n_evals=n_run)
 
 
 def _distinct(scored: list[tuple[float, np.ndarray]], space: Space, k: int) -> list[tuple[float, np.ndarray]]:

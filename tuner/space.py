@@ -27,7 +27,7 @@ __all__ = ["Space", "make_space"]
 DECADES_BELOW = 3.0  # gains from 1e-3 unit ...
 _LN10 = math.log(10.0)
 _V_SPAN = math.log10(GAIN_SPAN) + DECADES_BELOW  # ... to GAIN_SPAN unit
-_G = 0.5 * 10 ** -DECADES_BELOW  # g = unit * 2*_G*sinh(v ln10) ~ unit * sign(v) 10^(|v|-3)
+_G = 10 ** -DECADES_BELOW  # g = unit * 2*_G*sinh(v ln10) ~ unit * sign(v) 10^(|v|-3)
 
 
 @dataclass(frozen=True)

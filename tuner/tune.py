@@ -153,6 +153,10 @@ def tune(
     nlp_solver : str
         ``"ipopt"`` (default) or ``"sqp"`` (CasADi's SQP with qpOASES; same problem).
     """
+    if not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**32:
+        raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}")
+    if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s) and time_budget_s > 0):
+        raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}")
     if nlp_solver not in ("ipopt", "sqp"):
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}")
     t0 = time.perf_counter()
@@ -168,7 +172,7 @@ def tune(
 
     from .search import global_search
 
-    n_trials = n_trials or 12 * len(st.params)
+    n_trials = n_trials or 15 * len(st.params) + 20
     found = global_search(ev, space, seed=seed, n_trials=n_trials, deadline=deadline, sampler=sampler,
                           storage=storage, x0=designed_starts(space, plants[0], dt), top_k=n_starts)
     info: dict[str, Any] = {"seed": seed, "global_evaluations": found.n_evals, "global_best": found.best_score}

@@ -292,7 +292,7 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
             "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 5,
             "ipopt.mu_strategy": "adaptive", "ipopt.warm_start_init_point": "yes",
             "ipopt.warm_start_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
-            "ipopt.max_wall_time": 5.0}
+            "ipopt.max_wall_time": 30.0}  # a safety net only: budgets are enforced between solves
     if key.solver == "sqp":
         opts = {"qpsol": "qpoases", "print_time": False, "print_header": False, "print_iteration": False,
                 "print_status": False, "max_iter": 60, "error_on_fail": False,
