@@ -27,10 +27,11 @@ from dataclasses import dataclass
 
 import control as ct
 import numpy as np
-from scipy import signal
+from scipy import linalg, signal
 
 from .controllers import ControllerTF
 from .loop import Loop, build_loop
+from .plant import Plant
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "step_response", "step_metrics",
            "default_horizon"]
@@ -182,16 +183,48 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
         return StepResponse(t=ts, y=ys, u=u, t_samples=ts, y_samples=ys, y_final=yf,
                             between_samples=loop.plant_ct is not None)
     N = int(samples_per_dt)
-    h = dt / N
-    pz = loop.plant_ct.zoh(h)
-    b, a = pz.num, pz.den
-    uf = np.repeat(u, N)
-    if loop.delay_samples:
-        uf = np.concatenate([np.zeros(loop.delay_samples * N), uf[: uf.size - loop.delay_samples * N]])
-    yfine = _lfilt(b, a, uf)
-    t = np.arange(uf.size) * h
+    ua = np.concatenate([np.zeros(loop.delay_samples), u[: u.size - loop.delay_samples]]) if loop.delay_samples else u
+    yfine = _between_samples(loop.plant_ct, dt, N, ua)
+    t = np.arange(yfine.size) * (dt / N)
     return StepResponse(t=t, y=yfine, u=np.repeat(u, N), t_samples=ts, y_samples=ys, y_final=yf,
                         between_samples=True)
+
+
+def _lifted(plant: Plant, dt: float, N: int) -> tuple[np.ndarray, ...]:
+    """State-space ZOH model of ``plant`` at ``dt`` with the outputs at ``N`` points per sample:
+    ``x[k+1] = Phi x[k] + Gam u[k]`` and ``y(t_k + j dt/N) = Cf[j] x[k] + Df[j] u[k]`` (exact)."""
+    key = ("lifted", dt, N)
+    if key not in plant._cache:
+        sys = ct.tf2ss(ct.tf(plant.num, plant.den))
+        A = np.atleast_2d(np.asarray(sys.A, float))
+        B = np.asarray(sys.B, float).reshape(-1)
+        C = np.asarray(sys.C, float).reshape(-1)
+        D = float(np.asarray(sys.D, float).reshape(-1)[0])
+        n = A.shape[0]
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n] = A, B
+        E1 = linalg.expm(M * (dt / N))
+        Cf, Df, E = np.zeros((N, n)), np.zeros(N), np.eye(n + 1)
+        for j in range(N):
+            Cf[j], Df[j] = C @ E[:n, :n], C @ E[:n, n] + D
+            E = E @ E1
+        plant._cache[key] = (E[:n, :n], E[:n, n], Cf, Df)
+    return plant._cache[key]
+
+
+def _between_samples(plant: Plant, dt: float, N: int, u: np.ndarray) -> np.ndarray:
+    """Output of the continuous ``plant`` driven through a ZOH by ``u[k]``, at N points per sample.
+
+    A state recursion at the sample rate (numerically sound even for poles clustered at z = 1,
+    where a high-order difference equation at dt/N is not), then a matrix product."""
+    Phi, Gam, Cf, Df = _lifted(plant, dt, N)
+    n = Phi.shape[0]
+    X = np.zeros((u.size, n))
+    x = np.zeros(n)
+    for k in range(u.size):
+        X[k] = x
+        x = Phi @ x + Gam * u[k]
+    return (X @ Cf.T + u[:, None] * Df[None, :]).ravel()
 
 
 def _dc(loop: Loop, *, load: bool = False) -> float:

@@ -26,6 +26,7 @@ __all__ = ["Space", "make_space"]
 
 DECADES_BELOW = 3.0  # gains from 1e-3 unit ...
 _LN10 = math.log(10.0)
+RATIO_DECADES = 4.0  # a lead's pole up to 10^4 times its zero (a lag's zero over its pole)
 _V_SPAN = math.log10(GAIN_SPAN) + DECADES_BELOW  # ... to GAIN_SPAN unit
 _G = 10 ** -DECADES_BELOW  # g = unit * 2*_G*sinh(v ln10) ~ unit * sign(v) 10^(|v|-3)
 
@@ -111,8 +112,8 @@ def make_space(structure: Structure, plant: Plant, dt: float | None) -> Space:
                 # ordering a < b: if b is the ratio coordinate, r in (0, 3]; if a is, r in [-3, 0)
                 a, b = next(o for o in structure.orderings if p in o)
                 sign = 1.0 if b == p else -1.0
-                lo.append(min(0.0, 3.0 * sign) + (1e-3 if sign > 0 else 0.0))
-                hi.append(max(0.0, 3.0 * sign) - (1e-3 if sign < 0 else 0.0))
+                lo.append(min(0.0, RATIO_DECADES * sign) + (1e-3 if sign > 0 else 0.0))
+                hi.append(max(0.0, RATIO_DECADES * sign) - (1e-3 if sign < 0 else 0.0))
                 names.append(f"log10_{p}_over_{structure.params[j]}")
             else:
                 lo_v = max(lo_p[i], 1e-4 / w0)
