@@ -32,6 +32,7 @@ class GlobalResult:
     top: list[tuple[float, np.ndarray]]  # (score, coordinates), best first, distinct
     best_score: float
     n_evals: int
+    best_enqueued: tuple[float, np.ndarray] | None = None  # the best of the plant-based starts
 
 
 def default_sampler(seed: int, n_params: int) -> optuna.samplers.BaseSampler:
@@ -65,13 +66,14 @@ def global_search(
         study.tell(trial, s)
         scored.append((s, v))
     n_run = len(scored)
+    enq = sorted(scored[: len(x0)], key=lambda sv: sv[0])
     if storage is not None:  # a shared storage: every completed trial of the study counts (ours included)
         scored = [(float(t.value), np.array([t.params[n] for n in space.names]))
                   for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
                   if all(n in t.params for n in space.names)]
     scored.sort(key=lambda sv: sv[0])
     return GlobalResult(top=_distinct(scored, space, top_k), best_score=scored[0][0] if scored else math.inf,
-                        n_evals=n_run)
+                        n_evals=n_run, best_enqueued=enq[0] if enq else None)
 
 
 def _distinct(scored: list[tuple[float, np.ndarray]], space: Space, k: int) -> list[tuple[float, np.ndarray]]:

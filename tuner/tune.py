@@ -177,11 +177,19 @@ def tune(
                           storage=storage, x0=designed_starts(space, plants[0], dt), top_k=n_starts)
     info: dict[str, Any] = {"seed": seed, "global_evaluations": found.n_evals, "global_best": found.best_score}
     candidates = [space.params(v) for _, v in found.top]
+    # NLP starts: the global stage's best, the best plant-based start (a pole-cancelling design
+    # often lies in the best basin even when it scores worse than what the sampler found), then
+    # the next distinct global candidates
+    starts = [v for _, v in found.top[:1]]
+    if found.best_enqueued is not None:
+        starts.append(found.best_enqueued[1])
+    starts += [v for _, v in found.top[1:]]
+    starts = _distinct_starts(starts, space)[:n_starts]
     nlp_info: dict[str, Any] = {"nlp_iterations": 0, "nlp_evaluations": 0, "starts_tried": 0, "nlp_solves_ok": 0}
     if local:
         from .nlp.refine import refine
 
-        for v in [v for _, v in found.top]:
+        for v in starts:
             if time.perf_counter() > deadline:
                 break
             r = refine(ev, space, v, deadline=deadline, solver=nlp_solver)
@@ -201,6 +209,15 @@ def tune(
     })
     return TuneResult(structure=st.name, gains=st.named(best_x), controller=ev.controller(best_x),
                       analyses=best.analyses, solver=info, spec=spec)
+
+
+def _distinct_starts(vs: list[np.ndarray], space: Space) -> list[np.ndarray]:
+    span = np.maximum(space.hi - space.lo, 1e-12)
+    out: list[np.ndarray] = []
+    for v in vs:
+        if all(np.linalg.norm((v - w) / span) > 0.05 for w in out):
+            out.append(v)
+    return out
 
 
 def designed_starts(space: Space, plant: Plant, dt: float | None) -> list[np.ndarray]:
