@@ -259,14 +259,16 @@ INVALID = [
     ("improper", "/tune", _with(T, plant={"num": [1, 0, 0], "den": [1, 1]}), ["body", "plant", "num"], "improper"),
     ("den-zero", "/tune", _with(T, plant={"num": [1], "den": [0, 0]}), ["body", "plant", "den"], "zero"),
     ("order-21-coeffs", "/tune", _with(T, plant={"num": [1], "den": [1] * 22}), ["body", "plant", "den"], "at most 21"),
-    ("coefficient-too-large", "/tune", _with(T, plant={"num": [1e13], "den": [1, 1]}), ["body", "plant", "num", 0],
+    ("coefficient-too-large", "/tune", _with(T, plant={"num": [1e101], "den": [1, 1]}), ["body", "plant", "num", 0],
      "less than or equal"),
+    ("coefficients-overflow-when-normalised", "/tune", _with(T, plant={"num": [1e100], "den": [1e-300, 1]}),
+     ["body", "plant", "den"], "overflow"),
     ("coefficient-string", "/tune", _with(T, plant={"num": ["Infinity"], "den": [1, 1]}),
      ["body", "plant", "num", 0], "number"),
     ("z-plant-needs-dt", "/tune", _with(T, plant={"expr": "0.1/(z-0.9)"}), ["body", "plant", "dt"], "dt"),
     ("s-plant-has-no-dt", "/tune", _with(T, plant={"expr": ROLL, "dt": 0.01}), ["body", "plant", "dt"], "continuous"),
     ("discrete-structure-needs-dt", "/tune", _with(T, dt=None), ["body", "dt"], "discrete"),
-    ("dt-zero", "/tune", _with(T, dt=0), ["body", "dt"], "greater than 0"),
+    ("dt-zero", "/tune", _with(T, dt=0), ["body", "dt"], "greater than or equal to 0.000001"),
     ("dt-mismatch", "/tune", _with(T, plant=Z_PLANT, dt=0.05), ["body", "dt"], "discrete at dt=0.04"),
     ("delay-not-whole-samples", "/tune", _with(T, plant={"expr": ROLL, "delay": 0.05}), ["body", "plant", "delay"],
      "whole number of samples"),
@@ -320,6 +322,12 @@ def test_non_finite_numbers_and_broken_json_are_422(client, raw, loc):
     r = client.post("/tune", content=raw, headers={"content-type": "application/json"})
     assert r.status_code == 422, r.text
     assert loc in [d["loc"] for d in r.json()["detail"]], r.json()
+
+
+def test_body_that_is_not_text_is_400_with_a_clear_body(client):
+    r = client.post("/analyze", content=b"Z\xff\xfer", headers={"content-type": "application/json"})
+    assert r.status_code == 400
+    assert r.json() == {"detail": "There was an error parsing the body"}
 
 
 @pytest.mark.parametrize("params, loc", [({"limit": 0}, ["query", "limit"]), ({"limit": 101}, ["query", "limit"]),

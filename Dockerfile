@@ -1,0 +1,26 @@
+# The tuning service: docker build -t tuner . && docker run -p 8000:8000 -v tuner-data:/data tuner
+# Results go to the SQLite file /data/tuner.db unless TUNER_DATABASE_URL points elsewhere
+# (e.g. postgresql+psycopg://user:password@db:5432/tuner); settings: TUNER_* (see api/settings.py).
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+
+WORKDIR /src
+COPY pyproject.toml README.md ./
+COPY tuner ./tuner
+COPY api ./api
+RUN pip install --no-cache-dir .
+
+RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin tuner \
+    && mkdir -p /data && chown tuner:tuner /data
+USER tuner
+WORKDIR /data
+ENV TUNER_DATABASE_URL=sqlite:////data/tuner.db
+VOLUME ["/data"]
+
+EXPOSE 8000
+HEALTHCHECK --interval=30s --timeout=5s --start-period=60s --retries=3 \
+    CMD python -c "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/health', timeout=4)"
+CMD ["uvicorn", "api.main:create_app", "--factory", "--host", "0.0.0.0", "--port", "8000"]

@@ -1,0 +1,58 @@
+"""Dependencies: the store, the solver pool, the API key, and the functions run in the pool.
+
+Tests replace any of them with ``app.dependency_overrides`` (e.g. a job function
+that sleeps, to test the time limit, or one that kills its process).
+"""
+
+from __future__ import annotations
+
+import secrets
+from typing import Any, Callable
+
+from fastapi import Depends, HTTPException, Request, Security
+from fastapi.security import APIKeyHeader
+
+from .pool import WorkerPool
+from .settings import Settings, get_settings
+from .store import Store
+
+__all__ = ["get_store", "get_pool", "require_api_key", "get_tune_job", "get_analyze_job", "get_plot_job"]
+
+_api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
+                               description="required when the server sets TUNER_API_KEY")
+
+
+def get_store(request: Request) -> Store:
+    return request.app.state.store
+
+
+def get_pool(request: Request) -> WorkerPool:
+    return request.app.state.pool
+
+
+def require_api_key(
+    key: str | None = Security(_api_key_header), settings: Settings = Depends(get_settings)
+) -> None:
+    if settings.api_key is None:
+        return
+    expected = settings.api_key.get_secret_value().encode()
+    if key is None or not secrets.compare_digest(key.encode(), expected):
+        raise HTTPException(401, "missing or invalid X-API-Key header", headers={"WWW-Authenticate": "X-API-Key"})
+
+
+def get_tune_job() -> Callable[[dict[str, Any]], Any]:
+    from .jobs import tune_job
+
+    return tune_job
+
+
+def get_analyze_job() -> Callable[[dict[str, Any]], Any]:
+    from .jobs import analyze_job
+
+    return analyze_job
+
+
+def get_plot_job() -> Callable[[dict[str, Any]], Any]:
+    from .jobs import plot_job
+
+    return plot_job

@@ -1,0 +1,65 @@
+"""What the solver processes run. Plain dicts in, plain (JSON-ready) data out.
+
+Plants arrive already validated by the route, as ``{"num", "den", "dt", "delay"}``
+(the numbers the library accepted); they are rebuilt here with
+:func:`tuner.plant.make_plant`, which is cheap and deterministic.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["tune_job", "analyze_job", "plot_job", "build_plant"]
+
+
+def build_plant(d: dict[str, Any]):
+    from tuner.plant import make_plant
+
+    return make_plant(d["num"], d["den"], dt=d.get("dt"), delay=d.get("delay") or 0.0)
+
+
+def _controller(d: dict[str, Any]):
+    import numpy as np
+
+    from tuner.controllers import ControllerTF
+
+    return ControllerTF(num=np.asarray(d["num"], dtype=float), den=np.asarray(d["den"], dtype=float), dt=d.get("dt"))
+
+
+def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
+    """``payload``: plants (nominal first), structure, spec (dict), dt, seed, time_budget_s."""
+    from tuner.spec import Spec
+    from tuner.tune import tune
+
+    plants = [build_plant(p) for p in payload["plants"]]
+    result = tune(
+        plants if len(plants) > 1 else plants[0],
+        structure=payload["structure"],
+        spec=Spec(**payload["spec"]),
+        dt=payload["dt"],
+        seed=payload["seed"],
+        time_budget_s=payload["time_budget_s"],
+    )
+    return result.to_json()
+
+
+def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
+    """``payload``: plant, controller ``{num, den, dt}``, spec (dict)."""
+    from tuner.analysis import analyze, jsonable
+    from tuner.spec import Spec
+
+    a = analyze(build_plant(payload["plant"]), _controller(payload["controller"]), Spec(**payload["spec"]))
+    return jsonable(a.to_dict())
+
+
+def plot_job(payload: dict[str, Any]) -> bytes:
+    """``payload``: plants, controller, spec, fmt (``png``/``svg``), title. Returns the image."""
+    from tuner.analysis import analyze
+    from tuner.spec import Spec
+
+    from .plots import draw
+
+    ctrl = _controller(payload["controller"])
+    spec = Spec(**payload["spec"])
+    analyses = [analyze(build_plant(p), ctrl, spec) for p in payload["plants"]]
+    return draw(analyses, fmt=payload["fmt"], title=payload.get("title", ""), band_pct=spec.settling_band_pct)

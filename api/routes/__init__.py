@@ -1,0 +1,18 @@
+"""Thin HTTP routes: validate, convert (:mod:`api.convert`), hand the work to the pool or the store."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+
+from ..deps import require_api_key
+from . import analyze, health, tune, tunes
+
+__all__ = ["api_router", "public_router"]
+
+api_router = APIRouter(dependencies=[Depends(require_api_key)])
+api_router.include_router(tune.router)
+api_router.include_router(analyze.router)
+api_router.include_router(tunes.router)
+
+public_router = APIRouter()
+public_router.include_router(health.router)

@@ -1,0 +1,43 @@
+"""``GET /health``: liveness, database, solver pool, library versions (no API key needed)."""
+
+from __future__ import annotations
+
+import platform
+from functools import lru_cache
+from importlib import metadata
+
+from fastapi import APIRouter, Depends
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+
+from ..deps import get_pool, get_store
+from ..pool import WorkerPool
+from ..schemas import HealthOut
+from ..store import Store
+
+__all__ = ["router", "versions"]
+
+router = APIRouter(tags=["service"])
+
+_PACKAGES = ("tuner", "numpy", "scipy", "control", "casadi", "optuna", "fastapi", "pydantic", "sqlalchemy",
+             "uvicorn", "matplotlib")
+
+
+@lru_cache(maxsize=1)
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+@router.get("/health", response_model=HealthOut, summary="Service status and library versions",
+            responses={503: {"model": HealthOut, "description": "the database is unreachable"}})
+async def health(store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool)) -> JSONResponse:
+    db_ok = await run_in_threadpool(store.ping)
+    body = {"status": "ok" if db_ok else "degraded", "database": "ok" if db_ok else "unreachable",
+            "workers": pool.stats(), "versions": versions()}
+    return JSONResponse(body, status_code=200 if db_ok else 503)

@@ -1,0 +1,237 @@
+"""Request and response bodies (pydantic), kept apart from the library's types.
+
+The request's ``spec`` is the library's :class:`tuner.spec.Spec` itself (it is a
+pydantic model already). Responses are described here for the OpenAPI document;
+non-finite numbers are written as the strings ``"Infinity"``, ``"-Infinity"``,
+``"NaN"`` (see :func:`tuner.analysis.jsonable`).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from tuner.controllers import STRUCTURES
+from tuner.plant import MAX_ORDER
+from tuner.spec import Spec
+from tuner.tune import MAX_PLANTS
+
+__all__ = [
+    "PlantIn", "ControllerIn", "TuneOptions", "TuneRequest", "AnalyzeRequest", "TuneResponse", "TuneRecordOut",
+    "TuneList", "TuneSummaryOut", "AnalyzeResponse", "HealthOut", "ErrorOut", "ValidationErrorOut",
+    "ROLL_EXAMPLE", "ROLL_ANALYZE_EXAMPLE", "MAX_EXPR_CHARS", "MAX_COEFF",
+]
+
+MAX_EXPR_CHARS = 1000
+MAX_COEFF = 1e100  # |coefficient| bound: far beyond any physical model, far from float overflow
+MIN_DT_S = 1e-6  # 1 us: faster than any digital controller this tunes; keeps pi/dt and grids finite
+MAX_DT_S = 1e4
+MAX_DELAY_S = 1e4
+
+Coeff = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COEFF, le=MAX_COEFF)]
+SampleTime = Annotated[float, Field(allow_inf_nan=False, ge=MIN_DT_S, le=MAX_DT_S)]
+StructureName = Literal[tuple(STRUCTURES)]  # type: ignore[valid-type]
+
+ROLL = "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"
+ROLL_EXAMPLE: dict[str, Any] = {
+    "plant": {"expr": ROLL},
+    "dt": 0.04,
+    "structure": "pid_z",
+    "spec": {"phase_margin_min_deg": 60, "gain_margin_min_db": 6, "overshoot_max_pct": 10},
+    "options": {"seed": 0, "time_budget_s": 10},
+}
+ROLL_ANALYZE_EXAMPLE: dict[str, Any] = {
+    "plant": {"expr": ROLL},
+    "dt": 0.04,
+    "controller": {"expr": "3.868*(z^2-1.305*z+0.5668)/(z*(z-1))"},
+}
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class PlantIn(_In):
+    """A plant: ``expr`` (in ``s``, or in ``z`` with ``dt``), or coefficients ``num``/``den``."""
+
+    num: list[Coeff] | None = Field(
+        None, min_length=1, max_length=MAX_ORDER + 1, description="numerator, highest power first")
+    den: list[Coeff] | None = Field(
+        None, min_length=1, max_length=MAX_ORDER + 1,
+        description=f"denominator, highest power first; order <= {MAX_ORDER}")
+    expr: str | None = Field(
+        None, min_length=1, max_length=MAX_EXPR_CHARS, description="e.g. 0.2843*18.611/(s+18.611)")
+    dt: SampleTime | None = Field(None, description="sample time of a plant given in z; null for a plant in s")
+    delay: float = Field(0.0, ge=0, le=MAX_DELAY_S, allow_inf_nan=False, description="input delay, s")
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "PlantIn":
+        coeffs = self.num is not None or self.den is not None
+        if self.expr is not None and coeffs:
+            raise ValueError("give either expr or num and den, not both")
+        if self.expr is None and (self.num is None or self.den is None):
+            raise ValueError("give expr, or both num and den")
+        return self
+
+
+class ControllerIn(_In):
+    """A controller: ``expr``, coefficients ``num``/``den``, or ``structure`` with ``gains``.
+
+    Its sample time is the request's top-level ``dt`` (null: continuous).
+    """
+
+    expr: str | None = Field(None, min_length=1, max_length=MAX_EXPR_CHARS,
+                             description="e.g. 3.868*(z^2-1.305*z+0.5668)/(z*(z-1))")
+    num: list[Coeff] | None = Field(None, min_length=1, max_length=2 * MAX_ORDER + 1)
+    den: list[Coeff] | None = Field(None, min_length=1, max_length=2 * MAX_ORDER + 1)
+    structure: StructureName | None = None
+    gains: dict[str, Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        None, max_length=16, description="named parameters of the structure, e.g. {K, a1, a2} for pid_z")
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "ControllerIn":
+        forms = [self.expr is not None, self.num is not None or self.den is not None,
+                 self.structure is not None or self.gains is not None]
+        if sum(forms) != 1:
+            raise ValueError("give exactly one of: expr; num and den; structure and gains")
+        if forms[1] and (self.num is None or self.den is None):
+            raise ValueError("give both num and den")
+        if forms[2] and (self.structure is None or self.gains is None):
+            raise ValueError("give both structure and gains")
+        return self
+
+
+class TuneOptions(_In):
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="seeds the global search: same seed, same gains")
+    time_budget_s: float | None = Field(
+        None, gt=0, le=60, allow_inf_nan=False,
+        description="wall-time budget of the solve (default 10 s; the server may set a lower maximum). "
+                    "Past it the best verified result so far is returned, or 504 if the solver overruns.")
+
+
+class TuneRequest(_In):
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [ROLL_EXAMPLE]})
+
+    plant: PlantIn = Field(description="the nominal plant")
+    plants: list[PlantIn] | None = Field(
+        None, max_length=MAX_PLANTS - 1,
+        description="more plants for robust tuning: every constraint must hold on each of them")
+    dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
+    structure: StructureName
+    spec: Spec | None = Field(None, description="defaults: PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, ...")
+    options: TuneOptions = Field(default_factory=TuneOptions)
+
+
+class AnalyzeRequest(_In):
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [ROLL_ANALYZE_EXAMPLE]})
+
+    plant: PlantIn
+    dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
+    controller: ControllerIn
+    spec: Spec | None = None
+
+
+# -- responses ---------------------------------------------------------------------------
+
+Number = float | Literal["Infinity", "-Infinity", "NaN"]
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+
+class MetricsOut(_Out):
+    stable: bool
+    phase_margin_deg: Number
+    crossover_rad_s: Number
+    gain_margin_db: Number
+    gain_margin_lower_db: Number
+    disk_margin: Number
+    ms: Number
+    bandwidth_rad_s: Number
+    overshoot_pct: Number
+    settling_time_s: Number
+    rise_time_s: Number
+    steady_state_error: Number
+    control_peak: Number
+
+
+class CheckOut(_Out):
+    name: str
+    op: str
+    required: Any
+    achieved: Any
+    ok: bool
+    violation: Number
+
+
+class ControllerOut(_Out):
+    num: list[float]
+    den: list[float]
+    dt: float | None
+
+
+class AnalysisOut(_Out):
+    metrics: MetricsOut
+    checks: list[CheckOut]
+    meets_spec: bool
+
+
+class AnalyzeResponse(AnalysisOut):
+    controller: ControllerOut
+
+
+class TuneResponse(_Out):
+    id: str
+    created_at: _dt.datetime
+    structure: str
+    gains: dict[str, float]
+    controller: ControllerOut
+    metrics: MetricsOut
+    checks: list[CheckOut]
+    meets_spec: bool
+    failing: list[str]
+    solver: dict[str, Any]
+    spec: dict[str, Any]
+    plants: list[AnalysisOut] | None = None
+
+
+class TuneRecordOut(TuneResponse):
+    request: dict[str, Any] = Field(description="the request as validated (defaults filled in)")
+
+
+class TuneSummaryOut(_Out):
+    id: str
+    created_at: _dt.datetime
+    structure: str
+    meets_spec: bool
+
+
+class TuneList(_Out):
+    items: list[TuneSummaryOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class HealthOut(_Out):
+    status: Literal["ok", "degraded"]
+    database: Literal["ok", "unreachable"]
+    workers: dict[str, int]
+    versions: dict[str, str]
+
+
+class ErrorOut(_Out):
+    detail: str
+
+
+class ValidationItem(_Out):
+    loc: list[str | int]
+    msg: str
+    type: str
+
+
+class ValidationErrorOut(_Out):
+    detail: list[ValidationItem]
