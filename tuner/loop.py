@@ -23,10 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .controllers import ControllerTF
-from .errors import InvalidControllerError
+from .errors import InvalidControllerError, InvalidPlantError
 from .plant import Plant, delay_in_samples
 
-__all__ = ["Loop", "build_loop"]
+__all__ = ["Loop", "build_loop", "MIN_CONTINUOUS_DELAY_S"]
+
+MIN_CONTINUOUS_DELAY_S = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +74,10 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
             raise InvalidControllerError(
                 f"plant is discrete (dt={plant.dt}) but the controller is continuous: give a controller in z"
             )
+        if 0 < plant.delay_s < MIN_CONTINUOUS_DELAY_S:
+            raise InvalidPlantError(
+                f"delay {plant.delay_s:g} s is below {MIN_CONTINUOUS_DELAY_S:g} s, too short to simulate exactly "
+                "in a continuous loop (the simulation step divides the delay); give 0 or a longer delay")
         return Loop(
             plant=plant, controller=controller, dt=None,
             ln=np.polymul(nc, plant.num), ld=np.polymul(dc, plant.den),

@@ -123,9 +123,15 @@ class Plant:
                 )
             return self
         d = delay_in_samples(self.delay_s, dt)
-        gd = ct.sample_system(self.tf, dt, method="zoh")
+        try:
+            with np.errstate(all="ignore"):
+                gd = ct.sample_system(self.tf, dt, method="zoh")
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+            raise InvalidPlantError(f"cannot discretise the plant at dt={dt} (ZOH): {e}; rescale the model") from e
         num = np.atleast_1d(np.squeeze(gd.num[0][0]))
         den = np.atleast_1d(np.squeeze(gd.den[0][0]))
+        if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))) or den[0] == 0:
+            raise InvalidPlantError(f"the ZOH equivalent at dt={dt} is not finite: rescale the model")
         return Plant(num=num / den[0], den=den / den[0], dt=dt, delay_s=d * dt)
 
     def rational_discrete(self) -> tuple[np.ndarray, np.ndarray]:
@@ -234,7 +240,11 @@ def make_plant(
     if dt is not None and tau:
         tau = delay_in_samples(tau, dt) * dt
     lead = d[0]
-    return Plant(num=n / lead, den=d / lead, dt=dt, delay_s=tau)
+    with np.errstate(over="ignore", invalid="ignore"):
+        n, d = n / lead, d / lead
+    if not (np.all(np.isfinite(n)) and np.all(np.isfinite(d))):
+        raise InvalidPlantError("coefficients overflow when the denominator is made monic: rescale the model")
+    return Plant(num=n, den=d, dt=dt, delay_s=tau)
 
 
 def plant_from_expr(

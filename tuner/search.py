@@ -18,7 +18,9 @@ from typing import Any, Sequence
 import numpy as np
 import optuna
 
-from .objective import Evaluator
+from .objective import UNSTABLE, Evaluator
+
+UNSCORABLE = 10 * UNSTABLE
 from .space import Space
 
 __all__ = ["GlobalResult", "global_search", "default_sampler"]
@@ -57,12 +59,14 @@ def global_search(
         study.enqueue_trial({n: float(np.clip(x, lo, hi)) for n, x, lo, hi in
                              zip(space.names, v, space.lo, space.hi)}, skip_if_exists=True)
     scored: list[tuple[float, np.ndarray]] = []
-    for _ in range(n_trials):
-        if deadline is not None and time.perf_counter() > deadline:
+    for i in range(n_trials):
+        # the enqueued plant-based starts are always scored, so even a tiny budget has candidates
+        if i >= len(x0) and deadline is not None and time.perf_counter() > deadline:
             break
         trial = study.ask(dists)
         v = np.array([trial.params[n] for n in space.names])
         s = ev.score(space.params(v)).score
+        s = s if math.isfinite(s) else UNSCORABLE
         study.tell(trial, s)
         scored.append((s, v))
     n_run = len(scored)

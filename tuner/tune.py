@@ -24,6 +24,7 @@ import numpy as np
 from .analysis import Analysis, jsonable
 from .controllers import ControllerTF, get_structure
 from .errors import InvalidPlantError, TunerError
+from .loop import build_loop
 from .objective import Evaluator, Scored
 from .plant import Plant, check_dt
 from .space import Space, make_space
@@ -168,7 +169,13 @@ def tune(
     if st.discrete_only and dt is None:
         raise TunerError(f"structure {structure!r} is discrete: give dt")
     space = make_space(st, plants[0], dt)
+    if not (np.all(np.isfinite(space.lo)) and np.all(np.isfinite(space.hi)) and all(np.isfinite(space.units))):
+        raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
+                                "(coefficients spanning hundreds of decades)")
     ev = Evaluator(plants, st, dt, spec)
+    guess = ev.controller(np.array(list(st.initial_guess(plants[0], dt).values())))
+    for p in plants:  # a plant that cannot form a loop fails here, with its own message
+        build_loop(p, guess)
 
     from .search import global_search
 
