@@ -51,6 +51,7 @@ class Loop:
     spec: Spec
     key: str
     thesis_settling: float | None = None
+    tune_kw: dict[str, Any] = field(default_factory=dict)  # the loop's own n_trials / n_starts
     results: dict[str, Any] = field(default_factory=dict)
 
 
@@ -89,7 +90,8 @@ def load_loops() -> list[Loop]:
                 ts = max(a.metrics.settling_time_s if a.metrics.stable else math.inf for a in th.analyses)
             key = json.dumps([fname, lp.name, lp.structure, lp.dt, [p.describe() for p in plants],
                               lp.spec.model_dump()], sort_keys=True, default=str)
-            loops.append(Loop(study.name, lp.name, plants, lp.structure, lp.dt, lp.spec, key, ts))
+            kw = {k: v for k, v in (("n_trials", lp.n_trials), ("n_starts", lp.n_starts)) if v is not None}
+            loops.append(Loop(study.name, lp.name, plants, lp.structure, lp.dt, lp.spec, key, ts, kw))
     return loops
 
 
@@ -186,11 +188,12 @@ def reference(lp: Loop, cache: dict[str, Any], evals: int) -> float:
 
 
 def ours(lp: Loop, repeats: int) -> tuple[list[float], float]:
-    tune(lp.plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=0, time_budget_s=120)  # warm
+    tune(lp.plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=0, time_budget_s=120, **lp.tune_kw)  # warm
     times, settles = [], []
     for seed in range(repeats):
         t0 = time.perf_counter()
-        r = tune(lp.plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed, time_budget_s=120)
+        r = tune(lp.plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed, time_budget_s=120,
+                 **lp.tune_kw)
         times.append(time.perf_counter() - t0)
         settles.append(max(a.metrics.settling_time_s for a in r.analyses) if r.meets_spec else math.inf)
     return times, max(settles)
