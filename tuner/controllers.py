@@ -32,7 +32,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from .errors import InvalidControllerError
-from .plant import Plant, check_dt
+from .plant import Plant, check_dt, tf_freqresp
 
 GAIN_SPAN = 100.0
 
@@ -57,8 +57,7 @@ class ControllerTF:
     dt: float | None = None
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
-        x = 1j * np.asarray(w) if self.dt is None else np.exp(1j * np.asarray(w) * self.dt)
-        return np.polyval(self.num, x) / np.polyval(self.den, x)
+        return tf_freqresp(self.num, self.den, w, dt=self.dt)
 
     def to_dict(self) -> dict[str, Any]:
         return {"num": [float(c) for c in self.num], "den": [float(c) for c in self.den], "dt": self.dt}

@@ -24,7 +24,7 @@ import numpy as np
 
 from .controllers import ControllerTF
 from .errors import InvalidControllerError, InvalidPlantError
-from .plant import Plant, delay_in_samples
+from .plant import Plant, delay_in_samples, tf_freqresp
 
 __all__ = ["Loop", "build_loop", "MIN_CONTINUOUS_DELAY_S"]
 
@@ -55,12 +55,7 @@ class Loop:
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
         """Open-loop ``L`` at ``w`` rad/s (delay exact)."""
-        w = np.asarray(w, dtype=float)
-        x = 1j * w if self.dt is None else np.exp(1j * w * self.dt)
-        L = np.polyval(self.ln, x) / np.polyval(self.ld, x)
-        if self.delay_s:
-            L = L * np.exp(-1j * w * self.delay_s)
-        return L
+        return tf_freqresp(self.ln, self.ld, w, dt=self.dt, delay_s=self.delay_s)
 
     def nyquist_w(self) -> float | None:
         return np.pi / self.dt if self.dt else None

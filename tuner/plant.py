@@ -23,7 +23,7 @@ from scipy import linalg
 from .errors import InvalidPlantError
 from .expr import parse_tf_expr
 
-__all__ = ["Plant", "make_plant", "plant_from_expr", "MAX_ORDER", "delay_in_samples", "check_dt"]
+__all__ = ["Plant", "tf_freqresp", "make_plant", "plant_from_expr", "MAX_ORDER", "delay_in_samples", "check_dt"]
 
 MAX_ORDER = 20
 _SAMPLE_TOL = 1e-9
@@ -99,12 +99,7 @@ class Plant:
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
         """Complex frequency response at ``w`` rad/s, delay included exactly."""
-        w = np.asarray(w, dtype=float)
-        x = 1j * w if self.dt is None else np.exp(1j * w * self.dt)
-        g = np.polyval(self.num, x) / np.polyval(self.den, x)
-        if self.delay_s:
-            g = g * np.exp(-1j * w * self.delay_s)
-        return g
+        return tf_freqresp(self.num, self.den, w, dt=self.dt, delay_s=self.delay_s)
 
     def zoh(self, dt: float) -> "Plant":
         """Zero-order-hold equivalent at ``dt`` (delay carried as whole samples)."""
@@ -187,6 +182,15 @@ class Plant:
         if self.delay_s:
             s += f", delay={self.delay_s:g} s"
         return s
+
+
+def tf_freqresp(num: np.ndarray, den: np.ndarray, w: np.ndarray, *, dt: float | None,
+                delay_s: float = 0.0) -> np.ndarray:
+    """``num/den`` at ``s = jw`` (``dt`` None) or ``z = exp(jw dt)``, times ``exp(-jw delay_s)``."""
+    w = np.asarray(w, dtype=float)
+    x = 1j * w if dt is None else np.exp(1j * w * dt)
+    g = np.polyval(num, x) / np.polyval(den, x)
+    return g * np.exp(-1j * w * delay_s) if delay_s else g
 
 
 def _poly_str(p: np.ndarray, var: str) -> str:
