@@ -211,7 +211,7 @@ def test_symbolic_polynomial_evaluation(continuous):
     rng = np.random.default_rng(3)
     coeffs = list(rng.normal(size=5))
     for w in (0.1, 2.0, 40.0, math.pi / DT):
-        re, im = transcribe._cplx_poly(coeffs, cs.DM(w), cs.DM(DT), continuous, 0)
+        re, im = transcribe._cplx_poly(coeffs, cs.DM(w), cs.DM(DT), continuous)
         x = 1j * w if continuous else np.exp(1j * w * DT)
         val = np.polyval(coeffs, x)
         assert float(re) == pytest.approx(val.real, rel=1e-12, abs=1e-12 * abs(val))

@@ -85,7 +85,8 @@ def _violation(a: Analysis) -> float:
 class Evaluator:
     """Verifier-backed scoring of structure parameters against a plant set."""
 
-    def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec) -> None:
+    def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec, *,
+                 w0: float | None = None) -> None:
         self.plants = tuple(plants)
         self.structure = structure
         self.dt = dt
@@ -93,7 +94,7 @@ class Evaluator:
         self.n_evals = 0
 
         self._search_spec = spec.model_copy(update={"settling_band_pct": spec.settling_band_pct * SEARCH_BAND_GUARD})
-        self._w0: float | None = None
+        self._w0 = w0  # the plant's characteristic frequency (the search space's); computed if not given
 
     def controller(self, x: np.ndarray) -> ControllerTF:
         return self.structure.tf(x, self.dt)

@@ -172,7 +172,7 @@ def tune(
     if not (np.all(np.isfinite(space.lo)) and np.all(np.isfinite(space.hi)) and all(np.isfinite(space.units))):
         raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
                                 "(coefficients spanning hundreds of decades)")
-    ev = Evaluator(plants, st, dt, spec)
+    ev = Evaluator(plants, st, dt, spec, w0=space.w0)
     guess = ev.controller(np.array(list(st.initial_guess(plants[0], dt).values())))
     for p in plants:  # a plant that cannot form a loop fails here, with its own message
         build_loop(p, guess)

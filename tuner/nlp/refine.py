@@ -41,7 +41,7 @@ class RefineResult:
     status: str = ""
 
 
-def _horizon(ev: Evaluator, settle: float, dt: float | None, w0: float) -> float:
+def _horizon(settle: float, dt: float | None, w0: float) -> float:
     unit = dt if dt else 1.0 / w0
     base = 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
     if dt:
@@ -62,7 +62,7 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
         return res
     settle = max((a.metrics.settling_time_s for a in start), default=math.inf)
     dt = ev.dt
-    T = _horizon(ev, settle, dt, space.w0)
+    T = _horizon(settle, dt, space.w0)
     continuous = dt is None
     if continuous:
         h = T / CONTINUOUS_STEPS

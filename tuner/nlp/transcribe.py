@@ -74,7 +74,7 @@ class Problem:
     x_layout: dict[str, slice]
 
 
-def _cplx_poly(coeffs: list[Any], w: Any, dt: Any, continuous: bool, n: int) -> tuple[Any, Any]:
+def _cplx_poly(coeffs: list[Any], w: Any, dt: Any, continuous: bool) -> tuple[Any, Any]:
     """Real and imaginary parts of a polynomial (highest power first) at s=jw or z=exp(jw dt)."""
     re, im = 0, 0
     deg = len(coeffs) - 1
@@ -212,10 +212,10 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
         wnyq = math.pi  # scaled below by dt
 
         def L_at(w: Any) -> tuple[Any, Any, Any, Any]:
-            cn = _cplx_poly(cnum, w, gp["dt"], key.continuous, 0)
-            cd = _cplx_poly(cden, w, gp["dt"], key.continuous, 0)
-            gn = _cplx_poly([pl["num"][i] for i in range(n + 1)], w, gp["dt"], key.continuous, n)
-            gd = _cplx_poly([pl["den"][i] for i in range(n + 1)], w, gp["dt"], key.continuous, n)
+            cn = _cplx_poly(cnum, w, gp["dt"], key.continuous)
+            cd = _cplx_poly(cden, w, gp["dt"], key.continuous)
+            gn = _cplx_poly([pl["num"][i] for i in range(n + 1)], w, gp["dt"], key.continuous)
+            gd = _cplx_poly([pl["den"][i] for i in range(n + 1)], w, gp["dt"], key.continuous)
             Nn = _cmul(cn, gn)
             if key.continuous:
                 Nn = _cmul(Nn, (cs.cos(w * tau), -cs.sin(w * tau)))
