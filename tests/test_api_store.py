@@ -7,7 +7,6 @@ Then the service itself: results written, service restarted, results read back, 
 from __future__ import annotations
 
 import datetime as dt
-import os
 import threading
 import uuid
 
@@ -19,39 +18,15 @@ from api.main import create_app
 from api.settings import Settings
 from api.store import Store, StoreError
 from api.testing import wait_for_workers
+from pg import require_pg_base_url
 from quadrotor import DT, ROLL
-
-PG_USERS = ("postgres", "root")
-PG_HOSTPORT = "127.0.0.1:5432"
-
-
-def _pg_base_url() -> str | None:
-    from sqlalchemy import create_engine, text
-
-    for user in PG_USERS:
-        url = f"postgresql+psycopg://{user}@{PG_HOSTPORT}/test"
-        eng = create_engine(url, connect_args={"connect_timeout": 3})
-        try:
-            with eng.connect() as c:
-                c.execute(text("SELECT 1"))
-            return url
-        except Exception:  # noqa: BLE001 - try the next user
-            continue
-        finally:
-            eng.dispose()
-    return None
-
 
 @pytest.fixture
 def pg_url():
     """A URL whose connections use a fresh schema (``search_path``), dropped afterwards."""
     from sqlalchemy import create_engine, text
 
-    base = _pg_base_url()
-    if base is None:
-        if os.environ.get("CI"):
-            pytest.fail(f"PostgreSQL is not reachable on {PG_HOSTPORT} (CI starts it)")
-        pytest.skip(f"PostgreSQL is not reachable on {PG_HOSTPORT}")
+    base = require_pg_base_url()
     schema = f"tuner_test_{uuid.uuid4().hex[:12]}"
     admin = create_engine(base)
     with admin.begin() as c:

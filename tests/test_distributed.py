@@ -20,13 +20,12 @@ from pathlib import Path
 import pytest
 from optuna.trial import TrialState
 
+from pg import require_pg_base_url
 from quadrotor import ROLL, YAW
 from tuner.cli import main
 from tuner.study import load_study
 from tuner.study_run import Coordinator, delete_study_records, open_storage
 
-PG_USERS = ("postgres", "root")
-PG_HOSTPORT = "127.0.0.1:5432"
 
 STUDY = f"""
 name = "{{name}}"
@@ -68,31 +67,9 @@ n_trials = 100
 """
 
 
-def _pg_url() -> str | None:
-    from sqlalchemy import create_engine, text
-
-    for user in PG_USERS:
-        url = f"postgresql+psycopg://{user}@{PG_HOSTPORT}/test"
-        eng = create_engine(url, connect_args={"connect_timeout": 3})
-        try:
-            with eng.connect() as c:
-                c.execute(text("SELECT 1"))
-            return url
-        except Exception:  # noqa: BLE001 - try the next user
-            continue
-        finally:
-            eng.dispose()
-    return None
-
-
 @pytest.fixture
 def pg_url():
-    url = _pg_url()
-    if url is None:
-        if os.environ.get("CI"):
-            pytest.fail(f"PostgreSQL is not reachable on {PG_HOSTPORT} (CI starts it)")
-        pytest.skip(f"PostgreSQL is not reachable on {PG_HOSTPORT}")
-    return url
+    return require_pg_base_url()
 
 
 def _study_file(tmp_path: Path) -> tuple[Path, str]:
