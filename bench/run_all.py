@@ -21,7 +21,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -348,7 +348,7 @@ def write_results(m: dict[str, str], loops: list[Loop], orders, horizons, batche
                  f"{fmt(ratio(r['ours_settling_s']), 2)} | {fmt(r['optuna_fixed_settling_s'])} | "
                  f"{fmt(ratio(r['optuna_fixed_settling_s']), 2)} | {fmt(r['de_fixed_settling_s'])} | "
                  f"{fmt(ratio(r['de_fixed_settling_s']), 2)} | {'yes' if ok else '**no**'} |")
-    L += ["", f"Quality target (within 2 % or one sample of the reference, or better): "
+    L += ["", "Quality target (within 2 % or one sample of the reference, or better): "
           + ("met on every loop." if not miss else f"**missed on {', '.join(miss)}**."), ""]
     L += ["## Speed: wall time per tune and time for the alternatives to reach our settling time", "",
           f"Ours: median and p95 over {a.repeats} seeds in a warm process. Alternatives: one seeded run each until the "

@@ -98,7 +98,7 @@ def main() -> None:
         f"{len(o_times) - len(reached)} of {len(o_times)} runs within the cap)")
     Path(__file__).with_name("results").mkdir(exist_ok=True)
     Path(__file__).with_name("results").joinpath("tune_speed.json").write_text(json.dumps(out, indent=2, default=str))
-    print(f"| method | median s | p95 s | settling s |\n|---|---|---|---|")
+    print("| method | median s | p95 s | settling s |\n|---|---|---|---|")
     print(f"| tuner ({a.structure}) | {out['ours']['median_s']:.3f} | {out['ours']['p95_s']:.3f} | "
           f"{min(settles):.4f}-{max(settles):.4f} |")
     for t, b, n in opt:

@@ -14,19 +14,19 @@ strings ``"Infinity"``, ``"-Infinity"`` and ``"NaN"`` (see :func:`jsonable`).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from .controllers import ControllerTF
 from .loop import Loop, build_loop
-from .margins import margins
+from .margins import Margins, disk_margin, margins
 from .plant import Plant
 from .response import StepResponse, closed_loop_poles, is_stable, step_metrics, step_response
 from .spec import Check, Spec, check_spec
 
-__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop", "jsonable", "METRIC_FIELDS"]
+__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop", "with_disk_margin", "jsonable", "METRIC_FIELDS"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,7 @@ class Analysis:
     checks: list[Check]
     poles: np.ndarray
     response: StepResponse | None = field(repr=False)
+    margins: Margins | None = field(default=None, repr=False)  # incl. the phase-crossover frequency
 
     @property
     def meets_spec(self) -> bool:
@@ -75,11 +76,11 @@ class Analysis:
 
 def analyze_loop(
     loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None, with_disk: bool = True,
-    samples_per_dt: int | None = None, grid_points: int | None = None,
+    samples_per_dt: int | None = None, grid_points: int | None = None, poles: np.ndarray | None = None,
 ) -> Analysis:
-    """Verify ``loop`` against ``spec`` (defaults to the thesis spec)."""
+    """Verify ``loop`` against ``spec`` (defaults to the thesis spec); ``poles`` if already computed."""
     spec = spec or Spec()
-    poles = closed_loop_poles(loop)
+    poles = closed_loop_poles(loop) if poles is None else poles
     stable = is_stable(loop, poles)
     mg = margins(loop, with_disk=with_disk, **({} if grid_points is None else {"grid_points": grid_points}))
     resp = None
@@ -94,7 +95,14 @@ def analyze_loop(
         stable, mg.phase_margin_deg, mg.crossover_rad_s, mg.gain_margin_db, mg.gain_margin_lower_db,
         mg.disk_margin, mg.ms, mg.bandwidth_rad_s, *step,
     )
-    return Analysis(loop=loop, metrics=m, checks=check_spec(m, spec), poles=poles, response=resp)
+    return Analysis(loop=loop, metrics=m, checks=check_spec(m, spec), poles=poles, response=resp, margins=mg)
+
+
+def with_disk_margin(a: Analysis) -> Analysis:
+    """``a`` with its disk margin filled in (the rest of the analysis is not repeated)."""
+    if not math.isnan(a.metrics.disk_margin):
+        return a
+    return replace(a, metrics=replace(a.metrics, disk_margin=disk_margin(a.loop)))
 
 
 def analyze(

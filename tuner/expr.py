@@ -211,7 +211,7 @@ class _Parser:
         if t.kind == "var":
             if self.var is not None and self.var != t.text:
                 raise InvalidExpressionError(
-                    f"mixes 's' and 'z': a transfer function is either continuous (s) or discrete (z)",
+                    "mixes 's' and 'z': a transfer function is either continuous (s) or discrete (z)",
                     position=t.pos,
                 )
             self.var = t.text

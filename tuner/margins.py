@@ -26,7 +26,7 @@ from scipy import optimize
 
 from .loop import Loop
 
-__all__ = ["Margins", "frequency_grid", "margins"]
+__all__ = ["Margins", "disk_margin", "frequency_grid", "margins"]
 
 _GRID_POINTS = 3000
 
@@ -192,6 +192,26 @@ def _bandwidth(loop: Loop, w: np.ndarray, T: np.ndarray) -> float:
     return _brent(f, w[i - 1], w[i])
 
 
+def disk_margin(loop: Loop, w: np.ndarray | None = None, L: np.ndarray | None = None) -> float:
+    """Balanced (skew 0) disk margin: ``control.disk_margins`` for rational loops; with a delay, the
+    same quantity, min over w of 2|1+L|/|1-L|, on the exact frequency response."""
+    if w is None:
+        w = frequency_grid(loop)
+    if L is None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            L = loop.freqresp(w)
+    finite = np.isfinite(L)
+    if loop.delay_s:
+        dm = float(np.min(2 * np.abs(1 + L[finite]) / np.abs(1 - L[finite])))
+    else:
+        tf = ct.tf(loop.ln, loop.ld, 0 if loop.dt is None else loop.dt)
+        dm = float(ct.disk_margins(tf, w[finite], skew=0.0)[0])
+    L_ends = _limit_values(loop)  # the grid stops short of w = 0 and w = inf: include the limits
+    if L_ends.size:
+        dm = min(dm, float(np.min(2 * np.abs(1 + L_ends) / np.abs(1 - L_ends))))
+    return dm
+
+
 def margins(loop: Loop, *, with_disk: bool = True, grid_points: int = _GRID_POINTS) -> Margins:
     """All frequency-domain figures of ``loop``; ``with_disk=False`` skips the disk margin."""
     w = frequency_grid(loop, grid_points)
@@ -206,17 +226,7 @@ def margins(loop: Loop, *, with_disk: bool = True, grid_points: int = _GRID_POIN
     if L_ends.size:
         ms = max(ms, float(np.max(1.0 / np.abs(1.0 + L_ends))))
     bw = _bandwidth(loop, w, L * S)
-    dm = math.nan
-    if with_disk:
-        finite = np.isfinite(L)
-        if loop.delay_s:
-            # disk margin (skew 0) = min over w of 2|1+L|/|1-L| (what control.disk_margins computes)
-            dm = float(np.min(2 * np.abs(1 + L[finite]) / np.abs(1 - L[finite])))
-        else:
-            tf = ct.tf(loop.ln, loop.ld, 0 if loop.dt is None else loop.dt)
-            dm = float(ct.disk_margins(tf, w[finite], skew=0.0)[0])
-        if L_ends.size:
-            dm = min(dm, float(np.min(2 * np.abs(1 + L_ends) / np.abs(1 - L_ends))))
+    dm = disk_margin(loop, w, L) if with_disk else math.nan
     return Margins(
         phase_margin_deg=pm, crossover_rad_s=wc, gain_margin_db=gm, gain_margin_lower_db=gml,
         phase_crossover_rad_s=wpc, disk_margin=dm, ms=ms, bandwidth_rad_s=bw,

@@ -101,19 +101,22 @@ class Evaluator:
 
     def analyse(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> tuple[Analysis, ...]:
         """The verifier's analyses on every plant: at full resolution (``full``), else the search's."""
-        ctrl = self.controller(x)
-        loops = [build_loop(p, ctrl) for p in self.plants]
-        if full:
-            return tuple(analyze_loop(lp, self.spec, with_disk=with_disk) for lp in loops)
-        return tuple(
-            analyze_loop(lp, self._search_spec, with_disk=False, grid_points=SEARCH_GRID,
-                         samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp))
-            for lp in loops
-        )
+        loops = self._loops(x)
+        return tuple(self._analyse_loop(lp, None, full=full, with_disk=with_disk) for lp in loops)
 
-    def _horizon(self, lp) -> float:
+    def _loops(self, x: np.ndarray) -> list:
+        ctrl = self.controller(x)
+        return [build_loop(p, ctrl) for p in self.plants]
+
+    def _analyse_loop(self, lp, poles: np.ndarray | None, *, full: bool, with_disk: bool) -> Analysis:
+        if full:
+            return analyze_loop(lp, self.spec, with_disk=with_disk, poles=poles)
+        return analyze_loop(lp, self._search_spec, with_disk=False, grid_points=SEARCH_GRID,
+                            samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp, poles), poles=poles)
+
+    def _horizon(self, lp, poles: np.ndarray | None = None) -> float:
         cap = SEARCH_HORIZON_SAMPLES * (lp.dt if lp.dt else 1.0 / self._scale_w0())
-        return min(default_horizon(lp), cap)
+        return min(default_horizon(lp, None if lp.delay_s else poles), cap)
 
     def _scale_w0(self) -> float:
         if self._w0 is None:
@@ -122,27 +125,28 @@ class Evaluator:
             self._w0 = plant_scale(self.plants[0], self.dt)[1]
         return self._w0
 
+    @staticmethod
+    def _outside(lp, poles: np.ndarray) -> float:
+        """0 if ``poles`` are stable, else how far the worst one is outside the stability region."""
+        if poles.size == 0 or is_stable(lp, poles):
+            return 0.0
+        out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
+        return max(out, 1e-9)
+
     def instability(self, x: np.ndarray) -> float:
         """0 if the loop is stable on every plant, else how far the worst pole is outside."""
-        ctrl = self.controller(x)
-        worst = 0.0
-        for p in self.plants:
-            lp = build_loop(p, ctrl)
-            poles = closed_loop_poles(lp)
-            if is_stable(lp, poles) or poles.size == 0:
-                continue
-            out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
-            worst = max(worst, max(out, 1e-9))
-        return worst
+        return max(self._outside(lp, closed_loop_poles(lp)) for lp in self._loops(x))
 
     def score(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> Scored:
         self.n_evals += 1
         try:
+            loops = self._loops(x)
+            poles = [closed_loop_poles(lp) for lp in loops]  # once per evaluation: reused below
             if not full:
-                out = self.instability(x)
+                out = max(self._outside(lp, p) for lp, p in zip(loops, poles))
                 if out > 0:
                     return Scored(UNSTABLE * (1.0 + min(out, 1e3)), False, ())
-            an = self.analyse(x, full=full, with_disk=with_disk)
+            an = tuple(self._analyse_loop(lp, p, full=full, with_disk=with_disk) for lp, p in zip(loops, poles))
         except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
             return Scored(UNSTABLE * 10, False, ())
         if any(not a.metrics.stable for a in an):

@@ -93,10 +93,14 @@ def is_stable(loop: Loop, poles: np.ndarray | None = None) -> bool:
     return bool(np.max(np.abs(p)) < 1.0 - 1e-9)
 
 
-def default_horizon(loop: Loop) -> float:
-    """Simulation horizon from the slowest closed-loop pole (10 time constants), bounded."""
-    cp = _delay_pade_loop(loop) if loop.delay_s else loop.charpoly
-    p = np.roots(cp)
+def default_horizon(loop: Loop, poles: np.ndarray | None = None) -> float:
+    """Simulation horizon from the slowest closed-loop pole (10 time constants), bounded.
+
+    ``poles``: the loop's closed-loop poles if already computed (delay-free loops only)."""
+    if loop.delay_s:
+        p = np.roots(_delay_pade_loop(loop))
+    else:
+        p = np.roots(loop.charpoly) if poles is None else poles
     if loop.dt is None:
         sig = -p.real
         fast = max(np.max(np.abs(p)) if p.size else 1.0, 1e-6)

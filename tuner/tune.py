@@ -16,12 +16,12 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
 
-from .analysis import Analysis, jsonable
+from .analysis import Analysis, jsonable, with_disk_margin
 from .controllers import ControllerTF, get_structure
 from .errors import InvalidPlantError, TunerError
 from .loop import build_loop
@@ -263,4 +263,4 @@ def _verify_best(ev: Evaluator, candidates: list[np.ndarray], *, full_checks: in
             best_x, best = x, s
     if best is None:
         raise TunerError("no candidate could be evaluated")
-    return best_x, ev.score(best_x, full=True)  # the winner again, with the disk margin
+    return best_x, replace(best, analyses=tuple(with_disk_margin(a) for a in best.analyses))

@@ -16,7 +16,6 @@ import numpy as np
 
 from ..controllers import ControllerTF
 from ..loop import build_loop
-from ..margins import margins
 from ..objective import SEARCH_BAND_GUARD, Evaluator
 from ..space import Space
 from .plantdata import lift
@@ -85,7 +84,7 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
             lf = type(lf)(lf.Phi, lf.Gam, lf.C, lf.D, lf.Cf, lf.Df, num_c, np.asarray(p.den, float), lf.delay_samples)
         else:
             lf = lift(build_loop(p, ctrl), N)
-        mg = margins(build_loop(p, ctrl), with_disk=False, grid_points=600)
+        mg = a.margins
         wnyq = math.pi / dt if dt else math.inf
         wc = mg.crossover_rad_s if math.isfinite(mg.crossover_rad_s) else space.w0
         has_pc = math.isfinite(mg.phase_crossover_rad_s) and 0 < mg.phase_crossover_rad_s < 0.98 * wnyq

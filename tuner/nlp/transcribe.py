@@ -67,8 +67,6 @@ class Problem:
     key: ProblemKey
     solver: Any  # casadi nlpsol Function
     n_v: int
-    n_x: int
-    n_p: int
     lbg: np.ndarray
     ubg: np.ndarray
     x_layout: dict[str, slice]
@@ -302,7 +300,7 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
         solver = cs.nlpsol(f"tune_{key.structure}", "ipopt", nlp, opts)
     layout = {"v": slice(0, nv), "slack": slice(nv, nv + 1), "wc": slice(nv + 1, nv + 1 + npl),
               "wp": slice(nv + 1 + npl, nv + 1 + npl + n_pc)}
-    return Problem(key=key, solver=solver, n_v=nv, n_x=int(xvar.shape[0]), n_p=int(pvec.shape[0]),
+    return Problem(key=key, solver=solver, n_v=nv,
                    lbg=np.array(lbg, dtype=float), ubg=np.array(ubg, dtype=float), x_layout=layout)
 
 
