@@ -29,7 +29,7 @@ def _controller(d: dict[str, Any]):
 def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload``: plants (nominal first), structure, spec (dict), dt, seed, time_budget_s."""
     from tuner.spec import Spec
-    from tuner.tune import tune
+    from tuner.tuning import tune
 
     plants = [build_plant(p) for p in payload["plants"]]
     result = tune(
@@ -45,7 +45,7 @@ def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
 
 def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload``: plant, controller ``{num, den, dt}``, spec (dict)."""
-    from tuner.analysis import analyze, jsonable
+    from tuner.analysis.verify import analyze, jsonable
     from tuner.spec import Spec
 
     a = analyze(build_plant(payload["plant"]), _controller(payload["controller"]), Spec(**payload["spec"]))
@@ -54,7 +54,7 @@ def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
 
 def plot_job(payload: dict[str, Any]) -> bytes:
     """``payload``: plants, controller, spec, fmt (``png``/``svg``), title. Returns the image."""
-    from tuner.analysis import analyze
+    from tuner.analysis.verify import analyze
     from tuner.spec import Spec
 
     from .plots import draw

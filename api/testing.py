@@ -48,7 +48,7 @@ def failing_job(payload: Any) -> None:
 def capped_tune_job(payload: dict[str, Any]) -> Any:
     """The real tune, made quick for fuzzing many requests: budget <= 0.15 s, few trials, one local start."""
     from tuner.spec import Spec
-    from tuner.tune import tune
+    from tuner.tuning import tune
 
     from .jobs import build_plant
 

@@ -30,12 +30,12 @@ ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
 from tuner import Spec, get_structure, make_plant  # noqa: E402
-from tuner.objective import Evaluator  # noqa: E402
+from tuner.optimize.scoring import Evaluator  # noqa: E402
 from tuner.plant import Plant  # noqa: E402
-from tuner.space import make_space  # noqa: E402
-from tuner.study import load_study  # noqa: E402
-from tuner.study_eval import check_gains_file, evaluate_thesis, loop_plants  # noqa: E402
-from tuner.tune import designed_starts, tune  # noqa: E402
+from tuner.optimize.space import make_space  # noqa: E402
+from tuner.studies.schema import load_study  # noqa: E402
+from tuner.studies.evaluate import check_gains_file, evaluate_thesis, loop_plants  # noqa: E402
+from tuner.tuning import designed_starts, tune  # noqa: E402
 
 REFERENCE_CACHE = HERE / "reference.json"
 QUALITY_TOL = 0.02  # "within 2 % (or one sample) of the reference"
@@ -139,7 +139,7 @@ class Budgeted:
 def run_optuna(lp: Loop, *, seed: int, target: float | None, cap_s: float, max_evals: int | None) -> Budgeted:
     import optuna
 
-    from tuner.search import default_sampler
+    from tuner.optimize.search import default_sampler
 
     st = get_structure(lp.structure)
     space = make_space(st, lp.plants[0], lp.dt)

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from tuner import Spec, get_structure, plant_from_expr
-from tuner.objective import Evaluator
-from tuner.space import make_space
-from tuner.tune import designed_starts, tune
+from tuner.optimize.scoring import Evaluator
+from tuner.optimize.space import make_space
+from tuner.tuning import designed_starts, tune
 
 ROLL = "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"
 
@@ -36,7 +36,7 @@ def optuna_until(plant, structure: str, dt: float, target: float, *, seed: int, 
     time <= target, or the cap. Returns (seconds, best verified settling, trials)."""
     import optuna
 
-    from tuner.search import default_sampler
+    from tuner.optimize.search import default_sampler
 
     st = get_structure(structure)
     space = make_space(st, plant, dt)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .analysis import Analysis, Metrics, analyze, jsonable
+from .analysis.verify import Analysis, Metrics, analyze, jsonable
 from .controllers import STRUCTURES, ControllerTF, controller_from_expr, controller_tf, get_structure
 from .errors import (
     InvalidControllerError,
@@ -25,7 +25,7 @@ __version__ = "0.1.0"
 
 def __getattr__(name: str):  # lazy: the tuning stack (CasADi, Optuna) is heavy to import
     if name == "tune":
-        from .tune import tune
+        from .tuning import tune
 
         return tune
     raise AttributeError(name)

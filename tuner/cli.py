@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-_EXTRA_COMMANDS: list[str] = ["study_cli"]  # modules with add_parser(sub) registering more sub-commands
+_EXTRA_COMMANDS: list[str] = ["studies.cli"]  # modules with add_parser(sub) registering more sub-commands
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
@@ -131,7 +131,7 @@ def analysis_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
 
 
 def _cmd_analyze(a: argparse.Namespace) -> int:
-    from .analysis import analyze, jsonable
+    from .analysis.verify import analyze, jsonable
     from .controllers import controller_from_expr
     from .plant import check_dt, plant_from_expr
 
@@ -157,7 +157,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
 
 def _cmd_tune(a: argparse.Namespace) -> int:
     from .plant import plant_from_expr
-    from .tune import tune
+    from .tuning import tune
 
     spec = _spec_from_args(a)
     plants = []

@@ -25,14 +25,13 @@ structure (``orderings``) and are enforced by the search and the NLP.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from .errors import InvalidControllerError
-from .plant import Plant, check_dt, tf_freqresp
+from .plant import check_dt, tf_freqresp
 
 GAIN_SPAN = 100.0
 
@@ -44,7 +43,6 @@ __all__ = [
     "get_structure",
     "controller_tf",
     "controller_from_expr",
-    "plant_scale",
 ]
 
 
@@ -214,82 +212,6 @@ class Structure:
     def named(self, x: Sequence[float]) -> dict[str, float]:
         return {p: float(v) for p, v in zip(self.params, x)}
 
-    def bounds(self, plant: Plant, dt: float | None) -> tuple[np.ndarray, np.ndarray]:
-        """Search box from the plant's scale: gains +-GAIN_SPAN times their unit (K0 * w0**unit)."""
-        k0, w0 = plant_scale(plant, dt)
-        wmax = (math.pi / dt) if dt else 1e3 * w0
-        lo, hi = [], []
-        for kind, scale in zip(self.kinds, self.gain_scale(k0, w0)):
-            if kind == "gain":
-                lo.append(-GAIN_SPAN * scale), hi.append(GAIN_SPAN * scale)
-            elif kind == "freq":
-                lo.append(1e-3 * w0), hi.append(min(wmax, 1e2 * w0))
-            elif kind == "time":
-                lo.append(0.0), hi.append(10.0 / w0)
-            else:  # polynomial coefficient of a monic quadratic with zeros in |z| <= 1.5
-                lo.append(-3.0), hi.append(3.0)
-        return np.array(lo), np.array(hi)
-
-    def initial_guess(self, plant: Plant, dt: float | None) -> dict[str, float]:
-        """A pole-cancellation start (IMC / lambda-tuning style), sign from the plant.
-
-        The controller's zeros go on the plant's slowest stable poles (two for
-        PID/pid_z/lead-lag, one for PI/PD/lead); the gain puts the loop's
-        crossover at a third of the plant's ultimate frequency ``w0``.
-        """
-        k0, w0 = plant_scale(plant, dt)
-        sgn = plant_sign(plant)
-        poles = _slow_poles(plant, w0)
-        z1 = float(abs(poles[0]))  # one-zero structures: the slowest pole's frequency
-        _, c1, c2 = np.real(np.poly(poles))  # two-zero structures: s^2 + c1 s + c2
-        g = {"Kp": 1.0, "Ki": z1, "Kd": 0.0, "Tf": 0.0, "K": 1.0, "wz": z1, "wp": min(10 * z1, 3 * w0),
-             "wz1": z1, "wp1": min(10 * z1, 3 * w0), "wz2": 0.1 * z1, "wp2": 0.01 * z1}
-        if self.name in ("pid", "pd"):
-            # Kd s^2 + Kp s + Ki = Kd (s^2 + c1 s + c2)   (pd: Kd s + Kp = Kd (s + z1))
-            g.update(Kd=1.0, Kp=c1 if self.name == "pid" else z1, Ki=c2,
-                     Tf=(0.1 / w0) if dt is None else 0.0)
-        if dt is not None and self.name in ("pid", "pi"):
-            # in discrete time put the zeros exactly on the ZOH plant's poles: with Tf = 0 the
-            # backward-Euler PID numerator is (Kp + Ki dt + Kd/dt) z^2 - (Kp + 2 Kd/dt) z + Kd/dt
-            zp = np.exp(poles * dt)
-            if self.name == "pid":
-                _, a1, a2 = np.real(np.poly(zp))
-                g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=0.0)
-            else:  # (Kp + Ki dt) z - Kp = z - e^{-z1 dt}
-                e1 = float(np.exp(-z1 * dt))
-                g.update(Kp=e1, Ki=(1 - e1) / dt)
-        if self.name == "lag":
-            g.update(wz=0.1 * z1, wp=0.01 * z1)
-        if self.name == "pid_z":
-            if dt is None:
-                raise InvalidControllerError("pid_z is discrete: give dt")
-            _, a1, a2 = np.real(np.poly(np.exp(poles * dt)))
-            g.update(a1=float(a1), a2=float(a2))
-        # overall gain: crossover of the loop at w0/3
-        wc = w0 / 3.0
-        x = np.array([g[p] for p in self.params], dtype=float)
-        c1 = self.tf(x, dt)
-        p_eff = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)
-        mag = abs(c1.freqresp(np.array([wc]))[0] * p_eff.freqresp(np.array([wc]))[0])
-        k = sgn / mag if np.isfinite(mag) and mag > 0 else sgn * k0 * 0.1
-        for i, kind in enumerate(self.kinds):
-            if kind == "gain":
-                x[i] *= k
-        g = dict(zip(self.params, x))
-        # keep the start inside the search box: in discrete time a lead pole at 3*w0 can lie
-        # above the Nyquist frequency pi/dt (roll, yaw at dt = 0.04), the box's upper bound
-        lo, hi = self.bounds(plant, dt)
-        out = {}
-        for p, l, h in zip(self.params, lo, hi):
-            v = float(g[p])
-            if not l <= v <= h:
-                v = float(np.clip(v, l + 0.01 * (h - l), h - 0.01 * (h - l)))
-            out[p] = v
-        for a, b in self.orderings:  # clipping may have collapsed an ordered pair: reopen it
-            if out[a] >= out[b]:
-                out[a] = max(out[b] / 3.0, float(lo[self.params.index(a)]))
-        return out
-
 
 STRUCTURES: dict[str, Structure] = {
     s.name: s
@@ -342,78 +264,3 @@ def controller_from_expr(text: str, *, dt: float | None) -> ControllerTF:
     if p.num.size > p.den.size:
         raise InvalidControllerError("controller is improper (more zeros than poles): add a filter pole")
     return ControllerTF(num=p.num, den=p.den, dt=dt)
-
-
-# -- plant scale ---------------------------------------------------------------------------
-
-def _low_freq_coeffs(plant: Plant) -> tuple[np.ndarray, np.ndarray]:
-    """num/den as polynomials in a variable that is 0 at DC (s, or z-1)."""
-    if plant.dt is None:
-        return plant.num, plant.den
-    shift = np.poly1d([1.0, 1.0])
-    return np.poly1d(plant.num)(shift).coeffs, np.poly1d(plant.den)(shift).coeffs
-
-
-def _slow_poles(plant: Plant, w0: float) -> np.ndarray:
-    """The plant's two slowest stable, non-integrating poles in the s-plane (a complex pair counts
-    as two); made-up real poles at fractions of ``w0`` when the plant has fewer."""
-    poles = np.roots(plant.den).astype(complex)
-    if plant.dt is not None:
-        poles = poles[np.abs(poles) > 1e-9]
-        poles = np.log(poles) / plant.dt
-    cand = sorted((p for p in poles if p.real < -1e-9 * max(1.0, abs(p))), key=abs)
-    if cand and abs(cand[0].imag) > 1e-9:
-        return np.array([cand[0], np.conj(cand[0])])
-    fill = [-0.3 * w0, -0.9 * w0]
-    out = [p for p in cand[:2] if abs(p.imag) <= 1e-9]
-    return np.array((out + fill)[:2], dtype=complex)
-
-
-def plant_sign(plant: Plant) -> float:
-    """Feedback sign for the plant: the sign of its low-frequency gain (ratio of lowest-order
-    coefficients), flipped once per unstable real pole (1/(s-1) has gain -1 at DC yet needs a
-    positive controller gain to be stabilised)."""
-    n, d = _low_freq_coeffs(plant)
-    nl = n[np.flatnonzero(np.abs(n) > 1e-14 * np.max(np.abs(n)))[-1]]
-    dl = d[np.flatnonzero(np.abs(d) > 1e-14 * np.max(np.abs(d)))[-1]]
-    poles = np.roots(plant.den)
-    unstable_real = poles[(np.abs(poles.imag) < 1e-9) & ((poles.real > 1e-9) if plant.dt is None
-                                                          else (np.abs(poles) > 1 + 1e-9))]
-    return (float(np.sign(nl * dl)) or 1.0) * (-1.0) ** unstable_real.size
-
-
-def plant_scale(plant: Plant, dt: float | None) -> tuple[float, float]:
-    """Characteristic gain ``K0`` and frequency ``w0`` of the loop to design.
-
-    ``w0`` is the plant's ultimate frequency (phase -180 deg, ZOH and delay
-    included) when it exists below the Nyquist frequency, else the frequency of
-    -135 deg, else the largest pole/zero magnitude; ``K0 = 1/|G(j w0)|``.
-    """
-    p = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)
-    wnyq = math.pi / p.dt if p.dt else None
-    roots = np.concatenate([np.roots(plant.den), np.roots(plant.num)])
-    if plant.dt is not None:
-        roots = np.log(roots[np.abs(roots) > 1e-9].astype(complex)) / plant.dt
-    mags = np.abs(roots[np.abs(roots) > 1e-9])
-    wref = float(np.max(mags)) if mags.size else 1.0
-    whi = wnyq if wnyq else 1e3 * wref
-    w = np.logspace(np.log10(min(wref, whi) * 1e-4), np.log10(whi), 800)
-    if wnyq:
-        w = w[w < wnyq * 0.999]
-    g = p.freqresp(w)
-    ph = np.unwrap(np.angle(g * plant_sign(plant)))
-    ph -= 2 * np.pi * np.round(ph[0] / (2 * np.pi))
-    w0 = None
-    for target in (-np.pi, -0.75 * np.pi):  # first frequency where the phase falls through target
-        idx = np.flatnonzero((ph[:-1] > target) & (ph[1:] <= target))
-        if idx.size:
-            w0 = float(w[idx[0] + 1])
-            break
-    if w0 is None:  # no such crossing (e.g. 1/s^2): the plant's unity-gain frequency, else its poles
-        mag = np.abs(g)
-        idx = np.flatnonzero((mag[:-1] >= 1.0) & (mag[1:] < 1.0))
-        w0 = float(w[idx[0] + 1]) if idx.size else (min(wref, 0.3 * wnyq) if wnyq else wref)
-        if wnyq:
-            w0 = min(w0, 0.3 * wnyq)
-    k0 = 1.0 / max(float(np.abs(p.freqresp(np.array([w0]))[0])), 1e-300)
-    return k0, w0

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Callable
 from fastapi import APIRouter, Body, Depends, HTTPException
 from fastapi.responses import JSONResponse
 
-from tuner.analysis import jsonable
+from tuner.analysis.verify import jsonable
 
 from ..convert import FieldError, check_loop_dt, plant_dict, spec_or_default, to_controller, to_plant
 from ..deps import get_analyze_job, get_pool

@@ -8,8 +8,8 @@ from fastapi import APIRouter, Body, Depends, HTTPException
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from tuner.analysis import jsonable
-from tuner.tune import MAX_PLANTS
+from tuner.analysis.verify import jsonable
+from tuner.tuning import MAX_PLANTS
 
 from ..convert import FieldError, check_loop_dt, plant_dict, spec_or_default, to_plant, tuner_error_loc
 from ..deps import get_pool, get_store, get_tune_job

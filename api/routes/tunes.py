@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from tuner.analysis import jsonable
+from tuner.analysis.verify import jsonable
 
 from ..deps import get_plot_job, get_pool, get_store
 from ..pool import JobFailed, JobTimeout, WorkerPool

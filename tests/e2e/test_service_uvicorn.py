@@ -1,0 +1,157 @@
+"""The service as deployed: a real uvicorn process on 127.0.0.1, started with the documented command.
+
+16 concurrent ``POST /tune`` on a pool of 2 solver processes: every one answered 200 (no 5xx),
+each result re-verified through ``/analyze``; then the process is stopped, a new one started on
+the same SQLite file, and every result read back.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx
+import pytest
+from numpy.testing import assert_allclose
+
+from quadrotor import DT, ROLL, YAW
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[2]
+N = 16
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """``uvicorn api.main:create_app --factory`` in its own process group, settings by environment."""
+
+    def __init__(self, tmp: Path, env: dict[str, str]) -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.log_path = tmp / f"server-{self.port}.log"
+        full_env = {k: v for k, v in os.environ.items() if not k.startswith("TUNER_")}
+        full_env.update(env)
+        self.log = open(self.log_path, "wb")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "api.main:create_app", "--factory", "--host", "127.0.0.1",
+             "--port", str(self.port)],
+            cwd=ROOT, env=full_env, stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def wait_ready(self, timeout_s: float = 120.0, *, workers: bool = True) -> None:
+        """Until /health answers (and, with ``workers``, every solver process is up)."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            assert self.proc.poll() is None, self.output()
+            try:
+                w = httpx.get(f"{self.url}/health", timeout=2).json()["workers"]
+                if not workers or w["ready"] == w["size"]:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
+        raise TimeoutError(self.output())
+
+    def stop(self) -> bool:
+        """SIGTERM to the server (what a process manager sends); True if it and its solvers all exited."""
+        clean = True
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                clean = False
+        self.proc.wait(10)
+        end = time.monotonic() + 10
+        while True:  # anything left in the group (solver processes) after 10 s is a leak
+            try:
+                os.killpg(self.proc.pid, 0)
+            except ProcessLookupError:
+                break
+            if time.monotonic() > end:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                clean = False
+                break
+            time.sleep(0.1)
+        self.log.close()
+        return clean
+
+    def output(self) -> str:
+        if not self.log.closed:
+            self.log.flush()
+        return self.log_path.read_text(errors="replace")
+
+
+def body(i: int) -> dict:
+    if i % 2:
+        return {"plant": {"expr": YAW}, "structure": "pi", "options": {"seed": i, "time_budget_s": 0.3}}
+    return {"plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z", "options": {"seed": i, "time_budget_s": 0.3}}
+
+
+def test_16_concurrent_tunes_then_restart_and_read_back(tmp_path):
+    env = {"TUNER_DATABASE_URL": f"sqlite:///{tmp_path / 'tuner.db'}", "TUNER_WORKERS": "2",
+           "TUNER_QUEUE_SIZE": str(N), "TUNER_QUEUE_TIMEOUT_S": "120", "TUNER_SOLVE_GRACE_S": "3"}
+    server = Server(tmp_path, env)
+    try:
+        server.wait_ready()
+
+        def post(i: int) -> httpx.Response:
+            return httpx.post(f"{server.url}/tune", json=body(i), timeout=180)
+
+        with ThreadPoolExecutor(N) as ex:
+            responses = list(ex.map(post, range(N)))
+        assert [r.status_code for r in responses] == [200] * N, [r.text[:300] for r in responses]
+        results = [r.json() for r in responses]
+        assert len({r["id"] for r in results}) == N
+        for i, out in enumerate(results):
+            b = body(i)
+            assert out["structure"] == b["structure"] and out["solver"]["seed"] == i
+            assert out["controller"]["dt"] == b.get("dt")
+            assert out["meets_spec"] == all(c["ok"] for c in out["checks"])
+
+        def verify(i: int) -> httpx.Response:  # correct = what the independent verifier says of the controller
+            c = results[i]["controller"]
+            return httpx.post(f"{server.url}/analyze", timeout=60, json={
+                "plant": body(i)["plant"], "dt": body(i).get("dt"), "controller": {"num": c["num"], "den": c["den"]}})
+
+        with ThreadPoolExecutor(4) as ex:
+            checks = list(ex.map(verify, range(N)))
+        for out, check in zip(results, checks):
+            assert check.status_code == 200
+            for k, v in out["metrics"].items():
+                if isinstance(v, float):
+                    assert_allclose(check.json()["metrics"][k], v, rtol=1e-9, atol=1e-12, err_msg=k)
+                else:
+                    assert check.json()["metrics"][k] == v
+        health = httpx.get(f"{server.url}/health", timeout=5).json()
+        assert health["workers"]["crashes"] == 0 and health["workers"]["timeouts"] == 0
+    finally:
+        clean = server.stop()
+    log = server.output()
+    assert " 500 " not in log and " 503 " not in log and " 504 " not in log
+    assert "Traceback" not in log, log[-3000:]
+    assert clean and "Application shutdown complete" in log  # solver processes stopped with the server
+
+    again = Server(tmp_path, env)  # same database file, new process
+    try:
+        again.wait_ready(timeout_s=120, workers=False)  # reading needs no solver
+        listed = httpx.get(f"{again.url}/tunes", params={"limit": 100}, timeout=10).json()
+        assert listed["total"] == N
+        assert {i["id"] for i in listed["items"]} == {r["id"] for r in results}
+        for out in results:
+            got = httpx.get(f"{again.url}/tunes/{out['id']}", timeout=10).json()
+            got.pop("request")
+            assert got == out
+    finally:
+        again.stop()

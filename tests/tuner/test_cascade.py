@@ -1,0 +1,92 @@
+"""Cascades: the composite outer plant and the exact simulation of the whole cascade."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy import signal
+
+from quadrotor import DT, PITCH, PITCH_C, ROLL
+from tuner import Spec, analyze, controller_from_expr, controller_tf, plant_from_expr
+from tuner.analysis.cascade import outer_plant, simulate_cascade
+from tuner.errors import InvalidPlantError
+
+G = "9.81/s^2"
+PITCH_TUNED = {"K": 71.02, "a1": -1.8685, "a2": 0.88732}  # a pitch PID that meets the spec
+LEAD = {"K": 0.06, "wz": 0.19, "wp": 32.0}
+
+
+def test_thesis_position_model():
+    """ZOH of g/s^2 at 0.04 s is g * 0.0008 (z+1)/(z-1)^2 (shared/reference/quadrotor.md)."""
+    p = plant_from_expr(G).zoh(DT)
+    assert_allclose(p.num, [9.81 * 0.0008, 9.81 * 0.0008], rtol=1e-9)
+    assert_allclose(p.den, [1.0, -2.0, 1.0], atol=1e-12)
+
+
+def _freq(num, den, z):
+    return np.polyval(num, z) / np.polyval(den, z)
+
+
+def test_outer_plant_is_the_sampled_cascade():
+    """P = Ci Z[Gi Go] / (1 + Ci Z[Gi]), checked pointwise on the unit circle from independently
+    discretised pieces (scipy's ZOH, not python-control's)."""
+    gi, go = plant_from_expr(PITCH), plant_from_expr(G)
+    ci = controller_tf("pid_z", PITCH_TUNED, dt=DT)
+    P = outer_plant(gi, ci, go)
+    assert P.dt == DT and P.order == 7  # 2 (pitch) + 2 (PID) + 2 (g/s^2) + the marker pole at z = 0
+    assert P.continuous_equivalent() is None  # a sampled model: the verifier evaluates at the samples
+
+    b1, a1, _ = signal.cont2discrete((gi.num, gi.den), DT, method="zoh")
+    b2, a2, _ = signal.cont2discrete((np.polymul(gi.num, go.num), np.polymul(gi.den, go.den)), DT, method="zoh")
+    z = np.exp(1j * np.linspace(0.05, 3.0, 40))
+    C = _freq(ci.num, ci.den, z)
+    want = C * _freq(np.squeeze(b2), a2, z) / (1 + C * _freq(np.squeeze(b1), a1, z))
+    assert_allclose(_freq(P.num, P.den, z), want, rtol=1e-6)
+
+
+def test_held_angle_model_for_a_discrete_inner_plant():
+    """Inner plant in z: the thesis's T_i(z) Z[Go](z) (angle held between samples)."""
+    gi = plant_from_expr("0.1493/(z-0.475)", dt=DT)
+    ci = controller_from_expr("3*(z-0.475)/(z*(z-1))", dt=DT)
+    P = outer_plant(gi, ci, plant_from_expr(G))
+    z = np.exp(1j * np.linspace(0.05, 3.0, 25))
+    C = _freq(ci.num, ci.den, z)
+    Gi = 0.1493 / (z - 0.475)
+    Go = 9.81 * 0.0008 * (z + 1) / (z - 1) ** 2
+    assert_allclose(_freq(P.num, P.den, z), C * Gi / (1 + C * Gi) * Go, rtol=1e-9)
+
+
+def test_simulation_matches_the_verifier_at_the_samples():
+    """Two independent paths (state-space simulation of the cascade vs the verifier on the composite
+    polynomial plant) agree at every sample; between samples the simulation adds the true output."""
+    gi, go = plant_from_expr(PITCH), plant_from_expr(G)
+    ci = controller_tf("pid_z", PITCH_TUNED, dt=DT)
+    co = controller_tf("lead", LEAD, dt=DT)
+    a = analyze(outer_plant(gi, ci, go), co, Spec())
+    r = a.response
+    sim = simulate_cascade(gi, ci, go, co, horizon_s=float(r.t[-1]), y_final=r.y_final)
+    assert sim is not None
+    assert sim.response.y_samples.size == r.y_samples.size
+    assert_allclose(sim.response.y_samples, r.y_samples, atol=1e-8)
+    assert sim.response.y.size == 20 * r.y_samples.size  # 20 points per sample
+    # the true position is smooth: between samples it differs from the sampled overshoot only slightly
+    assert abs(sim.metrics.overshoot_pct - a.metrics.overshoot_pct) < 0.5
+    assert sim.metrics.settling_time_s == pytest.approx(a.metrics.settling_time_s, abs=DT)
+
+
+def test_printed_x_cascade_is_unstable():
+    """The thesis's printed X lead around its printed pitch PID is unstable (quadrotor.md)."""
+    P = outer_plant(plant_from_expr(PITCH), controller_from_expr(PITCH_C, dt=DT), plant_from_expr(G))
+    a = analyze(P, controller_from_expr("3.3*(z-0.64)/(z-0.56)", dt=DT))
+    assert not a.metrics.stable
+    assert np.max(np.abs(a.poles)) > 1.0
+
+
+def test_order_limit_and_continuous_inner_controller():
+    gi = plant_from_expr("1/(s+1)^9")
+    ci = controller_tf("pid", {"Kp": 1, "Ki": 0.1, "Kd": 0.1, "Tf": 0.1}, dt=0.1)
+    with pytest.raises(InvalidPlantError, match="order 22, above the limit 20"):  # 9 + 2 + 10 + 1
+        outer_plant(gi, ci, plant_from_expr("1/(s+1)^10"))
+    with pytest.raises(InvalidPlantError, match="inner controller must be discrete"):
+        outer_plant(plant_from_expr(ROLL), controller_from_expr("1+1/s", dt=None), plant_from_expr(G))

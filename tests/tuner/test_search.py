@@ -1,0 +1,220 @@
+"""The search coordinates (tuner.space) and the seeded global stage (tuner.search).
+
+* The space maps a box of coordinates to structure parameters and back; the round trip is
+  exact (to rounding) for every structure, continuous and at dt, and *every* point of the box
+  (corners included) is a valid controller: frequencies > 0, time constants > 0 (a continuous
+  derivative filter must have Tf > 0), the lead/lag orderings hold, and the transfer function
+  is finite.
+* A gain coordinate is ``unit * 2e-3 * sinh(v ln 10)``: re-derived here from the formula in the
+  module docstring, so a change of the mapping that silently rescales the gains is caught.
+* ``global_search`` with a fixed seed returns the same candidates twice; with an Optuna storage
+  URL the trials land in the database, and the tune result is the in-memory one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import optuna
+import pytest
+
+from quadrotor import DT, ROLL
+from tuner.optimize.design import bounds
+from tuner.controllers import GAIN_SPAN, STRUCTURES, get_structure
+from tuner.optimize.scoring import Evaluator
+from tuner.plant import make_plant, plant_from_expr
+from tuner.optimize.search import global_search
+from tuner.optimize.space import make_space
+from tuner.spec import Spec
+from tuner.tuning import tune
+
+BUDGET = 120.0  # never what stops a search here
+
+# (structure, dt) pairs: every structure at the thesis dt, every continuous one in continuous time
+CASES = [(s, DT) for s in STRUCTURES] + [(s, None) for s, st in STRUCTURES.items() if not st.discrete_only]
+PLANTS = {
+    "roll": plant_from_expr(ROLL),
+    "unstable": make_plant([1], [1, -1]),  # 1/(s-1): a plant scale from an unstable pole
+    "integrator": make_plant([1], [1, 1, 0]),  # 1/(s(s+1))
+}
+
+
+def _ids(c):
+    return f"{c[0]}-{'ct' if c[1] is None else 'dt'}"
+
+
+def _box_points(space, n_random=200, seed=1):
+    """Every corner of the box, its centre, and random interior points."""
+    rng = np.random.default_rng(seed)
+    corners = [np.array(c) for c in itertools.product(*zip(space.lo, space.hi))]
+    rand = [space.lo + rng.random(space.lo.size) * (space.hi - space.lo) for _ in range(n_random)]
+    return corners + [0.5 * (space.lo + space.hi)] + rand
+
+
+def _check_valid(st, x, dt):
+    """x is a valid parameter vector of st: kinds, orderings, finite TF."""
+    named = st.named(x)
+    for p, kind in zip(st.params, st.kinds):
+        if kind == "freq":
+            assert named[p] > 0, (p, named)
+        if kind == "time":
+            # continuous derivative filters need Tf > 0 (Tf = 0 is improper); the box is log in Tf
+            assert named[p] > 0, (p, named)
+    for a, b in st.orderings:
+        assert named[a] < named[b], f"{st.name}: ordering {a} < {b} violated: {named}"
+    c = st.tf(x, dt)  # raises on invalid parameters
+    assert np.all(np.isfinite(c.num)) and np.all(np.isfinite(c.den))
+
+
+@pytest.mark.parametrize("plant_name", sorted(PLANTS))
+@pytest.mark.parametrize("case", CASES, ids=_ids)
+def test_space_round_trip(case, plant_name):
+    name, dt = case
+    st = get_structure(name)
+    space = make_space(st, PLANTS[plant_name], dt)
+    assert len(space.names) == len(st.params) == space.lo.size == space.hi.size
+    assert np.all(space.lo < space.hi)
+    for v in _box_points(space, n_random=50):
+        x = space.params(v)
+        v2 = space.from_params(x)
+        np.testing.assert_allclose(v2, v, rtol=0, atol=1e-9 * max(1.0, float(np.max(np.abs(v)))))
+        np.testing.assert_allclose(space.params(v2), x, rtol=1e-9, atol=0)
+
+
+@pytest.mark.parametrize("case", CASES, ids=_ids)
+def test_every_box_point_is_a_valid_controller(case):
+    name, dt = case
+    st = get_structure(name)
+    for plant in PLANTS.values():
+        space = make_space(st, plant, dt)
+        for v in _box_points(space):
+            _check_valid(st, space.params(v), dt)
+
+
+def test_gain_mapping_matches_the_documented_formula():
+    """tuner/space.py documents g = unit * 2e-3 * sinh(v ln10) ~ unit * sign(v) * 10**(|v| - 3), "log-uniform
+    in magnitude from 1e-3 to 1e2 units": the box (v in [-5, 5]) must end at +-GAIN_SPAN = 100 units, the
+    same bounds as Structure.bounds."""
+    for name, dt in CASES:
+        _check_gain_mapping(get_structure(name), dt)
+
+
+def _check_gain_mapping(st, dt):
+    space = make_space(st, PLANTS["roll"], dt)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        v = space.lo + rng.random(space.lo.size) * (space.hi - space.lo)
+        x = space.params(v)
+        for i, kind in enumerate(st.kinds):
+            if kind == "gain":
+                assert x[i] == pytest.approx(space.units[i] * 2e-3 * math.sinh(v[i] * math.log(10)), rel=1e-12)
+            elif kind in ("freq", "time") and space._ratio_of[i] is None:
+                assert x[i] == pytest.approx(10 ** v[i], rel=1e-12)
+            elif kind == "coef":
+                assert x[i] == v[i]
+    # the box's gain ends are +-GAIN_SPAN units, the structure's own bounds (Structure.bounds)
+    lo_p, hi_p = bounds(st, PLANTS["roll"], dt)
+    x_lo, x_hi = space.params(space.lo), space.params(space.hi)
+    for i, kind in enumerate(st.kinds):
+        if kind == "gain":
+            assert space.lo[i] == pytest.approx(-5.0) and space.hi[i] == pytest.approx(5.0)
+            assert x_hi[i] == pytest.approx(hi_p[i], rel=1e-9) == pytest.approx(GAIN_SPAN * space.units[i])
+            assert x_lo[i] == pytest.approx(lo_p[i], rel=1e-9)
+
+
+def test_pid_z_box_holds_the_thesis_roll_controller():
+    """The printed roll PID 3.868 (z^2 - 1.305 z + 0.5668)/(z(z-1)) maps into the box and back."""
+    st = get_structure("pid_z")
+    space = make_space(st, PLANTS["roll"], DT)
+    x = np.array([3.868, -1.305, 0.5668])
+    v = space.from_params(x)
+    assert np.all(v > space.lo) and np.all(v < space.hi)
+    np.testing.assert_allclose(space.params(v), x, rtol=1e-12)
+
+
+# -- global search -----------------------------------------------------------------------------
+
+def _search(seed, **kw):
+    st = get_structure("pid_z")
+    plant = PLANTS["roll"]
+    space = make_space(st, plant, DT)
+    ev = Evaluator([plant], st, DT, Spec())
+    return ev, global_search(ev, space, seed=seed, n_trials=30, top_k=3, **kw)
+
+
+def test_global_search_is_deterministic():
+    ev1, r1 = _search(3)
+    ev2, r2 = _search(3)
+    assert r1.n_evals == r2.n_evals == 30
+    assert ev1.n_evals == 30  # one verifier evaluation per trial
+    assert r1.best_score == r2.best_score
+    assert len(r1.top) == len(r2.top) == 3
+    for (s1, v1), (s2, v2) in zip(r1.top, r2.top):
+        assert s1 == s2
+        np.testing.assert_array_equal(v1, v2)
+    # best first, and the best score is the first candidate's
+    scores = [s for s, _ in r1.top]
+    assert scores == sorted(scores) and scores[0] == r1.best_score
+    # the scores are the evaluator's: re-score the top candidates with a fresh evaluator
+    space = make_space(get_structure("pid_z"), PLANTS["roll"], DT)
+    ev = Evaluator([PLANTS["roll"]], get_structure("pid_z"), DT, Spec())
+    for s, v in r1.top:
+        assert ev.score(space.params(v)).score == s
+
+
+def test_global_search_top_candidates_are_distinct():
+    _, r = _search(5)
+    space = make_space(get_structure("pid_z"), PLANTS["roll"], DT)
+    span = space.hi - space.lo
+    for (_, a), (_, b) in itertools.combinations(r.top, 2):
+        assert np.linalg.norm((a - b) / span) > 0.05
+
+
+def test_global_search_enqueued_starts_are_evaluated_first():
+    """x0 starts are the first trials (the designed starts of tune rely on it)."""
+    st = get_structure("pid_z")
+    plant = PLANTS["roll"]
+    space = make_space(st, plant, DT)
+    ev = Evaluator([plant], st, DT, Spec())
+    x = np.array([3.868, -1.305, 0.5668])  # the thesis roll controller, which meets the spec
+    v = space.from_params(x)
+    r = global_search(ev, space, seed=0, n_trials=1, x0=[v], top_k=1)
+    assert r.n_evals == 1
+    np.testing.assert_allclose(r.top[0][1], v, rtol=1e-12)
+    # its score is its settling time (feasible), as the verifier says at search resolution
+    assert r.best_score == ev.score(space.params(v)).score < 1e3
+
+
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory):
+    """Tune roll pid_z with a sqlite storage URL and without storage (same seed)."""
+    path = tmp_path_factory.mktemp("optuna") / "trials.db"
+    url = f"sqlite:///{path}"
+    plant = plant_from_expr(ROLL)
+    with_db = tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, storage=url)
+    in_memory = tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET)
+    return url, with_db, in_memory
+
+
+def test_storage_url_is_accepted_and_trials_land_in_it(stored):
+    url, with_db, in_memory = stored
+    names = optuna.get_all_study_names(url)
+    assert len(names) == 1
+    study = optuna.load_study(study_name=names[0], storage=url)
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    # the in-memory run with the same seed makes exactly as many global evaluations
+    assert len(done) == in_memory.solver["global_evaluations"] > 0
+    # and the result reports the trials it ran (not each one twice)
+    assert with_db.solver["global_evaluations"] == len(done)
+    assert study.best_value == pytest.approx(with_db.solver["global_best"], rel=1e-12)
+    # the trial parameters are the space's coordinates
+    space = make_space(get_structure("pid_z"), plant_from_expr(ROLL), DT)
+    assert set(done[0].params) == set(space.names)
+
+
+def test_storage_does_not_change_the_result(stored):
+    _, with_db, in_memory = stored
+    assert with_db.gains == in_memory.gains
+    assert with_db.meets_spec and in_memory.meets_spec

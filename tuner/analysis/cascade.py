@@ -1,0 +1,197 @@
+"""Cascades: an outer loop tuned around a tuned inner closed loop.
+
+The quadrotor's X position loop wraps the pitch loop (Y wraps roll)::
+
+    r --> (+) --> Co(z) --theta_ref--> (+) --> Ci(z) --> ZOH --> Gi(s) --theta--> Go(s) --> x
+           ^-x[k]                       ^-theta[k]
+
+Both controllers run at the same ``dt``. :func:`outer_plant` gives the plant the outer
+controller sees at the sample instants,
+
+    P(z) = Ci(z) Z[Gi Go](z) / (1 + Ci(z) Z[Gi](z)),            Z[.] = ZOH equivalent at dt,
+
+which is exact at the samples: the position integrates the continuous angle, which is
+driven by the inner controller's staircase. (The thesis's ``T_i(z) Z[Go](z)`` holds the
+angle constant between samples; it is used only when the inner plant is given in z,
+where ``Z[Gi Go]`` does not exist.) The order is inner plant + inner controller + outer
+plant, at most :data:`tuner.plant.MAX_ORDER`.
+
+The composite plant is a sampled model only: there is no continuous plant whose ZOH
+it is (the position between samples follows the inner loop's staircase, not the outer
+controller's). It is therefore written as ``z N(z) / (z D(z))``: a plant with a pole at
+``z = 0`` has no continuous equivalent, so the verifier evaluates the outer loop at the
+sample instants (documented in :meth:`tuner.plant.Plant.continuous_equivalent`), and
+the extra closed-loop pole sits at ``z = 0``. The position between samples is then
+checked by :func:`simulate_cascade`, an exact sampled-data simulation of the whole
+cascade on the continuous plants.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import control as ct
+import numpy as np
+from scipy import linalg
+
+from ..controllers import ControllerTF
+from ..errors import InvalidPlantError
+from ..plant import MAX_ORDER, Plant, delay_in_samples, make_plant
+from .response import StepMetrics, StepResponse, step_metrics
+
+__all__ = ["outer_plant", "outer_plants", "simulate_cascade", "CascadeResponse", "EXACT_NOTE", "HELD_NOTE"]
+
+EXACT_NOTE = "exact at the samples; position between samples from a sampled-data simulation of the whole cascade"
+HELD_NOTE = "inner plant given in z: angle held between samples (thesis model), sample instants only"
+
+
+def _monic(p: np.ndarray) -> np.ndarray:
+    return np.asarray(p, float) / float(p[0])
+
+
+def _discrete(p: Plant, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH num/den at ``dt`` with the delay folded in as ``z^-d``."""
+    return p.zoh(dt).rational_discrete()
+
+
+def _outer_poles(go: Plant, dt: float) -> np.ndarray:
+    """Denominator of the outer plant's poles mapped to z (exact ``(z-1)^k`` for integrators)."""
+    poles = np.roots(go.den).astype(complex)
+    zs = np.where(np.abs(poles) < 1e-12, 1.0, np.exp(poles * dt))
+    return np.real(np.poly(zs))
+
+
+def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
+    """The plant seen by an outer controller wrapped around ``controller`` on ``inner``.
+
+    ``inner`` is the inner loop's plant, ``controller`` its tuned controller (at ``dt``),
+    ``outer`` the plant from the inner loop's output to the outer output (e.g. ``9.81/s^2``).
+    Returns a discrete :class:`~tuner.plant.Plant` at ``dt`` (see the module docstring).
+    """
+    dt = controller.dt
+    if dt is None:
+        raise InvalidPlantError("cascade: the inner controller must be discrete (give the inner loop a dt)")
+    nc, dc = np.asarray(controller.num, float), np.asarray(controller.den, float)
+    ng, dg = _discrete(inner, dt)
+    char = np.polyadd(np.polymul(dc, dg), np.polymul(nc, ng))  # inner closed-loop characteristic polynomial
+    if inner.is_discrete or outer.is_discrete:
+        if outer.is_discrete and abs(outer.dt - dt) > 1e-9 * dt:
+            raise InvalidPlantError(f"cascade: outer plant is discrete at dt={outer.dt}, the loops run at dt={dt}")
+        no, do = _discrete(outer, dt)
+        num, den = np.polymul(np.polymul(nc, ng), no), np.polymul(do, char)
+    else:
+        both = make_plant(np.polymul(inner.num, outer.num), np.polymul(inner.den, outer.den),
+                          delay=inner.delay_s + outer.delay_s)
+        n2, d2 = _discrete(both, dt)
+        do = _outer_poles(outer, dt)
+        d_out = delay_in_samples(outer.delay_s, dt)
+        do = np.concatenate([do, np.zeros(d_out)])
+        expect = np.polymul(dg, do)  # Z[Gi Go] has Z[Gi]'s poles and the outer plant's mapped poles
+        if expect.size != d2.size or not np.allclose(_monic(d2), _monic(expect), rtol=1e-7, atol=1e-9):
+            raise InvalidPlantError("cascade: could not factor the ZOH equivalent of the inner and outer plants")
+        num, den = np.polymul(nc, n2), np.polymul(do, char)
+    order = den.size  # degree + 1 for the z factor below
+    if order > MAX_ORDER:
+        raise InvalidPlantError(
+            f"cascade: the outer loop's plant would have order {order}, above the limit {MAX_ORDER}; "
+            "use a lower-order inner controller or plant"
+        )
+    # z N / (z D): a sampled model with no continuous equivalent (module docstring)
+    return make_plant(np.polymul(num, [1.0, 0.0]), np.polymul(den, [1.0, 0.0]), dt=dt)
+
+
+def outer_plants(inners: list[Plant], controller: ControllerTF, outers: list[Plant]) -> list[Plant]:
+    """Every combination of inner and outer plant (nominal first): the outer loop's plant set."""
+    return [outer_plant(gi, controller, go) for gi in inners for go in outers]
+
+
+@dataclass(frozen=True, eq=False)
+class CascadeResponse:
+    """Unit step on the outer reference, simulated on the continuous plants."""
+
+    response: StepResponse  # y = outer output x(t) between samples, u = outer controller output
+    inner_output: np.ndarray  # the inner plant's output (e.g. the angle) on the same grid
+    metrics: StepMetrics
+
+
+def _ss(p: Plant) -> tuple[np.ndarray, ...]:
+    s = ct.tf2ss(p.tf)
+    return tuple(np.atleast_2d(np.asarray(m, dtype=float)) for m in (s.A, s.B, s.C, s.D))
+
+
+def _ctrl_ss(c: ControllerTF) -> tuple[np.ndarray, ...]:
+    s = ct.tf2ss(ct.tf(c.num, c.den, c.dt))
+    return tuple(np.atleast_2d(np.asarray(m, dtype=float)) for m in (s.A, s.B, s.C, s.D))
+
+
+def simulate_cascade(
+    inner: Plant, inner_ctrl: ControllerTF, outer: Plant, outer_ctrl: ControllerTF, *, horizon_s: float,
+    samples_per_dt: int = 20, band_pct: float = 2.0, y_final: float | None = None,
+) -> CascadeResponse | None:
+    """Exact sampled-data simulation of the cascade after a unit step on the outer reference.
+
+    Both plants continuous and without delay (``None`` otherwise): the inner and outer plants
+    in series are discretised with a ZOH at ``dt/samples_per_dt`` (exact for the staircase
+    input), the controllers run at ``dt``. At the sample instants the output equals the
+    outer loop's response on :func:`outer_plant`; between samples it is the true output.
+    ``y_final`` is the closed loop's exact final value (the verifier's); default: the last sample.
+    """
+    dt = inner_ctrl.dt
+    if dt is None or outer_ctrl.dt is None or abs(outer_ctrl.dt - dt) > 1e-9 * dt:
+        return None
+    if inner.is_discrete or outer.is_discrete or inner.delay_s or outer.delay_s:
+        return None
+    Ai, Bi, Ci, Di = _ss(inner)
+    Ao, Bo, Co, Do = _ss(outer)
+    ni, no = Ai.shape[0], Ao.shape[0]
+    A = np.block([[Ai, np.zeros((ni, no))], [Bo @ Ci, Ao]])
+    B = np.vstack([Bi, Bo @ Di])
+    Cth = np.hstack([Ci, np.zeros((1, no))])
+    Cx = np.hstack([Do @ Ci, Co])
+    Dth, Dx = Di, Do @ Di
+    n = A.shape[0]
+    N = int(samples_per_dt)
+    h = dt / N
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n:] = A, B
+    E = linalg.expm(M * h)
+    Ah, Bh = E[:n, :n], E[:n, n:]
+    # state after j fine steps within one sample, input held: x_j = Phi_j x0 + Gam_j u
+    Phi = [np.eye(n)]
+    Gam = [np.zeros((n, 1))]
+    for _ in range(N):
+        Phi.append(Ah @ Phi[-1])
+        Gam.append(Ah @ Gam[-1] + Bh)
+    Phi, Gam = np.array(Phi[:-1]), np.array(Gam[:-1])  # j = 0..N-1 within the sample
+    Ad, Bd = Ah @ Phi[-1], Ah @ Gam[-1] + Bh  # one whole sample
+    Aco, Bco, Cco, Dco = _ctrl_ss(outer_ctrl)
+    Aci, Bci, Cci, Dci = _ctrl_ss(inner_ctrl)
+    K = int(math.ceil(horizon_s / dt)) + 1
+    x = np.zeros((n, 1))
+    xo = np.zeros((Aco.shape[0], 1))
+    xi = np.zeros((Aci.shape[0], 1))
+    y_fine = np.empty(K * N)
+    th_fine = np.empty(K * N)
+    u_fine = np.empty(K * N)
+    ys = np.empty(K)
+    for k in range(K):
+        xpos = float((Cx @ x)[0, 0])  # strictly proper plants: no feedthrough at the sample
+        th = float((Cth @ x)[0, 0])
+        ys[k] = xpos
+        eo = 1.0 - xpos
+        ref = float((Cco @ xo + Dco * eo)[0, 0])
+        xo = Aco @ xo + Bco * eo
+        ei = ref - th
+        u = float((Cci @ xi + Dci * ei)[0, 0])
+        xi = Aci @ xi + Bci * ei
+        xs = Phi @ x + Gam * u  # (N, n, 1)
+        y_fine[k * N:(k + 1) * N] = (Cx @ xs)[:, 0, 0] + Dx[0, 0] * u
+        th_fine[k * N:(k + 1) * N] = (Cth @ xs)[:, 0, 0] + Dth[0, 0] * u
+        u_fine[k * N:(k + 1) * N] = ref
+        x = Ad @ x + Bd * u
+    t = np.arange(K * N) * h
+    ts = np.arange(K) * dt
+    yf = float(ys[-1]) if y_final is None else float(y_final)
+    resp = StepResponse(t=t, y=y_fine, u=u_fine, t_samples=ts, y_samples=ys, y_final=yf, between_samples=True)
+    return CascadeResponse(response=resp, inner_output=th_fine, metrics=step_metrics(resp, band_pct=band_pct))

@@ -1,0 +1,135 @@
+"""The verifier: everything a user is told about a loop comes from here.
+
+Built on python-control and numpy only (no CasADi, no Optuna): closed-loop
+poles from the uncancelled characteristic polynomial, margins from a dense
+refined frequency grid (:mod:`tuner.analysis.margins`), step metrics from the continuous
+plant output between samples (:mod:`tuner.analysis.response`).
+
+Non-finite values keep their meaning: ``inf`` gain margin = no crossing,
+``inf`` settling time = not settled within the horizon, ``nan`` = not defined
+(e.g. step metrics of an unstable loop). In JSON they are written as the
+strings ``"Infinity"``, ``"-Infinity"`` and ``"NaN"`` (see :func:`jsonable`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ..controllers import ControllerTF
+from ..loop import Loop, build_loop
+from .margins import Margins, disk_margin, margins
+from ..plant import Plant
+from .response import StepResponse, closed_loop_poles, is_stable, step_metrics, step_response
+from ..spec import Check, Spec, check_spec
+
+__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop", "with_disk_margin", "jsonable", "METRIC_FIELDS"]
+
+
+@dataclass(frozen=True)
+class Metrics:
+    stable: bool
+    phase_margin_deg: float
+    crossover_rad_s: float
+    gain_margin_db: float
+    gain_margin_lower_db: float
+    disk_margin: float
+    ms: float
+    bandwidth_rad_s: float
+    overshoot_pct: float
+    settling_time_s: float
+    rise_time_s: float
+    steady_state_error: float
+    control_peak: float
+
+
+METRIC_FIELDS = tuple(f for f in Metrics.__dataclass_fields__)
+
+
+@dataclass(frozen=True, eq=False)
+class Analysis:
+    loop: Loop
+    metrics: Metrics
+    checks: list[Check]
+    poles: np.ndarray
+    response: StepResponse | None = field(repr=False)
+    margins: Margins | None = field(default=None, repr=False)  # incl. the phase-crossover frequency
+
+    @property
+    def meets_spec(self) -> bool:
+        return all(c.ok for c in self.checks)
+
+    @property
+    def failing(self) -> list[Check]:
+        return [c for c in self.checks if not c.ok]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "metrics": asdict(self.metrics),
+            "checks": [c.to_dict() for c in self.checks],
+            "meets_spec": self.meets_spec,
+        }
+
+
+def analyze_loop(
+    loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None, with_disk: bool = True,
+    samples_per_dt: int | None = None, grid_points: int | None = None, poles: np.ndarray | None = None,
+) -> Analysis:
+    """Verify ``loop`` against ``spec`` (defaults to the thesis spec); ``poles`` if already computed."""
+    spec = spec or Spec()
+    poles = closed_loop_poles(loop) if poles is None else poles
+    stable = is_stable(loop, poles)
+    mg = margins(loop, with_disk=with_disk, **({} if grid_points is None else {"grid_points": grid_points}))
+    resp = None
+    if stable:
+        kw = {} if samples_per_dt is None else {"samples_per_dt": samples_per_dt}
+        resp = step_response(loop, horizon_s=horizon_s, **kw)
+        sm = step_metrics(resp, band_pct=spec.settling_band_pct)
+        step = (sm.overshoot_pct, sm.settling_time_s, sm.rise_time_s, sm.steady_state_error, sm.control_peak)
+    else:
+        step = (math.nan, math.inf, math.nan, math.nan, math.nan)
+    m = Metrics(
+        stable, mg.phase_margin_deg, mg.crossover_rad_s, mg.gain_margin_db, mg.gain_margin_lower_db,
+        mg.disk_margin, mg.ms, mg.bandwidth_rad_s, *step,
+    )
+    return Analysis(loop=loop, metrics=m, checks=check_spec(m, spec), poles=poles, response=resp, margins=mg)
+
+
+def with_disk_margin(a: Analysis) -> Analysis:
+    """``a`` with its disk margin filled in (the rest of the analysis is not repeated)."""
+    if not math.isnan(a.metrics.disk_margin):
+        return a
+    return replace(a, metrics=replace(a.metrics, disk_margin=disk_margin(a.loop)))
+
+
+def analyze(
+    plant: Plant, controller: ControllerTF, spec: Spec | None = None, *, horizon_s: float | None = None,
+    with_disk: bool = True,
+) -> Analysis:
+    """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks."""
+    return analyze_loop(build_loop(plant, controller), spec, horizon_s=horizon_s, with_disk=with_disk)
+
+
+def jsonable(obj: Any) -> Any:
+    """Recursively convert to JSON-safe values; non-finite floats become "Infinity"/"-Infinity"/"NaN"."""
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [jsonable(v) for v in obj.tolist()]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        if math.isnan(v):
+            return "NaN"
+        if math.isinf(v):
+            return "Infinity" if v > 0 else "-Infinity"
+        return v
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj

@@ -1,0 +1,160 @@
+"""Scoring a candidate controller with the verifier, over one plant or a set.
+
+The score is what the global search minimises and what decides between local
+solutions: for a candidate that meets every constraint on every plant it is the
+objective (worst case over the plants); otherwise it is a penalty above every
+feasible value, graded by how far the candidate is from feasibility so the
+search can climb out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..analysis.verify import Analysis, analyze_loop
+from ..controllers import ControllerTF, Structure
+from ..errors import TunerError
+from ..loop import build_loop
+from ..analysis.response import closed_loop_poles, default_horizon, is_stable, step_response
+from ..plant import Plant
+from ..spec import Spec
+
+__all__ = ["Evaluator", "Scored", "objective_value", "INFEASIBLE"]
+
+INFEASIBLE = 1e3  # every infeasible score is above this; feasible scores are below
+UNSTABLE = 1e5
+
+# resolution used inside the search (the final verification uses the full defaults)
+SEARCH_GRID = 600
+SEARCH_SAMPLES_PER_DT = 8
+SEARCH_HORIZON_SAMPLES = 250  # a candidate not settled within this many samples (or 250/w0) scores as infeasible
+SEARCH_BAND_GUARD = 0.97  # in the search, settle into 97 % of the band: the edge must survive full resolution
+
+
+@dataclass(frozen=True)
+class Scored:
+    score: float
+    feasible: bool
+    analyses: tuple[Analysis, ...]
+
+
+def objective_value(a: Analysis, spec: Spec) -> float:
+    """The spec's objective for one verified analysis (smaller is better)."""
+    m = a.metrics
+    if spec.objective == "settling_time":
+        return m.settling_time_s
+    if spec.objective == "bandwidth":
+        return -m.bandwidth_rad_s if math.isfinite(m.bandwidth_rad_s) else math.inf
+    r = a.response
+    if r is None:
+        return math.inf
+    if spec.objective == "itae":  # of the reference step
+        return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
+    # iae: integral of |y| after a unit step load disturbance at the plant input, on the same horizon
+    d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
+    return float(np.trapezoid(np.abs(d.y), d.t))
+
+
+# how a violation is normalised: by the requirement, except where the requirement is no scale
+_UNIT = {"steady_state_error": 1.0}  # the reference step is 1
+
+
+def _violation(a: Analysis) -> float:
+    """Sum of normalised constraint violations (0 when all hold), graded so the search can tell
+    how far from feasible a candidate is."""
+    total = 0.0
+    for c in a.checks:
+        if c.ok or c.name == "stable":
+            continue
+        v = c.violation
+        if not math.isfinite(v):
+            total += 10.0
+            continue
+        scale = _UNIT.get(c.name)
+        if scale is None:
+            req = c.required if isinstance(c.required, (int, float)) and not isinstance(c.required, bool) else 1.0
+            scale = abs(req) if math.isfinite(req) and req != 0 else 1.0
+        total += min(v / scale, 10.0)
+    return total
+
+
+class Evaluator:
+    """Verifier-backed scoring of structure parameters against a plant set."""
+
+    def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec, *,
+                 w0: float | None = None) -> None:
+        self.plants = tuple(plants)
+        self.structure = structure
+        self.dt = dt
+        self.spec = spec
+        self.n_evals = 0
+
+        self._search_spec = spec.model_copy(update={"settling_band_pct": spec.settling_band_pct * SEARCH_BAND_GUARD})
+        self._w0 = w0  # the plant's characteristic frequency (the search space's); computed if not given
+
+    def controller(self, x: np.ndarray) -> ControllerTF:
+        return self.structure.tf(x, self.dt)
+
+    def analyse(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> tuple[Analysis, ...]:
+        """The verifier's analyses on every plant: at full resolution (``full``), else the search's."""
+        loops = self._loops(x)
+        return tuple(self._analyse_loop(lp, None, full=full, with_disk=with_disk) for lp in loops)
+
+    def _loops(self, x: np.ndarray) -> list:
+        ctrl = self.controller(x)
+        return [build_loop(p, ctrl) for p in self.plants]
+
+    def _analyse_loop(self, lp, poles: np.ndarray | None, *, full: bool, with_disk: bool) -> Analysis:
+        if full:
+            return analyze_loop(lp, self.spec, with_disk=with_disk, poles=poles)
+        return analyze_loop(lp, self._search_spec, with_disk=False, grid_points=SEARCH_GRID,
+                            samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp, poles), poles=poles)
+
+    def _horizon(self, lp, poles: np.ndarray | None = None) -> float:
+        cap = SEARCH_HORIZON_SAMPLES * (lp.dt if lp.dt else 1.0 / self._scale_w0())
+        return min(default_horizon(lp, None if lp.delay_s else poles), cap)
+
+    def _scale_w0(self) -> float:
+        if self._w0 is None:
+            from .design import plant_scale
+
+            self._w0 = plant_scale(self.plants[0], self.dt)[1]
+        return self._w0
+
+    @staticmethod
+    def _outside(lp, poles: np.ndarray) -> float:
+        """0 if ``poles`` are stable, else how far the worst one is outside the stability region."""
+        if poles.size == 0 or is_stable(lp, poles):
+            return 0.0
+        out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
+        return max(out, 1e-9)
+
+    def instability(self, x: np.ndarray) -> float:
+        """0 if the loop is stable on every plant, else how far the worst pole is outside."""
+        return max(self._outside(lp, closed_loop_poles(lp)) for lp in self._loops(x))
+
+    def score(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> Scored:
+        self.n_evals += 1
+        try:
+            loops = self._loops(x)
+            poles = [closed_loop_poles(lp) for lp in loops]  # once per evaluation: reused below
+            if not full:
+                out = max(self._outside(lp, p) for lp, p in zip(loops, poles))
+                if out > 0:
+                    return Scored(UNSTABLE * (1.0 + min(out, 1e3)), False, ())
+            an = tuple(self._analyse_loop(lp, p, full=full, with_disk=with_disk) for lp, p in zip(loops, poles))
+        except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
+            return Scored(UNSTABLE * 10, False, ())
+        if any(not a.metrics.stable for a in an):
+            return Scored(UNSTABLE, False, an)
+        viol = sum(_violation(a) for a in an)
+        if viol > 0:
+            return Scored(INFEASIBLE * (1.0 + viol), False, an)
+        obj = max(objective_value(a, self.spec) for a in an)
+        if not math.isfinite(obj):
+            return Scored(INFEASIBLE, False, an)
+        return Scored(obj, True, an)

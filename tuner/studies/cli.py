@@ -1,0 +1,272 @@
+"""``tuner study run`` and ``tuner verify``: the command-line side of studies.
+
+Registered in :mod:`tuner.cli` through ``_EXTRA_COMMANDS``. Exit codes as for the rest of
+the CLI: 0 success; 1 a loop fails its spec (``verify``, ``study run --check``) or the
+study could not be finished; 2 bad input (one line naming the problem).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from ..errors import TunerError
+
+__all__ = ["add_parser", "run_study", "write_outputs"]
+
+
+def add_parser(sub: Any) -> None:
+    s = sub.add_parser("study", help="tune every loop of a study file (TOML)")
+    ssub = s.add_subparsers(dest="study_cmd", required=True, parser_class=type(s))
+    r = ssub.add_parser("run", help="tune the study's loops, write results.json, report.md and plots")
+    r.add_argument("file", help="study file (TOML), e.g. studies/quadrotor.toml")
+    r.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes on this machine (1)")
+    r.add_argument("--storage", default=None, metavar="URL",
+                   help="Optuna storage shared by the workers (default sqlite:///DIR/study.db); "
+                        "postgresql://user@host:5432/db for several machines")
+    r.add_argument("--out", default=None, metavar="DIR", help="output directory (default results/<study name>)")
+    r.add_argument("--check", action="store_true", help="exit 1 when a loop does not meet its spec")
+    r.add_argument("--heartbeat", type=int, default=2, metavar="S", help="claim heartbeat interval, s (2)")
+    r.add_argument("--grace", type=int, default=30, metavar="S",
+                   help="a claim without a heartbeat for this long is taken over, s (30)")
+    r.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    r.set_defaults(handler=_cmd_study_run)
+
+    v = sub.add_parser("verify", help="re-verify committed gains against each loop's spec (exit 1 if any fails)")
+    v.add_argument("file", help="study file (TOML)")
+    v.add_argument("--gains", required=True, metavar="GAINS.json", help="{loop: {structure, gains, dt}}")
+    v.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    v.set_defaults(handler=_cmd_verify)
+
+
+# -- study run ------------------------------------------------------------------------------------
+
+def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pid: int) -> None:
+    """A worker process: the same claim loop as every other worker, on its own connection."""
+    from .schema import load_study
+    from .runner import Coordinator, open_storage, work
+
+    def watchdog() -> None:  # a parent killed with SIGKILL cannot take its workers down: they notice
+        while True:
+            if os.getppid() != parent_pid:
+                os._exit(3)
+            time.sleep(1.0)
+
+    threading.Thread(target=watchdog, daemon=True).start()
+    work(Coordinator(load_study(path), open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)))
+
+
+def _progress_loop(study: Any, storage: Any, stop: threading.Event) -> None:
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .runner import Coordinator
+
+    coord = Coordinator(study, storage, observe_only=True)
+    cols = (TextColumn("{task.description:<12}"), BarColumn(), TextColumn("{task.fields[status]}"),
+            TimeElapsedColumn())
+    with Progress(*cols, console=Console(stderr=True), transient=False) as prog:
+        tasks = {lp.name: prog.add_task(lp.name, total=100, status="queued") for lp in study.order()}
+        while True:
+            final = stop.is_set()
+            try:
+                sts = coord.statuses()
+            except Exception:  # a transient storage hiccup must not stop the display  # noqa: BLE001
+                sts = {}
+            for lp in study.order():
+                st = sts.get(lp.name)
+                if st is None:
+                    continue
+                if st.state == "done":
+                    r = st.result or {}
+                    ts = (r.get("metrics") or {}).get("settling_time_s")
+                    verdict = "meets spec" if r.get("meets_spec") else ("ERROR" if "error" in r else "FAILS spec")
+                    prog.update(tasks[lp.name], completed=100,
+                                status=f"done: settling {_short(ts)} s, {verdict}")
+                elif st.state == "running":
+                    budget = lp.time_budget_s or study.time_budget_s
+                    el = (datetime.now() - st.since).total_seconds() if st.since else 0.0
+                    prog.update(tasks[lp.name], completed=min(95.0, 100.0 * el / budget),
+                                status=f"tuning on {st.worker}")
+                elif st.state == "blocked":
+                    prog.update(tasks[lp.name], status=f"waiting for {lp.inner}")
+                else:
+                    again = f"re-queued (attempt {st.epoch + 1})"
+                    prog.update(tasks[lp.name], status="queued" if st.epoch == 0 else again)
+            if final:
+                return
+            stop.wait(0.5)
+
+
+def _short(v: Any) -> str:
+    return f"{v:.3g}" if isinstance(v, (int, float)) else str(v)
+
+
+def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s: int = 2, grace_s: int = 30,
+              progress: bool = True) -> dict[str, Any]:
+    """Run ``workers`` workers on this machine until every loop is done; returns the statuses."""
+    from .runner import Coordinator, open_storage, work
+
+    storage = open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)
+    stop = threading.Event()
+    mon = None
+    if progress:
+        mon = threading.Thread(target=_progress_loop, args=(study, open_storage(url, heartbeat_s=heartbeat_s,
+                                                                                grace_s=grace_s), stop), daemon=True)
+        mon.start()
+    try:
+        if workers <= 1:
+            work(Coordinator(study, storage))
+        else:
+            ctx = mp.get_context("spawn")
+            procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid()),
+                                 name=f"tuner-worker-{i}") for i in range(workers)]
+            for p in procs:
+                p.start()
+            for p in procs:
+                p.join()
+    finally:
+        stop.set()
+        if mon is not None:
+            mon.join(timeout=10)
+    return Coordinator(study, storage, observe_only=True).statuses()
+
+
+def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storage: str, source: str,
+                  plots: bool = True) -> dict[str, Any]:
+    """results.json, gains.json, report.md and plots/ from the stored results (re-verified)."""
+    from ..analysis.verify import jsonable
+    from .report import render_report
+    from .schema import controller_of
+    from .evaluate import evaluate_loop, evaluate_thesis, gains_entry
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results = {name: (st.result or {"loop": name, "error": "not done"}) for name, st in statuses.items()}
+    ctrls, tuned = {}, {}
+    for lp in study.order():
+        r = results[lp.name]
+        if "gains" not in r or (lp.inner is not None and lp.inner not in tuned):
+            continue
+        ctrls[lp.name] = controller_of(lp, r["gains"])
+        inner_bw = tuned[lp.inner].nominal.metrics.bandwidth_rad_s if lp.inner else None
+        tuned[lp.name] = evaluate_loop(study, lp, ctrls[lp.name], ctrls, inner_bandwidth_rad_s=inner_bw)
+    thesis = evaluate_thesis(study, ctrls)
+    figs: dict[str, Any] = {}
+    if plots:
+        from ..analysis.plots import loop_plots
+
+        for name, e in tuned.items():
+            figs[name] = loop_plots(e.nominal, out_dir / "plots", name, band_pct=e.loop.spec.settling_band_pct,
+                                    overshoot_max_pct=e.loop.spec.overshoot_max_pct, cascade=e.cascade)
+    doc = {"study": study.name, "file": source, "storage": storage,
+           "meets_spec": all(e.meets_spec for e in tuned.values()) and len(tuned) == len(study.loop),
+           "order": [lp.name for lp in study.order()], "loops": results,
+           "thesis_as_printed": {n: e.to_dict() for n, e in thesis.items()}}
+    (out_dir / "results.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
+    gains = {lp.name: gains_entry(lp, results[lp.name]["gains"]) for lp in study.order() if "gains" in results[lp.name]}
+    (out_dir / "gains.json").write_text(json.dumps(gains, indent=2) + "\n")
+    (out_dir / "report.md").write_text(render_report(study, results, tuned, thesis, figs, out_dir=out_dir,
+                                                     storage=storage))
+    return doc
+
+
+def _cmd_study_run(a: argparse.Namespace) -> int:
+    from .schema import load_study
+    from .runner import default_storage_url, redact
+
+    study = load_study(a.file)
+    if not 1 <= a.workers <= 64:
+        raise TunerError("--workers: must be between 1 and 64")
+    if a.heartbeat < 1 or a.grace <= a.heartbeat:
+        raise TunerError("--heartbeat must be >= 1 s and --grace longer than it")
+    out = Path(a.out or os.path.join("results", study.name))
+    out.mkdir(parents=True, exist_ok=True)
+    url = a.storage or default_storage_url(str(out))
+    t0 = time.perf_counter()
+    statuses = run_study(study, a.file, url, workers=a.workers, heartbeat_s=a.heartbeat, grace_s=a.grace,
+                         progress=True)
+    missing = [n for n, s in statuses.items() if s.state != "done"]
+    if missing:
+        print(f"tuner: study {study.name!r} not finished: {', '.join(missing)} (workers stopped)", file=sys.stderr)
+        return 1
+    doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots)
+    _print_summary(doc, time.perf_counter() - t0, out)
+    return 1 if (a.check and not doc["meets_spec"]) else 0
+
+
+def _print_summary(doc: dict[str, Any], wall: float, out: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"study {doc['study']}: {wall:.1f} s", show_header=True)
+    for c in ("loop", "structure", "settling [s]", "PM [deg]", "overshoot [%]", "meets spec"):
+        t.add_column(c)
+    for name in doc["order"]:
+        r = doc["loops"][name]
+        m = r.get("metrics") or {}
+        ok = "[red]ERROR[/red]" if "error" in r else ("[green]yes[/green]" if r.get("meets_spec") else "[red]NO[/red]")
+        t.add_row(name, r.get("structure", "?"), _short(m.get("settling_time_s")), _short(m.get("phase_margin_deg")),
+                  _short(m.get("overshoot_pct")), ok)
+    con = Console(highlight=False)
+    con.print(t)
+    con.print(f"wrote {out / 'results.json'}, {out / 'gains.json'}, {out / 'report.md'}")
+
+
+# -- verify ---------------------------------------------------------------------------------------
+
+def _cmd_verify(a: argparse.Namespace) -> int:
+    from ..analysis.verify import jsonable
+    from .schema import load_study
+    from .evaluate import check_gains_file, evaluate_gains
+
+    study = load_study(a.file)
+    try:
+        data = json.loads(Path(a.gains).read_text(encoding="utf-8"))
+    except OSError as e:
+        raise TunerError(f"--gains {a.gains}: cannot read: {e.strerror or e}") from None
+    except json.JSONDecodeError as e:
+        raise TunerError(f"--gains {a.gains}: not valid JSON: {e}") from None
+    evals = evaluate_gains(study, check_gains_file(study, data, source=a.gains))
+    failing = [(n, e.failing) for n, e in evals.items() if not e.meets_spec]
+    if a.json:
+        print(json.dumps(jsonable({n: e.to_dict() for n, e in evals.items()}), indent=2))
+    else:
+        _print_verify_table(study, evals)
+    if failing:
+        print(f"tuner: verify: {len(failing)} loop(s) fail their spec: "
+              + "; ".join(f"{n} ({', '.join(f)})" for n, f in failing), file=sys.stderr)
+        return 1
+    if not a.json:
+        print(f"all {len(evals)} loops of study {study.name!r} meet their spec")
+    return 0
+
+
+def _print_verify_table(study: Any, evals: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"tuner verify: study {study.name}", show_header=True)
+    for c in ("loop", "structure", "PM [deg]", "GM [dB]", "overshoot [%]", "settling [s]", "ok"):
+        t.add_column(c)
+    for name, e in evals.items():
+        m = e.nominal.metrics
+        ts = m.settling_time_s
+        if e.cascade is not None:  # the cascade's output between samples, when it is the worse figure
+            ts = max(ts, e.cascade.metrics.settling_time_s) if math.isfinite(ts) else ts
+        ok = "[green]ok[/green]" if e.meets_spec else "[red]FAIL[/red]"
+        t.add_row(name, e.loop.structure, _short(m.phase_margin_deg), _short(m.gain_margin_db),
+                  _short(m.overshoot_pct), _short(ts), ok)
+    con = Console(highlight=False)
+    con.print(t)
+    for name, e in evals.items():
+        if not e.meets_spec:
+            con.print(f"{name}: failing {', '.join(e.failing)}")

@@ -1,0 +1,200 @@
+"""Tuning and verifying the loops of a study, cascades included.
+
+Every figure here comes from the verifier (:func:`tuner.analysis.analyze`); a cascade
+also gets an exact sampled-data simulation of the whole cascade
+(:func:`tuner.analysis.cascade.simulate_cascade`) for its output between samples.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from ..analysis.verify import Analysis, analyze, jsonable
+from ..analysis.cascade import EXACT_NOTE, HELD_NOTE, CascadeResponse, outer_plants, simulate_cascade
+from ..controllers import ControllerTF
+from ..errors import TunerError
+from ..plant import Plant
+from .schema import InvalidStudyError, LoopDef, StudyDef, base_plants, controller_of, loop_key, thesis_controller_of
+
+__all__ = ["LoopEval", "loop_plants", "evaluate_loop", "evaluate_gains", "evaluate_thesis", "tune_loop",
+           "gains_entry", "check_gains_file"]
+
+
+@dataclass(frozen=True, eq=False)
+class LoopEval:
+    """A controller on a loop, verified: one analysis per plant (nominal first)."""
+
+    loop: LoopDef
+    controller: ControllerTF
+    analyses: tuple[Analysis, ...]
+    cascade: CascadeResponse | None = None  # exact simulation of the whole cascade (nominal plants)
+    cascade_note: str | None = None
+    inner_bandwidth_rad_s: float | None = None
+
+    @property
+    def nominal(self) -> Analysis:
+        return self.analyses[0]
+
+    @property
+    def cascade_ok(self) -> bool:
+        """Between samples, the cascade's output keeps the overshoot limit and settles."""
+        if self.cascade is None:
+            return True
+        m = self.cascade.metrics
+        return bool(m.overshoot_pct <= self.loop.spec.overshoot_max_pct and math.isfinite(m.settling_time_s))
+
+    @property
+    def meets_spec(self) -> bool:
+        return all(a.meets_spec for a in self.analyses) and self.cascade_ok
+
+    @property
+    def failing(self) -> list[str]:
+        names = sorted({c.name for a in self.analyses for c in a.failing})
+        if not self.cascade_ok:
+            names.append("cascade_between_samples")
+        return names
+
+    def cascade_dict(self) -> dict[str, Any] | None:
+        if self.loop.inner is None:
+            return None
+        outer_bw = self.nominal.metrics.bandwidth_rad_s
+        inner_bw = self.inner_bandwidth_rad_s
+        ratio = inner_bw / outer_bw if inner_bw is not None and outer_bw > 0 else math.nan
+        out: dict[str, Any] = {"inner": self.loop.inner, "inner_bandwidth_rad_s": inner_bw,
+                               "outer_bandwidth_rad_s": outer_bw, "bandwidth_ratio": ratio,
+                               "evaluation": self.cascade_note}
+        if self.cascade is not None:
+            m = self.cascade.metrics
+            out["between_samples"] = {"overshoot_pct": m.overshoot_pct, "settling_time_s": m.settling_time_s,
+                                      "ok": self.cascade_ok}
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        d = self.nominal.to_dict()
+        out: dict[str, Any] = {"metrics": d["metrics"], "checks": d["checks"], "meets_spec": self.meets_spec,
+                               "failing": self.failing, "controller": self.controller.to_dict()}
+        if len(self.analyses) > 1:
+            out["plants"] = [a.to_dict() for a in self.analyses]
+        c = self.cascade_dict()
+        if c is not None:
+            out["cascade"] = c
+        return out
+
+
+def loop_plants(study: StudyDef, lp: LoopDef, controllers: Mapping[str, ControllerTF]) -> list[Plant]:
+    """The plants the loop's controller sees: its own, or for a cascade the composite plants
+    around the inner loop closed with ``controllers[inner]``."""
+    own = base_plants(lp)
+    if lp.inner is None:
+        return own
+    if lp.inner not in controllers:
+        raise InvalidStudyError(f"loop {lp.name!r}: needs the controller of its inner loop {lp.inner!r}")
+    inner = loop_plants(study, study.get(lp.inner), controllers)
+    try:
+        return outer_plants(inner, controllers[lp.inner], own)
+    except TunerError as e:
+        raise type(e)(f"loop {lp.name!r}: {e}") from e
+
+
+def evaluate_loop(
+    study: StudyDef, lp: LoopDef, controller: ControllerTF, controllers: Mapping[str, ControllerTF], *,
+    analyses: tuple[Analysis, ...] | None = None, inner_bandwidth_rad_s: float | None = None,
+) -> LoopEval:
+    """Verify ``controller`` on every plant of the loop (``analyses`` if already verified)."""
+    if analyses is None:
+        analyses = tuple(analyze(p, controller, lp.spec) for p in loop_plants(study, lp, controllers))
+    if lp.inner is None:
+        return LoopEval(loop=lp, controller=controller, analyses=analyses)
+    inner = study.get(lp.inner)
+    sim, note = None, HELD_NOTE
+    own, inner_own = base_plants(lp)[0], base_plants(inner)[0]
+    if inner.inner is None and not inner_own.is_discrete and not own.is_discrete:
+        note = EXACT_NOTE
+        r = analyses[0].response
+        if r is not None:
+            sim = simulate_cascade(inner_own, controllers[lp.inner], own, controller, horizon_s=float(r.t[-1]),
+                                   band_pct=lp.spec.settling_band_pct, y_final=r.y_final)
+    return LoopEval(loop=lp, controller=controller, analyses=analyses, cascade=sim, cascade_note=note,
+                    inner_bandwidth_rad_s=inner_bandwidth_rad_s)
+
+
+def _inner_bw(evals: Mapping[str, LoopEval], lp: LoopDef) -> float | None:
+    if lp.inner is None or lp.inner not in evals:
+        return None
+    return evals[lp.inner].nominal.metrics.bandwidth_rad_s
+
+
+def gains_entry(lp: LoopDef, gains: Mapping[str, float]) -> dict[str, Any]:
+    """One loop's entry of a gains file."""
+    return {"structure": lp.structure, "gains": {k: float(v) for k, v in gains.items()}, "dt": lp.dt}
+
+
+def check_gains_file(study: StudyDef, data: Any, *, source: str = "gains") -> dict[str, ControllerTF]:
+    """Controllers from a gains file ``{loop: {structure, gains, dt}}``, checked against the study."""
+    if not isinstance(data, dict):
+        raise InvalidStudyError(f"{source}: expected an object {{loop name: {{structure, gains, dt}}}}")
+    unknown = sorted(set(data) - {lp.name for lp in study.loop})
+    if unknown:
+        raise InvalidStudyError(f"{source}: loops not in study {study.name!r}: {unknown}")
+    out: dict[str, ControllerTF] = {}
+    for lp in study.order():
+        e = data.get(lp.name)
+        if not isinstance(e, dict) or not isinstance(e.get("gains"), dict):
+            raise InvalidStudyError(f"{source}: loop {lp.name!r}: missing, or without a gains object")
+        if e.get("structure", lp.structure) != lp.structure:
+            raise InvalidStudyError(f"{source}: loop {lp.name!r}: structure is {e.get('structure')!r}, "
+                                    f"the study says {lp.structure!r}")
+        dt = e.get("dt", lp.dt)
+        if (dt is None) != (lp.dt is None) or (dt is not None and abs(float(dt) - lp.dt) > 1e-12 * lp.dt):
+            raise InvalidStudyError(f"{source}: loop {lp.name!r}: dt is {dt}, the study says {lp.dt}")
+        try:
+            out[lp.name] = controller_of(lp, e["gains"])
+        except TunerError as err:
+            raise InvalidStudyError(f"{source}: loop {lp.name!r}: gains: {err}") from None
+    return out
+
+
+def evaluate_gains(study: StudyDef, controllers: Mapping[str, ControllerTF]) -> dict[str, LoopEval]:
+    """Verify every loop of the study with the given controllers (inner loops first)."""
+    evals: dict[str, LoopEval] = {}
+    for lp in study.order():
+        evals[lp.name] = evaluate_loop(study, lp, controllers[lp.name], controllers,
+                                       inner_bandwidth_rad_s=_inner_bw(evals, lp))
+    return evals
+
+
+def evaluate_thesis(study: StudyDef, tuned: Mapping[str, ControllerTF]) -> dict[str, LoopEval]:
+    """The printed controllers, verified as printed. A cascade's printed outer controller is
+    evaluated around its inner loop's printed controller (the tuned one if none is printed)."""
+    ctrls = dict(tuned)
+    printed = {lp.name: c for lp in study.loop if (c := thesis_controller_of(lp)) is not None}
+    ctrls.update(printed)
+    evals: dict[str, LoopEval] = {}
+    for lp in study.order():
+        if lp.name in printed and all(i.name in ctrls for i in study.chain(lp.name)):
+            evals[lp.name] = evaluate_loop(study, lp, printed[lp.name], ctrls,
+                                           inner_bandwidth_rad_s=_inner_bw(evals, lp))
+    return evals
+
+
+def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, ControllerTF]) -> dict[str, Any]:
+    """Tune one loop (its inner loops' controllers given) and return its JSON-ready result."""
+    from ..tuning import tune
+
+    plants = loop_plants(study, lp, controllers)
+    res = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt,
+               seed=study.seed if lp.seed is None else lp.seed,
+               time_budget_s=study.time_budget_s if lp.time_budget_s is None else lp.time_budget_s,
+               n_trials=lp.n_trials, **({} if lp.n_starts is None else {"n_starts": lp.n_starts}))
+    inner_bw = None
+    if lp.inner is not None:
+        inner = evaluate_loop(study, study.get(lp.inner), controllers[lp.inner], controllers)
+        inner_bw = inner.nominal.metrics.bandwidth_rad_s
+    ev = evaluate_loop(study, lp, res.controller, {**controllers, lp.name: res.controller},
+                       analyses=res.analyses, inner_bandwidth_rad_s=inner_bw)
+    out = {"loop": lp.name, "key": loop_key(study, lp.name), "structure": lp.structure,
+           "gains": dict(res.gains), "dt": lp.dt, **ev.to_dict(), "solver": dict(res.solver),
+           "spec": lp.spec.model_dump(), "plant": [p.describe() for p in plants]}
+    return jsonable(out)

@@ -1,0 +1,150 @@
+"""The study report (Markdown): what was tuned, how it verifies, and how it compares.
+
+Every figure comes from the verifier re-run on the stored gains (:mod:`tuner.studies.evaluate`),
+so the report, ``results.json`` and ``tuner verify`` agree.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+from .schema import StudyDef
+from .evaluate import LoopEval
+
+__all__ = ["render_report", "num"]
+
+
+def num(v: Any, digits: int = 3) -> str:
+    """A figure for a table: ``inf`` as ∞, ``nan``/missing as —."""
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "**NO**"
+    if isinstance(v, str):
+        v = {"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}.get(v, v)
+        if isinstance(v, str):
+            return v
+    x = float(v)
+    if math.isnan(x):
+        return "—"
+    if math.isinf(x):
+        return "∞" if x > 0 else "−∞"
+    if x != 0 and (abs(x) >= 1e5 or abs(x) < 1e-3):
+        return f"{x:.{digits}e}"
+    return f"{x:.{digits}g}"
+
+
+def _row(cells: list[str]) -> str:
+    return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+
+def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+    return [_row(head), _row(["---"] * len(head)), *(_row(r) for r in rows), ""]
+
+
+def _gains(g: Mapping[str, float]) -> str:
+    return ", ".join(f"{k} = {v:.5g}" for k, v in g.items())
+
+
+def _ratio(a: float, b: float) -> str:
+    if not (math.isfinite(a) and math.isfinite(b)) or b <= 0:
+        return "—"
+    return f"{a / b:.2f}"
+
+
+def render_report(
+    study: StudyDef, results: Mapping[str, dict[str, Any]], tuned: Mapping[str, LoopEval],
+    thesis: Mapping[str, LoopEval], plots: Mapping[str, Mapping[str, Path]], *, out_dir: Path,
+    storage: str,
+) -> str:
+    L: list[str] = [f"# Study `{study.name}`", ""]
+    if study.description:
+        L += [study.description, ""]
+    n_ok = sum(1 for lp in study.loop if lp.name in tuned and tuned[lp.name].meets_spec)
+    L += [f"{n_ok} of {len(study.loop)} loops meet their spec as judged by the verifier. "
+          f"Storage: `{storage}`; seed {study.seed}.", ""]
+
+    L += ["## Tuned loops", ""]
+    rows = []
+    for lp in study.order():
+        r = results.get(lp.name, {})
+        if lp.name not in tuned:
+            rows.append([lp.name, lp.structure, f"error: {r.get('error', 'no result')}"] + ["—"] * 9)
+            continue
+        m = tuned[lp.name].nominal.metrics
+        rows.append([lp.name, f"{lp.structure} @ {num(lp.dt)} s" if lp.dt else lp.structure, _gains(r["gains"]),
+                     num(m.phase_margin_deg), f"{num(m.gain_margin_db)} / {num(m.gain_margin_lower_db)}",
+                     num(m.disk_margin), num(m.ms), num(m.bandwidth_rad_s), num(m.overshoot_pct),
+                     num(m.settling_time_s), num(tuned[lp.name].meets_spec),
+                     f"{num(r.get('wall_time_s'), 2)} s, {r.get('worker', '?')}, epoch {r.get('epoch', '?')}"])
+    L += _table(["loop", "structure", "gains", "PM [°]", "GM upper / lower [dB]", "disk margin", "Ms",
+                 "bandwidth [rad/s]", "overshoot [%]", "settling [s]", "meets spec", "tuned in, by"], rows)
+    fails = [(lp.name, tuned[lp.name].failing) for lp in study.order() if lp.name in tuned and tuned[lp.name].failing]
+    if fails:
+        L += ["Failing constraints: " + "; ".join(f"**{n}**: {', '.join(f)}" for n, f in fails) + ".", ""]
+    specs = [(lp.name, lp.spec) for lp in study.loop if lp.spec != type(lp.spec)()]
+    if specs:
+        L += ["Loops with a spec other than the default: " + "; ".join(
+            f"{n}: {', '.join(f'{k} = {v}' for k, v in s.model_dump().items() if v != type(s)().model_dump()[k])}"
+            for n, s in specs) + ".", ""]
+
+    if thesis:
+        L += ["## Thesis as printed beside tuned", "",
+              "The printed controllers evaluated as printed by the same verifier (sampled-data loop, output "
+              "between samples), not the figures the thesis claims. Ratio = printed settling time / tuned.", ""]
+        rows = []
+        for lp in study.order():
+            if lp.name not in thesis or lp.name not in tuned:
+                continue
+            a, b = thesis[lp.name].nominal.metrics, tuned[lp.name].nominal.metrics
+            rows.append([lp.name, f"`{lp.thesis_controller}`", num(lp.thesis_settling_s),
+                         num(a.phase_margin_deg), num(a.gain_margin_db), num(a.overshoot_pct), num(a.settling_time_s),
+                         num(thesis[lp.name].meets_spec),
+                         num(b.phase_margin_deg), num(b.gain_margin_db), num(b.overshoot_pct), num(b.settling_time_s),
+                         _ratio(a.settling_time_s, b.settling_time_s)])
+        L += _table(["loop", "printed controller", "claimed settling [s]", "printed PM [°]", "printed GM [dB]",
+                     "printed overshoot [%]", "printed settling [s]", "printed meets spec", "tuned PM [°]",
+                     "tuned GM [dB]", "tuned overshoot [%]", "tuned settling [s]", "settling ratio"], rows)
+        unstable = [n for n, e in thesis.items() if not e.nominal.metrics.stable]
+        if unstable:
+            L += ["Unstable as printed: " + ", ".join(unstable) + " (step metrics not defined).", ""]
+
+    cascades = [lp for lp in study.order() if lp.inner is not None and lp.name in tuned]
+    if cascades:
+        L += ["## Cascades", "",
+              "The outer loop is tuned on the plant it sees at the samples: the tuned inner closed loop in "
+              "series with the outer plant (`tuner.analysis.cascade.outer_plant`, exact at the samples). The verifier "
+              "evaluates that composite plant at the sample instants; the position between samples comes from "
+              "an exact sampled-data simulation of the whole cascade on the continuous models "
+              "(`tuner.analysis.cascade.simulate_cascade`), which must also keep the overshoot limit and settle. "
+              "Ratio = inner bandwidth / outer bandwidth.", ""]
+        rows = []
+        for lp in cascades:
+            e = tuned[lp.name]
+            c = e.cascade_dict() or {}
+            bs = c.get("between_samples") or {}
+            rows.append([lp.name, lp.inner or "", num(c.get("inner_bandwidth_rad_s")),
+                         num(c.get("outer_bandwidth_rad_s")), num(c.get("bandwidth_ratio"), 2),
+                         num(bs.get("overshoot_pct")), num(bs.get("settling_time_s")),
+                         num(e.meets_spec), c.get("evaluation") or ""])
+        L += _table(["outer loop", "inner loop", "inner bandwidth [rad/s]", "outer bandwidth [rad/s]", "ratio",
+                     "overshoot between samples [%]", "settling between samples [s]", "cascade meets spec",
+                     "evaluation"], rows)
+
+    notes = [(lp.name, lp.note) for lp in study.order() if lp.note]
+    if notes:
+        L += ["## Notes", ""] + [f"- **{n}**: {t}" for n, t in notes] + [""]
+
+    L += ["## Plots", "", "Step response (continuous output and samples, settling band), Bode (gain and "
+          "phase margins marked), Nyquist (unit circle and −1).", ""]
+    for lp in study.order():
+        if lp.name not in plots:
+            continue
+        L += [f"### {lp.name}", ""]
+        for kind in ("step", "bode", "nyquist"):
+            p = plots[lp.name][kind]
+            L.append(f"![{lp.name} {kind}]({p.relative_to(out_dir).as_posix()})")
+        L.append("")
+    return "\n".join(L).rstrip() + "\n"

@@ -1,0 +1,272 @@
+"""Study files: many loops tuned at once (every axis of a vehicle, every operating point).
+
+A study is a TOML file::
+
+    name = "quadrotor"          # also the prefix of the study's records in the storage
+    seed = 0                    # optional, default 0
+    time_budget_s = 10          # optional, per loop
+
+    [[loop]]
+    name = "pitch"
+    plant = "0.377568*3.5184^2/(s^2+2*0.5006*3.5184*s+3.5184^2)"   # or {num = [...], den = [...]}
+    # plants = ["...", "..."]   # instead of plant: a plant set, tuned robustly (nominal first)
+    # plant_dt = 0.04           # sample time of a plant given in z
+    # delay = 0.0               # plant input delay, s (whole samples of dt)
+    dt = 0.04                   # controller sample time (omit for a continuous controller)
+    structure = "pid_z"
+    thesis_controller = "37.79*(z^2-1.85*z+0.8686)/(z*(z-1))"    # optional, compared as printed
+    thesis_settling_s = 0.5     # optional, what the thesis claimed
+    [loop.spec]                 # Spec fields; defaults = the thesis spec
+    phase_margin_min_deg = 60
+
+    [[loop]]
+    name = "x"
+    inner = "pitch"             # a cascade: tuned around pitch's tuned closed loop
+    plant = "9.81/s^2"          # from the inner loop's output to this loop's output
+    ...
+
+Loops are tuned in dependency order (inner before outer). Every error names the loop
+and the field (:class:`InvalidStudyError`, a :class:`~tuner.errors.TunerError`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from ..controllers import ControllerTF, controller_from_expr, controller_tf, get_structure
+from ..errors import TunerError
+from ..plant import Plant, make_plant, plant_from_expr
+from ..spec import Spec
+
+__all__ = ["InvalidStudyError", "PlantCoeffs", "LoopDef", "StudyDef", "load_study", "parse_study",
+           "base_plants", "loop_key", "controller_of", "thesis_controller_of"]
+
+_NAME = r"^[A-Za-z0-9_.-]+$"
+
+
+class InvalidStudyError(TunerError, ValueError):
+    """A study file is malformed; the message names the loop and the field."""
+
+
+class PlantCoeffs(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    num: list[float] = Field(min_length=1)
+    den: list[float] = Field(min_length=1)
+
+
+PlantText = str | PlantCoeffs
+
+
+class LoopDef(BaseModel):
+    """One loop of a study."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(pattern=_NAME, max_length=64)
+    plant: PlantText | None = None
+    plants: list[PlantText] | None = Field(None, min_length=1, max_length=50)
+    plant_dt: float | None = Field(None, gt=0, description="sample time of a plant given in z, s")
+    delay: float = Field(0.0, ge=0, description="plant input delay, s")
+    dt: float | None = Field(None, gt=0, description="controller sample time, s (None = continuous)")
+    structure: str
+    spec: Spec = Spec()
+    inner: str | None = Field(None, description="name of the loop this one wraps (a cascade)")
+    thesis_controller: str | None = Field(None, description="a published controller, compared as printed")
+    thesis_settling_s: float | None = Field(None, gt=0, description="the settling time the publication claims, s")
+    seed: int | None = Field(None, ge=0, lt=2**32)
+    time_budget_s: float | None = Field(None, gt=0, le=3600)
+    n_trials: int | None = Field(None, ge=1, le=100_000)
+    n_starts: int | None = Field(None, ge=1, le=20)
+    note: str | None = Field(None, description="shown in the report (e.g. why a spec is relaxed)")
+
+    @field_validator("structure")
+    @classmethod
+    def _known_structure(cls, v: str) -> str:
+        get_structure(v)  # raises with the list of structures
+        return v
+
+    @model_validator(mode="after")
+    def _one_plant_field(self) -> "LoopDef":
+        if (self.plant is None) == (self.plants is None):
+            raise ValueError("give exactly one of plant (one model) or plants (a set, tuned robustly)")
+        if self.structure == "pid_z" and self.dt is None:
+            raise ValueError("structure pid_z is discrete: give dt")
+        if self.dt is not None and self.delay:
+            n = self.delay / self.dt
+            if abs(n - round(n)) > 1e-6 * max(1.0, n):
+                raise ValueError(f"delay: {self.delay} s is not a whole number of samples of dt={self.dt} s")
+        return self
+
+    @property
+    def plant_list(self) -> list[PlantText]:
+        return [self.plant] if self.plant is not None else list(self.plants or [])
+
+
+class StudyDef(BaseModel):
+    """A study: a name and its loops."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(pattern=_NAME, max_length=64)
+    description: str | None = None
+    seed: int = Field(0, ge=0, lt=2**32)
+    time_budget_s: float = Field(10.0, gt=0, le=3600)
+    loop: list[LoopDef] = Field(min_length=1, max_length=200)
+
+    @model_validator(mode="after")
+    def _graph(self) -> "StudyDef":
+        names = [lp.name for lp in self.loop]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"loop names must be unique; repeated: {dup}")
+        by = {lp.name: lp for lp in self.loop}
+        for lp in self.loop:
+            if lp.inner is None:
+                continue
+            if lp.inner not in by:
+                raise ValueError(f"loop {lp.name!r}: inner: no loop named {lp.inner!r}")
+            inner = by[lp.inner]
+            if lp.dt is None or inner.dt is None or abs(lp.dt - inner.dt) > 1e-12 * lp.dt:
+                raise ValueError(f"loop {lp.name!r}: dt: a cascade runs at its inner loop's dt "
+                                 f"({inner.dt}), got {lp.dt}")
+        self.order()  # raises on a cycle
+        return self
+
+    def get(self, name: str) -> LoopDef:
+        for lp in self.loop:
+            if lp.name == name:
+                return lp
+        raise InvalidStudyError(f"study {self.name!r} has no loop named {name!r}")
+
+    def order(self) -> list[LoopDef]:
+        """Loops with every inner loop before the loops that wrap it (file order otherwise)."""
+        by = {lp.name: lp for lp in self.loop}
+        out: list[LoopDef] = []
+        state: dict[str, int] = {}
+
+        def visit(lp: LoopDef, path: tuple[str, ...]) -> None:
+            if state.get(lp.name) == 2:
+                return
+            if state.get(lp.name) == 1:
+                raise ValueError(f"loop {lp.name!r}: inner: cascade cycle {' -> '.join(path + (lp.name,))}")
+            state[lp.name] = 1
+            if lp.inner is not None and lp.inner in by:
+                visit(by[lp.inner], path + (lp.name,))
+            state[lp.name] = 2
+            out.append(lp)
+
+        for lp in self.loop:
+            visit(lp, ())
+        return out
+
+    def chain(self, name: str) -> list[LoopDef]:
+        """``name``'s loop and the loops it wraps, innermost first."""
+        out = [self.get(name)]
+        while out[0].inner is not None:
+            out.insert(0, self.get(out[0].inner))
+        return out
+
+
+def _loop_label(raw: Any, loc: tuple[Any, ...]) -> tuple[str, tuple[Any, ...]]:
+    """('loop', 2, 'spec', 'x') -> ("loop 'pitch'", ('spec', 'x'))."""
+    if len(loc) >= 2 and loc[0] == "loop" and isinstance(loc[1], int):
+        name = None
+        try:
+            name = raw["loop"][loc[1]].get("name")
+        except (KeyError, IndexError, TypeError, AttributeError):
+            pass
+        label = f"loop {name!r}" if isinstance(name, str) else f"loop #{loc[1] + 1}"
+        return label, tuple(loc[2:])
+    return "", tuple(loc)
+
+
+def parse_study(raw: dict[str, Any], *, source: str = "study") -> StudyDef:
+    """Validate a study given as a dict (a parsed TOML file)."""
+    try:
+        return StudyDef.model_validate(raw)
+    except ValidationError as e:
+        err = e.errors()[0]
+        label, rest = _loop_label(raw, tuple(err["loc"]))
+        # drop pydantic's union-branch names (e.g. 'str', 'PlantCoeffs') from the location
+        fields = ".".join(str(x) for x in rest if not (isinstance(x, str) and x[:1].isupper()) and x != "str")
+        msg = err["msg"].removeprefix("Value error, ")
+        where = ": ".join(x for x in (label, fields) if x)
+        raise InvalidStudyError(f"{source}: {where + ': ' if where else ''}{msg}") from None
+    except TunerError as e:  # raised inside a validator (unknown structure)
+        raise InvalidStudyError(f"{source}: {e}") from None
+
+
+def load_study(path: str | Path) -> StudyDef:
+    """Read and validate a study TOML file."""
+    p = Path(path)
+    try:
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise InvalidStudyError(f"{p}: cannot read: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InvalidStudyError(f"{p}: not valid TOML: {e}") from None
+    study = parse_study(raw, source=str(p))
+    for lp in study.loop:  # build every plant and printed controller once, so errors surface early
+        try:
+            base_plants(lp)
+            thesis_controller_of(lp)
+        except TunerError as e:
+            raise InvalidStudyError(f"{p}: loop {lp.name!r}: {e}") from None
+    return study
+
+
+def _plant(text: PlantText, lp: LoopDef) -> Plant:
+    if isinstance(text, PlantCoeffs):
+        return make_plant(text.num, text.den, dt=lp.plant_dt, delay=lp.delay)
+    return plant_from_expr(text, dt=lp.plant_dt, delay=lp.delay)
+
+
+def base_plants(lp: LoopDef) -> list[Plant]:
+    """The loop's own plants (for a cascade: from the inner loop's output to this loop's output)."""
+    out = []
+    for i, text in enumerate(lp.plant_list):
+        field = "plant" if lp.plant is not None else f"plants[{i}]"
+        try:
+            p = _plant(text, lp)
+        except TunerError as e:
+            raise type(e)(f"{field}: {e}") from e
+        out.append(p)
+    return out
+
+
+def controller_of(lp: LoopDef, gains: dict[str, float]) -> ControllerTF:
+    return controller_tf(lp.structure, gains, dt=lp.dt)
+
+
+def thesis_controller_of(lp: LoopDef) -> ControllerTF | None:
+    if lp.thesis_controller is None:
+        return None
+    try:
+        return controller_from_expr(lp.thesis_controller, dt=lp.dt)
+    except TunerError as e:
+        raise type(e)(f"thesis_controller: {e}") from e
+
+
+def _canon(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return repr(v)
+    return v
+
+
+def loop_key(study: StudyDef, name: str) -> str:
+    """A short hash of everything the loop's result depends on: its definition, the study's
+    seed and budget, and (for a cascade) the loops it wraps. A changed file gives a new key, so
+    results are reused only for the study as it is now."""
+    parts = []
+    for lp in study.chain(name):
+        d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s"})
+        parts.append({k: _canon(v) for k, v in d.items()})
+    blob = json.dumps({"seed": study.seed, "budget": study.time_budget_s, "loops": parts}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
