@@ -1,26 +1,25 @@
-"""Request bodies -> library objects, with every library error tied to the field it came from.
+"""Request bodies -> library objects. The library validates; this module only says where.
 
-The library raises :class:`tuner.errors.TunerError` subclasses with messages that
-say what is wrong; here they become :class:`FieldError` with the body location
-(``["body", "plant", "expr"]``, ``["body", "dt"]``, ...), answered as 422 in
-FastAPI's validation-error format.
+Every :class:`tuner.errors.TunerError` carries ``field``, a path relative to what the library
+was given (``("expr",)`` for a plant, ``("plants", 2, "delay")`` or ``("dt",)`` for a problem);
+:func:`body_loc` turns it into the request-body location FastAPI uses (``["body", "plants", 1,
+"delay"]``), answered as 422 by :class:`FieldError`. No message is read to find a field.
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-import numpy as np
-
-from tuner.controllers import ControllerTF, controller_from_expr, controller_tf, get_structure
+from tuner.controllers import ControllerTF, controller_from_coeffs, controller_from_expr, controller_tf
 from tuner.errors import TunerError
-from tuner.plant import Plant, check_dt, make_plant, plant_from_expr
+from tuner.loop import build_loop
+from tuner.plant import Plant, make_plant, plant_from_expr
+from tuner.problem import TuningProblem
 from tuner.spec import Spec
 
-from .schemas import ControllerIn, PlantIn
+from .schemas import AnalyzeRequest, ControllerIn, PlantIn, TuneRequest
 
-__all__ = ["FieldError", "to_plant", "plant_dict", "to_controller", "check_loop_dt", "error_type", "spec_or_default",
-           "tuner_error_loc"]
+__all__ = ["FieldError", "error_type", "body_loc", "tuning_problem", "analysis_inputs", "plant_dict"]
 
 Loc = tuple[str | int, ...]
 
@@ -37,6 +36,10 @@ class FieldError(Exception):
     def detail(self) -> list[dict[str, Any]]:
         return [{"loc": list(self.loc), "msg": self.message, "type": self.type}]
 
+    @classmethod
+    def of(cls, e: TunerError, loc: Loc) -> "FieldError":
+        return cls(loc, str(e), type=error_type(e))
+
 
 def error_type(e: BaseException) -> str:
     """``InvalidPlantError`` -> ``invalid_plant``."""
@@ -45,114 +48,77 @@ def error_type(e: BaseException) -> str:
     return out or "invalid"
 
 
-def _plant_field(p: PlantIn, message: str) -> str:
-    """Which field of a plant a library message is about."""
-    low = message.lower()
-    if low.startswith("delay"):
-        return "delay"
-    if low.startswith("dt") or "sample time dt" in low or "give its sample time" in low:
-        return "dt"
-    if p.expr is not None:
-        return "expr"
-    if low.startswith("num") or "numerator" in low:
-        return "num"
-    return "den"
+_OPTIONS = ("seed", "time_budget_s")
 
 
-def to_plant(p: PlantIn, loc: Loc) -> Plant:
+def body_loc(field: Sequence[str | int]) -> Loc:
+    """A problem-relative field path -> its place in a /tune or /analyze body.
+
+    ``plants[0]`` is the body's ``plant``, ``plants[i]`` is ``plants[i-1]``; options live
+    under ``options``; everything else is at the top level.
+    """
+    f = tuple(field)
+    if f[:1] == ("plants",) and len(f) >= 2 and isinstance(f[1], int):
+        return ("body", "plant", *f[2:]) if f[1] == 0 else ("body", "plants", f[1] - 1, *f[2:])
+    if f[:1] == ("plants",):
+        return ("body", "plants")
+    if f[:1] and f[0] in _OPTIONS:
+        return ("body", "options", *f)
+    return ("body", *f) if f else ("body",)
+
+
+def _plant(p: PlantIn, index: int) -> Plant:
+    """The library's plant from one body plant (``index`` in the problem's plant list)."""
     try:
         if p.expr is not None:
             plant = plant_from_expr(p.expr, dt=p.dt, delay=p.delay)
         else:
             plant = make_plant(p.num, p.den, dt=p.dt, delay=p.delay)
     except TunerError as e:
-        raise FieldError((*loc, _plant_field(p, str(e))), str(e), type=error_type(e)) from e
-    if not (np.all(np.isfinite(plant.num)) and np.all(np.isfinite(plant.den))):
-        field = "expr" if p.expr is not None else "den"
-        raise FieldError((*loc, field), "coefficients overflow when divided by the leading denominator coefficient; "
-                         "rescale the model", type="invalid_plant")
-    if p.dt is not None and not plant.is_discrete:  # plant_from_expr ignores dt for a plant in s
-        raise FieldError((*loc, "dt"), "the plant is in s (continuous), so it has no sample time: leave plant.dt "
-                         "null and give the controller sample time as the top-level dt", type="invalid_plant")
+        raise FieldError.of(e, body_loc(("plants", index, *e.field))) from None
+    if p.dt is not None and not plant.is_discrete:  # the library takes an s-plant's dt as the loop's
+        raise FieldError(body_loc(("plants", index, "dt")), "the plant is in s (continuous), so it has no sample "
+                         "time: leave plant.dt null and give the controller sample time as the top-level dt",
+                         type="invalid_plant")
     return plant
 
 
+def tuning_problem(body: TuneRequest) -> TuningProblem:
+    """The validated problem of a /tune body (the one semantic validation of the request)."""
+    plants = [_plant(p, i) for i, p in enumerate([body.plant, *(body.plants or [])])]
+    try:
+        return TuningProblem.build(plants, structure=body.structure, spec=body.spec, dt=body.dt)
+    except TunerError as e:
+        raise FieldError.of(e, body_loc(e.field)) from None
+
+
+def _controller(c: ControllerIn, dt: float | None) -> ControllerTF:
+    if c.expr is not None:
+        return controller_from_expr(c.expr, dt=dt)
+    if c.structure is not None:
+        return controller_tf(c.structure, c.gains or {}, dt=dt)
+    return controller_from_coeffs(c.num, c.den, dt=dt)
+
+
+def analysis_inputs(body: AnalyzeRequest) -> tuple[Plant, ControllerTF, Spec]:
+    """Plant, controller (at ``dt``, else at a discrete plant's dt) and spec of an /analyze body, validated
+    as one loop."""
+    plant = _plant(body.plant, 0)
+    dt = body.dt if body.dt is not None else plant.dt
+    try:
+        ctrl = _controller(body.controller, dt)
+    except TunerError as e:
+        loc = ("body", "dt") if e.field == ("dt",) else ("body", "controller", *e.field)
+        raise FieldError.of(e, loc) from None
+    try:
+        build_loop(plant, ctrl)
+    except TunerError as e:
+        raise FieldError.of(e, body_loc(("plants", 0, *e.field[1:]) if e.field[:1] == ("plant",) else e.field)) \
+            from None
+    return plant, ctrl, body.spec if body.spec is not None else Spec()
+
+
 def plant_dict(plant: Plant) -> dict[str, Any]:
-    """The numbers the library accepted (what the worker rebuilds and what is stored)."""
+    """The numbers the library accepted (what is stored, and redrawn in plots)."""
     return {"num": [float(c) for c in plant.num], "den": [float(c) for c in plant.den],
             "dt": plant.dt, "delay": float(plant.delay_s)}
-
-
-def check_loop_dt(plants: Sequence[tuple[Plant, Loc]], dt: float | None, *, structure: str | None) -> float | None:
-    """The loop's sample time, or a FieldError naming ``dt`` or the plant that disagrees."""
-    for plant, loc in plants:
-        if plant.is_discrete and dt is not None and abs(plant.dt - dt) > 1e-9 * dt:
-            raise FieldError(("body", "dt"), f"{_where(loc)} is discrete at dt={plant.dt} but dt={dt} was given; "
-                             "a discrete plant is not resampled")
-    discrete = [(p, loc) for p, loc in plants if p.is_discrete]
-    if discrete and len({p.dt for p, _ in discrete}) > 1:
-        p, loc = discrete[-1]
-        raise FieldError((*loc, "dt"), f"plants are discrete at different sample times "
-                         f"{sorted({q.dt for q, _ in discrete})}")
-    loop_dt = dt if dt is not None else (discrete[0][0].dt if discrete else None)
-    if structure is not None:
-        st = get_structure(structure)
-        if st.discrete_only and loop_dt is None:
-            raise FieldError(("body", "dt"), f"structure {structure!r} is discrete: give the controller sample time dt")
-    if loop_dt is not None:
-        for plant, loc in plants:  # a continuous plant in a sampled loop: whole-sample delay
-            if not plant.is_discrete and plant.delay_s:
-                d = plant.delay_s / loop_dt
-                if abs(d - round(d)) > 1e-6 * max(1.0, d):
-                    raise FieldError((*loc, "delay"), f"delay {plant.delay_s} s is not a whole number of samples of "
-                                     f"dt={loop_dt} s ({d:.4g} samples); give a multiple of dt")
-    return loop_dt
-
-
-def _where(loc: Loc) -> str:
-    return "plant" if len(loc) == 2 else f"plants[{loc[-1]}]"
-
-
-def to_controller(c: ControllerIn, dt: float | None, loc: Loc) -> ControllerTF:
-    try:
-        dt = check_dt(dt)
-    except TunerError as e:
-        raise FieldError(("body", "dt"), str(e), type=error_type(e)) from e
-    if c.expr is not None:
-        try:
-            return controller_from_expr(c.expr, dt=dt)
-        except TunerError as e:
-            raise FieldError((*loc, "expr"), str(e), type=error_type(e)) from e
-    if c.structure is not None:
-        try:
-            return controller_tf(c.structure, c.gains or {}, dt=dt)
-        except TunerError as e:
-            field = "structure" if "discrete" in str(e) else "gains"
-            raise FieldError(("body", "dt") if field == "structure" else (*loc, field), str(e),
-                             type=error_type(e)) from e
-    num = np.trim_zeros(np.asarray(c.num, dtype=float), "f")
-    den = np.trim_zeros(np.asarray(c.den, dtype=float), "f")
-    if den.size == 0:
-        raise FieldError((*loc, "den"), "den is zero: the denominator needs a non-zero coefficient")
-    if num.size == 0:
-        raise FieldError((*loc, "num"), "num is zero: the controller has no gain")
-    if num.size > den.size:
-        raise FieldError((*loc, "num"), f"improper controller: numerator degree {num.size - 1} > "
-                         f"denominator degree {den.size - 1}; add a filter pole")
-    return ControllerTF(num=num / den[0], den=den / den[0], dt=dt)
-
-
-def spec_or_default(spec: Spec | None) -> Spec:
-    return spec if spec is not None else Spec()
-
-
-def tuner_error_loc(message: str, error: str) -> tuple[str, ...]:
-    """Where a library error raised during the solve belongs (the route pre-checks the common ones)."""
-    low = message.lower()
-    if error == "InvalidSpecError" or low.startswith("spec"):
-        return ("body", "spec")
-    if "structure" in low:
-        return ("body", "structure")
-    if " dt" in low or low.startswith("dt"):
-        return ("body", "dt")
-    return ("body", "plant")

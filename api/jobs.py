@@ -1,8 +1,8 @@
 """What the solver processes run. Plain dicts in, plain (JSON-ready) data out.
 
-Plants arrive already validated by the route, as ``{"num", "den", "dt", "delay"}``
-(the numbers the library accepted); they are rebuilt here with
-:func:`tuner.plant.make_plant`, which is cheap and deterministic.
+Tune and analysis jobs receive the library objects the route validated (pickled once);
+plot jobs rebuild the stored plants (``{"num", "den", "dt", "delay"}``, the numbers the library
+accepted) with :func:`tuner.plant.make_plant`.
 """
 
 from __future__ import annotations
@@ -27,29 +27,17 @@ def _controller(d: dict[str, Any]):
 
 
 def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload``: plants (nominal first), structure, spec (dict), dt, seed, time_budget_s."""
-    from tuner.spec import Spec
+    """``payload``: ``problem`` (a validated :class:`tuner.problem.TuningProblem`), ``seed``, ``time_budget_s``."""
     from tuner.tuning import tune
 
-    plants = [build_plant(p) for p in payload["plants"]]
-    result = tune(
-        plants if len(plants) > 1 else plants[0],
-        structure=payload["structure"],
-        spec=Spec(**payload["spec"]),
-        dt=payload["dt"],
-        seed=payload["seed"],
-        time_budget_s=payload["time_budget_s"],
-    )
-    return result.to_json()
+    return tune(payload["problem"], seed=payload["seed"], time_budget_s=payload["time_budget_s"]).to_json()
 
 
 def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload``: plant, controller ``{num, den, dt}``, spec (dict)."""
-    from tuner.analysis.verify import analyze, jsonable
-    from tuner.spec import Spec
+    """``payload``: ``plant``, ``controller`` (library objects, validated as one loop), ``spec``."""
+    from tuner.analysis import analyze, jsonable
 
-    a = analyze(build_plant(payload["plant"]), _controller(payload["controller"]), Spec(**payload["spec"]))
-    return jsonable(a.to_dict())
+    return jsonable(analyze(payload["plant"], payload["controller"], payload["spec"]).to_dict())
 
 
 def plot_job(payload: dict[str, Any]) -> bytes:

@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tuner.controllers import STRUCTURES
 from tuner.plant import MAX_ORDER
 from tuner.spec import Spec
-from tuner.tuning import MAX_PLANTS
+from tuner.problem import MAX_PLANTS
 
 __all__ = [
     "PlantIn", "ControllerIn", "TuneOptions", "TuneRequest", "AnalyzeRequest", "TuneResponse", "TuneRecordOut",

@@ -37,7 +37,7 @@ def invalid_plant_job(payload: Any) -> None:
     """The library rejects the input inside the solver (as ``tune`` may, e.g. for an unusable plant)."""
     from tuner.errors import InvalidPlantError
 
-    raise InvalidPlantError("plant cannot be tuned: test rejection raised in the solver")
+    raise InvalidPlantError("plant cannot be tuned: test rejection raised in the solver", field=("plants", 0))
 
 
 def failing_job(payload: Any) -> None:
@@ -47,15 +47,10 @@ def failing_job(payload: Any) -> None:
 
 def capped_tune_job(payload: dict[str, Any]) -> Any:
     """The real tune, made quick for fuzzing many requests: budget <= 0.15 s, few trials, one local start."""
-    from tuner.spec import Spec
     from tuner.tuning import tune
 
-    from .jobs import build_plant
-
-    plants = [build_plant(p) for p in payload["plants"]]
-    result = tune(plants if len(plants) > 1 else plants[0], structure=payload["structure"],
-                  spec=Spec(**payload["spec"]), dt=payload["dt"], seed=payload["seed"],
-                  time_budget_s=min(0.15, payload["time_budget_s"]), n_trials=6, n_starts=1)
+    result = tune(payload["problem"], seed=payload["seed"], time_budget_s=min(0.15, payload["time_budget_s"]),
+                  n_trials=6, n_starts=1)
     return result.to_json()
 
 

@@ -72,7 +72,7 @@ def worker_main(conn: Connection, warm: bool = True, memory_mb: int | None = Non
         try:
             out: tuple[str, Any] = ("ok", fn(payload))
         except TunerError as e:
-            out = ("tuner_error", {"error": type(e).__name__, "message": str(e)})
+            out = ("tuner_error", {"error": type(e).__name__, "message": str(e), "field": list(e.field)})
         except Exception as e:  # noqa: BLE001 - reported to the parent as an internal error
             log.exception("job %s failed", getattr(fn, "__name__", fn))
             out = ("error", {"error": type(e).__name__, "message": str(e)})

@@ -1,31 +1,51 @@
-"""tuner: optimisation-based controller tuning with an independent verifier."""
+"""tuner: optimisation-based controller tuning with an independent verifier.
+
+The public surface is ``__all__``: build a plant (:func:`make_plant`, :func:`plant_from_expr`),
+state what "good" means (:class:`Spec`), then :func:`tune` a structure or :func:`analyze` a given
+controller. Everything returned has been checked by the verifier (:mod:`tuner.analysis`).
+"""
 
 from __future__ import annotations
 
-from .analysis.verify import Analysis, Metrics, analyze, jsonable
-from .controllers import STRUCTURES, ControllerTF, controller_from_expr, controller_tf, get_structure
+from .analysis import Analysis, Metrics, analyze, jsonable
+from .controllers import (
+    STRUCTURES,
+    ControllerTF,
+    controller_from_coeffs,
+    controller_from_expr,
+    controller_tf,
+    get_structure,
+)
 from .errors import (
     InvalidControllerError,
+    InvalidDataError,
     InvalidExpressionError,
     InvalidPlantError,
     InvalidSpecError,
     TunerError,
 )
 from .plant import Plant, make_plant, plant_from_expr
-from .spec import Spec
+from .problem import TuningProblem
+from .spec import Check, Spec
+from .tuning import TuneResult, tune
 
 __all__ = [
-    "Analysis", "Metrics", "analyze", "jsonable", "STRUCTURES", "ControllerTF", "controller_from_expr",
-    "controller_tf", "get_structure", "TunerError", "InvalidControllerError", "InvalidExpressionError",
-    "InvalidPlantError", "InvalidSpecError", "Plant", "make_plant", "plant_from_expr", "Spec", "tune",
+    "tune", "TuneResult", "TuningProblem", "analyze", "Analysis", "Metrics", "Spec", "Check",
+    "Plant", "make_plant", "plant_from_expr", "ControllerTF", "controller_tf", "controller_from_expr",
+    "controller_from_coeffs", "get_structure", "STRUCTURES", "jsonable",
+    "TunerError", "InvalidControllerError", "InvalidDataError", "InvalidExpressionError", "InvalidPlantError",
+    "InvalidSpecError", "__version__",
 ]
 
-__version__ = "0.1.0"
 
 
-def __getattr__(name: str):  # lazy: the tuning stack (CasADi, Optuna) is heavy to import
-    if name == "tune":
-        from .tuning import tune
+def _version() -> str:
+    from importlib import metadata
 
-        return tune
-    raise AttributeError(name)
+    try:
+        return metadata.version("tuner")
+    except metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "0+unknown"
+
+
+__version__ = _version()

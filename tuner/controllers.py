@@ -30,7 +30,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import InvalidControllerError
+from .errors import InvalidControllerError, TunerError
 from .plant import check_dt, tf_freqresp
 
 GAIN_SPAN = 100.0
@@ -43,6 +43,7 @@ __all__ = [
     "get_structure",
     "controller_tf",
     "controller_from_expr",
+    "controller_from_coeffs",
 ]
 
 
@@ -168,18 +169,20 @@ class Structure:
         x = self.vector(values)
         dt = check_dt(dt)
         if self.discrete_only and dt is None:
-            raise InvalidControllerError(f"structure {self.name!r} is discrete: give dt")
+            raise InvalidControllerError(f"structure {self.name!r} is discrete: give dt", field="dt")
         if dt is None:
             zero_t = [p for k, p, v in zip(self.kinds, self.params, x) if k == "time" and v == 0]
             if zero_t:
                 raise InvalidControllerError(
-                    f"{self.name}: {zero_t[0]} must be > 0 in continuous time (a pure derivative is improper)"
+                    f"{self.name}: {zero_t[0]} must be > 0 in continuous time (a pure derivative is improper)",
+                    field=("gains", zero_t[0]),
                 )
         num, den = self.coeffs(x, dt, np.exp)
         num = np.asarray(num, dtype=float)
         den = np.asarray(den, dtype=float)
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))) or den[0] == 0:
-            raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid transfer function")
+            raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid transfer function",
+                                         field="gains")
         return ControllerTF(num=num / den[0], den=den / den[0], dt=dt)
 
     def vector(self, values: Mapping[str, float] | Sequence[float]) -> np.ndarray:
@@ -189,24 +192,27 @@ class Structure:
             if unknown or missing:
                 raise InvalidControllerError(
                     f"{self.name} takes parameters {list(self.params)}; "
-                    + (f"missing {missing}" if missing else f"unknown {sorted(unknown)}")
+                    + (f"missing {missing}" if missing else f"unknown {sorted(unknown)}"), field="gains"
                 )
             vals = [values[p] for p in self.params]
         else:
             vals = list(values)
             if len(vals) != len(self.params):
-                raise InvalidControllerError(f"{self.name} takes {len(self.params)} parameters {list(self.params)}")
+                raise InvalidControllerError(f"{self.name} takes {len(self.params)} parameters {list(self.params)}",
+                                             field="gains")
         try:
             x = np.asarray(vals, dtype=float)
         except (TypeError, ValueError) as e:
-            raise InvalidControllerError(f"{self.name} parameters must be numbers") from e
+            raise InvalidControllerError(f"{self.name} parameters must be numbers", field="gains") from e
         if not np.all(np.isfinite(x)):
-            raise InvalidControllerError(f"{self.name} parameters must be finite, got {self.named(x)}")
+            raise InvalidControllerError(f"{self.name} parameters must be finite, got {self.named(x)}", field="gains")
         for kind, p, v in zip(self.kinds, self.params, x):
             if kind == "freq" and v <= 0:
-                raise InvalidControllerError(f"{self.name}: {p} is a frequency and must be > 0, got {v}")
+                raise InvalidControllerError(f"{self.name}: {p} is a frequency and must be > 0, got {v}",
+                                             field=("gains", p))
             if kind == "time" and v < 0:
-                raise InvalidControllerError(f"{self.name}: {p} is a time constant and must be >= 0, got {v}")
+                raise InvalidControllerError(f"{self.name}: {p} is a time constant and must be >= 0, got {v}",
+                                             field=("gains", p))
         return x
 
     def named(self, x: Sequence[float]) -> dict[str, float]:
@@ -240,7 +246,7 @@ def get_structure(name: str) -> Structure:
         return STRUCTURES[name]
     except KeyError:
         raise InvalidControllerError(
-            f"unknown structure {name!r}; choose one of {sorted(STRUCTURES)}"
+            f"unknown structure {name!r}; choose one of {sorted(STRUCTURES)}", field="structure"
         ) from None
 
 
@@ -253,14 +259,47 @@ def controller_from_expr(text: str, *, dt: float | None) -> ControllerTF:
     """A controller from an expression in ``s`` (continuous) or ``z`` (needs ``dt``)."""
     from .expr import parse_tf_expr
 
-    p = parse_tf_expr(text)
     dt = check_dt(dt)
+    try:
+        p = parse_tf_expr(text)
+    except TunerError as e:
+        raise e.at("expr") from None
     if p.var == "z" and dt is None:
-        raise InvalidControllerError("controller is in z: give its sample time dt")
+        raise InvalidControllerError("controller is in z: give its sample time dt", field="dt")
     if p.var == "s" and dt is not None:
         raise InvalidControllerError(
-            "controller is in s but a sample time dt was given: write the digital controller in z"
+            "controller is in s but a sample time dt was given: write the digital controller in z", field="expr"
         )
     if p.num.size > p.den.size:
-        raise InvalidControllerError("controller is improper (more zeros than poles): add a filter pole")
+        raise InvalidControllerError("controller is improper (more zeros than poles): add a filter pole",
+                                     field="expr")
     return ControllerTF(num=p.num, den=p.den, dt=dt)
+
+
+def controller_from_coeffs(num: Sequence[float], den: Sequence[float], *, dt: float | None) -> ControllerTF:
+    """A controller from coefficients (highest power first), continuous or at ``dt``, validated:
+    finite, non-zero numerator and denominator, proper."""
+    dt = check_dt(dt)
+    parts = []
+    for name, values in (("num", num), ("den", den)):
+        try:
+            a = np.atleast_1d(np.asarray(values, dtype=float))
+        except (TypeError, ValueError) as e:
+            raise InvalidControllerError(f"{name} must be a list of numbers", field=name) from e
+        if a.ndim != 1 or not np.all(np.isfinite(a)):
+            raise InvalidControllerError(f"{name} must be a list of finite numbers", field=name)
+        a = np.trim_zeros(a, "f")
+        if a.size == 0:
+            what = "the denominator needs" if name == "den" else "the controller has no gain: it needs"
+            raise InvalidControllerError(f"{name} is zero: {what} a non-zero coefficient", field=name)
+        parts.append(a)
+    n, d = parts
+    if n.size > d.size:
+        raise InvalidControllerError(f"improper controller: numerator degree {n.size - 1} > denominator degree "
+                                     f"{d.size - 1}; add a filter pole", field="num")
+    with np.errstate(over="ignore", invalid="ignore"):
+        n, d = n / d[0], d / d[0]
+    if not (np.all(np.isfinite(n)) and np.all(np.isfinite(d))):
+        raise InvalidControllerError("coefficients overflow when the denominator is made monic: rescale them",
+                                     field="den")
+    return ControllerTF(num=n, den=d, dt=dt)

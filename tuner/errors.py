@@ -1,6 +1,14 @@
-"""One root exception, with subclasses of the builtins (Optuna's habit)."""
+"""One root exception, with subclasses of the builtins (Optuna's habit).
+
+Every error carries, when known, the input it is about as ``field``: a path such as
+``("dt",)``, ``("plants", 2, "delay")`` or ``("controller", "expr")``. Callers that wrap an
+input (the CLI, the service, a study file) map that path to their own names (``--dt``,
+``["body", "plants", 1, "delay"]``) without reading the message.
+"""
 
 from __future__ import annotations
+
+from typing import Sequence
 
 __all__ = [
     "TunerError",
@@ -8,11 +16,42 @@ __all__ = [
     "InvalidPlantError",
     "InvalidControllerError",
     "InvalidSpecError",
+    "InvalidDataError",
+    "Field",
 ]
+
+Field = tuple[str | int, ...]
+
+
+def _as_field(field: str | int | Sequence[str | int] | None) -> Field:
+    if field is None:
+        return ()
+    if isinstance(field, (str, int)):
+        return (field,)
+    return tuple(field)
 
 
 class TunerError(Exception):
-    """Root of every error this package raises on purpose."""
+    """Root of every error this package raises on purpose.
+
+    ``field`` names the offending input (a path, empty when the error is not about one input).
+    """
+
+    def __init__(self, message: str, *, field: str | int | Sequence[str | int] | None = None) -> None:
+        super().__init__(message)
+        self.field: Field = _as_field(field)
+
+    def __reduce__(self):  # pickled across processes (the solver pool) with its field and position
+        return (type(self), self.args, self.__dict__)
+
+    def at(self, *prefix: str | int) -> "TunerError":
+        """Prefix ``field`` with the place the erroneous input came from; returns ``self``.
+
+        ``raise e.at("plants", 2)`` inside ``except TunerError as e`` re-raises the same error
+        with ``field == ("plants", 2, *old_field)``.
+        """
+        self.field = tuple(prefix) + self.field
+        return self
 
 
 class InvalidExpressionError(TunerError, ValueError):
@@ -21,11 +60,12 @@ class InvalidExpressionError(TunerError, ValueError):
     ``position`` is the 0-based character offset of the problem, when known.
     """
 
-    def __init__(self, message: str, *, position: int | None = None) -> None:
+    def __init__(self, message: str, *, position: int | None = None,
+                 field: str | int | Sequence[str | int] | None = None) -> None:
         self.position = position
         if position is not None:
             message = f"{message} (at position {position})"
-        super().__init__(message)
+        super().__init__(message, field=field)
 
 
 class InvalidPlantError(TunerError, ValueError):
@@ -37,4 +77,8 @@ class InvalidControllerError(TunerError, ValueError):
 
 
 class InvalidSpecError(TunerError, ValueError):
-    """A specification value is out of range or inconsistent."""
+    """A specification value is out of range or inconsistent (e.g. Ms < 1)."""
+
+
+class InvalidDataError(TunerError, ValueError):
+    """Recorded input/output data cannot be used (lengths, NaN, no excitation, too short)."""

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .controllers import ControllerTF
-from .errors import InvalidControllerError, InvalidPlantError
+from .errors import InvalidControllerError, InvalidPlantError, TunerError
 from .plant import Plant, delay_in_samples, tf_freqresp
 
 __all__ = ["Loop", "build_loop", "MIN_CONTINUOUS_DELAY_S"]
@@ -67,19 +67,24 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
     if controller.dt is None:
         if plant.is_discrete:
             raise InvalidControllerError(
-                f"plant is discrete (dt={plant.dt}) but the controller is continuous: give a controller in z"
+                f"plant is discrete (dt={plant.dt}) but the controller is continuous: give a controller in z",
+                field="dt",
             )
         if 0 < plant.delay_s < MIN_CONTINUOUS_DELAY_S:
             raise InvalidPlantError(
                 f"delay {plant.delay_s:g} s is below {MIN_CONTINUOUS_DELAY_S:g} s, too short to simulate exactly "
-                "in a continuous loop (the simulation step divides the delay); give 0 or a longer delay")
+                "in a continuous loop (the simulation step divides the delay); give 0 or a longer delay",
+                field=("plant", "delay"))
         return Loop(
             plant=plant, controller=controller, dt=None,
             ln=np.polymul(nc, plant.num), ld=np.polymul(dc, plant.den),
             delay_s=plant.delay_s, delay_samples=0, plant_ct=plant, plant_d=None,
         )
     dt = controller.dt
-    pd = plant.zoh(dt)  # validates dt match for discrete plants and whole-sample delay
+    try:
+        pd = plant.zoh(dt)  # validates dt match for discrete plants and whole-sample delay
+    except TunerError as e:
+        raise (e if e.field == ("dt",) else e.at("plant")) from None
     d = delay_in_samples(pd.delay_s, dt)
     ld = np.polymul(dc, np.concatenate([pd.den, np.zeros(d)]))
     return Loop(

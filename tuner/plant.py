@@ -20,7 +20,7 @@ import control as ct
 import numpy as np
 from scipy import linalg
 
-from .errors import InvalidPlantError
+from .errors import InvalidPlantError, TunerError
 from .expr import parse_tf_expr
 
 __all__ = ["Plant", "tf_freqresp", "make_plant", "plant_from_expr", "MAX_ORDER", "delay_in_samples", "check_dt"]
@@ -36,9 +36,9 @@ def check_dt(dt: float | None, *, what: str = "dt") -> float | None:
     try:
         v = float(dt)
     except (TypeError, ValueError) as e:
-        raise InvalidPlantError(f"{what} must be a number, got {dt!r}") from e
+        raise InvalidPlantError(f"{what} must be a number, got {dt!r}", field=what) from e
     if not np.isfinite(v) or v <= 0:
-        raise InvalidPlantError(f"{what} must be finite and > 0, got {dt!r}")
+        raise InvalidPlantError(f"{what} must be finite and > 0, got {dt!r}", field=what)
     return v
 
 
@@ -49,7 +49,7 @@ def delay_in_samples(delay_s: float, dt: float) -> int:
     if abs(d - k) > 1e-6 * max(1.0, d):
         raise InvalidPlantError(
             f"delay {delay_s} s is not a whole number of samples of dt={dt} s "
-            f"({d:.4g} samples); give a multiple of dt"
+            f"({d:.4g} samples); give a multiple of dt", field="delay"
         )
     return k
 
@@ -58,11 +58,11 @@ def _coeffs(values: Sequence[float], name: str) -> np.ndarray:
     try:
         a = np.atleast_1d(np.asarray(values, dtype=float))
     except (TypeError, ValueError) as e:
-        raise InvalidPlantError(f"{name} must be a list of numbers") from e
+        raise InvalidPlantError(f"{name} must be a list of numbers", field=name) from e
     if a.ndim != 1 or a.size == 0:
-        raise InvalidPlantError(f"{name} must be a non-empty list of numbers")
+        raise InvalidPlantError(f"{name} must be a non-empty list of numbers", field=name)
     if not np.all(np.isfinite(a)):
-        raise InvalidPlantError(f"{name} has non-finite coefficients: {a.tolist()}")
+        raise InvalidPlantError(f"{name} has non-finite coefficients: {a.tolist()}", field=name)
     nz = np.flatnonzero(a)
     return a[nz[0]:] if nz.size else np.zeros(1)
 
@@ -114,7 +114,7 @@ class Plant:
             if abs(self.dt - dt) > _SAMPLE_TOL * dt:
                 raise InvalidPlantError(
                     f"plant is discrete at dt={self.dt} but the loop runs at dt={dt}; "
-                    "resampling a discrete plant is not supported"
+                    "resampling a discrete plant is not supported", field="dt"
                 )
             return self
         d = delay_in_samples(self.delay_s, dt)
@@ -226,28 +226,30 @@ def make_plant(
     d = _coeffs(den, "den")
     dt = check_dt(dt)
     if not np.any(d):
-        raise InvalidPlantError("den is zero: the denominator needs a non-zero coefficient")
+        raise InvalidPlantError("den is zero: the denominator needs a non-zero coefficient", field="den")
     if not np.any(n):
-        raise InvalidPlantError("num is zero: the plant has no gain")
+        raise InvalidPlantError("num is zero: the plant has no gain", field="num")
     if n.size > d.size:
         raise InvalidPlantError(
-            f"improper transfer function: numerator degree {n.size - 1} > denominator degree {d.size - 1}"
+            f"improper transfer function: numerator degree {n.size - 1} > denominator degree {d.size - 1}",
+            field="num",
         )
     if d.size - 1 > max_order:
-        raise InvalidPlantError(f"plant order {d.size - 1} is above the limit {max_order}")
+        raise InvalidPlantError(f"plant order {d.size - 1} is above the limit {max_order}", field="den")
     try:
         tau = float(delay or 0.0)
     except (TypeError, ValueError) as e:
-        raise InvalidPlantError(f"delay must be a number of seconds, got {delay!r}") from e
+        raise InvalidPlantError(f"delay must be a number of seconds, got {delay!r}", field="delay") from e
     if not np.isfinite(tau) or tau < 0:
-        raise InvalidPlantError(f"delay must be finite and >= 0 seconds, got {delay!r}")
+        raise InvalidPlantError(f"delay must be finite and >= 0 seconds, got {delay!r}", field="delay")
     if dt is not None and tau:
         tau = delay_in_samples(tau, dt) * dt
     lead = d[0]
     with np.errstate(over="ignore", invalid="ignore"):
         n, d = n / lead, d / lead
     if not (np.all(np.isfinite(n)) and np.all(np.isfinite(d))):
-        raise InvalidPlantError("coefficients overflow when the denominator is made monic: rescale the model")
+        raise InvalidPlantError("coefficients overflow when the denominator is made monic: rescale the model",
+                                field="den")
     return Plant(num=n, den=d, dt=dt, delay_s=tau)
 
 
@@ -259,9 +261,15 @@ def plant_from_expr(
     An expression in ``z`` needs ``dt``; an expression in ``s`` is continuous
     (``dt``, if given, is then the loop's sample time and is ignored here).
     """
-    p = parse_tf_expr(text)
-    if p.var == "z":
-        if dt is None:
-            raise InvalidPlantError("plant is in z: give its sample time dt")
-        return make_plant(p.num, p.den, dt=dt, delay=delay, max_order=max_order)
-    return make_plant(p.num, p.den, dt=None, delay=delay, max_order=max_order)
+    try:
+        p = parse_tf_expr(text)
+    except TunerError as e:
+        raise e.at("expr") from None
+    if p.var == "z" and dt is None:
+        raise InvalidPlantError("plant is in z: give its sample time dt", field="dt")
+    try:
+        return make_plant(p.num, p.den, dt=dt if p.var == "z" else None, delay=delay, max_order=max_order)
+    except TunerError as e:  # a coefficient problem is a problem of the expression
+        if e.field in (("num",), ("den",)):
+            e.field = ("expr",)
+        raise

@@ -22,21 +22,18 @@ from typing import Any, Sequence
 import numpy as np
 
 from .analysis.verify import Analysis, jsonable, with_disk_margin
-from .controllers import ControllerTF, get_structure
-from .errors import InvalidPlantError, TunerError
-from .loop import build_loop
+from .controllers import ControllerTF
+from .errors import TunerError
 from .optimize.design import initial_guess
 from .optimize.scoring import Evaluator, Scored
-from .plant import Plant, check_dt
+from .plant import Plant
+from .problem import MAX_PLANTS, TuningProblem
 from .optimize.space import Space, make_space
 from .spec import Spec
 
-__all__ = ["TuneResult", "tune", "MAX_PLANTS"]
+__all__ = ["TuneResult", "tune", "designed_starts", "MAX_PLANTS"]
 
 log = logging.getLogger(__name__)
-
-MAX_PLANTS = 50
-
 
 @dataclass(frozen=True, eq=False)
 class TuneResult:
@@ -86,36 +83,10 @@ class TuneResult:
         return jsonable(self.to_dict())
 
 
-def _as_plants(plant_or_plants: Plant | Sequence[Plant]) -> list[Plant]:
-    plants = [plant_or_plants] if isinstance(plant_or_plants, Plant) else list(plant_or_plants)
-    if not plants:
-        raise InvalidPlantError("no plant given")
-    if len(plants) > MAX_PLANTS:
-        raise InvalidPlantError(f"{len(plants)} plants given; at most {MAX_PLANTS} per robust tune")
-    for p in plants:
-        if not isinstance(p, Plant):
-            raise InvalidPlantError(f"expected Plant objects, got {type(p).__name__}")
-    return plants
-
-
-def _loop_dt(plants: list[Plant], dt: float | None) -> float | None:
-    dt = check_dt(dt)
-    pdts = {p.dt for p in plants if p.is_discrete}
-    if len(pdts) > 1:
-        raise InvalidPlantError(f"plants are discrete at different sample times {sorted(pdts)}")
-    if pdts:
-        (pdt,) = pdts
-        if dt is None:
-            return pdt
-        if abs(pdt - dt) > 1e-9 * dt:
-            raise InvalidPlantError(f"plant is discrete at dt={pdt} but dt={dt} was requested")
-    return dt
-
-
 def tune(
-    plant_or_plants: Plant | Sequence[Plant],
+    plant_or_plants: Plant | Sequence[Plant] | TuningProblem,
     *,
-    structure: str,
+    structure: str | None = None,
     spec: Spec | None = None,
     dt: float | None = None,
     seed: int = 0,
@@ -155,28 +126,26 @@ def tune(
     nlp_solver : str
         ``"ipopt"`` (default) or ``"sqp"`` (CasADi's SQP with qpOASES; same problem).
     """
-    if not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**32:
-        raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}")
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
+        raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
     if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s) and time_budget_s > 0):
-        raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}")
+        raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
     if nlp_solver not in ("ipopt", "sqp"):
-        raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}")
+        raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
     t0 = time.perf_counter()
     deadline = t0 + float(time_budget_s)
-    spec = spec or Spec()
-    plants = _as_plants(plant_or_plants)
-    st = get_structure(structure)
-    dt = _loop_dt(plants, dt)
-    if st.discrete_only and dt is None:
-        raise TunerError(f"structure {structure!r} is discrete: give dt")
-    space = make_space(st, plants[0], dt)
-    if not (np.all(np.isfinite(space.lo)) and np.all(np.isfinite(space.hi)) and all(np.isfinite(space.units))):
-        raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
-                                "(coefficients spanning hundreds of decades)")
+    if isinstance(plant_or_plants, TuningProblem):
+        if structure is not None or spec is not None or dt is not None:
+            raise TunerError("a TuningProblem already holds the structure, spec and dt: do not pass them again",
+                             field="structure")
+        problem = plant_or_plants
+    else:
+        if structure is None:
+            raise TunerError("give the controller structure, e.g. structure='pid'", field="structure")
+        problem = TuningProblem.build(plant_or_plants, structure=structure, spec=spec, dt=dt)
+    plants, st, dt, spec = list(problem.plants), problem.structure, problem.dt, problem.spec
+    space = make_space(st, plants[0], dt, scale=problem.scale)
     ev = Evaluator(plants, st, dt, spec, w0=space.w0)
-    guess = ev.controller(np.array(list(initial_guess(st, plants[0], dt).values())))
-    for p in plants:  # a plant that cannot form a loop fails here, with its own message
-        build_loop(p, guess)
 
     from .optimize.search import global_search
 
@@ -232,7 +201,7 @@ def designed_starts(space: Space, plant: Plant, dt: float | None) -> list[np.nda
     """Plant-based starts enqueued before the search: the structure's initial guess with all
     gains scaled by 10^-1.5 ... 10^0.5 (most loops are stable somewhere on that ray)."""
     st = space.structure
-    g = initial_guess(st, plant, dt)
+    g = initial_guess(st, plant, dt, scale=(space.k0, space.w0))
     x0 = np.array([g[p] for p in st.params])
     starts = []
     for decades in (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5):

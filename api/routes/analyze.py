@@ -9,7 +9,7 @@ from fastapi.responses import JSONResponse
 
 from tuner.analysis.verify import jsonable
 
-from ..convert import FieldError, check_loop_dt, plant_dict, spec_or_default, to_controller, to_plant
+from ..convert import FieldError, analysis_inputs, body_loc
 from ..deps import get_analyze_job, get_pool
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_ANALYZE_EXAMPLE, AnalyzeRequest, AnalyzeResponse
@@ -39,12 +39,8 @@ async def post_analyze(
     pool: WorkerPool = Depends(get_pool),
     job: Callable[[dict[str, Any]], Any] = Depends(get_analyze_job),
 ) -> JSONResponse:
-    loc = ("body", "plant")
-    plant = to_plant(body.plant, loc)
-    dt = check_loop_dt([(plant, loc)], body.dt, structure=None)
-    ctrl = to_controller(body.controller, dt, ("body", "controller"))
-    spec = spec_or_default(body.spec)
-    payload = {"plant": plant_dict(plant), "controller": ctrl.to_dict(), "spec": spec.model_dump()}
+    plant, ctrl, spec = analysis_inputs(body)
+    payload = {"plant": plant, "controller": ctrl, "spec": spec}
     try:
         out = await pool.run(job, payload, timeout_s=settings.analyze_timeout_s)
     except JobTimeout:
@@ -52,6 +48,7 @@ async def post_analyze(
                                  "stopped") from None
     except JobFailed as e:
         if e.kind == "tuner_error":
-            raise FieldError(("body", "controller"), e.info["message"], type="tuner_error") from None
+            raise FieldError(body_loc(e.info.get("field") or ("controller",)), e.info["message"],
+                             type="tuner_error") from None
         raise HTTPException(500, internal_message(e.info, "analysis")) from None
     return JSONResponse(jsonable({**out, "controller": ctrl.to_dict()}))

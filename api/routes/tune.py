@@ -9,9 +9,9 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from tuner.analysis.verify import jsonable
-from tuner.tuning import MAX_PLANTS
+from tuner.problem import MAX_PLANTS
 
-from ..convert import FieldError, check_loop_dt, plant_dict, spec_or_default, to_plant, tuner_error_loc
+from ..convert import FieldError, body_loc, plant_dict, tuning_problem
 from ..deps import get_pool, get_store, get_tune_job
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
@@ -70,13 +70,8 @@ async def post_tune(
     if 1 + len(extra) > limit:
         raise FieldError(("body", "plants"),
                          f"{1 + len(extra)} plants given (plant + plants); at most {limit} per request")
-    locs = [("body", "plant")] + [("body", "plants", i) for i in range(len(extra))]
-    plants = [(to_plant(p, loc), loc) for p, loc in zip([body.plant, *extra], locs)]
-    dt = check_loop_dt(plants, body.dt, structure=body.structure)
-    spec = spec_or_default(body.spec)
-    stored_plants = [plant_dict(p) for p, _ in plants]
-    payload = {"plants": stored_plants, "structure": body.structure, "spec": spec.model_dump(), "dt": dt,
-               "seed": body.options.seed, "time_budget_s": budget}
+    problem = tuning_problem(body)
+    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
     try:
         result = await pool.run(job, payload, timeout_s=settings.solve_limit_s(budget))
     except JobTimeout as e:
@@ -86,11 +81,11 @@ async def post_tune(
                                  f"{settings.max_budget_s:g}) or a simpler structure.") from None
     except JobFailed as e:
         if e.kind == "tuner_error":
-            raise FieldError(tuner_error_loc(e.info["message"], e.info["error"]), e.info["message"],
-                             type="tuner_error") from None
+            raise FieldError(body_loc(e.info.get("field") or ()), e.info["message"], type="tuner_error") from None
         raise HTTPException(500, internal_message(e.info, "solver")) from None
     request = body.model_dump(mode="json")
-    request.update(spec=spec.model_dump(mode="json"), dt=dt)
+    request.update(spec=problem.spec.model_dump(mode="json"), dt=problem.dt)
     request["options"]["time_budget_s"] = budget
-    record = await run_in_threadpool(store.add, request=request, plants=stored_plants, result=result)
+    record = await run_in_threadpool(store.add, request=request, plants=[plant_dict(p) for p in problem.plants],
+                                     result=result)
     return JSONResponse(jsonable({"id": record.id, "created_at": record.created_at.isoformat(), **result}))

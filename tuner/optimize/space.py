@@ -21,7 +21,7 @@ import numpy as np
 
 from ..controllers import GAIN_SPAN, Structure
 from ..plant import Plant
-from .design import bounds, plant_scale
+from .design import PlantScale, bounds, plant_scale
 
 __all__ = ["Space", "make_space"]
 
@@ -91,8 +91,9 @@ class Space:
         return np.asarray(self.to_params(np.asarray(v, dtype=float), linear_gains=linear_gains), dtype=float)
 
 
-def make_space(structure: Structure, plant: Plant, dt: float | None) -> Space:
-    k0, w0 = plant_scale(plant, dt)
+def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None) -> Space:
+    """The search box of ``structure`` on ``plant`` at ``dt`` (``scale``: the plant's (K0, w0) if known)."""
+    k0, w0 = scale or plant_scale(plant, dt)
     lo_p, hi_p = bounds(structure, plant, dt, scale=(k0, w0))
     idx = {p: i for i, p in enumerate(structure.params)}
     ratio_of: list[int | None] = [None] * len(structure.params)

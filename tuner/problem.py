@@ -1,0 +1,110 @@
+"""The tuning problem, stated once: plants, structure, sample time and spec, validated together.
+
+:func:`tuner.tune` and the service both build a :class:`TuningProblem`; every check of the
+combination happens here, once (a discrete structure needs ``dt``, discrete plants agree on
+their sample time, a delay is whole samples of the loop's ``dt``, each plant can form a loop
+with the structure). Errors carry ``field`` paths relative to the problem: ``("dt",)``,
+``("structure",)``, ``("plants", i, "delay")``; the plant's scale (ultimate gain and frequency,
+:func:`tuner.optimize.design.plant_scale`) is computed here once per tune.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+from .controllers import Structure, get_structure
+from .errors import InvalidPlantError, InvalidSpecError, TunerError
+from .loop import build_loop
+from .optimize.design import PlantScale, initial_guess, plant_scale
+from .plant import Plant, check_dt
+from .spec import Spec
+
+__all__ = ["TuningProblem", "MAX_PLANTS"]
+
+MAX_PLANTS = 50
+
+
+@dataclass(frozen=True, eq=False)
+class TuningProblem:
+    """What to tune: a validated plant set (nominal first), a structure, the loop's ``dt``, a spec.
+
+    Build it with :meth:`build`; ``scale`` is the nominal plant's ``(K0, w0)`` at ``dt``.
+    """
+
+    plants: tuple[Plant, ...]
+    structure: Structure
+    dt: float | None
+    spec: Spec
+    scale: PlantScale
+
+    @property
+    def nominal(self) -> Plant:
+        return self.plants[0]
+
+    @classmethod
+    def build(cls, plant_or_plants: Plant | Sequence[Plant], *, structure: str | Structure,
+              spec: Spec | None = None, dt: float | None = None) -> "TuningProblem":
+        """Validate the inputs together; raises :class:`~tuner.errors.TunerError` with ``field`` set."""
+        st = structure if isinstance(structure, Structure) else get_structure(structure)
+        plants = _as_plants(plant_or_plants)
+        dt = _loop_dt(plants, check_dt(dt))
+        if st.discrete_only and dt is None:
+            raise TunerError(f"structure {st.name!r} is discrete: give the controller sample time dt", field="dt")
+        if spec is None:
+            spec = Spec()
+        elif not isinstance(spec, Spec):
+            raise InvalidSpecError(f"spec must be a tuner.Spec, got {type(spec).__name__}", field="spec")
+        try:
+            scale = plant_scale(plants[0], dt)
+        except TunerError as e:
+            raise _at_plant(e, 0) from None
+        if not all(math.isfinite(v) and v > 0 for v in scale):
+            raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
+                                    "(coefficients spanning hundreds of decades)", field=("plants", 0))
+        guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale).values()), dt)
+        for i, p in enumerate(plants):  # a plant that cannot form a loop fails here, with its own message
+            try:
+                build_loop(p, guess)
+            except TunerError as e:
+                raise _at_plant(e, i) from None
+        return cls(plants=tuple(plants), structure=st, dt=dt, spec=spec, scale=scale)
+
+
+def _at_plant(e: TunerError, i: int) -> TunerError:
+    """An error about plant ``i`` (or its loop: ``("plant", ...)``) located in the plant set; the loop's
+    ``dt`` stays ``("dt",)``."""
+    if e.field[:1] == ("plant",):
+        e.field = ("plants", i) + e.field[1:]
+    elif e.field != ("dt",):
+        e.field = ("plants", i) + e.field
+    return e
+
+
+def _as_plants(plant_or_plants: Plant | Sequence[Plant]) -> list[Plant]:
+    plants = [plant_or_plants] if isinstance(plant_or_plants, Plant) else list(plant_or_plants)
+    if not plants:
+        raise InvalidPlantError("no plant given", field="plants")
+    if len(plants) > MAX_PLANTS:
+        raise InvalidPlantError(f"{len(plants)} plants given; at most {MAX_PLANTS} per robust tune", field="plants")
+    for i, p in enumerate(plants):
+        if not isinstance(p, Plant):
+            raise InvalidPlantError(f"expected Plant objects, got {type(p).__name__}", field=("plants", i))
+    return plants
+
+
+def _loop_dt(plants: list[Plant], dt: float | None) -> float | None:
+    """The loop's sample time: ``dt``, else the discrete plants' (which must agree with it)."""
+    pdt = None
+    for i, p in enumerate(plants):
+        if not p.is_discrete:
+            continue
+        if pdt is not None and abs(p.dt - pdt) > 1e-9 * pdt:
+            raise InvalidPlantError(f"plants are discrete at different sample times {pdt} and {p.dt}",
+                                    field=("plants", i, "dt"))
+        if dt is not None and abs(p.dt - dt) > 1e-9 * dt:
+            raise InvalidPlantError(f"plant is discrete at dt={p.dt} but dt={dt} was given; a discrete plant is "
+                                    "not resampled", field="dt")
+        pdt = p.dt
+    return dt if dt is not None else pdt
