@@ -8,7 +8,8 @@ was given (``("expr",)`` for a plant, ``("plants", 2, "delay")`` or ``("dt",)`` 
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from tuner.controllers import ControllerTF, controller_from_coeffs, controller_from_expr, controller_tf
 from tuner.errors import TunerError
@@ -37,7 +38,7 @@ class FieldError(Exception):
         return [{"loc": list(self.loc), "msg": self.message, "type": self.type}]
 
     @classmethod
-    def of(cls, e: TunerError, loc: Loc) -> "FieldError":
+    def of(cls, e: TunerError, loc: Loc) -> FieldError:
         return cls(loc, str(e), type=error_type(e))
 
 

@@ -16,7 +16,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from tuner.analysis.verify import jsonable
+from tuner.jsonio import jsonable
 
 from .convert import FieldError
 from .pool import JobTimeout, PoolBusy, PoolClosed, WorkerCrashed

@@ -35,7 +35,8 @@ def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
 
 def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload``: ``plant``, ``controller`` (library objects, validated as one loop), ``spec``."""
-    from tuner.analysis import analyze, jsonable
+    from tuner.analysis import analyze
+    from tuner.jsonio import jsonable
 
     return jsonable(analyze(payload["plant"], payload["controller"], payload["spec"]).to_dict())
 

@@ -8,7 +8,8 @@ the cap. Either way: 413 with a JSON body. Accepted bodies are replayed to the a
 from __future__ import annotations
 
 import json
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 __all__ = ["BodySizeLimit"]
 

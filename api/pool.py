@@ -35,10 +35,11 @@ import math
 import multiprocessing
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import Any, Callable
+from typing import Any
 
 from .worker import worker_main
 
@@ -337,7 +338,8 @@ class WorkerPool:
         """Blocking (the first start waits for the forkserver's imports): runs in a thread."""
         t0 = time.monotonic()
         parent, child = self._ctx.Pipe(duplex=True)
-        proc = self._ctx.Process(target=worker_main, args=(child, self._warm, self._memory_mb), daemon=True, name="tuner-solver")
+        proc = self._ctx.Process(target=worker_main, args=(child, self._warm, self._memory_mb), daemon=True,
+                                 name="tuner-solver")
         try:
             proc.start()
         finally:

@@ -15,8 +15,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from tuner.controllers import STRUCTURES
 from tuner.plant import MAX_ORDER
-from tuner.spec import Spec
 from tuner.problem import MAX_PLANTS
+from tuner.spec import Spec
 
 __all__ = [
     "PlantIn", "ControllerIn", "TuneOptions", "TuneRequest", "AnalyzeRequest", "TuneResponse", "TuneRecordOut",
@@ -67,7 +67,7 @@ class PlantIn(_In):
     delay: float = Field(0.0, ge=0, le=MAX_DELAY_S, allow_inf_nan=False, description="input delay, s")
 
     @model_validator(mode="after")
-    def _one_form(self) -> "PlantIn":
+    def _one_form(self) -> PlantIn:
         coeffs = self.num is not None or self.den is not None
         if self.expr is not None and coeffs:
             raise ValueError("give either expr or num and den, not both")
@@ -91,7 +91,7 @@ class ControllerIn(_In):
         None, max_length=16, description="named parameters of the structure, e.g. {K, a1, a2} for pid_z")
 
     @model_validator(mode="after")
-    def _one_form(self) -> "ControllerIn":
+    def _one_form(self) -> ControllerIn:
         forms = [self.expr is not None, self.num is not None or self.den is not None,
                  self.structure is not None or self.gains is not None]
         if sum(forms) != 1:

@@ -73,7 +73,7 @@ class Settings(BaseSettings):
     max_plants: int = Field(20, ge=1)
 
     @model_validator(mode="after")
-    def _consistent(self) -> "Settings":
+    def _consistent(self) -> Settings:
         if self.default_budget_s > self.max_budget_s:
             raise ValueError(f"default_budget_s={self.default_budget_s} is above max_budget_s={self.max_budget_s}")
         return self

@@ -44,7 +44,7 @@ class _TuneRow(_Base):
 
 
 def _utc(t: _dt.datetime) -> _dt.datetime:
-    return t if t.tzinfo else t.replace(tzinfo=_dt.timezone.utc)  # SQLite returns naive datetimes
+    return t if t.tzinfo else t.replace(tzinfo=_dt.UTC)  # SQLite returns naive datetimes
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class TuneRecord:
     result: dict[str, Any]
 
     @classmethod
-    def _from_row(cls, r: _TuneRow) -> "TuneRecord":
+    def _from_row(cls, r: _TuneRow) -> TuneRecord:
         return cls(r.id, _utc(r.created_at), r.structure, r.meets_spec, r.request, r.plants, r.result)
 
 
@@ -101,9 +101,6 @@ class Store:
         except SQLAlchemyError as e:
             raise StoreError(f"cannot create the tables: {type(e).__name__}") from e
 
-    def drop_schema(self) -> None:
-        _Base.metadata.drop_all(self.engine)
-
     def dispose(self) -> None:
         self.engine.dispose()
 
@@ -117,7 +114,7 @@ class Store:
 
     def add(self, *, request: dict[str, Any], plants: list[dict[str, Any]], result: dict[str, Any]) -> TuneRecord:
         row = _TuneRow(
-            id=uuid.uuid4().hex, created_at=_dt.datetime.now(_dt.timezone.utc),
+            id=uuid.uuid4().hex, created_at=_dt.datetime.now(_dt.UTC),
             structure=str(result.get("structure", "")), meets_spec=bool(result.get("meets_spec", False)),
             request=request, plants=plants, result=result,
         )

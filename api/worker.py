@@ -62,7 +62,7 @@ def worker_main(conn: Connection, warm: bool = True, memory_mb: int | None = Non
             msg = conn.recv()
         except (EOFError, OSError):
             return
-        except Exception as e:  # noqa: BLE001 - e.g. the job's function could not be unpickled
+        except Exception as e:
             log.exception("could not read a job")
             conn.send(("error", {"error": type(e).__name__, "message": str(e)}))
             continue
@@ -73,7 +73,7 @@ def worker_main(conn: Connection, warm: bool = True, memory_mb: int | None = Non
             out: tuple[str, Any] = ("ok", fn(payload))
         except TunerError as e:
             out = ("tuner_error", {"error": type(e).__name__, "message": str(e), "field": list(e.field)})
-        except Exception as e:  # noqa: BLE001 - reported to the parent as an internal error
+        except Exception as e:
             log.exception("job %s failed", getattr(fn, "__name__", fn))
             out = ("error", {"error": type(e).__name__, "message": str(e)})
         try:

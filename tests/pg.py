@@ -23,7 +23,7 @@ def pg_base_url() -> str | None:
             with eng.connect() as c:
                 c.execute(text("SELECT 1"))
             return url
-        except Exception:  # noqa: BLE001 - try the next user
+        except Exception:
             continue
         finally:
             eng.dispose()

@@ -7,7 +7,7 @@ controller. Everything returned has been checked by the verifier (:mod:`tuner.an
 
 from __future__ import annotations
 
-from .analysis import Analysis, Metrics, analyze, jsonable
+from .analysis import Analysis, Metrics, analyze
 from .controllers import (
     STRUCTURES,
     ControllerTF,
@@ -24,6 +24,7 @@ from .errors import (
     InvalidSpecError,
     TunerError,
 )
+from .jsonio import jsonable
 from .plant import Plant, make_plant, plant_from_expr
 from .problem import TuningProblem
 from .spec import Check, Spec

@@ -10,8 +10,9 @@ import argparse
 import json
 import logging
 import sys
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 from .errors import TunerError
 
@@ -131,8 +132,9 @@ def analysis_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
 
 
 def _cmd_analyze(a: argparse.Namespace) -> int:
-    from .analysis.verify import analyze, jsonable
+    from .analysis.verify import analyze
     from .controllers import controller_from_expr
+    from .jsonio import jsonable
     from .plant import check_dt, plant_from_expr
 
     spec = _spec_from_args(a)

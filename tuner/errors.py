@@ -8,7 +8,7 @@ input (the CLI, the service, a study file) map that path to their own names (``-
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 __all__ = [
     "TunerError",
@@ -44,7 +44,7 @@ class TunerError(Exception):
     def __reduce__(self):  # pickled across processes (the solver pool) with its field and position
         return (type(self), self.args, self.__dict__)
 
-    def at(self, *prefix: str | int) -> "TunerError":
+    def at(self, *prefix: str | int) -> TunerError:
         """Prefix ``field`` with the place the erroneous input came from; returns ``self``.
 
         ``raise e.at("plants", 2)`` inside ``except TunerError as e`` re-raises the same error

@@ -13,8 +13,8 @@ than rounded.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import control as ct
 import numpy as np
@@ -101,7 +101,7 @@ class Plant:
         """Complex frequency response at ``w`` rad/s, delay included exactly."""
         return tf_freqresp(self.num, self.den, w, dt=self.dt, delay_s=self.delay_s)
 
-    def zoh(self, dt: float) -> "Plant":
+    def zoh(self, dt: float) -> Plant:
         """Zero-order-hold equivalent at ``dt`` (delay carried as whole samples)."""
         dt = check_dt(dt)
         key = ("zoh", dt)
@@ -109,7 +109,7 @@ class Plant:
             self._cache[key] = self._zoh(dt)
         return self._cache[key]
 
-    def _zoh(self, dt: float) -> "Plant":
+    def _zoh(self, dt: float) -> Plant:
         if self.is_discrete:
             if abs(self.dt - dt) > _SAMPLE_TOL * dt:
                 raise InvalidPlantError(
@@ -136,7 +136,7 @@ class Plant:
         d = delay_in_samples(self.delay_s, self.dt)
         return self.num, np.concatenate([self.den, np.zeros(d)])
 
-    def continuous_equivalent(self) -> "Plant | None":
+    def continuous_equivalent(self) -> Plant | None:
         """For a discrete plant, the continuous plant whose ZOH it is, when one exists.
 
         Used to evaluate the output between samples of a plant given in z. Returns
@@ -149,7 +149,7 @@ class Plant:
             self._cache["ct"] = self._continuous_equivalent()
         return self._cache["ct"]
 
-    def _continuous_equivalent(self) -> "Plant | None":
+    def _continuous_equivalent(self) -> Plant | None:
         sys = ct.tf2ss(self.tf)
         A, B, C, D = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (sys.A, sys.B, sys.C, sys.D))
         n = A.shape[0]

@@ -11,8 +11,8 @@ with the structure). Errors carry ``field`` paths relative to the problem: ``("d
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 from .controllers import Structure, get_structure
 from .errors import InvalidPlantError, InvalidSpecError, TunerError
@@ -45,7 +45,7 @@ class TuningProblem:
 
     @classmethod
     def build(cls, plant_or_plants: Plant | Sequence[Plant], *, structure: str | Structure,
-              spec: Spec | None = None, dt: float | None = None) -> "TuningProblem":
+              spec: Spec | None = None, dt: float | None = None) -> TuningProblem:
         """Validate the inputs together; raises :class:`~tuner.errors.TunerError` with ``field`` set."""
         st = structure if isinstance(structure, Structure) else get_structure(structure)
         plants = _as_plants(plant_or_plants)

@@ -16,19 +16,21 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from .analysis.verify import Analysis, jsonable, with_disk_margin
+from .analysis.verify import Analysis, with_disk_margin
 from .controllers import ControllerTF
 from .errors import TunerError
+from .jsonio import jsonable
 from .optimize.design import initial_guess
 from .optimize.scoring import Evaluator, Scored
+from .optimize.space import Space, make_space
 from .plant import Plant
 from .problem import MAX_PLANTS, TuningProblem
-from .optimize.space import Space, make_space
 from .spec import Spec
 
 __all__ = ["TuneResult", "tune", "designed_starts", "MAX_PLANTS"]

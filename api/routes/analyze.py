@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Callable
+from collections.abc import Callable
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Depends, HTTPException
 from fastapi.responses import JSONResponse
 
-from tuner.analysis.verify import jsonable
+from tuner.jsonio import jsonable
 
 from ..convert import FieldError, analysis_inputs, body_loc
 from ..deps import get_analyze_job, get_pool
+from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_ANALYZE_EXAMPLE, AnalyzeRequest, AnalyzeResponse
 from ..settings import Settings, get_settings
-from ..errors import internal_message
 from .tune import ERRORS
 
 __all__ = ["router"]

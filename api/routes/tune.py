@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Callable
+from collections.abc import Callable
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Depends, HTTPException
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from tuner.analysis.verify import jsonable
+from tuner.jsonio import jsonable
 from tuner.problem import MAX_PLANTS
 
 from ..convert import FieldError, body_loc, plant_dict, tuning_problem

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from tuner.analysis.verify import jsonable
+from tuner.jsonio import jsonable
 
 from ..deps import get_plot_job, get_pool, get_store
 from ..pool import JobFailed, JobTimeout, WorkerPool

@@ -13,13 +13,13 @@ import time
 
 import pytest
 from fastapi.testclient import TestClient
+from quadrotor import DT, ROLL, ROLL_C, YAW
 
 from api import testing
 from api.deps import get_analyze_job, get_tune_job
 from api.main import create_app
 from api.settings import Settings
 from api.testing import wait_for_workers
-from quadrotor import DT, ROLL, ROLL_C, YAW
 
 GRACE = 0.5  # s: budget + GRACE is when the service stops a solve
 MARGIN = 1.5  # s: what answering may add to that (killing, replying); generous for a loaded CI machine

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from numpy.testing import assert_allclose
+from quadrotor import DT, ROLL, ROLL_C, YAW
 
 from api.main import create_app
 from api.settings import Settings, get_settings
 from api.testing import wait_for_workers
-from quadrotor import DT, ROLL, ROLL_C, YAW
 
 MAX_BODY = 16_384
 BUDGET = 1.5  # s, per tune in this module
@@ -216,8 +216,9 @@ def test_analyze_the_thesis_roll_loop_three_ways(client):
 
 
 def test_analyze_matches_the_library(client):
-    from tuner.analysis.verify import analyze, jsonable
+    from tuner.analysis.verify import analyze
     from tuner.controllers import controller_from_expr
+    from tuner.jsonio import jsonable
     from tuner.plant import plant_from_expr
 
     ref = jsonable(analyze(plant_from_expr(YAW), controller_from_expr("2+40/s", dt=None)).to_dict())

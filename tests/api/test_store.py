@@ -12,14 +12,15 @@ import uuid
 
 import pytest
 from fastapi.testclient import TestClient
+from pg import require_pg_base_url
+from quadrotor import DT, ROLL
 
 from api.deps import get_store
 from api.main import create_app
 from api.settings import Settings
 from api.store import Store, StoreError
 from api.testing import wait_for_workers
-from pg import require_pg_base_url
-from quadrotor import DT, ROLL
+
 
 @pytest.fixture
 def pg_url():
@@ -73,7 +74,7 @@ def test_round_trip_keeps_every_value(store):
     assert (got.request, got.plants, got.result) == (REQUEST, PLANTS, RESULT)  # "-Infinity"/"NaN" included
     assert got.structure == "pid_z" and got.meets_spec is True
     assert got.created_at == rec.created_at and got.created_at.tzinfo is not None
-    assert abs(got.created_at - dt.datetime.now(dt.timezone.utc)) < dt.timedelta(minutes=5)
+    assert abs(got.created_at - dt.datetime.now(dt.UTC)) < dt.timedelta(minutes=5)
 
 
 def test_unknown_id_is_none(store):
@@ -117,7 +118,7 @@ def test_concurrent_writes_are_all_kept(store):
                 rid = store.add(request={**REQUEST, "k": k, "j": j}, plants=PLANTS, result=RESULT).id
                 with lock:
                     ids.append(rid)
-        except BaseException as e:  # noqa: BLE001
+        except BaseException as e:
             errors.append(e)
 
     threads = [threading.Thread(target=write, args=(k,)) for k in range(8)]

@@ -19,7 +19,6 @@ from pathlib import Path
 import httpx
 import pytest
 from numpy.testing import assert_allclose
-
 from quadrotor import DT, ROLL, YAW
 
 pytestmark = pytest.mark.slow

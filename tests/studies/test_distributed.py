@@ -19,13 +19,12 @@ from pathlib import Path
 
 import pytest
 from optuna.trial import TrialState
-
 from pg import require_pg_base_url
 from quadrotor import ROLL, YAW
-from tuner.cli import main
-from tuner.studies.schema import load_study
-from tuner.studies.runner import Coordinator, delete_study_records, open_storage
 
+from tuner.cli import main
+from tuner.studies.runner import Coordinator, delete_study_records, open_storage
+from tuner.studies.schema import load_study
 
 STUDY = f"""
 name = "{{name}}"

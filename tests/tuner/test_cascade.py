@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
+from quadrotor import DT, PITCH, PITCH_C, ROLL
 from scipy import signal
 
-from quadrotor import DT, PITCH, PITCH_C, ROLL
 from tuner import Spec, analyze, controller_from_expr, controller_tf, plant_from_expr
 from tuner.analysis.cascade import outer_plant, simulate_cascade
 from tuner.errors import InvalidPlantError

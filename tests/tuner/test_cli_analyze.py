@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from quadrotor import DT, PITCH, PITCH_C, ROLL, ROLL_C, YAW, YAW_C, scaled
+
 from tuner.cli import main
 
 METRIC_KEYS = {

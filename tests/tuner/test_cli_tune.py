@@ -14,11 +14,12 @@ import math
 
 import numpy as np
 import pytest
-
 from quadrotor import DT, ROLL
-from tuner.analysis.verify import analyze, jsonable
+
+from tuner.analysis.verify import analyze
 from tuner.cli import main
 from tuner.controllers import get_structure
+from tuner.jsonio import jsonable
 from tuner.plant import plant_from_expr
 
 BUDGET = "120"  # never what stops the search

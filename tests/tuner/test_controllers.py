@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-
 from quadrotor import DT, PITCH, ROLL, YAW
+
 from tuner.controllers import STRUCTURES, controller_from_expr, controller_tf, get_structure
-from tuner.optimize.design import bounds, initial_guess
 from tuner.errors import InvalidControllerError, InvalidExpressionError, TunerError
+from tuner.optimize.design import bounds, initial_guess
 from tuner.plant import plant_from_expr
 
 # -- discrete forms at dt, hand-computed coefficients ------------------------------------------

@@ -11,7 +11,6 @@ from numpy.testing import assert_allclose
 from tuner.errors import InvalidExpressionError, TunerError
 from tuner.expr import MAX_DEPTH, MAX_EXPR_LENGTH, parse_tf_expr
 
-
 # -- what it computes ----------------------------------------------------------------------
 
 @pytest.mark.parametrize(

@@ -16,15 +16,15 @@ from dataclasses import dataclass
 import control as ct
 import numpy as np
 import pytest
-from scipy import optimize
-
 import reference as ref
 from quadrotor import DT
+from scipy import optimize
+
+from tuner.analysis.margins import margins
+from tuner.analysis.response import closed_loop_poles, is_stable
 from tuner.controllers import ControllerTF, controller_tf
 from tuner.loop import build_loop
-from tuner.analysis.margins import margins
 from tuner.plant import make_plant
-from tuner.analysis.response import closed_loop_poles, is_stable
 
 # raw coefficients of the thesis models (quadrotor.md), written out here on purpose
 YAW_G = ([0.2843 * 18.611], [1, 18.611])
@@ -236,7 +236,7 @@ def test_double_integrator_with_lead_closed_form(ours):
 
 def test_three_crossings_worst_is_not_the_first(ours, brute):
     _, _, b = brute["three_gain_crossings"]
-    L, w = b["L"], b["w"]
+    L = b["L"]
     m_ = np.log(np.abs(L))
     idx = np.flatnonzero(np.sign(m_[:-1]) * np.sign(m_[1:]) < 0)
     assert idx.size == 3

@@ -24,10 +24,10 @@ import casadi as cs
 import control as ct
 import numpy as np
 import pytest
-from scipy import linalg, signal
-
 import reference as ref
 from quadrotor import DT, PITCH, ROLL
+from scipy import linalg, signal
+
 from tuner.analysis.verify import analyze
 from tuner.controllers import STRUCTURES, ControllerTF, get_structure
 from tuner.loop import build_loop
@@ -37,8 +37,8 @@ from tuner.optimize.nlp import transcribe
 from tuner.optimize.nlp.plantdata import lift
 from tuner.optimize.nlp.refine import refine
 from tuner.optimize.scoring import Evaluator
-from tuner.plant import make_plant, plant_from_expr
 from tuner.optimize.space import make_space
+from tuner.plant import make_plant, plant_from_expr
 from tuner.spec import Spec
 from tuner.tuning import tune
 

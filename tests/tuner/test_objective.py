@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from tuner import Spec, controller_from_expr, get_structure, plant_from_expr
+from tuner.analysis.response import step_response
+from tuner.analysis.verify import analyze
 from tuner.loop import build_loop
 from tuner.optimize.scoring import INFEASIBLE, UNSTABLE, Evaluator, objective_value
-from tuner.analysis.verify import analyze
-from tuner.analysis.response import step_response
 
 
 def test_load_disturbance_iae_matches_closed_form():

@@ -6,12 +6,11 @@ import math
 
 import numpy as np
 import pytest
+import reference as ref
 from numpy.testing import assert_allclose
 
-import reference as ref
 from tuner.errors import InvalidExpressionError, InvalidPlantError, TunerError
 from tuner.plant import MAX_ORDER, Plant, make_plant, plant_from_expr
-
 
 # -- validation: every rule, with a message naming the problem ------------------------------
 

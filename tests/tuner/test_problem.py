@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-
 from quadrotor import DT, ROLL
-from tuner import Spec, TuningProblem, TunerError, make_plant, plant_from_expr
+
+from tuner import Spec, TunerError, TuningProblem, make_plant, plant_from_expr
 from tuner.optimize.design import plant_scale
 
 ROLL_P = plant_from_expr(ROLL)

@@ -6,16 +6,16 @@ import math
 
 import numpy as np
 import pytest
+import reference as ref
 from numpy.testing import assert_allclose
+from quadrotor import DT, ROLL, ROLL_C
 from scipy import signal
 
-import reference as ref
-from quadrotor import DT, ROLL, ROLL_C
+from tuner.analysis.response import is_stable, step_metrics, step_response
 from tuner.analysis.verify import analyze
 from tuner.controllers import ControllerTF, controller_from_expr, controller_tf
 from tuner.loop import build_loop
 from tuner.plant import make_plant, plant_from_expr
-from tuner.analysis.response import is_stable, step_metrics, step_response
 from tuner.spec import Spec
 
 # -- first order: PI that cancels the plant pole, L = wc/s -------------------------------------

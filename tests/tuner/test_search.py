@@ -19,14 +19,14 @@ import math
 import numpy as np
 import optuna
 import pytest
-
 from quadrotor import DT, ROLL
-from tuner.optimize.design import bounds
+
 from tuner.controllers import GAIN_SPAN, STRUCTURES, get_structure
+from tuner.optimize.design import bounds
 from tuner.optimize.scoring import Evaluator
-from tuner.plant import make_plant, plant_from_expr
 from tuner.optimize.search import global_search
 from tuner.optimize.space import make_space
+from tuner.plant import make_plant, plant_from_expr
 from tuner.spec import Spec
 from tuner.tuning import tune
 

@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 import pytest
-
 import reference as ref
 from quadrotor import ALT_C, ALT_PLANT, DT, PITCH, PITCH_C, ROLL, ROLL_C, YAW, YAW_C, scaled
+
 from tuner.analysis.verify import analyze
 from tuner.controllers import controller_from_expr
 from tuner.plant import plant_from_expr

@@ -17,13 +17,14 @@ from dataclasses import asdict
 
 import numpy as np
 import pytest
-from scipy import signal
-
 import reference as ref
 from quadrotor import DT, PITCH, ROLL, YAW
-from tuner.analysis.verify import analyze, jsonable
+from scipy import signal
+
+from tuner.analysis.verify import analyze
 from tuner.controllers import get_structure
 from tuner.errors import TunerError
+from tuner.jsonio import jsonable
 from tuner.plant import make_plant, plant_from_expr
 from tuner.spec import Spec
 from tuner.tuning import tune

@@ -13,12 +13,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from .verify import Analysis  # noqa: E402
-from .cascade import CascadeResponse  # noqa: E402
-from .margins import frequency_grid, margins  # noqa: E402
+from .cascade import CascadeResponse
+from .margins import frequency_grid, margins
+from .verify import Analysis
 
 __all__ = ["step_plot", "bode_plot", "nyquist_plot", "loop_plots"]
 

@@ -8,7 +8,7 @@ plant output between samples (:mod:`tuner.analysis.response`).
 Non-finite values keep their meaning: ``inf`` gain margin = no crossing,
 ``inf`` settling time = not settled within the horizon, ``nan`` = not defined
 (e.g. step metrics of an unstable loop). In JSON they are written as the
-strings ``"Infinity"``, ``"-Infinity"`` and ``"NaN"`` (see :func:`jsonable`).
+strings ``"Infinity"``, ``"-Infinity"`` and ``"NaN"`` (see :func:`tuner.jsonio.jsonable`).
 """
 
 from __future__ import annotations
@@ -21,12 +21,12 @@ import numpy as np
 
 from ..controllers import ControllerTF
 from ..loop import Loop, build_loop
-from .margins import Margins, disk_margin, margins
 from ..plant import Plant
-from .response import StepResponse, closed_loop_poles, is_stable, step_metrics, step_response
 from ..spec import Check, Spec, check_spec
+from .margins import Margins, disk_margin, margins
+from .response import StepResponse, closed_loop_poles, is_stable, step_metrics, step_response
 
-__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop", "with_disk_margin", "jsonable", "METRIC_FIELDS"]
+__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop", "with_disk_margin"]
 
 
 @dataclass(frozen=True)
@@ -45,8 +45,6 @@ class Metrics:
     steady_state_error: float
     control_peak: float
 
-
-METRIC_FIELDS = tuple(f for f in Metrics.__dataclass_fields__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,25 +109,3 @@ def analyze(
 ) -> Analysis:
     """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks."""
     return analyze_loop(build_loop(plant, controller), spec, horizon_s=horizon_s, with_disk=with_disk)
-
-
-def jsonable(obj: Any) -> Any:
-    """Recursively convert to JSON-safe values; non-finite floats become "Infinity"/"-Infinity"/"NaN"."""
-    if isinstance(obj, dict):
-        return {k: jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        if math.isnan(v):
-            return "NaN"
-        if math.isinf(v):
-            return "Infinity" if v > 0 else "-Infinity"
-        return v
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj

@@ -90,10 +90,10 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     # above the Nyquist frequency pi/dt (roll, yaw at dt = 0.04), the box's upper bound
     lo, hi = bounds(st, plant, dt, scale=(k0, w0))
     out = {}
-    for p, l, h in zip(st.params, lo, hi):
+    for p, a, b in zip(st.params, lo, hi):
         v = float(g[p])
-        if not l <= v <= h:
-            v = float(np.clip(v, l + 0.01 * (h - l), h - 0.01 * (h - l)))
+        if not a <= v <= b:
+            v = float(np.clip(v, a + 0.01 * (b - a), b - 0.01 * (b - a)))
         out[p] = v
     for a, b in st.orderings:  # clipping may have collapsed an ordered pair: reopen it
         if out[a] >= out[b]:

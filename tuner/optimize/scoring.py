@@ -10,16 +10,16 @@ search can climb out.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
+from ..analysis.response import closed_loop_poles, default_horizon, is_stable, step_response
 from ..analysis.verify import Analysis, analyze_loop
 from ..controllers import ControllerTF, Structure
 from ..errors import TunerError
 from ..loop import build_loop
-from ..analysis.response import closed_loop_poles, default_horizon, is_stable, step_response
 from ..plant import Plant
 from ..spec import Spec
 
@@ -132,10 +132,6 @@ class Evaluator:
             return 0.0
         out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
         return max(out, 1e-9)
-
-    def instability(self, x: np.ndarray) -> float:
-        """0 if the loop is stable on every plant, else how far the worst pole is outside."""
-        return max(self._outside(lp, closed_loop_poles(lp)) for lp in self._loops(x))
 
     def score(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> Scored:
         self.n_evals += 1

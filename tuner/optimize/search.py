@@ -12,16 +12,17 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import optuna
 
 from .scoring import UNSTABLE, Evaluator
+from .space import Space
 
 UNSCORABLE = 10 * UNSTABLE
-from .space import Space
 
 __all__ = ["GlobalResult", "global_search", "default_sampler"]
 

@@ -14,8 +14,9 @@ The same mapping is written with plain arithmetic so that CasADi can use it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -52,8 +52,8 @@ def add_parser(sub: Any) -> None:
 
 def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pid: int) -> None:
     """A worker process: the same claim loop as every other worker, on its own connection."""
-    from .schema import load_study
     from .runner import Coordinator, open_storage, work
+    from .schema import load_study
 
     def watchdog() -> None:  # a parent killed with SIGKILL cannot take its workers down: they notice
         while True:
@@ -80,7 +80,7 @@ def _progress_loop(study: Any, storage: Any, stop: threading.Event) -> None:
             final = stop.is_set()
             try:
                 sts = coord.statuses()
-            except Exception:  # a transient storage hiccup must not stop the display  # noqa: BLE001
+            except Exception:  # a transient storage hiccup must not stop the display
                 sts = {}
             for lp in study.order():
                 st = sts.get(lp.name)
@@ -144,10 +144,10 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
 def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storage: str, source: str,
                   plots: bool = True) -> dict[str, Any]:
     """results.json, gains.json, report.md and plots/ from the stored results (re-verified)."""
-    from ..analysis.verify import jsonable
+    from ..jsonio import jsonable
+    from .evaluate import evaluate_loop, evaluate_thesis, gains_entry
     from .report import render_report
     from .schema import controller_of
-    from .evaluate import evaluate_loop, evaluate_thesis, gains_entry
 
     out_dir.mkdir(parents=True, exist_ok=True)
     results = {name: (st.result or {"loop": name, "error": "not done"}) for name, st in statuses.items()}
@@ -180,8 +180,8 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
 
 
 def _cmd_study_run(a: argparse.Namespace) -> int:
-    from .schema import load_study
     from .runner import default_storage_url, redact
+    from .schema import load_study
 
     study = load_study(a.file)
     if not 1 <= a.workers <= 64:
@@ -224,9 +224,9 @@ def _print_summary(doc: dict[str, Any], wall: float, out: Path) -> None:
 # -- verify ---------------------------------------------------------------------------------------
 
 def _cmd_verify(a: argparse.Namespace) -> int:
-    from ..analysis.verify import jsonable
-    from .schema import load_study
+    from ..jsonio import jsonable
     from .evaluate import check_gains_file, evaluate_gains
+    from .schema import load_study
 
     study = load_study(a.file)
     try:

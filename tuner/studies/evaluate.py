@@ -8,13 +8,15 @@ also gets an exact sampled-data simulation of the whole cascade
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
-from ..analysis.verify import Analysis, analyze, jsonable
 from ..analysis.cascade import EXACT_NOTE, HELD_NOTE, CascadeResponse, outer_plants, simulate_cascade
+from ..analysis.verify import Analysis, analyze
 from ..controllers import ControllerTF
 from ..errors import TunerError
+from ..jsonio import jsonable
 from ..plant import Plant
 from .schema import InvalidStudyError, LoopDef, StudyDef, base_plants, controller_of, loop_key, thesis_controller_of
 

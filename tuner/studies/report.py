@@ -7,11 +7,12 @@ so the report, ``results.json`` and ``tuner verify`` agree.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from .schema import StudyDef
 from .evaluate import LoopEval
+from .schema import StudyDef
 
 __all__ = ["render_report", "num"]
 

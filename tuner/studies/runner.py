@@ -26,9 +26,10 @@ import socket
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, Callable
+from typing import Any
 
 import optuna
 from optuna.exceptions import DuplicatedStudyError, UpdateFinishedTrialError
@@ -64,7 +65,7 @@ def redact(url: str) -> str:
 
 def open_storage(url: str, *, heartbeat_s: int = HEARTBEAT_S, grace_s: int = GRACE_S) -> RDBStorage:
     """An Optuna RDB storage with heartbeats. ``postgresql://`` uses psycopg 3."""
-    if url.startswith("postgresql://") or url.startswith("postgres://"):
+    if url.startswith(("postgresql://", "postgres://")):
         url = "postgresql+psycopg://" + url.split("://", 1)[1]
     engine: dict[str, Any] = {}
     if url.startswith("sqlite"):
@@ -168,7 +169,7 @@ class Coordinator:
             out[lp.name] = self.status(lp, out, names)
         return out
 
-    def claim(self, lp: LoopDef, epoch: int) -> "Claim | None":
+    def claim(self, lp: LoopDef, epoch: int) -> Claim | None:
         name = f"{self.prefix(lp)}{epoch}"
         try:
             sid = self.storage.create_new_study([StudyDirection.MINIMIZE], name)
@@ -239,7 +240,7 @@ def run_claimed(coord: Coordinator, claim: Claim, statuses: dict[str, LoopStatus
         result = tune_loop(coord.study, lp, _controllers(coord.study, lp, statuses))
     except TunerError as e:
         result = {"loop": lp.name, "key": coord.keys[lp.name], "error": str(e), "meets_spec": False}
-    except Exception as e:  # noqa: BLE001 - the worker boundary: record the failure instead of retrying forever
+    except Exception as e:
         log.exception("tuning loop %s failed", lp.name)
         result = {"loop": lp.name, "key": coord.keys[lp.name], "error": f"{type(e).__name__}: {e}",
                   "meets_spec": False}

@@ -93,7 +93,7 @@ class LoopDef(BaseModel):
         return v
 
     @model_validator(mode="after")
-    def _one_plant_field(self) -> "LoopDef":
+    def _one_plant_field(self) -> LoopDef:
         if (self.plant is None) == (self.plants is None):
             raise ValueError("give exactly one of plant (one model) or plants (a set, tuned robustly)")
         if self.structure == "pid_z" and self.dt is None:
@@ -121,7 +121,7 @@ class StudyDef(BaseModel):
     loop: list[LoopDef] = Field(min_length=1, max_length=200)
 
     @model_validator(mode="after")
-    def _graph(self) -> "StudyDef":
+    def _graph(self) -> StudyDef:
         names = [lp.name for lp in self.loop]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:

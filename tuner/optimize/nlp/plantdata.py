@@ -35,10 +35,11 @@ class LiftedPlant:
     def n(self) -> int:
         return self.Phi.shape[0]
 
-    def vector(self) -> np.ndarray:
-        """All numbers in one flat parameter vector (order fixed by :func:`unpack` in transcribe)."""
-        return np.concatenate([self.Phi.ravel(), self.Gam, self.C, [self.D], self.Cf.ravel(), self.Df,
-                               self.num_d, self.den_d])
+    def blocks(self, i: int, *, delay_s: float = 0.0) -> dict[str, np.ndarray | float]:
+        """This plant's parameter blocks as plant ``i`` of the NLP (names of
+        :func:`~tuner.optimize.nlp.transcribe.parameter_layout`); ``delay_s``: a continuous delay."""
+        return {f"Phi{i}": self.Phi, f"Gam{i}": self.Gam, f"C{i}": self.C, f"D{i}": self.D, f"Cf{i}": self.Cf,
+                f"Df{i}": self.Df, f"num{i}": self.num_d, f"den{i}": self.den_d, f"tau{i}": delay_s}
 
 
 def _ss(num: np.ndarray, den: np.ndarray, dt: float | None):

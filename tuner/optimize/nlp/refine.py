@@ -1,8 +1,14 @@
 """Local refinement of one start with the cached CasADi/IPOPT problem.
 
-Numbers enter the symbolic world here (parameter vector, initial point, bounds)
-and leave it here (the solution coordinates). What the NLP says about margins
-or settling is not reported anywhere: the caller re-verifies the solution.
+Numbers enter the symbolic world here (parameter vector, initial point, bounds, all packed by
+name through the problem's :class:`~tuner.optimize.nlp.layout.Layout`) and leave it here (the
+solution coordinates). What the NLP says about margins or settling is not reported anywhere:
+the caller re-verifies the solution.
+
+Steps: :func:`_grid` (horizon and time grid from the start's settling time), :func:`_plant_data`
+(lifted plant models and crossover estimates from the start's analysis), :func:`_values` (the
+spec's numbers), :func:`_box` (start and bounds), then :class:`_Solves` runs the solves: one for
+an objective other than the settling time, a bisection on the settling time otherwise.
 """
 
 from __future__ import annotations
@@ -11,22 +17,23 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from ...analysis.verify import Analysis
 from ...controllers import ControllerTF
 from ...loop import build_loop
 from ..scoring import SEARCH_BAND_GUARD, Evaluator
 from ..space import Space
-from .plantdata import lift
-from .transcribe import MS_GRID, ProblemKey, get_problem
+from .plantdata import LiftedPlant, lift
+from .transcribe import MS_GRID, Problem, ProblemKey, get_problem
 
 __all__ = ["RefineResult", "refine", "POINTS_PER_SAMPLE"]
 
 log = logging.getLogger(__name__)
 
 POINTS_PER_SAMPLE = 4
-WARM_START = True
 CONTINUOUS_STEPS = 240
 _MIN_SAMPLES, _MAX_SAMPLES = 15, 80
 
@@ -40,12 +47,136 @@ class RefineResult:
     status: str = ""
 
 
+@dataclass(frozen=True)
+class _Grid:
+    """The NLP's time discretisation: K steps of ``step`` s, N points per step."""
+
+    K: int
+    N: int
+    step: float  # dt, or the fine step h of a continuous loop
+    h: float | None  # continuous loops: the simulation step (divides every delay)
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.arange(self.K * self.N) / self.N * self.step
+
+
 def _horizon(settle: float, dt: float | None, w0: float) -> float:
     unit = dt if dt else 1.0 / w0
     base = 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
     if dt:
         return float(np.clip(base, _MIN_SAMPLES * dt, _MAX_SAMPLES * dt))
     return float(np.clip(base, 5.0 / w0, 500.0 / w0))
+
+
+def _grid(ev: Evaluator, settle: float, w0: float) -> _Grid:
+    T = _horizon(settle, ev.dt, w0)
+    if ev.dt is not None:
+        return _Grid(K=int(math.ceil(T / ev.dt / 5.0) * 5), N=POINTS_PER_SAMPLE, step=ev.dt, h=None)
+    h = T / CONTINUOUS_STEPS
+    taus = [p.delay_s for p in ev.plants if p.delay_s]
+    if taus:
+        h = min(taus) / max(1, math.ceil(min(taus) / h))
+    return _Grid(K=int(math.ceil(T / h)), N=1, step=h, h=h)
+
+
+@dataclass
+class _PlantData:
+    lifted: list[LiftedPlant] = field(default_factory=list)
+    wc: list[float] = field(default_factory=list)  # gain-crossover estimate per plant
+    wp: list[float] = field(default_factory=list)  # phase-crossover estimates (plants that have one)
+    has_pc: list[bool] = field(default_factory=list)
+
+
+def _plant_data(ev: Evaluator, start: tuple[Analysis, ...], ctrl: ControllerTF, grid: _Grid, w0: float) -> _PlantData:
+    """Lifted model of every plant, and the start's crossovers (from the verifier's analysis)."""
+    out = _PlantData()
+    wnyq = math.pi / ev.dt if ev.dt else math.inf
+    for p, a in zip(ev.plants, start):
+        if grid.h is not None:  # continuous loop: ZOH at the fine step, the plant's own coefficients for L(jw)
+            lf = lift(build_loop(p, ControllerTF(num=np.ones(1), den=np.ones(1), dt=grid.h)), 1)
+            num_c = np.concatenate([np.zeros(lf.n + 1 - p.num.size), p.num])
+            lf = LiftedPlant(lf.Phi, lf.Gam, lf.C, lf.D, lf.Cf, lf.Df, num_c, np.asarray(p.den, float),
+                             lf.delay_samples)
+        else:
+            lf = lift(build_loop(p, ctrl), grid.N)
+        mg = a.margins
+        has_pc = math.isfinite(mg.phase_crossover_rad_s) and 0 < mg.phase_crossover_rad_s < 0.98 * wnyq
+        out.lifted.append(lf)
+        out.wc.append(mg.crossover_rad_s if math.isfinite(mg.crossover_rad_s) else w0)
+        out.has_pc.append(has_pc)
+        if has_pc:
+            out.wp.append(mg.phase_crossover_rad_s)
+    return out
+
+
+def _wmax(ev: Evaluator, w0: float) -> float:
+    return math.pi / ev.dt * 0.999 if ev.dt else 1e3 * w0
+
+
+def _values(ev: Evaluator, space: Space, grid: _Grid, data: _PlantData) -> dict[str, Any]:
+    """Every parameter block but the settling mask, by name."""
+    spec = ev.spec
+    values: dict[str, Any] = {
+        "dt": ev.dt or grid.h, "h": grid.step, "band": spec.settling_band_pct / 100.0 * SEARCH_BAND_GUARD,
+        "os": min(spec.overshoot_max_pct / 100.0 * 0.99, 10.0),
+        "cospm": math.cos(math.radians(spec.phase_margin_min_deg)), "g": 10 ** (-spec.gain_margin_min_db / 20.0),
+        "cpk": spec.control_peak_max or 1.0, "msinv": 1.0 / spec.ms_max if spec.ms_max else 0.0,
+        "units": np.asarray(space.units, float)}
+    for i, (p, lf) in enumerate(zip(ev.plants, data.lifted)):
+        values.update(lf.blocks(i, delay_s=p.delay_s if grid.h is not None else 0.0))
+    values["wms"] = (np.logspace(math.log10(space.w0 * 1e-2), math.log10(_wmax(ev, space.w0)), MS_GRID)
+                     if spec.ms_max else np.zeros(0))
+    return values
+
+
+def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: float, wmax: float
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start, lower and upper bounds of the decision vector."""
+    vlo, vhi = space.bounds(linear_gains=True)
+    lay = prob.variables
+    xs = lay.pack({"v": space.from_params(x0, linear_gains=True), "slack": 0.0, "wc": data.wc, "wp": data.wp})
+    lbx = lay.pack({"v": vlo, "slack": -1.0, "wc": [1e-6 * space.w0] * len(data.wc), "wp": [w / 3 for w in data.wp]})
+    ubx = lay.pack({"v": vhi, "slack": band, "wc": [wmax] * len(data.wc),
+                    "wp": [min(3 * w, wmax) for w in data.wp]})
+    return np.clip(xs, lbx, ubx), lbx, ubx
+
+
+class _Solves:
+    """Solves of one problem from one start, accumulating the solver's statistics in ``res``."""
+
+    def __init__(self, prob: Problem, values: dict[str, Any], grid: _Grid, lbx: np.ndarray, ubx: np.ndarray,
+                 res: RefineResult, solver: str) -> None:
+        self.prob, self.values, self.tgrid, self.lbx, self.ubx = prob, values, grid.t, lbx, ubx
+        self.res, self.solver = res, solver
+        self.lam: dict[str, np.ndarray] = {}
+        self.slack = prob.variables.slice("slack").start
+
+    def __call__(self, ts: float, x_init: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """Maximise the band slack with the settling envelope from ``ts`` on: (slack, x), slack < 0 if infeasible."""
+        res, prob = self.res, self.prob
+        try:
+            p = prob.params.pack({**self.values, "mask": (self.tgrid >= ts - 1e-12).astype(float)})
+        except ValueError as e:  # TEMPORARY (behaviour-preserving step): the old code sent CasADi a short vector
+            res.status = f"ipopt error: {e}"
+            return None
+        try:
+            sol = prob.solver(x0=x_init, p=p, lbx=self.lbx, ubx=self.ubx, lbg=prob.lbg, ubg=prob.ubg, **self.lam)
+        except RuntimeError as e:  # IPOPT failures surface as RuntimeError in CasADi
+            res.status = f"ipopt error: {e}"
+            return None
+        stats = prob.solver.stats()
+        res.iterations += int(stats.get("iter_count", 0))
+        res.evaluations += int(stats.get("n_call_nlp_f", 0)) + int(stats.get("n_call_nlp_g", 0))
+        res.success = res.success or bool(stats.get("success", False))
+        res.status = str(stats.get("return_status", ""))
+        x = np.asarray(sol["x"]).ravel()
+        if not np.all(np.isfinite(x)):
+            return None
+        if self.solver == "ipopt":  # warm start the next bisection solve from this one's multipliers
+            self.lam.update(lam_x0=np.asarray(sol["lam_x"]).ravel(), lam_g0=np.asarray(sol["lam_g"]).ravel())
+        ok = stats.get("success", False) or res.status == "Solved_To_Acceptable_Level"
+        return (float(x[self.slack]) if ok else -1.0), x
 
 
 def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
@@ -60,99 +191,23 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
         res.status = f"start not analysable: {e}"
         return res
     settle = max((a.metrics.settling_time_s for a in start), default=math.inf)
-    dt = ev.dt
-    T = _horizon(settle, dt, space.w0)
-    continuous = dt is None
-    if continuous:
-        h = T / CONTINUOUS_STEPS
-        taus = [p.delay_s for p in ev.plants if p.delay_s]
-        if taus:
-            h = min(taus) / max(1, math.ceil(min(taus) / h))
-        K, N = int(math.ceil(T / h)), 1
-        step = h
-    else:
-        K, N = int(math.ceil(T / dt / 5.0) * 5), POINTS_PER_SAMPLE
-        step = dt
-    lifted, orders, delays, pcs, wcs, wps = [], [], [], [], [], []
-    ctrl = ev.controller(x0)
-    for p, a in zip(ev.plants, start):
-        if continuous:
-            lp_h = build_loop(p, ControllerTF(num=np.ones(1), den=np.ones(1), dt=h))
-            lf = lift(lp_h, 1)
-            n = lf.n
-            num_c = np.concatenate([np.zeros(n + 1 - p.num.size), p.num])
-            lf = type(lf)(lf.Phi, lf.Gam, lf.C, lf.D, lf.Cf, lf.Df, num_c, np.asarray(p.den, float), lf.delay_samples)
-        else:
-            lf = lift(build_loop(p, ctrl), N)
-        mg = a.margins
-        wnyq = math.pi / dt if dt else math.inf
-        wc = mg.crossover_rad_s if math.isfinite(mg.crossover_rad_s) else space.w0
-        has_pc = math.isfinite(mg.phase_crossover_rad_s) and 0 < mg.phase_crossover_rad_s < 0.98 * wnyq
-        lifted.append(lf)
-        orders.append(lf.n)
-        delays.append(lf.delay_samples)
-        pcs.append(has_pc)
-        wcs.append(wc)
-        if has_pc:
-            wps.append(mg.phase_crossover_rad_s)
-    key = ProblemKey(structure=space.structure.name, continuous=continuous, orders=tuple(orders),
-                     delays=tuple(delays), K=K, N=N, phase_cross=tuple(pcs),
+    grid = _grid(ev, settle, space.w0)
+    data = _plant_data(ev, start, ev.controller(x0), grid, space.w0)
+    key = ProblemKey(structure=space.structure.name, continuous=ev.dt is None,
+                     orders=tuple(lf.n for lf in data.lifted), delays=tuple(lf.delay_samples for lf in data.lifted),
+                     K=grid.K, N=grid.N, phase_cross=tuple(data.has_pc),
                      control_peak=spec.control_peak_max is not None, ms=spec.ms_max is not None,
                      objective=spec.objective, solver=solver)
     prob = get_problem(key, space.structure, space)
-    # -- parameters -----------------------------------------------------------------------
-    band = spec.settling_band_pct / 100.0 * SEARCH_BAND_GUARD
-    os = min(spec.overshoot_max_pct / 100.0 * 0.99, 10.0)
-    glob = [dt or h, step, band, os, math.cos(math.radians(spec.phase_margin_min_deg)),
-            10 ** (-spec.gain_margin_min_db / 20.0), spec.control_peak_max or 1.0,
-            1.0 / spec.ms_max if spec.ms_max else 0.0, *space.units]
-    blocks = []
-    for p, lf in zip(ev.plants, lifted):
-        blocks.append(lf.vector())
-        blocks.append([p.delay_s if continuous else 0.0])
-    wmax = math.pi / dt * 0.999 if dt else 1e3 * space.w0
-    wms = np.logspace(math.log10(space.w0 * 1e-2), math.log10(wmax), MS_GRID) if spec.ms_max else np.zeros(0)
-    pbase = np.concatenate([np.asarray(glob, float)] + [np.asarray(b, float).ravel() for b in blocks] + [wms])
-    tgrid = np.arange(K * N) / N * step
-    # -- start and bounds ---------------------------------------------------------------------
-    vlo, vhi = space.bounds(linear_gains=True)
-    xs = np.concatenate([space.from_params(x0, linear_gains=True), [0.0], wcs, wps])
-    lbx = np.concatenate([vlo, [-1.0], [1e-6 * space.w0] * len(wcs), [w / 3 for w in wps]])
-    ubx = np.concatenate([vhi, [band], [wmax] * len(wcs), [min(3 * w, wmax) for w in wps]])
-    xs = np.clip(xs, lbx, ubx)
-    sl = prob.x_layout["slack"].start
-
-    lam: dict[str, np.ndarray] = {}
-
-    def solve(ts: float, x_init: np.ndarray) -> tuple[float, np.ndarray] | None:
-        mask = (tgrid >= ts - 1e-12).astype(float)
-        try:
-            sol = prob.solver(x0=x_init, p=np.concatenate([pbase, mask]), lbx=lbx, ubx=ubx,
-                              lbg=prob.lbg, ubg=prob.ubg, **lam)
-        except RuntimeError as e:  # IPOPT failures surface as RuntimeError in CasADi
-            res.status = f"ipopt error: {e}"
-            return None
-        stats = prob.solver.stats()
-        res.iterations += int(stats.get("iter_count", 0))
-        res.evaluations += int(stats.get("n_call_nlp_f", 0)) + int(stats.get("n_call_nlp_g", 0))
-        res.success = res.success or bool(stats.get("success", False))
-        res.status = str(stats.get("return_status", ""))
-        x = np.asarray(sol["x"]).ravel()
-        if not np.all(np.isfinite(x)):
-            return None
-        if WARM_START and solver == "ipopt":
-            lam.update(lam_x0=np.asarray(sol["lam_x"]).ravel(), lam_g0=np.asarray(sol["lam_g"]).ravel())
-        ok = stats.get("success", False) or res.status == "Solved_To_Acceptable_Level"
-        return (float(x[sl]) if ok else -1.0), x
+    values = _values(ev, space, grid, data)
+    xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0))
+    solve = _Solves(prob, values, grid, lbx, ubx, res, solver)
 
     def out_of_time() -> bool:
         return deadline is not None and time.perf_counter() > deadline
 
     def to_search(x: np.ndarray) -> np.ndarray:  # NLP coordinates -> the search's coordinates
-        return space.from_params(space.params(x[prob.x_layout["v"]], linear_gains=True))
-
-    def keep(x: np.ndarray) -> None:
-        res.candidates.append(to_search(x))
+        return space.from_params(space.params(x[prob.variables.slice("v")], linear_gains=True))
 
     if out_of_time():
         res.status = "no time left"
@@ -160,28 +215,34 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
     if spec.objective != "settling_time":
         r = solve(math.inf, xs)
         if r is not None:
-            keep(r[1])
+            res.candidates.append(to_search(r[1]))
         return res
-    # bisection on Ts: feasible (slack >= 0) at hi, infeasible at lo
+    _bisect(solve, ev, space, settle, grid, xs, res, to_search, out_of_time)
+    return res
+
+
+def _bisect(solve: _Solves, ev: Evaluator, space: Space, settle: float, grid: _Grid, xs: np.ndarray,
+            res: RefineResult, to_search: Any, out_of_time: Any) -> None:
+    """Bisection on Ts: feasible (slack >= 0) at hi, infeasible at lo; every feasible solution is a candidate."""
+    tgrid = grid.t
     hi = settle if math.isfinite(settle) and settle < tgrid[-1] else 0.9 * tgrid[-1]
     r = solve(hi, xs)
     if r is None:
-        return res
-    keep(r[1])
+        return
+    res.candidates.append(to_search(r[1]))
     if r[0] < 0:
-        return res
+        return
     best, lo = r[1], 0.3 * hi
-    tol = step / 2  # half a sample (the verifier then judges between samples)
+    tol = grid.step / 2  # half a sample (the verifier then judges between samples)
     while hi - lo > tol and not out_of_time():
         mid = 0.5 * (lo + hi)
         r = solve(mid, best)
         if r is not None and r[0] >= 0:
             hi, best = mid, r[1]
-            keep(best)
+            res.candidates.append(to_search(best))
             # the solution may settle earlier than asked: jump there (judged by the verifier)
             sc = ev.score(space.params(to_search(best)))
-            if sc.feasible and spec.objective == "settling_time" and lo < sc.score < hi:
+            if sc.feasible and lo < sc.score < hi:
                 hi = sc.score
         else:
             lo = mid
-    return res

@@ -39,12 +39,13 @@ import numpy as np
 
 from ...controllers import Structure
 from ..space import Space
+from .layout import Layout
 
-__all__ = ["ProblemKey", "Problem", "get_problem", "BUILDS", "MS_GRID"]
+__all__ = ["ProblemKey", "Problem", "get_problem", "parameter_layout", "variable_layout", "BUILDS", "MS_GRID"]
 
 BUILDS = {"count": 0}
 MS_GRID = 60
-_CACHE: dict["ProblemKey", "Problem"] = {}
+_CACHE: dict[ProblemKey, Problem] = {}
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,8 @@ class Problem:
     n_v: int
     lbg: np.ndarray
     ubg: np.ndarray
-    x_layout: dict[str, slice]
+    params: Layout  # the parameter vector p
+    variables: Layout  # the decision vector x
 
 
 def _cplx_poly(coeffs: list[Any], w: Any, dt: Any, continuous: bool) -> tuple[Any, Any]:
@@ -138,170 +140,174 @@ def _canonical(num: list[Any], den: list[Any]) -> tuple[list[Any], list[Any], An
     return a, beta, b[0]
 
 
-def _unpack(p: Any, off: int, n: int, N: int) -> tuple[dict[str, Any], int]:
-    def take(k: int) -> Any:
-        nonlocal off
-        s = p[off:off + k]
-        off += k
-        return s
-
-    d: dict[str, Any] = {}
-    d["Phi"] = cs.reshape(take(n * n), n, n).T  # row-major in the vector
-    d["Gam"] = take(n)
-    d["C"] = take(n)
-    d["D"] = take(1)
-    d["Cf"] = cs.reshape(take(N * n), n, N).T
-    d["Df"] = take(N)
-    d["num"] = take(n + 1)
-    d["den"] = take(n + 1)
-    return d, off
+def parameter_layout(key: ProblemKey, nv: int) -> Layout:
+    """The parameter vector: spec numbers, gain units, per-plant data, the Ms grid, the settling mask."""
+    blocks: list[tuple[str, tuple[int, ...]]] = [(n, ()) for n in GLOBALS] + [("units", (nv,))]
+    for i, n in enumerate(key.orders):
+        blocks += [(f"Phi{i}", (n, n)), (f"Gam{i}", (n,)), (f"C{i}", (n,)), (f"D{i}", ()), (f"Cf{i}", (key.N, n)),
+                   (f"Df{i}", (key.N,)), (f"num{i}", (n + 1,)), (f"den{i}", (n + 1,)), (f"tau{i}", ())]
+    blocks += [("wms", (MS_GRID if key.ms else 0,)), ("mask", (key.K * key.N,))]
+    return Layout(tuple(blocks))
 
 
-def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
-    BUILDS["count"] += 1
+def variable_layout(key: ProblemKey, nv: int) -> Layout:
+    """The decision vector: coordinates ``v``, the band slack, crossover frequencies per plant."""
+    return Layout((("v", (nv,)), ("slack", ()), ("wc", (len(key.orders),)), ("wp", (sum(key.phase_cross),))))
+
+
+# the spec's numbers and the steps, in the parameter vector (see refine for their values)
+GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv")
+
+
+class _Constraints:
+    """g(x, p) with its bounds, appended in order."""
+
+    def __init__(self) -> None:
+        self.g: list[Any] = []
+        self.lbg: list[float] = []
+        self.ubg: list[float] = []
+
+    def add(self, expr: Any, lo: float, hi: float) -> None:
+        self.g.append(expr)
+        n = expr.shape[0] if hasattr(expr, "shape") else 1
+        self.lbg.extend([lo] * n)
+        self.ubg.extend([hi] * n)
+
+
+def _controller(key: ProblemKey, st: Structure, space: Space, v: Any, P: dict[str, Any]) -> tuple[list, list]:
+    """The controller's coefficients from the same formulas as the verifier (symbols in, symbols out)."""
     nv = len(st.params)
-    npl = len(key.orders)
-    n_pc = sum(key.phase_cross)
-    v = cs.SX.sym("v", nv)
-    slack = cs.SX.sym("slack")
-    wc = cs.SX.sym("wc", npl)
-    wp = cs.SX.sym("wp", n_pc)
-    # parameters: global scalars then per-plant blocks
-    glob_names = ["dt", "h", "band", "os", "cospm", "g", "cpk", "msinv"]
-    G = cs.SX.sym("glob", len(glob_names))
-    gp = {n: G[i] for i, n in enumerate(glob_names)}
-    plant_sizes = [n * n + n + n + 1 + key.N * n + key.N + 2 * (n + 1) + 1 for n in key.orders]  # +1: delay s
-    P = cs.SX.sym("plants", sum(plant_sizes))
-    Wms = cs.SX.sym("wms", MS_GRID if key.ms else 0)
-    units = cs.SX.sym("units", nv)  # the space's gain units: plant data, hence parameters
-    mask = cs.SX.sym("mask", key.K * key.N)  # 1 where the settling band applies (t >= Ts)
-    pvec = cs.vertcat(G, units, P, Wms, mask)
+    x_par = space.to_params([v[i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=P["units"],
+                            linear_gains=True)
+    return st.coeffs(x_par, None if key.continuous else P["dt"], cs.exp)
 
-    # the controller, from the same coefficient formulas as the verifier
-    x_par = space.to_params([v[i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=units, linear_gains=True)
-    dt_ctrl = None if key.continuous else gp["dt"]
-    cnum, cden = st.coeffs(x_par, dt_ctrl, cs.exp)
+
+def _open_loop_at(w: Any, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any]
+                  ) -> tuple[Any, Any, Any, Any]:
+    """``L(jw)`` of plant ``i`` as Re(N conj D), Im(N conj D), |N|^2, |D|^2 (L = N/D)."""
+    n, dly, dt = key.orders[i], key.delays[i], P["dt"]
+    cn = _cplx_poly(cnum, w, dt, key.continuous)
+    cd = _cplx_poly(cden, w, dt, key.continuous)
+    gn = _cplx_poly([P[f"num{i}"][j] for j in range(n + 1)], w, dt, key.continuous)
+    gd = _cplx_poly([P[f"den{i}"][j] for j in range(n + 1)], w, dt, key.continuous)
+    Nn = _cmul(cn, gn)
     if key.continuous:
-        snum, sden = _tustin(cnum, cden, gp["h"])
-    else:
-        snum, sden = cnum, cden
-    a, beta, d0 = _canonical(snum, sden)
+        tau = P[f"tau{i}"]
+        Nn = _cmul(Nn, (cs.cos(w * tau), -cs.sin(w * tau)))
+    elif dly:
+        Nn = _cmul(Nn, (cs.cos(dly * w * dt), -cs.sin(dly * w * dt)))
+    Dd = _cmul(cd, gd)
+    re = Nn[0] * Dd[0] + Nn[1] * Dd[1]
+    im = Nn[1] * Dd[0] - Nn[0] * Dd[1]
+    return re, im, Nn[0] ** 2 + Nn[1] ** 2, Dd[0] ** 2 + Dd[1] ** 2
+
+
+def _frequency_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any],
+                           wc: Any, wp: Any | None) -> None:
+    """Phase margin at the gain crossover ``wc``; gain margin at the phase crossover ``wp`` and (sampled-data)
+    at the Nyquist frequency; the optional Ms bound on its grid."""
+    re, im, nn2, dd2 = _open_loop_at(wc, key, i, cnum, cden, P)
+    c.add((nn2 - dd2) / (nn2 + dd2), 0.0, 0.0)  # |L(j wc)| = 1
+    c.add((re + P["cospm"] * dd2) / (nn2 + dd2), 0.0, cs.inf)  # Re L >= -cos(PM)
+    if wp is not None:
+        re, im, nn2, dd2 = _open_loop_at(wp, key, i, cnum, cden, P)
+        c.add(im / (nn2 + dd2), 0.0, 0.0)
+        c.add((re + P["g"] * dd2) / (nn2 + dd2), 0.0, cs.inf)
+    if not key.continuous:
+        re, im, nn2, dd2 = _open_loop_at(math.pi / P["dt"], key, i, cnum, cden, P)
+        c.add((re + P["g"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
+    if key.ms:
+        for j in range(MS_GRID):
+            re, im, nn2, dd2 = _open_loop_at(P["wms"][j], key, i, cnum, cden, P)
+            # |1 + L|^2 >= msinv^2  <=>  dd2 + 2 re + nn2 >= msinv^2 dd2
+            c.add((dd2 + 2 * re + nn2 - P["msinv"] ** 2 * dd2) / (nn2 + dd2), 0.0, cs.inf)
+
+
+def _step_response(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[str, Any]) -> tuple[Any, list]:
+    """The closed loop's unit-step output at N points per sample (lifted model) and the control sequence."""
+    a, beta, d0 = ctrl
     m = len(a)
+    n, dly = key.orders[i], key.delays[i]
+    Phi, Gam, Cx, Dp, Cf, Df = (P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df"))
+    x = cs.SX.zeros(n)
+    xc = cs.SX.zeros(m)
+    buf = [cs.SX(0)] * dly
+    ys, us = [], []
+    for _ in range(key.K):
+        if dly == 0:
+            u = (cs.dot(cs.vertcat(*beta), xc) + d0 * (1 - cs.dot(Cx, x))) / (1 + d0 * Dp) if m else \
+                d0 * (1 - cs.dot(Cx, x)) / (1 + d0 * Dp)
+            ua = u
+            e = 1 - (cs.dot(Cx, x) + Dp * ua)
+        else:
+            ua = buf[0]
+            e = 1 - (cs.dot(Cx, x) + Dp * ua)
+            u = (cs.dot(cs.vertcat(*beta), xc) if m else 0) + d0 * e
+            buf = buf[1:] + [u]
+        ys.append(cs.mtimes(Cf, x) + Df * ua)
+        us.append(u)
+        x = cs.mtimes(Phi, x) + Gam * ua
+        if m:
+            xc_new = [-sum(a[j] * xc[j] for j in range(m)) + e] + [xc[j] for j in range(m - 1)]
+            xc = cs.vertcat(*xc_new)
+    return cs.vertcat(*ys), us
 
-    g_list: list[Any] = []
-    lbg: list[float] = []
-    ubg: list[float] = []
 
-    def add(expr: Any, lo: float, hi: float) -> None:
-        g_list.append(expr)
-        n_ = expr.shape[0] if hasattr(expr, "shape") else 1
-        lbg.extend([lo] * n_)
-        ubg.extend([hi] * n_)
+def _envelope(c: _Constraints, y: Any, slack: Any, P: dict[str, Any]) -> None:
+    """Upper: y_i - 1 <= overshoot before Ts, <= band - slack from Ts on (the band is the tighter one);
+    lower: 1 - y_i <= band - slack from Ts on (vacuous before). ``mask`` is 1 from Ts on."""
+    mask = P["mask"]
+    c.add(y - 1 - (1 - mask) * P["os"] - mask * (P["band"] - slack), -cs.inf, 0.0)
+    c.add(mask * (1 - y + slack - P["band"]), -cs.inf, 0.0)
 
-    obj_terms = []
-    off = 0
-    ipc = 0
-    K, N = key.K, key.N
-    for ip, (n, dly) in enumerate(zip(key.orders, key.delays)):
-        pl, off2 = _unpack(P, off, n, N)
-        tau = P[off2]
-        off = off2 + 1
-        # -- frequency domain ---------------------------------------------------------
-        wnyq = math.pi  # scaled below by dt
 
-        def L_at(w: Any) -> tuple[Any, Any, Any, Any]:
-            cn = _cplx_poly(cnum, w, gp["dt"], key.continuous)
-            cd = _cplx_poly(cden, w, gp["dt"], key.continuous)
-            gn = _cplx_poly([pl["num"][i] for i in range(n + 1)], w, gp["dt"], key.continuous)
-            gd = _cplx_poly([pl["den"][i] for i in range(n + 1)], w, gp["dt"], key.continuous)
-            Nn = _cmul(cn, gn)
-            if key.continuous:
-                Nn = _cmul(Nn, (cs.cos(w * tau), -cs.sin(w * tau)))
-            elif dly:
-                Nn = _cmul(Nn, (cs.cos(dly * w * gp["dt"]), -cs.sin(dly * w * gp["dt"])))
-            Dd = _cmul(cd, gd)
-            # L = Nn / Dd ;  Nn * conj(Dd)
-            re = Nn[0] * Dd[0] + Nn[1] * Dd[1]
-            im = Nn[1] * Dd[0] - Nn[0] * Dd[1]
-            nn2 = Nn[0] ** 2 + Nn[1] ** 2
-            dd2 = Dd[0] ** 2 + Dd[1] ** 2
-            return re, im, nn2, dd2
-
-        re, im, nn2, dd2 = L_at(wc[ip])
-        add((nn2 - dd2) / (nn2 + dd2), 0.0, 0.0)  # |L(j wc)| = 1
-        add((re + gp["cospm"] * dd2) / (nn2 + dd2), 0.0, cs.inf)  # Re L >= -cos(PM)
-        if key.phase_cross[ip]:
-            re, im, nn2, dd2 = L_at(wp[ipc])
-            ipc += 1
-            add(im / (nn2 + dd2), 0.0, 0.0)
-            add((re + gp["g"] * dd2) / (nn2 + dd2), 0.0, cs.inf)
-        if not key.continuous:
-            re, im, nn2, dd2 = L_at(wnyq / gp["dt"])
-            add((re + gp["g"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
-        if key.ms:
-            for i in range(MS_GRID):
-                re, im, nn2, dd2 = L_at(Wms[i])
-                # |1 + L|^2 >= msinv^2  <=>  dd2 + 2 re + nn2 >= msinv^2 dd2
-                add((dd2 + 2 * re + nn2 - gp["msinv"] ** 2 * dd2) / (nn2 + dd2), 0.0, cs.inf)
-        # -- time domain: lifted closed loop --------------------------------------------
-        x = cs.SX.zeros(n)
-        xc = cs.SX.zeros(m)
-        buf = [cs.SX(0)] * dly
-        ys = []
-        us = []
-        Cx = pl["C"]
-        Dp = pl["D"]
-        for k in range(K):
-            if dly == 0:
-                u = (cs.dot(cs.vertcat(*beta), xc) + d0 * (1 - cs.dot(Cx, x))) / (1 + d0 * Dp) if m else \
-                    d0 * (1 - cs.dot(Cx, x)) / (1 + d0 * Dp)
-                ua = u
-                e = 1 - (cs.dot(Cx, x) + Dp * ua)
-            else:
-                ua = buf[0]
-                e = 1 - (cs.dot(Cx, x) + Dp * ua)
-                u = (cs.dot(cs.vertcat(*beta), xc) if m else 0) + d0 * e
-                buf = buf[1:] + [u]
-            ys.append(cs.mtimes(pl["Cf"], x) + pl["Df"] * ua)
-            us.append(u)
-            x = cs.mtimes(pl["Phi"], x) + pl["Gam"] * ua
-            if m:
-                xc_new = [-sum(a[i] * xc[i] for i in range(m)) + e] + [xc[i] for i in range(m - 1)]
-                xc = cs.vertcat(*xc_new)
-        y = cs.vertcat(*ys)
-        t = cs.DM(np.arange(K * N) / N) * gp["h"]
-        # upper: y_i - 1 <= overshoot before Ts, <= band - slack from Ts on (the band is the tighter one);
-        # lower: 1 - y_i <= band - slack from Ts on (vacuous before)
-        add(y - 1 - (1 - mask) * gp["os"] - mask * (gp["band"] - slack), -cs.inf, 0.0)
-        add(mask * (1 - y + slack - gp["band"]), -cs.inf, 0.0)
-        if key.control_peak:
-            uu = cs.vertcat(*us)
-            add(uu / gp["cpk"], -1.0, 1.0)
-        if key.objective != "settling_time":
-            obj_terms.append(cs.sum1(t * cs.sqrt((y - 1) ** 2 + 1e-8)) * (gp["h"] / N))
-    if key.objective == "settling_time":
-        f = -slack
-    else:
-        f = cs.mmax(cs.vertcat(*obj_terms)) if len(obj_terms) > 1 else obj_terms[0]
-    xvar = cs.vertcat(v, slack, wc, wp)
-    g = cs.vertcat(*g_list)
-    nlp = {"x": xvar, "p": pvec, "f": f, "g": g}
+def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
+    if key.solver == "sqp":
+        opts = {"qpsol": "qpoases", "print_time": False, "print_header": False, "print_iteration": False,
+                "print_status": False, "max_iter": 60, "error_on_fail": False,
+                "qpsol_options": {"printLevel": "none", "error_on_fail": False}}
+        return cs.nlpsol(f"tune_{key.structure}", "sqpmethod", nlp, opts)
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
             "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 5,
             "ipopt.mu_strategy": "adaptive", "ipopt.warm_start_init_point": "yes",
             "ipopt.warm_start_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
             "ipopt.max_wall_time": 30.0}  # a safety net only: budgets are enforced between solves
-    if key.solver == "sqp":
-        opts = {"qpsol": "qpoases", "print_time": False, "print_header": False, "print_iteration": False,
-                "print_status": False, "max_iter": 60, "error_on_fail": False,
-                "qpsol_options": {"printLevel": "none", "error_on_fail": False}}
-        solver = cs.nlpsol(f"tune_{key.structure}", "sqpmethod", nlp, opts)
+    return cs.nlpsol(f"tune_{key.structure}", "ipopt", nlp, opts)
+
+
+def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
+    BUILDS["count"] += 1
+    nv = len(st.params)
+    play, xlay = parameter_layout(key, nv), variable_layout(key, nv)
+    p = cs.SX.sym("p", play.size)
+    xvar = cs.SX.sym("x", xlay.size)
+    P, X = play.unpack(p), xlay.unpack(xvar)
+    cnum, cden = _controller(key, st, space, X["v"], P)
+    # the controller in the simulation: at dt, or (continuous loops) Tustin at the fine step h
+    snum, sden = _tustin(cnum, cden, P["h"]) if key.continuous else (cnum, cden)
+    ctrl = _canonical(snum, sden)
+    c = _Constraints()
+    obj_terms = []
+    ipc = 0
+    t = cs.DM(np.arange(key.K * key.N) / key.N) * P["h"]
+    for i in range(len(key.orders)):
+        wp = None
+        if key.phase_cross[i]:
+            wp, ipc = X["wp"][ipc], ipc + 1
+        _frequency_constraints(c, key, i, cnum, cden, P, X["wc"][i], wp)
+        y, us = _step_response(key, i, ctrl, P)
+        _envelope(c, y, X["slack"], P)
+        if key.control_peak:
+            c.add(cs.vertcat(*us) / P["cpk"], -1.0, 1.0)
+        if key.objective != "settling_time":  # a smooth ITAE of the reference step
+            obj_terms.append(cs.sum1(t * cs.sqrt((y - 1) ** 2 + 1e-8)) * (P["h"] / key.N))
+    if key.objective == "settling_time":
+        f = -X["slack"]
     else:
-        solver = cs.nlpsol(f"tune_{key.structure}", "ipopt", nlp, opts)
-    layout = {"v": slice(0, nv), "slack": slice(nv, nv + 1), "wc": slice(nv + 1, nv + 1 + npl),
-              "wp": slice(nv + 1 + npl, nv + 1 + npl + n_pc)}
-    return Problem(key=key, solver=solver, n_v=nv,
-                   lbg=np.array(lbg, dtype=float), ubg=np.array(ubg, dtype=float), x_layout=layout)
+        f = cs.mmax(cs.vertcat(*obj_terms)) if len(obj_terms) > 1 else obj_terms[0]
+    nlp = {"x": xvar, "p": p, "f": f, "g": cs.vertcat(*c.g)}
+    return Problem(key=key, solver=_solver(key, nlp), n_v=nv, lbg=np.array(c.lbg, dtype=float),
+                   ubg=np.array(c.ubg, dtype=float), params=play, variables=xlay)
 
 
 def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
