@@ -155,11 +155,7 @@ class _Solves:
     def __call__(self, ts: float, x_init: np.ndarray) -> tuple[float, np.ndarray] | None:
         """Maximise the band slack with the settling envelope from ``ts`` on: (slack, x), slack < 0 if infeasible."""
         res, prob = self.res, self.prob
-        try:
-            p = prob.params.pack({**self.values, "mask": (self.tgrid >= ts - 1e-12).astype(float)})
-        except ValueError as e:  # TEMPORARY (behaviour-preserving step): the old code sent CasADi a short vector
-            res.status = f"ipopt error: {e}"
-            return None
+        p = prob.params.pack({**self.values, "mask": (self.tgrid >= ts - 1e-12).astype(float)})
         try:
             sol = prob.solver(x0=x_init, p=p, lbx=self.lbx, ubx=self.ubx, lbg=prob.lbg, ubg=prob.ubg, **self.lam)
         except RuntimeError as e:  # IPOPT failures surface as RuntimeError in CasADi
@@ -192,6 +188,9 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
         return res
     settle = max((a.metrics.settling_time_s for a in start), default=math.inf)
     grid = _grid(ev, settle, space.w0)
+    if ev.dt is not None and any(build_loop(p, ev.controller(x0)).plant_ct is None for p in ev.plants):
+        # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
+        grid = _Grid(K=grid.K, N=1, step=grid.step, h=None)
     data = _plant_data(ev, start, ev.controller(x0), grid, space.w0)
     key = ProblemKey(structure=space.structure.name, continuous=ev.dt is None,
                      orders=tuple(lf.n for lf in data.lifted), delays=tuple(lf.delay_samples for lf in data.lifted),
