@@ -150,6 +150,8 @@ class MetricsOut(_Out):
     gain_margin_lower_db: Number
     disk_margin: Number
     ms: Number
+    mt: Number
+    mks: Number
     bandwidth_rad_s: Number
     overshoot_pct: Number
     settling_time_s: Number

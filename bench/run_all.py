@@ -97,7 +97,7 @@ def load_loops() -> list[Loop]:
 
 def verified(ev: Evaluator, x: np.ndarray) -> float:
     """The verifier's settling time at full resolution (worst over the plants); inf if infeasible."""
-    s = ev.score(x, full=True, with_disk=False)
+    s = ev.score(x, full=True)
     return s.score if s.feasible else math.inf
 
 

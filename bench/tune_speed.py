@@ -56,7 +56,7 @@ def optuna_until(plant, structure: str, dt: float, target: float, *, seed: int, 
         n += 1
         if n % check_every == 0 and study.best_value < 1e3:
             v = np.array([study.best_params[k] for k in space.names])
-            full = ev.score(space.params(v), full=True, with_disk=False)
+            full = ev.score(space.params(v), full=True)
             if full.feasible:
                 best_verified = min(best_verified, full.score)
             if best_verified <= target:

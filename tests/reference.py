@@ -66,7 +66,7 @@ def _wrap180(deg):
 def nyquist_margins(num, den, dt=None, *, wmin=1e-5, wmax=1e5, n=GRID_POINTS):
     """Brute-force margins from a dense Nyquist evaluation.
 
-    Returns a dict: ``pm`` (worst over all gain crossings, deg, inf if none),
+    Returns a dict: ``pm`` (the smallest distance in phase from -1 over all gain crossings, deg, inf if none),
     ``wc`` (its frequency), ``gm_db`` (upper, +inf if none), ``gml_db`` (lower,
     -inf if none), ``real_points`` (the negative-real-axis crossings found).
     """
@@ -86,7 +86,7 @@ def nyquist_margins(num, den, dt=None, *, wmin=1e-5, wmax=1e5, n=GRID_POINTS):
         ph0 = np.angle(L[k])
         dph = np.angle(L[k + 1] / L[k])
         ph = ph0 + t * dph
-        pms.append(float(_wrap180(math.degrees(ph) + 180.0)))
+        pms.append(abs(float(_wrap180(math.degrees(ph) + 180.0))))  # distance in phase from -1
         wcs.append(float(w[k] + t * (w[k + 1] - w[k])))
     if pms:
         j = int(np.argmin(pms))

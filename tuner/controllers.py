@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InvalidControllerError, TunerError
+from .lti import SS, Zpk, realize
 from .plant import check_dt, tf_freqresp
 
 GAIN_SPAN = 100.0
@@ -55,6 +56,23 @@ class ControllerTF:
     num: np.ndarray
     den: np.ndarray
     dt: float | None = None
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def zpk(self) -> Zpk:
+        """Zeros, poles and gain (a controller is low order: its roots are well conditioned)."""
+        if "zpk" not in self._cache:
+            n, d = np.trim_zeros(self.num, "f"), np.trim_zeros(self.den, "f")
+            self._cache["zpk"] = Zpk(np.roots(n).astype(complex) if n.size > 1 else np.zeros(0, complex),
+                                     np.roots(d).astype(complex) if d.size > 1 else np.zeros(0, complex),
+                                     float(n[0] / d[0]) if n.size else 0.0)
+        return self._cache["zpk"]
+
+    def ss(self) -> SS:
+        """A balanced cascade realisation (in s, or in z at ``dt``)."""
+        if "ss" not in self._cache:
+            self._cache["ss"] = realize(self.zpk, discrete=self.dt is not None)
+        return self._cache["ss"]
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
         return tf_freqresp(self.num, self.den, w, dt=self.dt)

@@ -38,11 +38,15 @@ _SPACE = re.compile(r"\s*", re.ASCII)
 
 @dataclass(frozen=True)
 class ParsedTF:
-    """Numerator and denominator coefficients (highest power first) and the variable."""
+    """Numerator and denominator coefficients (highest power first, denominator monic), the variable,
+    and the zeros, poles and gain found from the factors as written (each a small polynomial)."""
 
     num: np.ndarray
     den: np.ndarray
     var: str | None  # None for a constant expression
+    zeros: np.ndarray
+    poles: np.ndarray
+    gain: float
 
 
 @dataclass(frozen=True)
@@ -83,17 +87,56 @@ def _trim(p: np.ndarray) -> np.ndarray:
     return p[nz[0]:] if nz.size else np.zeros(1)
 
 
+def _prod(factors: tuple[np.ndarray, ...]) -> np.ndarray:
+    out = np.ones(1)
+    for f in factors:
+        out = np.polymul(out, f)
+    return out
+
+
 class _Rat:
-    """A ratio of polynomials in the single variable."""
+    """A ratio of products of polynomials in the single variable.
 
-    __slots__ = ("num", "den")
+    The factors are kept as written (``(s+1)^8`` is eight factors ``s+1``) so that the roots of the
+    result are the roots of small polynomials, not of one expanded high-degree one; a sum combines
+    its terms into one numerator over the (still factored) common denominator.
+    """
 
-    def __init__(self, num: np.ndarray, den: np.ndarray) -> None:
-        self.num = _trim(np.asarray(num, dtype=float))
-        self.den = _trim(np.asarray(den, dtype=float))
+    __slots__ = ("nf", "df", "_num", "_den")
+
+    def __init__(self, nf: tuple[np.ndarray, ...], df: tuple[np.ndarray, ...]) -> None:
+        self.nf = tuple(_trim(np.asarray(f, dtype=float)) for f in nf)
+        self.df = tuple(_trim(np.asarray(f, dtype=float)) for f in df)
+        self._num: np.ndarray | None = None
+        self._den: np.ndarray | None = None
+
+    @classmethod
+    def const(cls, c: float) -> _Rat:
+        return cls((np.array([c]),), ())
+
+    @property
+    def num(self) -> np.ndarray:
+        if self._num is None:
+            self._num = _trim(_prod(self.nf))
+        return self._num
+
+    @property
+    def den(self) -> np.ndarray:
+        if self._den is None:
+            self._den = _trim(_prod(self.df))
+        return self._den
 
     def degree(self) -> int:
-        return max(self.num.size, self.den.size) - 1
+        return max(sum(f.size - 1 for f in self.nf), sum(f.size - 1 for f in self.df))
+
+    def __mul__(self, other: _Rat) -> _Rat:
+        return _Rat(self.nf + other.nf, self.df + other.df)
+
+    def __truediv__(self, other: _Rat) -> _Rat:
+        return _Rat(self.nf + other.df, self.df + other.nf)
+
+    def __neg__(self) -> _Rat:
+        return _Rat((np.array([-1.0]),) + self.nf, self.df)
 
 
 class _Parser:
@@ -135,7 +178,7 @@ class _Parser:
             t = self._eat()
             rhs = self.term()
             if t.text == "-":
-                rhs = _Rat(-rhs.num, rhs.den)
+                rhs = -rhs
             r = self._check(_add(r, rhs), t.pos)
         return r
 
@@ -147,16 +190,16 @@ class _Parser:
                 self._eat()
                 rhs = self.unary()
                 if t.text == "*":
-                    r = _Rat(np.polymul(r.num, rhs.num), np.polymul(r.den, rhs.den))
+                    r = r * rhs
                 else:
                     if not np.any(rhs.num):
                         raise InvalidExpressionError("division by zero", position=t.pos)
-                    r = _Rat(np.polymul(r.num, rhs.den), np.polymul(r.den, rhs.num))
+                    r = r / rhs
                 r = self._check(r, t.pos)
             elif t.kind == "var" or (t.kind == "op" and t.text == "("):
                 # implicit multiplication: 2s, (s+1)(s+2), 3(s+1)
                 rhs = self.power()
-                r = self._check(_Rat(np.polymul(r.num, rhs.num), np.polymul(r.den, rhs.den)), t.pos)
+                r = self._check(r * rhs, t.pos)
             else:
                 return r
 
@@ -167,7 +210,7 @@ class _Parser:
             self._enter(t.pos)
             r = self.unary()
             self.depth -= 1
-            return _Rat(-r.num, r.den) if t.text == "-" else r
+            return -r if t.text == "-" else r
         return self.power()
 
     def power(self) -> _Rat:
@@ -188,12 +231,10 @@ class _Parser:
             if nxt.kind == "op" and nxt.text in ("^", "**"):
                 raise InvalidExpressionError("chained powers are ambiguous; use parentheses", position=nxt.pos)
             if k == 0:
-                return _Rat(np.ones(1), np.ones(1))
-            num, den = np.ones(1), np.ones(1)
-            for _ in range(k):
-                num, den = np.polymul(num, base.num), np.polymul(den, base.den)
-                self._check(_Rat(num, den), e.pos)
-            return _Rat(num, den)
+                return _Rat.const(1.0)
+            if base.degree() * k > MAX_DEGREE:
+                raise InvalidExpressionError(f"polynomial degree above {MAX_DEGREE}", position=e.pos)
+            return self._check(_Rat(base.nf * k, base.df * k), e.pos)
         return base
 
     def _enter(self, pos: int) -> None:
@@ -207,7 +248,7 @@ class _Parser:
             v = float(t.text)
             if not np.isfinite(v):
                 raise InvalidExpressionError(f"number {t.text!r} is not finite", position=t.pos)
-            return _Rat(np.array([v]), np.ones(1))
+            return _Rat.const(v)
         if t.kind == "var":
             if self.var is not None and self.var != t.text:
                 raise InvalidExpressionError(
@@ -215,7 +256,7 @@ class _Parser:
                     position=t.pos,
                 )
             self.var = t.text
-            return _Rat(np.array([1.0, 0.0]), np.ones(1))
+            return _Rat((np.array([1.0, 0.0]),), ())
         if t.kind == "op" and t.text == "(":
             self._enter(t.pos)
             r = self.expr()
@@ -230,11 +271,18 @@ class _Parser:
 
 
 def _add(a: _Rat, b: _Rat) -> _Rat:
-    if a.den.shape == b.den.shape and np.array_equal(a.den, b.den):
-        return _Rat(np.polyadd(a.num, b.num), a.den)
-    return _Rat(
-        np.polyadd(np.polymul(a.num, b.den), np.polymul(b.num, a.den)), np.polymul(a.den, b.den)
-    )
+    """``a + b`` over a factored common denominator (shared factors are not repeated)."""
+    rest_b = list(b.df)
+    common: list[np.ndarray] = []
+    only_a: list[np.ndarray] = []
+    for f in a.df:
+        j = next((j for j, g in enumerate(rest_b) if g.shape == f.shape and np.array_equal(g, f)), None)
+        if j is None:
+            only_a.append(f)
+        else:
+            common.append(rest_b.pop(j))
+    num = np.polyadd(np.polymul(a.num, _prod(tuple(rest_b))), np.polymul(b.num, _prod(tuple(only_a))))
+    return _Rat((num,), tuple(common + only_a + rest_b))
 
 
 def parse_tf_expr(text: str) -> ParsedTF:
@@ -253,4 +301,13 @@ def parse_tf_expr(text: str) -> ParsedTF:
     if not np.any(r.den):
         raise InvalidExpressionError("denominator is zero")
     lead = r.den[0]
-    return ParsedTF(num=r.num / lead, den=r.den / lead, var=p.var)
+    with np.errstate(over="ignore", invalid="ignore"):
+        gain = float(np.prod([f[0] for f in r.nf]) / np.prod([f[0] for f in r.df])) if r.df else \
+            float(np.prod([f[0] for f in r.nf]))
+    return ParsedTF(num=r.num / lead, den=r.den / lead, var=p.var, zeros=_roots(r.nf), poles=_roots(r.df),
+                    gain=gain)
+
+
+def _roots(factors: tuple[np.ndarray, ...]) -> np.ndarray:
+    rs = [np.roots(f) for f in factors if f.size > 1 and np.any(f)]
+    return np.concatenate(rs).astype(complex) if rs else np.zeros(0, complex)

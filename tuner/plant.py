@@ -16,14 +16,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-import control as ct
 import numpy as np
 from scipy import linalg
 
 from .errors import InvalidPlantError, TunerError
 from .expr import parse_tf_expr
+from .lti import SS, Zpk, realize, zoh, zpk_from_ss
+from .lti import freqresp as lti_freqresp
 
-__all__ = ["Plant", "tf_freqresp", "make_plant", "plant_from_expr", "MAX_ORDER", "delay_in_samples", "check_dt"]
+__all__ = ["Plant", "tf_freqresp", "make_plant", "make_plant_zpk", "plant_from_expr", "MAX_ORDER", "delay_in_samples",
+           "check_dt"]
 
 MAX_ORDER = 20
 _SAMPLE_TOL = 1e-9
@@ -69,13 +71,24 @@ def _coeffs(values: Sequence[float], name: str) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Plant:
-    """A validated SISO plant. Build it with :func:`make_plant` or :func:`plant_from_expr`."""
+    """A validated SISO plant. Build it with :func:`make_plant`, :func:`make_plant_zpk` or
+    :func:`plant_from_expr`.
+
+    ``num``/``den`` are the coefficients (for display and storage); every computation uses the
+    factored form ``zpk`` and its cascade state-space realisation (:meth:`ss`), never the expanded
+    polynomials (see :mod:`tuner.lti`).
+    """
 
     num: np.ndarray
     den: np.ndarray
     dt: float | None = None
     delay_s: float = 0.0
+    zpk: Zpk | None = None  # filled by the constructors; None only for hand-made instances
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.zpk is None:  # a Plant built directly from coefficients
+            object.__setattr__(self, "zpk", _zpk_of(self.num, self.den))
 
     @property
     def is_discrete(self) -> bool:
@@ -86,20 +99,39 @@ class Plant:
         return self.den.size - 1
 
     @property
-    def tf(self) -> ct.TransferFunction:
+    def poles(self) -> np.ndarray:
+        return self.zpk.poles
+
+    @property
+    def zeros(self) -> np.ndarray:
+        return self.zpk.zeros
+
+    @property
+    def tf(self):
         """The rational part as a python-control transfer function (delay not included)."""
+        import control as ct
+
         return ct.tf(self.num, self.den, 0 if self.dt is None else self.dt)
+
+    def ss(self) -> SS:
+        """The balanced cascade realisation (in s, or in z at ``dt``); delay not included."""
+        if "ss" not in self._cache:
+            self._cache["ss"] = realize(self.zpk, discrete=self.is_discrete)
+        return self._cache["ss"]
 
     def dc_gain(self) -> float:
         """Steady-state gain (``inf`` with an integrator)."""
         x = 0.0 if self.dt is None else 1.0
-        d = np.polyval(self.den, x)
-        n = np.polyval(self.num, x)
-        return float(n / d) if d != 0 else float(np.copysign(np.inf, n))
+        if np.any(np.abs(self.zpk.poles - x) < 1e-12):
+            return float(np.copysign(np.inf, self.zpk.gain))
+        return float(np.real(self.zpk(np.array([x]))[0]))
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
         """Complex frequency response at ``w`` rad/s, delay included exactly."""
-        return tf_freqresp(self.num, self.den, w, dt=self.dt, delay_s=self.delay_s)
+        w = np.asarray(w, dtype=float)
+        x = 1j * w if self.dt is None else np.exp(1j * w * self.dt)
+        g = lti_freqresp(self.ss(), x)
+        return g * np.exp(-1j * w * self.delay_s) if self.delay_s else g
 
     def zoh(self, dt: float) -> Plant:
         """Zero-order-hold equivalent at ``dt`` (delay carried as whole samples)."""
@@ -118,16 +150,20 @@ class Plant:
                 )
             return self
         d = delay_in_samples(self.delay_s, dt)
-        try:
-            with np.errstate(all="ignore"):
-                gd = ct.sample_system(self.tf, dt, method="zoh")
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
-            raise InvalidPlantError(f"cannot discretise the plant at dt={dt} (ZOH): {e}; rescale the model") from e
-        num = np.atleast_1d(np.squeeze(gd.num[0][0]))
-        den = np.atleast_1d(np.squeeze(gd.den[0][0]))
-        if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))) or den[0] == 0:
+        with np.errstate(all="ignore"):
+            try:
+                sysd = zoh(self.ss(), dt)
+                zk = zpk_from_ss(sysd, discrete=True)
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+                raise InvalidPlantError(f"cannot discretise the plant at dt={dt} (ZOH): {e}; rescale the model") \
+                    from e
+        if not (np.all(np.isfinite(sysd.A)) and np.all(np.isfinite(sysd.B)) and np.isfinite(zk.gain)):
             raise InvalidPlantError(f"the ZOH equivalent at dt={dt} is not finite: rescale the model")
-        return Plant(num=num / den[0], den=den / den[0], dt=dt, delay_s=d * dt)
+        num, den = _coeffs_of(zk)
+        out = Plant(num=num, den=den, dt=dt, delay_s=d * dt, zpk=zk)
+        out._cache["ss"] = sysd  # the ZOH of the cascade itself, not a realisation of its zpk
+        out._cache["ct_parent"] = self
+        return out
 
     def rational_discrete(self) -> tuple[np.ndarray, np.ndarray]:
         """Discrete num/den with the delay folded in as ``z^-d`` (requires ``dt``)."""
@@ -145,34 +181,35 @@ class Plant:
         """
         if not self.is_discrete:
             return self
+        if "ct_parent" in self._cache:
+            return self._cache["ct_parent"]
         if "ct" not in self._cache:
             self._cache["ct"] = self._continuous_equivalent()
         return self._cache["ct"]
 
     def _continuous_equivalent(self) -> Plant | None:
-        sys = ct.tf2ss(self.tf)
-        A, B, C, D = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (sys.A, sys.B, sys.C, sys.D))
-        n = A.shape[0]
+        sysd = self.ss()
+        n = sysd.n
         if n == 0:
-            return Plant(num=self.num, den=self.den, dt=None, delay_s=self.delay_s)
-        ev = np.linalg.eigvals(A)
+            return Plant(num=self.num, den=self.den, dt=None, delay_s=self.delay_s,
+                         zpk=Zpk(np.zeros(0), np.zeros(0), float(sysd.D)))
+        ev = self.zpk.poles
         if np.any((np.abs(ev.imag) < 1e-12) & (ev.real <= 1e-12)):
             return None
         M = np.zeros((n + 1, n + 1))
-        M[:n, :n], M[:n, n:] = A, B
+        M[:n, :n], M[:n, n] = sysd.A, sysd.B
         M[n, n] = 1.0
         with np.errstate(all="ignore"):
             logm = linalg.logm(M)
-        if np.max(np.abs(np.imag(logm))) > 1e-8 * max(1.0, np.max(np.abs(logm))):
+        if not np.all(np.isfinite(logm)) or np.max(np.abs(np.imag(logm))) > 1e-8 * max(1.0, np.max(np.abs(logm))):
             return None
         Lm = np.real(logm) / self.dt
-        Ac, Bc = Lm[:n, :n], Lm[:n, n:]
-        g = ct.ss2tf(ct.ss(Ac, Bc, C, D))
-        num = np.atleast_1d(np.squeeze(g.num[0][0]))
-        den = np.atleast_1d(np.squeeze(g.den[0][0]))
-        num[np.abs(num) < 1e-10 * np.max(np.abs(num))] = 0.0
-        den[np.abs(den) < 1e-10 * np.max(np.abs(den))] = 0.0
-        return Plant(num=np.trim_zeros(num, "f") / den[0], den=den / den[0], dt=None, delay_s=self.delay_s)
+        sysc = SS(Lm[:n, :n], Lm[:n, n], sysd.C.copy(), sysd.D)
+        zk = zpk_from_ss(sysc, discrete=False)
+        num, den = _coeffs_of(zk)
+        out = Plant(num=num, den=den, dt=None, delay_s=self.delay_s, zpk=zk)
+        out._cache["ss"] = sysc
+        return out
 
     def describe(self) -> str:
         var = "s" if self.dt is None else "z"
@@ -182,6 +219,21 @@ class Plant:
         if self.delay_s:
             s += f", delay={self.delay_s:g} s"
         return s
+
+
+def _zpk_of(num: np.ndarray, den: np.ndarray) -> Zpk:
+    """Zeros, poles and gain of coefficient lists (the best the expanded data allow)."""
+    n, d = np.trim_zeros(np.asarray(num, float), "f"), np.trim_zeros(np.asarray(den, float), "f")
+    zeros = np.roots(n).astype(complex) if n.size > 1 else np.zeros(0, complex)
+    poles = np.roots(d).astype(complex) if d.size > 1 else np.zeros(0, complex)
+    return Zpk(zeros, poles, float(n[0] / d[0]) if n.size and d.size else 0.0)
+
+
+def _coeffs_of(zk: Zpk) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients of a zpk (for display and storage; nothing is computed from them)."""
+    num = np.real(np.poly(zk.zeros)) * zk.gain if zk.zeros.size else np.array([zk.gain])
+    den = np.real(np.poly(zk.poles)) if zk.poles.size else np.ones(1)
+    return np.atleast_1d(num), np.atleast_1d(den)
 
 
 def tf_freqresp(num: np.ndarray, den: np.ndarray, w: np.ndarray, *, dt: float | None,
@@ -213,8 +265,13 @@ def make_plant(
     dt: float | None = None,
     delay: float = 0.0,
     max_order: int = MAX_ORDER,
+    zpk: Zpk | None = None,
 ) -> Plant:
     """Build and validate a plant from coefficients (highest power first).
+
+    ``zpk``: the same transfer function in factored form when it is known more accurately than the
+    roots of the coefficients would give it (e.g. from an expression's factors, or a state-space
+    model); every computation uses it.
 
     Raises :class:`~tuner.errors.InvalidPlantError` naming the problem: non-finite
     coefficients, zero denominator or numerator, improper, order above
@@ -250,7 +307,28 @@ def make_plant(
     if not (np.all(np.isfinite(n)) and np.all(np.isfinite(d))):
         raise InvalidPlantError("coefficients overflow when the denominator is made monic: rescale the model",
                                 field="den")
-    return Plant(num=n, den=d, dt=dt, delay_s=tau)
+    if zpk is None:
+        zpk = _zpk_of(n, d)
+    if not (np.all(np.isfinite(zpk.zeros)) and np.all(np.isfinite(zpk.poles)) and np.isfinite(zpk.gain)) \
+            or zpk.gain == 0:
+        raise InvalidPlantError("the plant's poles, zeros or gain are not finite: rescale the model", field="den")
+    return Plant(num=n, den=d, dt=dt, delay_s=tau, zpk=zpk)
+
+
+def make_plant_zpk(
+    zeros: Sequence[complex], poles: Sequence[complex], gain: float, *, dt: float | None = None,
+    delay: float = 0.0, max_order: int = MAX_ORDER,
+) -> Plant:
+    """Build and validate a plant from zeros, poles and gain (complex roots in conjugate pairs)."""
+    try:
+        z = np.atleast_1d(np.asarray(zeros, dtype=complex))
+        p = np.atleast_1d(np.asarray(poles, dtype=complex))
+        k = float(gain)
+    except (TypeError, ValueError) as e:
+        raise InvalidPlantError("zeros, poles and gain must be numbers", field="zpk") from e
+    zk = Zpk(z.ravel(), p.ravel(), k)
+    num, den = _coeffs_of(zk)
+    return make_plant(num, den, dt=dt, delay=delay, max_order=max_order, zpk=zk)
 
 
 def plant_from_expr(
@@ -268,7 +346,8 @@ def plant_from_expr(
     if p.var == "z" and dt is None:
         raise InvalidPlantError("plant is in z: give its sample time dt", field="dt")
     try:
-        return make_plant(p.num, p.den, dt=dt if p.var == "z" else None, delay=delay, max_order=max_order)
+        return make_plant(p.num, p.den, dt=dt if p.var == "z" else None, delay=delay, max_order=max_order,
+                          zpk=Zpk(p.zeros, p.poles, p.gain))
     except TunerError as e:  # a coefficient problem is a problem of the expression
         if e.field in (("num",), ("den",)):
             e.field = ("expr",)

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = ["Spec", "Check", "check_spec", "OBJECTIVES"]
 
-OBJECTIVES = ("settling_time", "itae", "iae", "bandwidth")
+OBJECTIVES = ("settling_time", "itae", "iae", "ie", "bandwidth")
 SSE_TOL = 1e-6
 
 
@@ -29,9 +29,17 @@ class Spec(BaseModel):
     overshoot_max_pct: float = Field(10.0, ge=0, le=100, description="maximum step overshoot, %")
     zero_steady_state_error: bool = Field(True, description="require zero steady-state error to a step")
     settling_band_pct: float = Field(2.0, gt=0, le=20, description="settling band, % of the final value")
-    objective: Literal["settling_time", "itae", "iae", "bandwidth"] = "settling_time"
-    control_peak_max: float | None = Field(None, gt=0, description="maximum |u| after a unit step")
-    ms_max: float | None = Field(None, ge=1, description="maximum sensitivity peak Ms")
+    objective: Literal["settling_time", "itae", "iae", "ie", "bandwidth"] = Field(
+        "settling_time", description="what is minimised: settling_time (of the unit reference step), itae "
+        "(integral of t|e| of the reference step), iae (integral of |y| after a unit load step at the plant "
+        "input), ie (integral of e after that load step = 1/Ki: maximise Ki, MIGO), bandwidth (maximise it)")
+    control_peak_max: float | None = Field(None, gt=0, description="maximum |u| after a unit reference step")
+    ms_max: float | None = Field(None, ge=1, description="maximum sensitivity peak Ms = max |1/(1+L)| (>= 1)")
+    mt_max: float | None = Field(None, ge=1, description="maximum complementary sensitivity peak Mt = max |L/(1+L)| "
+                                 "(>= 1 for a loop with integral action)")
+    mks_max: float | None = Field(None, gt=0, description="maximum noise sensitivity Mks = max |C/(1+L)|: how much "
+                                  "sensor noise reaches the actuator")
+    disk_margin_min: float | None = Field(None, gt=0, lt=2, description="minimum balanced disk margin alpha (0..2)")
     bandwidth_min_rad_s: float | None = Field(None, gt=0, description="minimum closed-loop bandwidth, rad/s")
 
 
@@ -78,6 +86,12 @@ def check_spec(metrics: Any, spec: Spec) -> list[Check]:
         checks.append(_le("control_peak", m.control_peak, spec.control_peak_max))
     if spec.ms_max is not None:
         checks.append(_le("ms", m.ms, spec.ms_max))
+    if spec.mt_max is not None:
+        checks.append(_le("mt", m.mt, spec.mt_max))
+    if spec.mks_max is not None:
+        checks.append(_le("mks", m.mks, spec.mks_max))
+    if spec.disk_margin_min is not None:
+        checks.append(_ge("disk_margin", m.disk_margin, spec.disk_margin_min))
     if spec.bandwidth_min_rad_s is not None:
         checks.append(_ge("bandwidth_rad_s", m.bandwidth_rad_s, spec.bandwidth_min_rad_s))
     checks.append(Check("settling_time_s", "<", math.inf, m.settling_time_s,

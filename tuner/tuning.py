@@ -17,12 +17,12 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .analysis.verify import Analysis, with_disk_margin
+from .analysis.verify import Analysis
 from .controllers import ControllerTF
 from .errors import TunerError
 from .jsonio import jsonable
@@ -230,9 +230,9 @@ def _verify_best(ev: Evaluator, candidates: list[np.ndarray], *, full_checks: in
     best_x: np.ndarray | None = None
     best: Scored | None = None
     for _, _, x in ranked[:full_checks]:
-        s = ev.score(x, full=True, with_disk=False)
+        s = ev.score(x, full=True)
         if s.analyses and (best is None or s.score < best.score):
             best_x, best = x, s
     if best is None:
         raise TunerError("no candidate could be evaluated")
-    return best_x, replace(best, analyses=tuple(with_disk_margin(a) for a in best.analyses))
+    return best_x, best

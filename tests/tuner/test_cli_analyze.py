@@ -15,7 +15,7 @@ from tuner.cli import main
 
 METRIC_KEYS = {
     "stable", "phase_margin_deg", "crossover_rad_s", "gain_margin_db", "gain_margin_lower_db", "disk_margin",
-    "ms", "bandwidth_rad_s", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error",
+    "ms", "mt", "mks", "bandwidth_rad_s", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error",
     "control_peak",
 }
 PITCH_X27 = ["analyze", "--plant", PITCH, "--dt", str(DT), "--controller", scaled(PITCH_C, 2.7)]

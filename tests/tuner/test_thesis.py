@@ -148,7 +148,9 @@ def test_yaw_tuned_gain_is_unstable():
 @pytest.mark.parametrize("name", ["roll_x1", "yaw_K1", "pitch_x2.7"])
 def test_thesis_margins_match_bruteforce(name, analysed):
     a = analysed[name]
-    b = ref.nyquist_margins(a.loop.ln, a.loop.ld, DT)
+    g, c, _ = ROWS[name]
+    gp, cc = plant_from_expr(g), controller_from_expr(c, dt=DT)  # the coefficients as written
+    b = ref.nyquist_margins(*ref.open_loop(gp.num, gp.den, cc.num, cc.den, DT), DT)
     assert a.metrics.phase_margin_deg == pytest.approx(b["pm"], abs=0.01)
     assert a.metrics.gain_margin_db == pytest.approx(b["gm_db"], abs=0.01)
     assert a.metrics.gain_margin_lower_db == b["gml_db"] == -math.inf

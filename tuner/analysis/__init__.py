@@ -7,6 +7,6 @@ tuned inner loop) and ``plots``. numpy/scipy and python-control only: no CasADi,
 
 from __future__ import annotations
 
-from .verify import Analysis, Metrics, analyze, analyze_loop, with_disk_margin
+from .verify import Analysis, Metrics, analyze, analyze_loop
 
-__all__ = ["Analysis", "Metrics", "analyze", "analyze_loop", "with_disk_margin"]
+__all__ = ["Analysis", "Metrics", "analyze", "analyze_loop"]

@@ -16,12 +16,14 @@ angle constant between samples; it is used only when the inner plant is given in
 where ``Z[Gi Go]`` does not exist.) The order is inner plant + inner controller + outer
 plant, at most :data:`tuner.plant.MAX_ORDER`.
 
+It is built in state space, never from the polynomial products above: the physical
+state of the inner and outer plants in series, discretised exactly, with the inner loop
+closed around it (a minimal realisation: the inner plant's modes appear once).
+
 The composite plant is a sampled model only: there is no continuous plant whose ZOH
 it is (the position between samples follows the inner loop's staircase, not the outer
-controller's). It is therefore written as ``z N(z) / (z D(z))``: a plant with a pole at
-``z = 0`` has no continuous equivalent, so the verifier evaluates the outer loop at the
-sample instants (documented in :meth:`tuner.plant.Plant.continuous_equivalent`), and
-the extra closed-loop pole sits at ``z = 0``. The position between samples is then
+controller's), so it is marked as having no continuous equivalent and the verifier
+evaluates the outer loop at the sample instants. The position between samples is then
 checked by :func:`simulate_cascade`, an exact sampled-data simulation of the whole
 cascade on the continuous plants.
 """
@@ -31,12 +33,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import control as ct
 import numpy as np
 from scipy import linalg
 
 from ..controllers import ControllerTF
 from ..errors import InvalidPlantError
+from ..loop import _discrete_loop
+from ..lti import SS, series, zoh, zpk_from_ss
 from ..plant import MAX_ORDER, Plant, delay_in_samples, make_plant
 from .response import StepMetrics, StepResponse, step_metrics
 
@@ -46,20 +49,28 @@ EXACT_NOTE = "exact at the samples; position between samples from a sampled-data
 HELD_NOTE = "inner plant given in z: angle held between samples (thesis model), sample instants only"
 
 
-def _monic(p: np.ndarray) -> np.ndarray:
-    return np.asarray(p, float) / float(p[0])
+def _plant_from_ss(sysd: SS, dt: float) -> Plant:
+    """A discrete plant known by its realisation (no continuous equivalent: sample instants only)."""
+    if sysd.n > MAX_ORDER:
+        raise InvalidPlantError(
+            f"cascade: the outer loop's plant would have order {sysd.n}, above the limit {MAX_ORDER}; "
+            "use a lower-order inner controller or plant"
+        )
+    zk = zpk_from_ss(sysd, discrete=True)
+    num = np.real(np.poly(zk.zeros)) * zk.gain if zk.zeros.size else np.array([zk.gain])
+    den = np.real(np.poly(zk.poles)) if zk.poles.size else np.ones(1)
+    p = make_plant(num, den, dt=dt, zpk=zk)
+    p._cache["ss"] = sysd  # compute with the realisation itself
+    p._cache["ct"] = None  # the position between samples is not a continuous plant's (module docstring)
+    return p
 
 
-def _discrete(p: Plant, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """ZOH num/den at ``dt`` with the delay folded in as ``z^-d``."""
-    return p.zoh(dt).rational_discrete()
-
-
-def _outer_poles(go: Plant, dt: float) -> np.ndarray:
-    """Denominator of the outer plant's poles mapped to z (exact ``(z-1)^k`` for integrators)."""
-    poles = np.roots(go.den).astype(complex)
-    zs = np.where(np.abs(poles) < 1e-12, 1.0, np.exp(poles * dt))
-    return np.real(np.poly(zs))
+def _with_input_delay(sys: SS, d: int) -> SS:
+    """``sys`` driven by its input delayed by ``d`` samples (a shift register in front)."""
+    if d == 0:
+        return sys
+    reg = SS(np.eye(d, k=-1), np.eye(d)[:, 0], np.eye(d)[d - 1], 0.0)
+    return series(reg, sys)
 
 
 def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
@@ -67,38 +78,39 @@ def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
 
     ``inner`` is the inner loop's plant, ``controller`` its tuned controller (at ``dt``),
     ``outer`` the plant from the inner loop's output to the outer output (e.g. ``9.81/s^2``).
-    Returns a discrete :class:`~tuner.plant.Plant` at ``dt`` (see the module docstring).
+    Returns a discrete :class:`~tuner.plant.Plant` at ``dt`` (see the module docstring), built in state
+    space: for continuous plants the physical state of the inner and outer plants in series (ZOH at dt,
+    exact), the inner loop closed around it; for plants given in z, the inner closed loop's output held
+    into the outer plant.
     """
     dt = controller.dt
     if dt is None:
         raise InvalidPlantError("cascade: the inner controller must be discrete (give the inner loop a dt)")
-    nc, dc = np.asarray(controller.num, float), np.asarray(controller.den, float)
-    ng, dg = _discrete(inner, dt)
-    char = np.polyadd(np.polymul(dc, dg), np.polymul(nc, ng))  # inner closed-loop characteristic polynomial
-    if inner.is_discrete or outer.is_discrete:
-        if outer.is_discrete and abs(outer.dt - dt) > 1e-9 * dt:
-            raise InvalidPlantError(f"cascade: outer plant is discrete at dt={outer.dt}, the loops run at dt={dt}")
-        no, do = _discrete(outer, dt)
-        num, den = np.polymul(np.polymul(nc, ng), no), np.polymul(do, char)
-    else:
-        both = make_plant(np.polymul(inner.num, outer.num), np.polymul(inner.den, outer.den),
-                          delay=inner.delay_s + outer.delay_s)
-        n2, d2 = _discrete(both, dt)
-        do = _outer_poles(outer, dt)
-        d_out = delay_in_samples(outer.delay_s, dt)
-        do = np.concatenate([do, np.zeros(d_out)])
-        expect = np.polymul(dg, do)  # Z[Gi Go] has Z[Gi]'s poles and the outer plant's mapped poles
-        if expect.size != d2.size or not np.allclose(_monic(d2), _monic(expect), rtol=1e-7, atol=1e-9):
-            raise InvalidPlantError("cascade: could not factor the ZOH equivalent of the inner and outer plants")
-        num, den = np.polymul(nc, n2), np.polymul(do, char)
-    order = den.size  # degree + 1 for the z factor below
-    if order > MAX_ORDER:
-        raise InvalidPlantError(
-            f"cascade: the outer loop's plant would have order {order}, above the limit {MAX_ORDER}; "
-            "use a lower-order inner controller or plant"
-        )
-    # z N / (z D): a sampled model with no continuous equivalent (module docstring)
-    return make_plant(np.polymul(num, [1.0, 0.0]), np.polymul(den, [1.0, 0.0]), dt=dt)
+    if outer.is_discrete and abs(outer.dt - dt) > 1e-9 * dt:
+        raise InvalidPlantError(f"cascade: outer plant is discrete at dt={outer.dt}, the loops run at dt={dt}")
+    zi = inner.zoh(dt)
+    di = delay_in_samples(zi.delay_s, dt)
+    if inner.is_discrete or outer.is_discrete or outer.delay_s:
+        # theta at the samples, held into the outer plant's ZOH (exact at the samples when the outer plant is
+        # given in z; the thesis's model otherwise)
+        cl = _discrete_loop(zi.ss(), controller.ss(), di)
+        theta = SS(cl.A, cl.B[:, 0], cl.Cy, float(cl.Dy[0]))
+        zo = outer.zoh(dt)
+        sysd = series(theta, _with_input_delay(zo.ss(), delay_in_samples(zo.delay_s, dt)))
+        return _plant_from_ss(sysd, dt)
+    gi, go = inner.ss(), outer.ss()
+    both = series(gi, go)  # states [inner x, outer x]; output: the outer plant's
+    phys = zoh(both, dt)
+    # the inner loop feeds back the inner plant's output, C_i x_i + D_i u
+    gth = SS(phys.A, phys.B, np.concatenate([gi.C, np.zeros(go.n)]), gi.D)
+    cl = _discrete_loop(gth, controller.ss(), di)
+    n = phys.n
+    # outer output = both.C x + both.D ua: the plant-state part of the closed loop, plus the plant input
+    Cx = np.zeros(cl.A.shape[0])
+    Cx[:n] = phys.C
+    Cx = Cx + phys.D * cl.Ca
+    sysd = SS(cl.A, cl.B[:, 0], Cx, float(phys.D * cl.Da[0]))
+    return _plant_from_ss(sysd, dt)
 
 
 def outer_plants(inners: list[Plant], controller: ControllerTF, outers: list[Plant]) -> list[Plant]:
@@ -115,14 +127,10 @@ class CascadeResponse:
     metrics: StepMetrics
 
 
-def _ss(p: Plant) -> tuple[np.ndarray, ...]:
-    s = ct.tf2ss(p.tf)
-    return tuple(np.atleast_2d(np.asarray(m, dtype=float)) for m in (s.A, s.B, s.C, s.D))
-
-
-def _ctrl_ss(c: ControllerTF) -> tuple[np.ndarray, ...]:
-    s = ct.tf2ss(ct.tf(c.num, c.den, c.dt))
-    return tuple(np.atleast_2d(np.asarray(m, dtype=float)) for m in (s.A, s.B, s.C, s.D))
+def _mats(sys: SS) -> tuple[np.ndarray, ...]:
+    """(A, B, C, D) as 2-D arrays (B a column, C a row)."""
+    n = sys.n
+    return (sys.A.reshape(n, n), sys.B.reshape(n, 1), sys.C.reshape(1, n), np.array([[sys.D]]))
 
 
 def simulate_cascade(
@@ -142,8 +150,8 @@ def simulate_cascade(
         return None
     if inner.is_discrete or outer.is_discrete or inner.delay_s or outer.delay_s:
         return None
-    Ai, Bi, Ci, Di = _ss(inner)
-    Ao, Bo, Co, Do = _ss(outer)
+    Ai, Bi, Ci, Di = _mats(inner.ss())
+    Ao, Bo, Co, Do = _mats(outer.ss())
     ni, no = Ai.shape[0], Ao.shape[0]
     A = np.block([[Ai, np.zeros((ni, no))], [Bo @ Ci, Ao]])
     B = np.vstack([Bi, Bo @ Di])
@@ -165,8 +173,8 @@ def simulate_cascade(
         Gam.append(Ah @ Gam[-1] + Bh)
     Phi, Gam = np.array(Phi[:-1]), np.array(Gam[:-1])  # j = 0..N-1 within the sample
     Ad, Bd = Ah @ Phi[-1], Ah @ Gam[-1] + Bh  # one whole sample
-    Aco, Bco, Cco, Dco = _ctrl_ss(outer_ctrl)
-    Aci, Bci, Cci, Dci = _ctrl_ss(inner_ctrl)
+    Aco, Bco, Cco, Dco = _mats(outer_ctrl.ss())
+    Aci, Bci, Cci, Dci = _mats(inner_ctrl.ss())
     K = int(math.ceil(horizon_s / dt)) + 1
     x = np.zeros((n, 1))
     xo = np.zeros((Aco.shape[0], 1))

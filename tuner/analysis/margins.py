@@ -10,9 +10,16 @@ crossings, and the upper and lower gain margins separately:
   passes through -1 (in dB, negative; ``-inf`` if none). Conditionally stable
   loops and loops with unstable open-loop poles have one.
 
+The phase margin is the smallest distance in phase from -1 over all gain crossings:
+at each crossing ``|L| = 1`` it is ``180 deg - |angle(L)|`` (in [0, 180]), the phase change that
+would put that point on -1; a loop whose crossings are all far from -1 has a large phase margin
+whatever the sign of its phases (python-control reports the signed value of the crossing it
+picks). Stability is judged separately, from the closed-loop poles.
+
 Crossings are bracketed on a logarithmic grid (endpoints ``w -> 0``, the
 Nyquist frequency ``pi/dt`` and, continuous, ``w -> inf`` included) and refined
-with Brent's method.
+with Brent's method. ``L`` is evaluated from the factored/state-space forms
+(:meth:`tuner.loop.Loop.freqresp`), never from expanded polynomials.
 """
 
 from __future__ import annotations
@@ -20,13 +27,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import control as ct
 import numpy as np
 from scipy import optimize
 
 from ..loop import Loop
 
-__all__ = ["Margins", "disk_margin", "frequency_grid", "margins"]
+__all__ = ["Margins", "disk_margin", "frequency_grid", "margins", "sensitivity_peaks"]
 
 _GRID_POINTS = 3000
 
@@ -41,17 +47,17 @@ class Margins:
     disk_margin: float
     ms: float
     bandwidth_rad_s: float
+    mt: float = math.nan  # peak of |T| = |L / (1 + L)|
+    mks: float = math.nan  # peak of |C S| = |C / (1 + L)|: how much measurement noise reaches the actuator
 
 
 def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
     """Log grid covering every pole/zero frequency of the loop by two decades each side."""
-    roots = np.concatenate([np.roots(loop.ln), np.roots(loop.ld)]) if loop.ld.size > 1 else np.zeros(0)
+    zk = loop.zpk
+    roots = np.concatenate([zk.zeros, zk.poles])
     if loop.dt is not None:
-        # roots at z = 1 (integrators) are at DC; a multiple root there comes back from
-        # np.roots split by ~sqrt(eps), which would otherwise pull the grid down to ~1e-7 rad/s
-        # where L (evaluated from expanded polynomials) is rounding noise and shows spurious
-        # real-axis crossings (e.g. a -235 dB "lower gain margin" of a type-2 loop)
-        roots = roots[(np.abs(roots) > 1e-12) & (np.abs(roots - 1.0) > 1e-5)]
+        # roots at z = 0 (delays) have no frequency; at z = 1 (integrators) they are at DC
+        roots = roots[(np.abs(roots) > 1e-12) & (np.abs(roots - 1.0) > 1e-9)]
         roots = np.log(roots.astype(complex)) / loop.dt
     mags = np.abs(roots)
     mags = mags[(mags > 1e-9) & np.isfinite(mags)]
@@ -74,12 +80,6 @@ def _brent(f, a: float, b: float) -> float:
         return 0.5 * (a + b)
 
 
-def _wrap_pm(L: complex) -> float:
-    """Phase margin of one gain crossing: angle from -1, in (-180, 180]."""
-    deg = math.degrees(np.angle(L)) + 180.0
-    return (deg + 180.0) % 360.0 - 180.0 if deg != 180.0 else 180.0
-
-
 def _real_axis_points(loop: Loop, w: np.ndarray, L: np.ndarray) -> list[tuple[float, complex]]:
     """Frequencies where ``L`` is real (sign change of Im L with a finite value), plus the endpoints."""
     pts: list[tuple[float, complex]] = []
@@ -99,19 +99,25 @@ def _real_axis_points(loop: Loop, w: np.ndarray, L: np.ndarray) -> list[tuple[fl
     for i in np.flatnonzero(im == 0):
         pts.append((float(w[i]), complex(L[i])))
     # endpoints where L is real: DC of a type-0 loop, and infinity (continuous) with feedthrough
-    dc_x = 0.0 if loop.dt is None else 1.0
-    dden = np.polyval(loop.ld, dc_x)
-    if abs(dden) > 1e-9 * np.sum(np.abs(loop.ld)):  # not an integrating loop
-        pts.append((0.0, complex(np.polyval(loop.ln, dc_x) / dden)))
-    if loop.dt is None and loop.ln.size == loop.ld.size and not loop.delay_s:
-        pts.append((math.inf, complex(loop.ln[0] / loop.ld[0])))
+    if not loop.integrating:
+        pts.append((0.0, complex(loop.value_at(0.0 if loop.dt is None else 1.0).real)))
+    v_inf = _at_infinity(loop)
+    if v_inf is not None:
+        pts.append((math.inf, complex(v_inf)))
     if loop.dt is not None:
         # the Nyquist frequency pi/dt, z = -1 exactly: L is real there, but on the grid
         # exp(j*pi) has a rounding-size imaginary part, so no sign change is seen
-        dnyq = np.polyval(loop.ld, -1.0)
-        if abs(dnyq) > 1e-12 * np.sum(np.abs(loop.ld)):
-            pts.append((math.pi / loop.dt, complex(np.polyval(loop.ln, -1.0) / dnyq)))
+        v = loop.value_at(-1.0)
+        if np.isfinite(v):
+            pts.append((math.pi / loop.dt, complex(v.real)))
     return pts
+
+
+def _at_infinity(loop: Loop) -> float | None:
+    """``L(j inf)`` of a continuous loop without delay (``C(inf) G(inf)``), else None."""
+    if loop.dt is not None or loop.delay_s:
+        return None
+    return float(loop.controller.ss().D * loop.plant.ss().D)
 
 
 def _gain_margins(pts: list[tuple[float, complex]]) -> tuple[float, float, float]:
@@ -129,6 +135,11 @@ def _gain_margins(pts: list[tuple[float, complex]]) -> tuple[float, float, float
     return gm, gml, w_up
 
 
+def _pm_at(L: complex) -> float:
+    """Distance in phase from -1 of a point on the unit circle, degrees in [0, 180]."""
+    return 180.0 - abs(math.degrees(np.angle(L)))
+
+
 def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, float]:
     with np.errstate(divide="ignore"):
         mag = np.log(np.abs(L))
@@ -137,7 +148,7 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
     best, wbest = math.inf, math.nan
     for i in idx:
         wc = _brent(lambda x: float(np.log(abs(loop.freqresp(np.array([x]))[0]))), w[i], w[i + 1])
-        pm = _wrap_pm(complex(loop.freqresp(np.array([wc]))[0]))
+        pm = _pm_at(complex(loop.freqresp(np.array([wc]))[0]))
         if pm < best:
             best, wbest = pm, wc
     return best, wbest
@@ -146,16 +157,15 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
 def _limit_values(loop: Loop) -> np.ndarray:
     """``L`` at the ends the grid only approaches: w = 0 (when finite) and, continuous, w -> inf."""
     vals = []
-    dc_x = 0.0 if loop.dt is None else 1.0
-    dden = np.polyval(loop.ld, dc_x)
-    if abs(dden) > 1e-9 * np.sum(np.abs(loop.ld)):
-        vals.append(np.polyval(loop.ln, dc_x) / dden)
+    if not loop.integrating:
+        vals.append(loop.value_at(0.0 if loop.dt is None else 1.0))
     if loop.dt is None:
-        # strictly proper: L -> 0 (|S| -> 1, with or without delay); biproper without delay: ln[0]/ld[0]
-        if loop.ln.size < loop.ld.size:
+        # strictly proper: L -> 0 (|S| -> 1, with or without delay); biproper without delay: C(inf) G(inf)
+        c_inf, g_inf = loop.controller.ss().D, loop.plant.ss().D
+        if c_inf * g_inf == 0:
             vals.append(0.0)
         elif not loop.delay_s:
-            vals.append(loop.ln[0] / loop.ld[0])
+            vals.append(c_inf * g_inf)
     v = np.asarray(vals, dtype=complex)
     return v[np.isfinite(v) & (v != 1.0) & (v != -1.0)]
 
@@ -172,9 +182,11 @@ def _peak(f, w: np.ndarray, vals: np.ndarray) -> float:
 
 
 def _bandwidth(loop: Loop, w: np.ndarray, T: np.ndarray) -> float:
-    dc_x = 0.0 if loop.dt is None else 1.0
-    cp = np.polyval(loop.charpoly, dc_x)
-    t0 = abs(np.polyval(loop.ln, dc_x) / cp) if cp != 0 else math.nan
+    if loop.integrating:
+        t0 = 1.0
+    else:
+        L0 = loop.value_at(0.0 if loop.dt is None else 1.0)
+        t0 = abs(L0 / (1 + L0)) if np.isfinite(L0) and L0 != -1 else math.nan
     if not np.isfinite(t0) or t0 == 0:
         return math.nan
     thr = t0 / math.sqrt(2.0)
@@ -193,41 +205,76 @@ def _bandwidth(loop: Loop, w: np.ndarray, T: np.ndarray) -> float:
 
 
 def disk_margin(loop: Loop, w: np.ndarray | None = None, L: np.ndarray | None = None) -> float:
-    """Balanced (skew 0) disk margin: ``control.disk_margins`` for rational loops; with a delay, the
-    same quantity, min over w of 2|1+L|/|1-L|, on the exact frequency response."""
+    """Balanced (skew 0) disk margin: min over w of ``2|1+L|/|1-L|`` on the frequency response (what
+    ``control.disk_margins(L, w, skew=0)`` computes), the limits w -> 0 and w -> inf included."""
     if w is None:
         w = frequency_grid(loop)
     if L is None:
         with np.errstate(divide="ignore", invalid="ignore"):
             L = loop.freqresp(w)
     finite = np.isfinite(L)
-    if loop.delay_s:
-        dm = float(np.min(2 * np.abs(1 + L[finite]) / np.abs(1 - L[finite])))
-    else:
-        tf = ct.tf(loop.ln, loop.ld, 0 if loop.dt is None else loop.dt)
-        dm = float(ct.disk_margins(tf, w[finite], skew=0.0)[0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dm = float(np.min(2 * np.abs(1 + L[finite]) / np.abs(1 - L[finite]))) if finite.any() else math.inf
     L_ends = _limit_values(loop)  # the grid stops short of w = 0 and w = inf: include the limits
     if L_ends.size:
         dm = min(dm, float(np.min(2 * np.abs(1 + L_ends) / np.abs(1 - L_ends))))
     return dm
 
 
-def margins(loop: Loop, *, with_disk: bool = True, grid_points: int = _GRID_POINTS) -> Margins:
-    """All frequency-domain figures of ``loop``; ``with_disk=False`` skips the disk margin."""
+def margins(loop: Loop, *, grid_points: int = _GRID_POINTS) -> Margins:
+    """All frequency-domain figures of ``loop``."""
     w = frequency_grid(loop, grid_points)
     with np.errstate(divide="ignore", invalid="ignore"):
         L = loop.freqresp(w)
         S = 1.0 / (1.0 + L)
     pm, wc = _phase_margin(loop, w, L)
     gm, gml, wpc = _gain_margins(_real_axis_points(loop, w, L))
-    absS = np.where(np.isfinite(S), np.abs(S), 0.0)
-    ms = _peak(lambda x: abs(1.0 / (1.0 + loop.freqresp(np.array([x]))[0])), w, absS)
+    ms, mt, mks = sensitivity_peaks(loop, w, L)
+    bw = _bandwidth(loop, w, L * S)
+    dm = disk_margin(loop, w, L)
+    return Margins(
+        phase_margin_deg=pm, crossover_rad_s=wc, gain_margin_db=gm, gain_margin_lower_db=gml,
+        phase_crossover_rad_s=wpc, disk_margin=dm, ms=ms, bandwidth_rad_s=bw, mt=mt, mks=mks,
+    )
+
+
+def sensitivity_peaks(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, float, float]:
+    """Peaks of ``|S|``, ``|T|`` and ``|C S|`` over the grid (refined locally), limits at w -> 0, inf included."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        C = loop.controller.freqresp(w)
+        S = 1.0 / (1.0 + L)
+        T = L * S
+        CS = C * S
+
+    def at(x: float) -> tuple[complex, complex]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Lx = complex(loop.freqresp(np.array([x]))[0])
+            return Lx, complex(loop.controller.freqresp(np.array([x]))[0])
+
+    def f_s(x: float) -> float:
+        return abs(1.0 / (1.0 + at(x)[0]))
+
+    def f_t(x: float) -> float:
+        Lx = at(x)[0]
+        return abs(Lx / (1.0 + Lx))
+
+    def f_cs(x: float) -> float:
+        Lx, Cx = at(x)
+        return abs(Cx / (1.0 + Lx))
+
+    def finite(v: np.ndarray) -> np.ndarray:
+        return np.where(np.isfinite(v), np.abs(v), 0.0)
+
+    ms, mt, mks = (_peak(f, w, finite(v)) for f, v in ((f_s, S), (f_t, T), (f_cs, CS)))
     L_ends = _limit_values(loop)  # the grid stops short of w = 0 and w = inf: include the limits
     if L_ends.size:
         ms = max(ms, float(np.max(1.0 / np.abs(1.0 + L_ends))))
-    bw = _bandwidth(loop, w, L * S)
-    dm = disk_margin(loop, w, L) if with_disk else math.nan
-    return Margins(
-        phase_margin_deg=pm, crossover_rad_s=wc, gain_margin_db=gm, gain_margin_lower_db=gml,
-        phase_crossover_rad_s=wpc, disk_margin=dm, ms=ms, bandwidth_rad_s=bw,
-    )
+        mt = max(mt, float(np.max(np.abs(L_ends / (1.0 + L_ends)))))
+    if loop.dt is None:  # w -> inf: C(inf) / (1 + L(inf))
+        c_inf, g_inf = loop.controller.ss().D, loop.plant.ss().D
+        l_inf = 0.0 if loop.delay_s and g_inf == 0 else c_inf * g_inf
+        if not loop.delay_s or g_inf == 0:
+            mks = max(mks, abs(c_inf / (1.0 + l_inf)) if l_inf != -1 else math.inf)
+    if loop.integrating:
+        mt = max(mt, 1.0)  # T(0) = 1
+    return ms, mt, mks

@@ -78,7 +78,7 @@ def bode_plot(a: Analysis, path: str | Path, *, title: str) -> Path:
     L = lp.freqresp(w)
     mag = 20 * np.log10(np.maximum(np.abs(L), 1e-300))
     ph = np.degrees(np.unwrap(np.angle(L)))
-    mg = margins(lp, with_disk=False)
+    mg = margins(lp)
     wc = mg.crossover_rad_s
     ref = float(np.interp(np.log(wc), np.log(w), ph)) if math.isfinite(wc) and wc > 0 else float(ph[0])
     ph -= 360.0 * math.ceil(ref / 360.0)  # the reference phase in (-360, 0]: PM = 180 + phase at crossover

@@ -1,13 +1,18 @@
-"""Closed-loop step response, evaluated on the continuous plant output.
+"""Closed-loop step responses, evaluated on the continuous plant output, and closed-loop poles.
 
-* Continuous loop without delay: the closed loop is discretised with a ZOH at a
-  fine step ``h``; for a step input this is exact at every fine instant.
-* Sampled-data loop: the control sequence ``u[k]`` is exact from the discrete
-  closed loop; the plant output between samples is the continuous plant driven
-  by that staircase (ZOH at ``h = dt/N``, again exact at the fine instants).
-* Continuous loop with delay: simulated as a sampled-data loop at a fine step
-  ``h`` that divides the delay exactly, the controller discretised by Tustin
-  (an approximation of order ``h^2``; ``h`` is horizon/4000 by default).
+Everything runs on the closed loop's state-space model (:meth:`tuner.loop.Loop.closed_loop`),
+built from the cascade realisations of plant and controller; no characteristic polynomial is
+expanded and no high-order difference equation is run.
+
+* Sampled-data loop: the closed-loop state recursion at ``dt`` is exact at the samples; the plant
+  output between samples is ``y(t_k + j dt/N) = Cf[j] x_k + Df[j] u_k`` from the continuous
+  plant's realisation in the same coordinates (exact at the ``N`` points per sample).
+* Continuous loop without delay: the closed loop discretised exactly (matrix exponential) at a
+  fine step ``h``; exact at every fine instant for a step input.
+* Continuous loop with delay: a sampled model at a fine step ``h`` (plant: exact ZOH with the delay
+  on a shifted grid; controller: Tustin, an approximation of order ``h^2``; ``h`` is horizon/4000).
+  Its closed-loop poles come from the same model at 40 steps per delay, the rightmost ones then
+  refined by Newton's method on the exact characteristic equation ``1 + C(s) G(s) e^{-s tau} = 0``.
 
 Metrics (unit step reference) follow the usual definitions, with "not defined"
 as ``nan`` and "not settled within the horizon" as ``inf``:
@@ -16,8 +21,8 @@ as ``nan`` and "not settled within the horizon" as ``inf``:
 * ``settling_time_s``: last time ``|y - y_final| > band*|y_final|`` (linear
   interpolation between fine instants); ``inf`` if still outside at the horizon;
 * ``rise_time_s``: 10 % to 90 % of ``y_final``;
-* ``steady_state_error``: ``1 - y_final`` from the closed-loop DC gain (exact);
-* ``control_peak``: ``max |u|``.
+* ``steady_state_error``: ``1 - y_final`` from the closed loop's exact steady state;
+* ``control_peak``: ``max |u|`` of the controller's output.
 """
 
 from __future__ import annotations
@@ -25,16 +30,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import control as ct
 import numpy as np
-from scipy import linalg, signal
+from scipy import linalg
 
-from ..controllers import ControllerTF
-from ..loop import Loop, build_loop
-from ..plant import Plant
+from ..loop import FineDelayLoop, Loop, _continuous_loop
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "step_response", "step_metrics",
-           "default_horizon"]
+           "default_horizon", "steady_state"]
 
 SAMPLES_PER_DT = 20
 CONTINUOUS_POINTS = 4000
@@ -62,26 +64,56 @@ class StepMetrics:
     control_peak: float
 
 
-def _delay_pade_loop(loop: Loop) -> np.ndarray:
-    """Characteristic polynomial with the delay replaced by a (5,5) Pade approximant."""
-    pn, pd = ct.pade(loop.delay_s, 5)
-    return np.polyadd(np.polymul(loop.ld, pd), np.polymul(loop.ln, pn))
+# -- poles and stability -------------------------------------------------------------------------
+
+def _delay_characteristic(loop: Loop, s: np.ndarray) -> np.ndarray:
+    """The characteristic function ``prod(s - p) (1 + L(s))`` of a continuous loop with delay, from the
+    factored forms (``p``: every open-loop pole; finite everywhere, zero at the closed-loop poles)."""
+    zc, zg = loop.controller.zpk, loop.plant.zpk
+    poles = np.concatenate([zc.poles, zg.poles])
+    zeros = np.concatenate([zc.zeros, zg.zeros])
+    s = np.asarray(s, dtype=complex)
+    dp = np.ones_like(s)
+    for p in poles:
+        dp = dp * (s - p)
+    nz = np.ones_like(s) * zc.gain * zg.gain
+    for z in zeros:
+        nz = nz * (s - z)
+    return dp + nz * np.exp(-s * loop.delay_s)
+
+
+def _refine_delay_roots(loop: Loop, roots: np.ndarray, count: int = 6) -> np.ndarray:
+    """Newton on the exact characteristic equation for the rightmost ``count`` approximate roots."""
+    roots = np.asarray(roots, dtype=complex)
+    order = np.argsort(-roots.real)
+    out = roots.copy()
+    for i in order[:count]:
+        s = roots[i]
+        for _ in range(30):
+            f = _delay_characteristic(loop, np.array([s]))[0]
+            ds = 1e-7 * max(1.0, abs(s))
+            df = (_delay_characteristic(loop, np.array([s + ds]))[0] - f) / ds
+            if not np.isfinite(df) or df == 0:
+                break
+            step = f / df
+            s = s - step
+            if abs(step) < 1e-12 * max(1.0, abs(s)):
+                break
+        if np.isfinite(s) and abs(s - roots[i]) < 0.1 * max(1.0, abs(roots[i])):
+            out[i] = s
+    return out
 
 
 def closed_loop_poles(loop: Loop) -> np.ndarray:
-    """Closed-loop poles (s-plane for continuous loops, z-plane for discrete ones).
-
-    Continuous loops with delay use the fine-step sampled-data model of the
-    simulation (delay exact), mapped back with ``s = log(z)/h``.
-    """
+    """Closed-loop poles (s-plane for continuous loops, z-plane for discrete ones): the eigenvalues of the
+    closed-loop state-space model. Continuous loops with delay: see the module docstring."""
     if loop.delay_s:
-        # the delay as STABILITY_STEPS_PER_DELAY whole steps (Tustin controller, ZOH plant): a
-        # polynomial of modest degree, so this stays cheap inside the search
-        fine = _fine_delay_loop(loop, loop.delay_s / STABILITY_STEPS_PER_DELAY * CONTINUOUS_POINTS)
-        z = np.roots(fine.charpoly)
+        h = loop.delay_s / STABILITY_STEPS_PER_DELAY
+        z = np.linalg.eigvals(loop.closed_loop(h).dense().A)
         z = z[np.abs(z) > 1e-300]
-        return np.log(z.astype(complex)) / fine.dt
-    return np.roots(loop.charpoly)
+        return _refine_delay_roots(loop, np.log(z.astype(complex)) / h)
+    A = loop.closed_loop().A
+    return np.linalg.eigvals(A) if A.size else np.zeros(0, complex)
 
 
 def is_stable(loop: Loop, poles: np.ndarray | None = None) -> bool:
@@ -94,13 +126,8 @@ def is_stable(loop: Loop, poles: np.ndarray | None = None) -> bool:
 
 
 def default_horizon(loop: Loop, poles: np.ndarray | None = None) -> float:
-    """Simulation horizon from the slowest closed-loop pole (10 time constants), bounded.
-
-    ``poles``: the loop's closed-loop poles if already computed (delay-free loops only)."""
-    if loop.delay_s:
-        p = np.roots(_delay_pade_loop(loop))
-    else:
-        p = np.roots(loop.charpoly) if poles is None else poles
+    """Simulation horizon from the slowest closed-loop pole (10 time constants), bounded."""
+    p = closed_loop_poles(loop) if poles is None else poles
     if loop.dt is None:
         sig = -p.real
         fast = max(np.max(np.abs(p)) if p.size else 1.0, 1e-6)
@@ -120,34 +147,69 @@ def default_horizon(loop: Loop, poles: np.ndarray | None = None) -> float:
     return t
 
 
-def _zoh(num: np.ndarray, den: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    num, den = np.atleast_1d(num), np.atleast_1d(den)
-    if den.size == 1:
-        return num / den, np.ones(1)
-    b, a, _ = signal.cont2discrete((num, den), h, method="zoh")
-    b = np.atleast_1d(np.squeeze(b))
-    return b, np.atleast_1d(a)
+def steady_state(loop: Loop, *, load: bool = False) -> tuple[float, float]:
+    """Exact steady state ``(y, u)`` after a unit step on the reference (or the load), stable loops."""
+    inp = 1 if load else 0
+    if loop.dt is None and loop.delay_s:  # e^{-s tau} = 1 at s = 0: the delay-free loop's steady state
+        return _continuous_loop(loop.plant.ss(), loop.controller.ss()).dc(inp)
+    return loop.closed_loop().dc(inp)
 
 
-def _lfilt(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Filter ``x`` through ``num(z)/den(z)`` (polynomials in z, proper)."""
-    num = np.concatenate([np.zeros(den.size - num.size), num]) if num.size < den.size else num
-    return signal.lfilter(num, den, x)
+# -- simulation ----------------------------------------------------------------------------------
+
+def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
+    """States z_0 = 0, z_{k+1} = A z_k + b for k < K (a unit step input), as a (K, n) array."""
+    n = A.shape[0]
+    Z = np.zeros((K, n))
+    z = np.zeros(n)
+    for k in range(K):
+        Z[k] = z
+        z = A @ z + b
+    return Z
 
 
-def _fine_delay_loop(loop: Loop, horizon: float) -> Loop:
-    m = max(1, int(round(loop.delay_s / (horizon / CONTINUOUS_POINTS))))
-    h = loop.delay_s / m
-    cn, cden = np.atleast_1d(loop.controller.num), np.atleast_1d(loop.controller.den)
-    if cden.size == 1:
-        # a static gain: control's Tustin returns it as k(z-1)/(z-1), and that uncancelled
-        # pole at z = 1 made every P-controlled delay loop look unstable
-        ctrl = ControllerTF(num=cn / cden[0], den=np.ones(1), dt=h)
-    else:
-        cd = ct.sample_system(ct.tf(cn, cden), h, method="tustin")
-        ctrl = ControllerTF(num=np.atleast_1d(np.squeeze(cd.num[0][0])), den=np.atleast_1d(np.squeeze(cd.den[0][0])),
-                            dt=h)
-    return build_loop(loop.plant, ctrl)
+def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Cf`` (N, n), ``Df`` (N): the continuous plant's output at ``t_k + j dt/N`` from its state at t_k
+    and the held input (the realisation of ``loop.plant_ct``, the coordinates of the ZOH plant)."""
+    key = ("lifted", loop.dt, N)
+    pct = loop.plant_ct
+    if key not in pct._cache:
+        g = pct.ss()
+        n = g.n
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n] = g.A, g.B
+        E1 = linalg.expm(M * (loop.dt / N))
+        Cf, Df, E = np.zeros((N, n)), np.zeros(N), np.eye(n + 1)
+        for j in range(N):
+            Cf[j], Df[j] = g.C @ E[:n, :n], g.C @ E[:n, n] + g.D
+            E = E @ E1
+        pct._cache[key] = (Cf, Df)
+    return pct._cache[key]
+
+
+def _simulate_fine_delay(fl: FineDelayLoop, K: int, inp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Output and controller output of the sampled delay model over K steps, with a ring buffer."""
+    g, c, m = fl.plant, fl.ctrl, fl.m
+    r, w = (1.0, 0.0) if inp == 0 else (0.0, 1.0)
+    buf = np.zeros(m + 1)  # buf[(head + j) % (m+1)] = v[k-1-j]
+    head = 0
+    x, xc = np.zeros(g.n), np.zeros(c.n)
+    y, u = np.zeros(K), np.zeros(K)
+    nb = m + 1
+    for k in range(K):
+        held = buf[(head + (m - 1 if fl.f == 0.0 else m)) % nb]
+        yk = g.C @ x + g.D * held
+        e = r - yk
+        uk = c.C @ xc + c.D * e
+        v = uk + w
+        old = buf[(head + m) % nb]
+        new = buf[(head + m - 1) % nb] if m >= 1 else v
+        x = fl.Phi @ x + fl.G_old * old + fl.G_new * new
+        xc = c.A @ xc + c.B * e
+        head = (head - 1) % nb
+        buf[head] = v
+        y[k], u[k] = yk, uk
+    return y, u
 
 
 def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt: int = SAMPLES_PER_DT,
@@ -155,88 +217,43 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
     """Unit step response of the closed loop (assumed stable; the caller checks).
 
     ``load=True``: response to a unit step load disturbance added at the plant input (the
-    reference stays 0); ``u`` is then the plant's total input, controller output + disturbance.
+    reference stays 0); ``u`` is then the controller's output.
     """
     T = default_horizon(loop) if horizon_s is None else float(horizon_s)
-    if loop.dt is None and loop.delay_s:
-        fine = _fine_delay_loop(loop, T)
-        r = step_response(fine, horizon_s=T, samples_per_dt=1, load=load)
-        return StepResponse(t=r.t, y=r.y, u=r.u, t_samples=None, y_samples=None, y_final=_dc(loop, load=load),
-                            between_samples=True)
-    yf = _dc(loop, load=load)
-    cp = loop.charpoly
-    pl = loop.plant
-    cn, cd = loop.controller.num, loop.controller.den
+    inp = 1 if load else 0
+    yf = steady_state(loop, load=load)[0]
     if loop.dt is None:
         h = T / CONTINUOUS_POINTS
-        n = CONTINUOUS_POINTS + 1
-        step = np.ones(n)
-        by, ay = _zoh(np.polymul(pl.num, cd) if load else loop.ln, cp, h)
-        bu, au = _zoh(np.polymul(cd if load else cn, pl.den), cp, h)
-        t = np.arange(n) * h
-        return StepResponse(t=t, y=_lfilt(by, ay, step), u=_lfilt(bu, au, step), t_samples=None,
-                            y_samples=None, y_final=yf, between_samples=True)
+        K = CONTINUOUS_POINTS + 1
+        t = np.arange(K) * h
+        if loop.delay_s:
+            y, u = _simulate_fine_delay(loop.closed_loop(h), K, inp)
+        else:
+            cl = loop.closed_loop()
+            n = cl.A.shape[0]
+            M = np.zeros((n + 1, n + 1))
+            M[:n, :n], M[:n, n] = cl.A, cl.B[:, inp]
+            E = linalg.expm(M * h)
+            Z = _run(E[:n, :n], E[:n, n], K)
+            y, u = Z @ cl.Cy + cl.Dy[inp], Z @ cl.Cu + cl.Du[inp]
+        return StepResponse(t=t, y=y, u=u, t_samples=None, y_samples=None, y_final=yf, between_samples=True)
     dt = loop.dt
+    cl = loop.closed_loop()
     K = int(math.ceil(T / dt)) + 1
-    step = np.ones(K)
-    nu = np.polymul(cd if load else cn, np.concatenate([loop.plant_d.den, np.zeros(loop.delay_samples)]))
-    u = _lfilt(nu, cp, step)
-    ys = _lfilt(np.polymul(loop.plant_d.num, cd) if load else loop.ln, cp, step)
+    Z = _run(cl.A, cl.B[:, inp], K)
+    ys = Z @ cl.Cy + cl.Dy[inp]
+    u = Z @ cl.Cu + cl.Du[inp]
     ts = np.arange(K) * dt
     if loop.plant_ct is None or samples_per_dt <= 1:
         return StepResponse(t=ts, y=ys, u=u, t_samples=ts, y_samples=ys, y_final=yf,
                             between_samples=loop.plant_ct is not None)
     N = int(samples_per_dt)
-    ua = np.concatenate([np.zeros(loop.delay_samples), u[: u.size - loop.delay_samples]]) if loop.delay_samples else u
-    yfine = _between_samples(loop.plant_ct, dt, N, ua)
+    Cf, Df = _lifted(loop, N)
+    ua = Z @ cl.Ca + cl.Da[inp]  # the plant's input over each sample
+    yfine = (Z[:, :cl.n_plant] @ Cf.T + ua[:, None] * Df[None, :]).ravel()
     t = np.arange(yfine.size) * (dt / N)
     return StepResponse(t=t, y=yfine, u=np.repeat(u, N), t_samples=ts, y_samples=ys, y_final=yf,
                         between_samples=True)
-
-
-def _lifted(plant: Plant, dt: float, N: int) -> tuple[np.ndarray, ...]:
-    """State-space ZOH model of ``plant`` at ``dt`` with the outputs at ``N`` points per sample:
-    ``x[k+1] = Phi x[k] + Gam u[k]`` and ``y(t_k + j dt/N) = Cf[j] x[k] + Df[j] u[k]`` (exact)."""
-    key = ("lifted", dt, N)
-    if key not in plant._cache:
-        sys = ct.tf2ss(ct.tf(plant.num, plant.den))
-        A = np.atleast_2d(np.asarray(sys.A, float))
-        B = np.asarray(sys.B, float).reshape(-1)
-        C = np.asarray(sys.C, float).reshape(-1)
-        D = float(np.asarray(sys.D, float).reshape(-1)[0])
-        n = A.shape[0]
-        M = np.zeros((n + 1, n + 1))
-        M[:n, :n], M[:n, n] = A, B
-        E1 = linalg.expm(M * (dt / N))
-        Cf, Df, E = np.zeros((N, n)), np.zeros(N), np.eye(n + 1)
-        for j in range(N):
-            Cf[j], Df[j] = C @ E[:n, :n], C @ E[:n, n] + D
-            E = E @ E1
-        plant._cache[key] = (E[:n, :n], E[:n, n], Cf, Df)
-    return plant._cache[key]
-
-
-def _between_samples(plant: Plant, dt: float, N: int, u: np.ndarray) -> np.ndarray:
-    """Output of the continuous ``plant`` driven through a ZOH by ``u[k]``, at N points per sample.
-
-    A state recursion at the sample rate (numerically sound even for poles clustered at z = 1,
-    where a high-order difference equation at dt/N is not), then a matrix product."""
-    Phi, Gam, Cf, Df = _lifted(plant, dt, N)
-    n = Phi.shape[0]
-    X = np.zeros((u.size, n))
-    x = np.zeros(n)
-    for k in range(u.size):
-        X[k] = x
-        x = Phi @ x + Gam * u[k]
-    return (X @ Cf.T + u[:, None] * Df[None, :]).ravel()
-
-
-def _dc(loop: Loop, *, load: bool = False) -> float:
-    x = 0.0 if loop.dt is None else 1.0
-    cp = np.polyval(loop.charpoly, x)
-    pnum = loop.plant.num if loop.plant_d is None else loop.plant_d.num
-    num = np.polymul(pnum, loop.controller.den) if load else loop.ln
-    return float(np.polyval(num, x) / cp) if cp != 0 else math.nan
 
 
 def _cross(t: np.ndarray, y: np.ndarray, i: int, level: float) -> float:

@@ -14,7 +14,7 @@ strings ``"Infinity"``, ``"-Infinity"`` and ``"NaN"`` (see :func:`tuner.jsonio.j
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -23,10 +23,10 @@ from ..controllers import ControllerTF
 from ..loop import Loop, build_loop
 from ..plant import Plant
 from ..spec import Check, Spec, check_spec
-from .margins import Margins, disk_margin, margins
+from .margins import Margins, margins
 from .response import StepResponse, closed_loop_poles, is_stable, step_metrics, step_response
 
-__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop", "with_disk_margin"]
+__all__ = ["Metrics", "Analysis", "analyze", "analyze_loop"]
 
 
 @dataclass(frozen=True)
@@ -38,13 +38,14 @@ class Metrics:
     gain_margin_lower_db: float
     disk_margin: float
     ms: float
+    mt: float
+    mks: float
     bandwidth_rad_s: float
     overshoot_pct: float
     settling_time_s: float
     rise_time_s: float
     steady_state_error: float
     control_peak: float
-
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,14 +74,14 @@ class Analysis:
 
 
 def analyze_loop(
-    loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None, with_disk: bool = True,
+    loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None,
     samples_per_dt: int | None = None, grid_points: int | None = None, poles: np.ndarray | None = None,
 ) -> Analysis:
     """Verify ``loop`` against ``spec`` (defaults to the thesis spec); ``poles`` if already computed."""
     spec = spec or Spec()
     poles = closed_loop_poles(loop) if poles is None else poles
     stable = is_stable(loop, poles)
-    mg = margins(loop, with_disk=with_disk, **({} if grid_points is None else {"grid_points": grid_points}))
+    mg = margins(loop, **({} if grid_points is None else {"grid_points": grid_points}))
     resp = None
     if stable:
         kw = {} if samples_per_dt is None else {"samples_per_dt": samples_per_dt}
@@ -91,21 +92,13 @@ def analyze_loop(
         step = (math.nan, math.inf, math.nan, math.nan, math.nan)
     m = Metrics(
         stable, mg.phase_margin_deg, mg.crossover_rad_s, mg.gain_margin_db, mg.gain_margin_lower_db,
-        mg.disk_margin, mg.ms, mg.bandwidth_rad_s, *step,
+        mg.disk_margin, mg.ms, mg.mt, mg.mks, mg.bandwidth_rad_s, *step,
     )
     return Analysis(loop=loop, metrics=m, checks=check_spec(m, spec), poles=poles, response=resp, margins=mg)
 
 
-def with_disk_margin(a: Analysis) -> Analysis:
-    """``a`` with its disk margin filled in (the rest of the analysis is not repeated)."""
-    if not math.isnan(a.metrics.disk_margin):
-        return a
-    return replace(a, metrics=replace(a.metrics, disk_margin=disk_margin(a.loop)))
-
-
 def analyze(
     plant: Plant, controller: ControllerTF, spec: Spec | None = None, *, horizon_s: float | None = None,
-    with_disk: bool = True,
 ) -> Analysis:
     """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks."""
-    return analyze_loop(build_loop(plant, controller), spec, horizon_s=horizon_s, with_disk=with_disk)
+    return analyze_loop(build_loop(plant, controller), spec, horizon_s=horizon_s)

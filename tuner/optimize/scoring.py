@@ -99,19 +99,19 @@ class Evaluator:
     def controller(self, x: np.ndarray) -> ControllerTF:
         return self.structure.tf(x, self.dt)
 
-    def analyse(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> tuple[Analysis, ...]:
+    def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
         """The verifier's analyses on every plant: at full resolution (``full``), else the search's."""
         loops = self._loops(x)
-        return tuple(self._analyse_loop(lp, None, full=full, with_disk=with_disk) for lp in loops)
+        return tuple(self._analyse_loop(lp, None, full=full) for lp in loops)
 
     def _loops(self, x: np.ndarray) -> list:
         ctrl = self.controller(x)
         return [build_loop(p, ctrl) for p in self.plants]
 
-    def _analyse_loop(self, lp, poles: np.ndarray | None, *, full: bool, with_disk: bool) -> Analysis:
+    def _analyse_loop(self, lp, poles: np.ndarray | None, *, full: bool) -> Analysis:
         if full:
-            return analyze_loop(lp, self.spec, with_disk=with_disk, poles=poles)
-        return analyze_loop(lp, self._search_spec, with_disk=False, grid_points=SEARCH_GRID,
+            return analyze_loop(lp, self.spec, poles=poles)
+        return analyze_loop(lp, self._search_spec, grid_points=SEARCH_GRID,
                             samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp, poles), poles=poles)
 
     def _horizon(self, lp, poles: np.ndarray | None = None) -> float:
@@ -133,7 +133,7 @@ class Evaluator:
         out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
         return max(out, 1e-9)
 
-    def score(self, x: np.ndarray, *, full: bool = False, with_disk: bool = True) -> Scored:
+    def score(self, x: np.ndarray, *, full: bool = False) -> Scored:
         self.n_evals += 1
         try:
             loops = self._loops(x)
@@ -142,7 +142,7 @@ class Evaluator:
                 out = max(self._outside(lp, p) for lp, p in zip(loops, poles))
                 if out > 0:
                     return Scored(UNSTABLE * (1.0 + min(out, 1e3)), False, ())
-            an = tuple(self._analyse_loop(lp, p, full=full, with_disk=with_disk) for lp, p in zip(loops, poles))
+            an = tuple(self._analyse_loop(lp, p, full=full) for lp, p in zip(loops, poles))
         except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
             return Scored(UNSTABLE * 10, False, ())
         if any(not a.metrics.stable for a in an):

@@ -93,11 +93,9 @@ def _plant_data(ev: Evaluator, start: tuple[Analysis, ...], ctrl: ControllerTF, 
     out = _PlantData()
     wnyq = math.pi / ev.dt if ev.dt else math.inf
     for p, a in zip(ev.plants, start):
-        if grid.h is not None:  # continuous loop: ZOH at the fine step, the plant's own coefficients for L(jw)
+        if grid.h is not None:  # continuous loop: ZOH at the fine step, the plant's own zpk for L(jw)
             lf = lift(build_loop(p, ControllerTF(num=np.ones(1), den=np.ones(1), dt=grid.h)), 1)
-            num_c = np.concatenate([np.zeros(lf.n + 1 - p.num.size), p.num])
-            lf = LiftedPlant(lf.Phi, lf.Gam, lf.C, lf.D, lf.Cf, lf.Df, num_c, np.asarray(p.den, float),
-                             lf.delay_samples)
+            lf = lf.with_response_of(p.zpk)
         else:
             lf = lift(build_loop(p, ctrl), grid.N)
         mg = a.margins
@@ -193,7 +191,9 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
         grid = _Grid(K=grid.K, N=1, step=grid.step, h=None)
     data = _plant_data(ev, start, ev.controller(x0), grid, space.w0)
     key = ProblemKey(structure=space.structure.name, continuous=ev.dt is None,
-                     orders=tuple(lf.n for lf in data.lifted), delays=tuple(lf.delay_samples for lf in data.lifted),
+                     orders=tuple(lf.n for lf in data.lifted), zeros=tuple(lf.zeros.size for lf in data.lifted),
+                     poles=tuple(lf.poles.size for lf in data.lifted),
+                     delays=tuple(lf.delay_samples for lf in data.lifted),
                      K=grid.K, N=grid.N, phase_cross=tuple(data.has_pc),
                      control_peak=spec.control_peak_max is not None, ms=spec.ms_max is not None,
                      objective=spec.objective, solver=solver)

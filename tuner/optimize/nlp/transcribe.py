@@ -53,6 +53,8 @@ class ProblemKey:
     structure: str
     continuous: bool
     orders: tuple[int, ...]  # plant state dimension per plant
+    zeros: tuple[int, ...]  # number of plant zeros per plant (of the factored form the NLP evaluates)
+    poles: tuple[int, ...]  # number of plant poles per plant
     delays: tuple[int, ...]  # delay in samples per plant
     K: int
     N: int
@@ -144,8 +146,10 @@ def parameter_layout(key: ProblemKey, nv: int) -> Layout:
     """The parameter vector: spec numbers, gain units, per-plant data, the Ms grid, the settling mask."""
     blocks: list[tuple[str, tuple[int, ...]]] = [(n, ()) for n in GLOBALS] + [("units", (nv,))]
     for i, n in enumerate(key.orders):
+        nz, npo = key.zeros[i], key.poles[i]
         blocks += [(f"Phi{i}", (n, n)), (f"Gam{i}", (n,)), (f"C{i}", (n,)), (f"D{i}", ()), (f"Cf{i}", (key.N, n)),
-                   (f"Df{i}", (key.N,)), (f"num{i}", (n + 1,)), (f"den{i}", (n + 1,)), (f"tau{i}", ())]
+                   (f"Df{i}", (key.N,)), (f"zr{i}", (nz,)), (f"zi{i}", (nz,)), (f"pr{i}", (npo,)), (f"pi{i}", (npo,)),
+                   (f"k{i}", ()), (f"tau{i}", ())]
     blocks += [("wms", (MS_GRID if key.ms else 0,)), ("mask", (key.K * key.N,))]
     return Layout(tuple(blocks))
 
@@ -184,12 +188,18 @@ def _controller(key: ProblemKey, st: Structure, space: Space, v: Any, P: dict[st
 
 def _open_loop_at(w: Any, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any]
                   ) -> tuple[Any, Any, Any, Any]:
-    """``L(jw)`` of plant ``i`` as Re(N conj D), Im(N conj D), |N|^2, |D|^2 (L = N/D)."""
-    n, dly, dt = key.orders[i], key.delays[i], P["dt"]
+    """``L(jw)`` of plant ``i`` as Re(N conj D), Im(N conj D), |N|^2, |D|^2 (L = N/D); the plant from its
+    zeros, poles and gain (factored: no expanded polynomial)."""
+    dly, dt = key.delays[i], P["dt"]
     cn = _cplx_poly(cnum, w, dt, key.continuous)
     cd = _cplx_poly(cden, w, dt, key.continuous)
-    gn = _cplx_poly([P[f"num{i}"][j] for j in range(n + 1)], w, dt, key.continuous)
-    gd = _cplx_poly([P[f"den{i}"][j] for j in range(n + 1)], w, dt, key.continuous)
+    x = (0, w) if key.continuous else (cs.cos(w * dt), cs.sin(w * dt))
+    gn: tuple[Any, Any] = (P[f"k{i}"], 0)
+    for j in range(key.zeros[i]):
+        gn = _cmul(gn, (x[0] - P[f"zr{i}"][j], x[1] - P[f"zi{i}"][j]))
+    gd: tuple[Any, Any] = (1, 0)
+    for j in range(key.poles[i]):
+        gd = _cmul(gd, (x[0] - P[f"pr{i}"][j], x[1] - P[f"pi{i}"][j]))
     Nn = _cmul(cn, gn)
     if key.continuous:
         tau = P[f"tau{i}"]

@@ -1,0 +1,275 @@
+"""Well-conditioned numerics of SISO LTI systems: factored forms, cascade state space, ZOH, responses.
+
+High-degree polynomials are never evaluated or factored here. A system is held as its zeros,
+poles and gain (:class:`Zpk`) and realised as a **cascade of first- and second-order sections**
+(:func:`realize`): block lower-triangular, each section scaled to unit gain at its own corner
+frequency and the whole balanced (exact power-of-two scaling, ``scipy.linalg.matrix_balance``).
+In that form a matrix exponential (ZOH), an eigenvalue problem (closed-loop poles) and a frequency
+response are as accurate as the data: ``1/(s+1)^8`` is eight bidiagonal first-order sections, not
+a companion matrix whose coefficients span five decades.
+
+* :func:`zoh` / :func:`zoh_delayed`: exact ZOH equivalents (the delayed one for a delay that is not a
+  whole number of steps: the input held on a shifted grid, still exact for a piecewise-constant input);
+* :func:`freqresp`: ``C (xI - A)^{-1} B + D`` at many ``x`` (``s = jw`` or ``z = e^{jw dt}``) by a
+  complex Schur form and vectorised back substitution;
+* :func:`invariant_zeros`: the finite zeros of ``(A, B, C, D)`` from the Rosenbrock pencil.
+
+numpy and scipy.linalg only (cheap to import).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg
+
+__all__ = ["Zpk", "SS", "realize", "series", "zoh", "zoh_delayed", "freqresp", "invariant_zeros", "zpk_from_ss",
+           "conjugate_pairs", "poly_from_roots"]
+
+_IMAG_TOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class Zpk:
+    """Zeros, poles and gain: ``G(x) = k prod(x - z_i) / prod(x - p_j)`` (``x`` = s, or z)."""
+
+    zeros: np.ndarray
+    poles: np.ndarray
+    gain: float
+
+    def __call__(self, x: np.ndarray | complex) -> np.ndarray:
+        x = np.asarray(x, dtype=complex)
+        num = np.ones_like(x) * self.gain
+        for z in self.zeros:
+            num = num * (x - z)
+        den = np.ones_like(x)
+        for p in self.poles:
+            den = den * (x - p)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return num / den
+
+
+@dataclass(frozen=True, eq=False)
+class SS:
+    """A SISO state-space model ``x' = A x + B u, y = C x + D u`` (B a column, C a row, as 1-D arrays)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: float
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+    def schur(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Complex Schur form: ``A = Q T Q^H``; returns ``(T, Q^H B, C Q)``."""
+        if "schur" not in self._cache:
+            if self.n == 0:
+                self._cache["schur"] = (np.zeros((0, 0), complex), np.zeros(0, complex), np.zeros(0, complex))
+            else:
+                T, Q = linalg.schur(self.A.astype(complex), output="complex")
+                self._cache["schur"] = (T, Q.conj().T @ self.B.astype(complex), self.C.astype(complex) @ Q)
+        return self._cache["schur"]
+
+
+def conjugate_pairs(roots: np.ndarray) -> tuple[list[complex], list[float]]:
+    """Split roots of a real polynomial into complex pairs (one of each, imag > 0) and real roots."""
+    roots = np.asarray(roots, dtype=complex)
+    scale = np.maximum(np.abs(roots), 1.0)
+    is_real = np.abs(roots.imag) <= _IMAG_TOL * scale
+    pos = sorted((r for r, ir in zip(roots, is_real) if not ir and r.imag > 0), key=abs)
+    neg = [r for r, ir in zip(roots, is_real) if not ir and r.imag < 0]
+    if len(pos) != len(neg):  # not conjugate-symmetric: treat the odd ones as real parts
+        return [], sorted(float(r.real) for r in roots)
+    return pos, sorted(float(r.real) for r, ir in zip(roots, is_real) if ir)
+
+
+def poly_from_roots(roots: Sequence[complex]) -> np.ndarray:
+    """Monic real polynomial with these roots (conjugates completed), for low degree only."""
+    pos, real = conjugate_pairs(np.asarray(roots, dtype=complex))
+    p = np.ones(1)
+    for r in pos:
+        p = np.polymul(p, [1.0, -2.0 * r.real, abs(r) ** 2])
+    for r in real:
+        p = np.polymul(p, [1.0, -r])
+    return p
+
+
+# -- cascade realisation ----------------------------------------------------------------------
+
+def _factors(roots: np.ndarray) -> list[tuple[np.ndarray, float]]:
+    """Real first/second-order monic factors ``(poly, |root|)`` of a root set."""
+    pos, real = conjugate_pairs(roots)
+    out = [(np.array([1.0, -2.0 * r.real, abs(r) ** 2]), abs(r)) for r in pos]
+    out += [(np.array([1.0, -r]), abs(r)) for r in real]
+    return out
+
+
+def _sections(zpk: Zpk) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Proper sections (num, den), poles sorted slow to fast, zeros paired with the nearest poles."""
+    dens = sorted(_factors(zpk.poles), key=lambda f: f[1])
+    nums = sorted(_factors(zpk.zeros), key=lambda f: -f[0].size)  # quadratics first
+    sec = [[np.ones(1), d, m] for d, m in dens]  # num, den, |pole|
+    for zf, zm in nums:
+        deg = zf.size - 1
+        free = [i for i, s in enumerate(sec) if (s[1].size - 1) - (s[0].size - 1) >= deg]
+        if not free and deg == 2:  # merge two first-order pole sections that have no zero yet
+            ones = [i for i, s in enumerate(sec) if s[1].size == 2 and s[0].size == 1]
+            if len(ones) >= 2:
+                ones.sort(key=lambda i: abs(math.log(max(sec[i][2], 1e-300) / max(zm, 1e-300))))
+                i, j = sorted(ones[:2])
+                merged = [np.ones(1), np.polymul(sec[i][1], sec[j][1]), math.sqrt(max(sec[i][2] * sec[j][2], 0.0))]
+                sec = [s for k, s in enumerate(sec) if k not in (i, j)] + [merged]
+                free = [len(sec) - 1]
+        if not free:  # improper overall cannot happen for a proper system; a gain section absorbs it
+            sec.append([np.ones(1), np.ones(1), 1.0])
+            free = [len(sec) - 1]
+            if deg > 0:
+                raise ValueError("improper system: more zeros than poles")
+        i = min(free, key=lambda i: abs(math.log(max(sec[i][2], 1e-300) / max(zm, 1e-300))))
+        sec[i][0] = np.polymul(sec[i][0], zf)
+    return [(s[0], s[1]) for s in sec]
+
+
+def _section_ss(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """A scaled realisation of a proper section of order 0, 1 or 2 (den monic)."""
+    nd = den.size - 1
+    b = np.concatenate([np.zeros(den.size - num.size), num])
+    if nd == 0:
+        return np.zeros((0, 0)), np.zeros(0), np.zeros(0), float(b[0])
+    d = b[0]
+    if nd == 1:
+        a0 = den[1]
+        return np.array([[-a0]]), np.array([1.0]), np.array([b[1] - d * a0]), float(d)
+    a1, a0 = den[1], den[2]
+    w = math.sqrt(abs(a0)) if a0 != 0 else 1.0
+    # x1' = w x2 ; x2' = -(a0/w) x1 - a1 x2 + u  ->  x1 = w/(s^2+a1 s+a0) u, x2 = s/(s^2+a1 s+a0) u
+    A = np.array([[0.0, w], [-a0 / w, -a1]])
+    C = np.array([(b[2] - d * a0) / w, b[1] - d * a1])
+    return A, np.array([0.0, 1.0]), C, float(d)
+
+
+def series(first: SS, second: SS) -> SS:
+    """``second`` driven by the output of ``first``."""
+    n1, n2 = first.n, second.n
+    A = np.zeros((n1 + n2, n1 + n2))
+    A[:n1, :n1] = first.A
+    A[n1:, :n1] = np.outer(second.B, first.C)
+    A[n1:, n1:] = second.A
+    B = np.concatenate([first.B, second.B * first.D])
+    C = np.concatenate([second.D * first.C, second.C])
+    return SS(A, B, C, second.D * first.D)
+
+
+def realize(zpk: Zpk, *, discrete: bool = False) -> SS:
+    """A balanced cascade realisation of ``zpk`` (continuous, or discrete: the same algebra in z)."""
+    secs = _sections(zpk)
+    out = SS(np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0)
+    gain = float(zpk.gain)
+    for num, den in secs:
+        # unit gain at the section's corner (|pole| in s; the point on the unit circle at its angle in z)
+        r = np.roots(den) if den.size > 1 else np.zeros(0)
+        if discrete:
+            ang = float(np.max(np.abs(np.angle(r)))) if r.size else 0.0
+            x0 = np.exp(1j * max(ang, 1e-3))
+        else:
+            x0 = 1j * (float(np.max(np.abs(r))) if r.size and np.max(np.abs(r)) > 0 else 1.0)
+        v = abs(np.polyval(num, x0) / np.polyval(den, x0))
+        s = 1.0 / v if np.isfinite(v) and v > 0 else 1.0
+        gain /= s
+        A, B, C, D = _section_ss(num * s, den)
+        out = series(out, SS(A, B, C, D))
+    out = SS(out.A, out.B, out.C * gain, out.D * gain)
+    if out.n:
+        _, (sc, perm) = linalg.matrix_balance(out.A, permute=False, separate=True)
+        A = out.A / sc[:, None] * sc[None, :]
+        out = SS(A, out.B / sc, out.C * sc, out.D)
+    return out
+
+
+# -- discretisation ---------------------------------------------------------------------------
+
+def _int_expm(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(e^{A t}, int_0^t e^{A s} ds B)`` from one augmented matrix exponential."""
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n] = A * t, B * t
+    E = linalg.expm(M)
+    return E[:n, :n], E[:n, n]
+
+
+def zoh(sys: SS, dt: float) -> SS:
+    """Exact zero-order-hold equivalent at ``dt``."""
+    if sys.n == 0:
+        return SS(np.zeros((0, 0)), np.zeros(0), np.zeros(0), sys.D)
+    Phi, Gam = _int_expm(sys.A, sys.B, dt)
+    return SS(Phi, Gam, sys.C.copy(), sys.D)
+
+
+def zoh_delayed(sys: SS, h: float, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
+    """Exact ZOH of ``x' = A x + B u(t - tau)`` at step ``h``, ``u`` constant on ``[kh, (k+1)h)``.
+
+    ``tau = m h + f`` (``0 <= f < h``): ``x[k+1] = Phi x[k] + Gam_old u[k-m-1] + Gam_new u[k-m]``.
+    Returns ``(Phi, Gam_old, Gam_new, m, f)``.
+    """
+    m = int(math.floor(tau / h + 1e-12))
+    f = max(tau - m * h, 0.0)
+    if f < 1e-12 * h:
+        f = 0.0
+    Phi, Gam = _int_expm(sys.A, sys.B, h)
+    if f == 0.0:
+        return Phi, np.zeros_like(Gam), Gam, m, 0.0
+    E2, G2 = _int_expm(sys.A, sys.B, h - f)  # the new input acts over the last h - f
+    E1, G1 = _int_expm(sys.A, sys.B, f)  # the old one over the first f
+    return Phi, E2 @ G1, G2, m, f
+
+
+# -- frequency response and zeros ---------------------------------------------------------------
+
+def freqresp(sys: SS, x: np.ndarray) -> np.ndarray:
+    """``C (xI - A)^{-1} B + D`` at every complex ``x`` (Schur form, O(n^2) per point)."""
+    x = np.atleast_1d(np.asarray(x, dtype=complex))
+    T, b, c = sys.schur()
+    n = T.shape[0]
+    out = np.full(x.shape, complex(sys.D))
+    if n == 0:
+        return out
+    v = np.zeros((n,) + x.shape, dtype=complex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i in range(n - 1, -1, -1):
+            acc = b[i] + (T[i, i + 1:] @ v[i + 1:] if i + 1 < n else 0.0)
+            v[i] = acc / (x - T[i, i])
+        out = out + c @ v
+    return out
+
+
+def invariant_zeros(sys: SS) -> np.ndarray:
+    """Finite zeros of ``(A, B, C, D)``: generalised eigenvalues of the Rosenbrock pencil."""
+    n = sys.n
+    if n == 0:
+        return np.zeros(0, complex)
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n], M[n, :n], M[n, n] = sys.A, sys.B, sys.C, sys.D
+    N = np.zeros((n + 1, n + 1))
+    N[:n, :n] = np.eye(n)
+    alpha, beta = linalg.eigvals(M, N, homogeneous_eigvals=True)
+    scale = max(1.0, float(np.max(np.abs(sys.A)))) if n else 1.0
+    finite = np.abs(beta) * 1e10 * scale > np.abs(alpha)
+    return alpha[finite] / beta[finite]
+
+
+def zpk_from_ss(sys: SS, *, discrete: bool) -> Zpk:
+    """Poles (eigenvalues), zeros (pencil) and the gain matched at a point away from both."""
+    poles = np.linalg.eigvals(sys.A) if sys.n else np.zeros(0, complex)
+    zeros = invariant_zeros(sys)
+    rad = max([1.0] + [abs(r) for r in np.concatenate([poles, zeros])])
+    x0 = (1.7 + 0.9j) * rad if not discrete else 1.3 * rad * np.exp(0.7j)
+    ref = freqresp(sys, np.array([x0]))[0]
+    unit = Zpk(zeros, poles, 1.0)(np.array([x0]))[0]
+    gain = float((ref / unit).real) if unit != 0 else 0.0
+    return Zpk(zeros, poles, gain)
