@@ -42,9 +42,9 @@ class FieldError(Exception):
         return cls(loc, str(e), type=error_type(e))
 
 
-def error_type(e: BaseException) -> str:
-    """``InvalidPlantError`` -> ``invalid_plant``."""
-    name = type(e).__name__.removesuffix("Error")
+def error_type(e: BaseException | str) -> str:
+    """``InvalidPlantError`` (an instance, or the class name) -> ``invalid_plant``."""
+    name = (e if isinstance(e, str) else type(e).__name__).removesuffix("Error")
     out = "".join("_" + c.lower() if c.isupper() else c for c in name).lstrip("_")
     return out or "invalid"
 

@@ -17,7 +17,8 @@ from .pool import WorkerPool
 from .settings import Settings, get_settings
 from .store import Store
 
-__all__ = ["get_store", "get_pool", "require_api_key", "get_tune_job", "get_analyze_job", "get_plot_job"]
+__all__ = ["get_store", "get_pool", "require_api_key", "get_tune_job", "get_analyze_job", "get_plot_job",
+           "get_identify_job", "get_identify_plot_job"]
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
                                description="required when the server sets TUNER_API_KEY")
@@ -57,3 +58,15 @@ def get_plot_job() -> Callable[[dict[str, Any]], Any]:
     from .jobs import plot_job
 
     return plot_job
+
+
+def get_identify_job() -> Callable[[dict[str, Any]], Any]:
+    from .jobs import identify_job
+
+    return identify_job
+
+
+def get_identify_plot_job() -> Callable[[dict[str, Any]], Any]:
+    from .jobs import identify_plot_job
+
+    return identify_plot_job

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["tune_job", "analyze_job", "plot_job", "build_plant"]
+__all__ = ["tune_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job"]
 
 
 def build_plant(d: dict[str, Any]):
@@ -52,3 +52,22 @@ def plot_job(payload: dict[str, Any]) -> bytes:
     spec = Spec(**payload["spec"])
     analyses = [analyze(build_plant(p), ctrl, spec) for p in payload["plants"]]
     return draw(analyses, fmt=payload["fmt"], title=payload.get("title", ""), band_pct=spec.settling_band_pct)
+
+
+def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
+    """``payload``: ``input``, ``output`` (arrays), ``time`` or ``rate_hz``, and the options of
+    :func:`tuner.identify` (``poles``, ``zeros``, ``delay``, ...). Returns the JSON-ready result."""
+    from tuner.analysis.verify import jsonable
+    from tuner.identify import identify
+
+    opts = {k: v for k, v in payload.items() if k not in ("input", "output")}
+    return jsonable(identify(payload["input"], payload["output"], **opts).to_dict())
+
+
+def identify_plot_job(payload: dict[str, Any]) -> bytes:
+    """``payload``: ``result`` (a stored identification), ``fmt``. Returns the image."""
+    from tuner.identify.result import IdentifyResult
+
+    from .plots import figure_bytes
+
+    return figure_bytes(IdentifyResult.from_dict(payload["result"]).plot(), fmt=payload["fmt"])

@@ -3,6 +3,8 @@
 A declared ``Content-Length`` above the cap is refused at once; a body sent
 without one (chunked) is counted as it arrives and refused as soon as it passes
 the cap. Either way: 413 with a JSON body. Accepted bodies are replayed to the app.
+``path_limits`` gives some paths a cap of their own (e.g. ``/identify``, whose bodies
+are flight logs); every other path has ``max_bytes``.
 """
 
 from __future__ import annotations
@@ -15,22 +17,24 @@ __all__ = ["BodySizeLimit"]
 
 
 class BodySizeLimit:
-    def __init__(self, app: Callable[..., Any], *, max_bytes: int) -> None:
+    def __init__(self, app: Callable[..., Any], *, max_bytes: int, path_limits: dict[str, int] | None = None) -> None:
         self.app = app
         self.max_bytes = max_bytes
+        self.path_limits = dict(path_limits or {})
 
     async def __call__(self, scope: dict[str, Any], receive: Callable[..., Any], send: Callable[..., Any]) -> None:
         if scope["type"] != "http" or scope["method"] in ("GET", "HEAD", "OPTIONS", "DELETE"):
             await self.app(scope, receive, send)
             return
+        cap = self.path_limits.get(scope.get("path", ""), self.max_bytes)
         for name, value in scope.get("headers", ()):
             if name == b"content-length":
                 try:
                     declared = int(value)
                 except ValueError:
                     declared = -1
-                if declared > self.max_bytes:
-                    await self._refuse(send)
+                if declared > cap:
+                    await self._refuse(send, cap)
                     return
         chunks: list[bytes] = []
         size = 0
@@ -40,8 +44,8 @@ class BodySizeLimit:
                 return
             body = msg.get("body", b"")
             size += len(body)
-            if size > self.max_bytes:
-                await self._refuse(send)
+            if size > cap:
+                await self._refuse(send, cap)
                 return
             chunks.append(body)
             if not msg.get("more_body", False):
@@ -58,8 +62,8 @@ class BodySizeLimit:
 
         await self.app(scope, replay, send)
 
-    async def _refuse(self, send: Callable[..., Any]) -> None:
-        body = json.dumps({"detail": f"request body larger than {self.max_bytes} bytes"}).encode()
+    async def _refuse(self, send: Callable[..., Any], cap: int) -> None:
+        body = json.dumps({"detail": f"request body larger than {cap} bytes"}).encode()
         await send({"type": "http.response.start", "status": 413,
                     "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
                                 (b"connection", b"close")]})

@@ -28,6 +28,9 @@ Optimisation-based controller tuning with an independent verifier, as a service.
   specification in, verified gains and margins out; every result is stored.
 * `POST /analyze`: verify a given controller on a plant.
 * `GET /tunes`, `GET /tunes/{id}`, `GET /tunes/{id}/plot.png` / `.svg`: stored results.
+* `POST /identify`: a logged input/output record in, a fitted transfer function out (frequency
+  response with coherence, CIFER's cost J, Cramér–Rao bounds, a check on held-out data); stored,
+  and listed by `GET /identifications`, `GET /identifications/{id}` (`/plot.png`, `/plot.svg`, `/data`).
 
 Non-finite numbers are the strings `"Infinity"`, `"-Infinity"`, `"NaN"`
 (e.g. an infinite gain margin: no phase crossover). Invalid input gets 422 with the field
@@ -71,13 +74,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(
         title="tuner", version=_version(), description=DESCRIPTION, lifespan=lifespan,
-        openapi_tags=[{"name": "tuning"}, {"name": "analysis"}, {"name": "results"}, {"name": "service"}],
+        openapi_tags=[{"name": "tuning"}, {"name": "analysis"}, {"name": "identification"}, {"name": "results"},
+                      {"name": "service"}],
     )
     app.state.settings = settings
     install_error_handlers(app)
     app.include_router(public_router)
     app.include_router(api_router)
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
+                       path_limits={"/identify": settings.max_identify_body_bytes})
     return app
 
 

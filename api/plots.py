@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["draw", "bode_grid"]
+__all__ = ["draw", "bode_grid", "figure_bytes"]
 
 
 def bode_grid(loop: Any, metrics: Any, n: int = 800) -> np.ndarray:
@@ -86,8 +86,15 @@ def draw(analyses: Sequence[Any], *, fmt: str = "png", title: str = "", band_pct
     ax_p.set_xlabel("frequency (rad/s)")
     for ax in (ax_y, ax_m, ax_p):
         ax.grid(True, which="both", lw=0.3)
+    return figure_bytes(fig, fmt=fmt)
+
+
+def figure_bytes(fig: Any, *, fmt: str) -> bytes:
+    """A matplotlib figure as PNG or SVG bytes (SVG text kept as text, reproducible ids)."""
+    import matplotlib
+
     buf = io.BytesIO()
-    with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": "tuner"}):  # SVG text stays text
+    with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": "tuner"}):
         fig.savefig(buf, format=fmt, dpi=100)
     return buf.getvalue()
 

@@ -19,6 +19,10 @@ variable                       default                     meaning
 ``TUNER_ANALYZE_TIMEOUT_S``    ``10``                      limit of one ``/analyze`` (then 504)
 ``TUNER_PLOT_TIMEOUT_S``       ``20``                      limit of drawing one plot (then 504)
 ``TUNER_MAX_BODY_BYTES``       ``1000000``                 larger request bodies: 413
+``TUNER_MAX_IDENTIFY_BODY_BYTES`` ``24000000``             the same for ``POST /identify`` only (flight
+                                                           logs: 200,000 samples of input, output and
+                                                           time as JSON are about 13 MB)
+``TUNER_IDENTIFY_TIMEOUT_S``   ``60``                      limit of one identification (then 504)
 ``TUNER_MAX_PLANTS``           ``20``                      plants per robust request (nominal included)
 ``TUNER_MAX_TASKS_PER_WORKER`` ``200``                     a solver process is replaced after this many jobs
 ``TUNER_START_METHOD``         ``forkserver``              how solver processes start (or ``spawn``)
@@ -70,6 +74,8 @@ class Settings(BaseSettings):
     max_tasks_per_worker: int | None = Field(200, ge=1)
 
     max_body_bytes: int = Field(1_000_000, ge=1024)
+    max_identify_body_bytes: int = Field(24_000_000, ge=1024)
+    identify_timeout_s: float = Field(60.0, gt=0, le=600)
     max_plants: int = Field(20, ge=1)
 
     @model_validator(mode="after")

@@ -26,7 +26,8 @@ def warm_up() -> None:
     """Import the tuning stack now, so that no job's time budget pays for it."""
     import importlib
 
-    for mod in ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", "api.jobs"):
+    for mod in ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", "scipy.signal",
+                "scipy.optimize", "api.jobs"):  # scipy.signal/optimize: what identification imports
         try:
             importlib.import_module(mod)
         except ImportError as e:  # optional parts: a job that needs them reports the error itself

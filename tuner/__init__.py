@@ -2,7 +2,7 @@
 
 The public surface is ``__all__``: build a plant (:func:`make_plant`, :func:`plant_from_expr`),
 state what "good" means (:class:`Spec`), then :func:`tune` a structure or :func:`analyze` a given
-controller. Everything returned has been checked by the verifier (:mod:`tuner.analysis`).
+controller; from flight data, :func:`identify` the plant first. Everything returned has been checked by the verifier (:mod:`tuner.analysis`).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from .controllers import (
     get_structure,
 )
 from .errors import (
+    IdentificationError,
     InvalidControllerError,
     InvalidDataError,
     InvalidExpressionError,
@@ -24,6 +25,7 @@ from .errors import (
     InvalidSpecError,
     TunerError,
 )
+from .identify import IdentifyResult, identify  # the package tuner.identify; the name is the function
 from .jsonio import jsonable
 from .plant import Plant, make_plant, plant_from_expr
 from .problem import TuningProblem
@@ -34,8 +36,9 @@ __all__ = [
     "tune", "TuneResult", "TuningProblem", "analyze", "Analysis", "Metrics", "Spec", "Check",
     "Plant", "make_plant", "plant_from_expr", "ControllerTF", "controller_tf", "controller_from_expr",
     "controller_from_coeffs", "get_structure", "STRUCTURES", "jsonable",
+    "identify", "IdentifyResult",
     "TunerError", "InvalidControllerError", "InvalidDataError", "InvalidExpressionError", "InvalidPlantError",
-    "InvalidSpecError", "__version__",
+    "InvalidSpecError", "IdentificationError", "__version__",
 ]
 
 

@@ -17,6 +17,7 @@ __all__ = [
     "InvalidControllerError",
     "InvalidSpecError",
     "InvalidDataError",
+    "IdentificationError",
     "Field",
 ]
 
@@ -81,4 +82,9 @@ class InvalidSpecError(TunerError, ValueError):
 
 
 class InvalidDataError(TunerError, ValueError):
-    """Recorded input/output data cannot be used (lengths, NaN, no excitation, too short)."""
+    """Recorded input/output data cannot be used (lengths, NaN, no excitation, too short), or an
+    identification option is invalid (a bad number of poles, a band the record cannot resolve ...)."""
+
+
+class IdentificationError(TunerError, RuntimeError):
+    """The model fit failed on data that passed validation (no start converged to a finite cost)."""

@@ -1,0 +1,159 @@
+"""``POST /identify`` (a record in, a fitted model out, stored) and the stored identifications:
+``GET /identifications``, ``GET /identifications/{id}``, its plots and its data."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Callable
+
+import numpy as np
+from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse, Response
+
+from tuner.analysis.verify import jsonable
+
+from ..convert import FieldError, error_type
+from ..deps import get_identify_job, get_identify_plot_job, get_pool, get_store
+from ..errors import internal_message
+from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..schemas_identify import (
+    IDENTIFY_EXAMPLE,
+    IdentificationData,
+    IdentificationList,
+    IdentificationRecordOut,
+    IdentifyRequest,
+    IdentifyResponse,
+)
+from ..settings import Settings, get_settings
+from ..store import IdentificationRecord, Store
+from .tune import ERRORS
+from .tunes import NOT_FOUND, PLOT_ERRORS, UNAVAILABLE, draw_in_pool
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["identification"])
+
+_SAMPLES = ("input", "output", "time", "rate_hz")
+IdentId = Path(min_length=1, max_length=64, description="the id returned by POST /identify")
+
+
+def _check(body: IdentifyRequest) -> None:
+    """Cross-field checks the schema cannot express, each naming its field."""
+    n = len(body.input)
+    if len(body.output) != n:
+        raise FieldError(("body", "output"), f"output has {len(body.output)} samples but input has {n}: give "
+                                             "equal-length records")
+    if (body.time is None) == (body.rate_hz is None):
+        raise FieldError(("body", "rate_hz" if body.time is None else "time"),
+                         "give exactly one of time (sample times, s) or rate_hz (the sample rate)")
+    if body.time is not None and len(body.time) != n:
+        raise FieldError(("body", "time"), f"time has {len(body.time)} samples but input and output have {n}")
+    if body.zeros > body.poles:
+        raise FieldError(("body", "zeros"), f"zeros={body.zeros} is more than poles={body.poles}: the model would "
+                                            "be improper")
+    if body.band is not None and not body.band[0] < body.band[1]:
+        raise FieldError(("body", "band"), f"band must be [w_min, w_max] with w_min < w_max, got {body.band}")
+
+
+@router.post(
+    "/identify", response_model=IdentifyResponse, responses=ERRORS,
+    summary="Identify a transfer function from a logged input/output record",
+    description="Frequency response with coherence (Welch spectra, several windows composited), a model with "
+                "`poles`/`zeros` and a delay fitted over the coherent band by CIFER's cost J, Cramér–Rao bounds of "
+                "its parameters, and a time-domain check on the held-out end of the record. The result and the "
+                "record are stored. Bad data (unequal lengths, non-finite values, a constant input, a record too "
+                "short for the band, a time column that is not uniform, no coherent band): 422 naming the field.",
+)
+async def post_identify(
+    body: Annotated[IdentifyRequest, Body(openapi_examples={
+        "first-order lag": {"summary": "a sweep through 10/(s+10) with a 40 ms delay, 30 s at 50 Hz",
+                            "value": IDENTIFY_EXAMPLE}})],
+    settings: Settings = Depends(get_settings),
+    store: Store = Depends(get_store),
+    pool: WorkerPool = Depends(get_pool),
+    job: Callable[[dict[str, Any]], Any] = Depends(get_identify_job),
+) -> JSONResponse:
+    _check(body)
+    options = body.model_dump(exclude=set(_SAMPLES))
+    payload = {"input": np.asarray(body.input, dtype=float), "output": np.asarray(body.output, dtype=float),
+               "time": None if body.time is None else np.asarray(body.time, dtype=float),
+               "rate_hz": body.rate_hz, **options}
+    try:
+        result = await pool.run(job, payload, timeout_s=settings.identify_timeout_s)
+    except JobTimeout:
+        raise HTTPException(504, f"the identification took longer than {settings.identify_timeout_s:g} s and was "
+                                 "stopped; decimate the record or fit fewer poles") from None
+    except JobFailed as e:
+        if e.kind == "tuner_error":
+            field = e.info.get("field") or "input"
+            raise FieldError(("body", field), e.info["message"], type=error_type(e.info["error"])) from None
+        raise HTTPException(500, internal_message(e.info, "identification")) from None
+    request = {**options, "n_samples": len(body.input), "sampling": "time" if body.time is not None else "rate_hz"}
+    data = {"input": body.input, "output": body.output, "time": body.time, "rate_hz": body.rate_hz}
+    rec = await run_in_threadpool(store.add_identification, request=request, data=data, result=result)
+    return JSONResponse(jsonable({"id": rec.id, "created_at": rec.created_at.isoformat(), **result}))
+
+
+@router.get("/identifications", response_model=IdentificationList, summary="List stored identifications, newest first",
+            tags=["results"], responses={401: NOT_FOUND[401], **UNAVAILABLE})
+async def list_identifications(
+    limit: int = Query(20, ge=1, le=100), offset: int = Query(0, ge=0, le=10**12),
+    store: Store = Depends(get_store),
+) -> JSONResponse:
+    items, total = await run_in_threadpool(store.list_identifications, limit=limit, offset=offset)
+    return JSONResponse(jsonable({
+        "items": [{"id": r.id, "created_at": r.created_at.isoformat(), "poles": r.poles, "zeros": r.zeros,
+                   "cost": r.cost, "quality": r.quality, "n_samples": r.n_samples} for r in items],
+        "total": total, "limit": limit, "offset": offset,
+    }))
+
+
+async def _record(store: Store, ident_id: str, *, with_data: bool = False) -> IdentificationRecord:
+    rec = await run_in_threadpool(lambda: store.get_identification(ident_id, with_data=with_data))
+    if rec is None:
+        raise HTTPException(404, f"no stored identification with id {ident_id!r}")
+    return rec
+
+
+@router.get("/identifications/{ident_id}", response_model=IdentificationRecordOut, responses=NOT_FOUND,
+            tags=["results"], summary="One stored identification")
+async def get_identification(ident_id: str = IdentId, store: Store = Depends(get_store)) -> JSONResponse:
+    rec = await _record(store, ident_id)
+    return JSONResponse(jsonable({"id": rec.id, "created_at": rec.created_at.isoformat(), **rec.result,
+                                  "request": rec.request}))
+
+
+@router.get("/identifications/{ident_id}/data", response_model=IdentificationData, responses=NOT_FOUND,
+            tags=["results"], summary="The record an identification was made from, as submitted")
+async def get_identification_data(ident_id: str = IdentId, store: Store = Depends(get_store)) -> JSONResponse:
+    rec = await _record(store, ident_id, with_data=True)
+    return JSONResponse(rec.data)
+
+
+_PLOT_DOC = ("Bode plot of the data (coherent points in colour) and the fitted model, the fit points and the band, "
+             "a coherence panel, and the held-out time-domain check.")
+
+
+async def _plot(ident_id: str, fmt: str, store: Store, pool: WorkerPool, job: Callable[[dict[str, Any]], Any],
+                settings: Settings, media: str) -> Response:
+    rec = await _record(store, ident_id)
+    img = await draw_in_pool(pool, job, {"result": rec.result, "fmt": fmt}, settings)
+    return Response(img, media_type=media, headers={"Cache-Control": "public, max-age=86400"})
+
+
+@router.get("/identifications/{ident_id}/plot.png", response_class=Response, tags=["results"],
+            summary="Plot of a stored identification (PNG)", description=_PLOT_DOC,
+            responses={**PLOT_ERRORS, 200: {"content": {"image/png": {}}}})
+async def plot_png(ident_id: str = IdentId, store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+                   job: Callable[[dict[str, Any]], Any] = Depends(get_identify_plot_job),
+                   settings: Settings = Depends(get_settings)) -> Response:
+    return await _plot(ident_id, "png", store, pool, job, settings, "image/png")
+
+
+@router.get("/identifications/{ident_id}/plot.svg", response_class=Response, tags=["results"],
+            summary="Plot of a stored identification (SVG)", description=_PLOT_DOC,
+            responses={**PLOT_ERRORS, 200: {"content": {"image/svg+xml": {}}}})
+async def plot_svg(ident_id: str = IdentId, store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+                   job: Callable[[dict[str, Any]], Any] = Depends(get_identify_plot_job),
+                   settings: Settings = Depends(get_settings)) -> Response:
+    return await _plot(ident_id, "svg", store, pool, job, settings, "image/svg+xml")

@@ -1,0 +1,160 @@
+"""Request and response bodies of ``POST /identify`` and the stored identifications.
+
+Samples are JSON numbers (non-finite values are refused by the schema, with the index in
+``loc``); a record has at most :data:`MAX_SAMPLES` samples. Responses write non-finite numbers
+as the strings ``"Infinity"``, ``"-Infinity"``, ``"NaN"`` (e.g. the bound of a parameter the
+data cannot determine).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import random
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from tuner.identify import MAX_POLES
+from tuner.identify.data import MIN_SAMPLES
+
+from .schemas import Number
+
+__all__ = ["IdentifyOptions", "IdentifyRequest", "IdentifyResponse", "IdentificationRecordOut",
+           "IdentificationSummaryOut", "IdentificationList", "IdentificationData", "MAX_SAMPLES",
+           "IDENTIFY_EXAMPLE"]
+
+MAX_SAMPLES = 250_000  # 200,000-sample logs are accepted; the body cap is TUNER_MAX_IDENTIFY_BODY_BYTES
+
+Sample = Annotated[float, Field(allow_inf_nan=False)]
+Samples = Annotated[list[Sample], Field(min_length=MIN_SAMPLES, max_length=MAX_SAMPLES)]
+Positive = Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)]
+
+
+
+def _example(n: int = 1500, rate_hz: float = 50.0) -> dict[str, Any]:
+    """A 30 s exponential sweep (1 -> 30 rad/s) through 10/(s+10) with a 40 ms delay at 50 Hz
+    (simulated exactly for an input linear between samples), plus sensor noise."""
+    dt, p, t_end = 1.0 / rate_hz, 10.0, n / rate_hz
+    u, theta = [], 0.0
+    for k in range(n):
+        u.append(math.sin(theta))
+        theta += dt * (1.0 + 29.0 * 0.0187 * (math.exp(4.0 * k * dt / t_end) - 1.0))
+    ud = [0.0, 0.0] + u[:-2]
+    a = math.exp(-p * dt)
+    noise = random.Random(0)
+    y, x = [], 0.0
+    for k in range(n):
+        y.append(x + noise.gauss(0.0, 0.02))
+        nxt = ud[k + 1] if k + 1 < n else ud[k]
+        x = a * x + (1.0 - a) * ud[k] + (nxt - ud[k]) * (1.0 - (1.0 - a) / (p * dt))
+    return {"input": [round(v, 4) for v in u], "output": [round(v, 4) for v in y], "rate_hz": rate_hz,
+            "poles": 1, "zeros": 0, "delay": "auto", "delay_step": 0.02, "holdout": 0.0}
+
+
+IDENTIFY_EXAMPLE: dict[str, Any] = _example()
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class IdentifyOptions(_In):
+    """What to fit, and how (the options of :func:`tuner.identify`)."""
+
+    poles: int = Field(ge=1, le=MAX_POLES, description="number of poles of the model")
+    zeros: int = Field(0, ge=0, le=MAX_POLES, description="number of zeros (at most poles)")
+    delay: Literal["auto"] | Annotated[float, Field(ge=0, le=1e4, allow_inf_nan=False)] | None = Field(
+        "auto", description='"auto" estimates an equivalent time delay; a number fixes it (s); null: none')
+    delay_step: Positive | None = Field(
+        None, description="delay in whole multiples of this (s): the sample time of the loop the model is for")
+    band: Annotated[list[Positive], Field(min_length=2, max_length=2)] | None = Field(
+        None, description="fit band [w_min, w_max], rad/s (default: where the coherence >= coherence_min)")
+    holdout: float = Field(0.2, ge=0, le=0.5, allow_inf_nan=False,
+                           description="fraction at the end of the record kept out of the fit, for the check")
+    coherence_min: float = Field(0.6, gt=0, lt=1, allow_inf_nan=False)
+    n_points: int = Field(25, ge=8, le=200, description="log-spaced fit frequencies in the band")
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="seeds the fit's random starts")
+
+
+class IdentifyRequest(IdentifyOptions):
+    model_config = ConfigDict(extra="forbid", strict=True,
+                              json_schema_extra={"examples": [IDENTIFY_EXAMPLE]})
+
+    input: Samples = Field(description="plant input samples (e.g. the command)")
+    output: Samples = Field(description="plant output samples (e.g. the angle), as many as input")
+    time: Samples | None = Field(None, description="sample times, s (strictly increasing, uniform); or rate_hz")
+    rate_hz: Positive | None = Field(None, description="sample rate, Hz; or time")
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+
+class ModelOut(_Out):
+    num: list[float]
+    den: list[float]
+    delay: float
+    poles: int
+    zeros: int
+    parameters: dict[str, float]
+
+
+class FrequencyResponseOut(_Out):
+    w: list[float]
+    mag_db: list[Number]
+    phase_deg: list[Number]
+    coherence: list[float]
+
+
+class UncertaintyOut(_Out):
+    value: float
+    cr_bound: Number
+    cr_bound_pct: Number
+    insensitivity: Number
+    insensitivity_pct: Number
+
+
+class IdentifyResponse(_Out):
+    id: str
+    created_at: _dt.datetime
+    model: ModelOut
+    cost: float = Field(description="CIFER's J over the band (<= 50 good, <= 100 acceptable)")
+    quality: Literal["good", "acceptable", "poor"]
+    verdict: str
+    warnings: list[str]
+    band_rad_s: list[float]
+    frequency_response: FrequencyResponseOut
+    fit_points: dict[str, list[Number]]
+    uncertainty: dict[str, UncertaintyOut]
+    validation: dict[str, Any] | None
+    rate_hz: float
+    n_samples: int
+
+
+class IdentificationRecordOut(IdentifyResponse):
+    request: dict[str, Any] = Field(description="the options as validated (the samples: GET .../data)")
+
+
+class IdentificationSummaryOut(_Out):
+    id: str
+    created_at: _dt.datetime
+    poles: int
+    zeros: int
+    cost: Number
+    quality: str
+    n_samples: int
+
+
+class IdentificationList(_Out):
+    items: list[IdentificationSummaryOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class IdentificationData(_Out):
+    input: list[float]
+    output: list[float]
+    time: list[float] | None = None
+    rate_hz: float | None = None

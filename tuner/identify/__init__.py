@@ -1,0 +1,25 @@
+"""Identification from flight data: from a logged input/output record to a fitted transfer function.
+
+The steps of CIFER (Tischler & Remple), one module each:
+
+* :mod:`~tuner.identify.data`: validating a record (lengths, non-finite values, a constant
+  input, the time base), detrending, the fit/holdout split;
+* :mod:`~tuner.identify.spectral`: the frequency response and coherence by Welch spectra with
+  several windows, composited with coherence weighting (COMPOSITE), and the coherent band;
+* :mod:`~tuner.identify.model` and :mod:`~tuner.identify.fit`: a gain, factored pole and zero
+  sections and a delay, fitted by minimising CIFER's coherence-weighted cost ``J``;
+* :mod:`~tuner.identify.uncertainty`: Cramér–Rao bounds and insensitivities at the optimum;
+* :mod:`~tuner.identify.validate`: simulating the model on held-out data (Theil, NRMSE);
+* :mod:`~tuner.identify.result`: :class:`IdentifyResult` (``.plant()``, ``.plot()``, ``.to_dict()``);
+* :mod:`~tuner.identify.csvlog` and :mod:`~tuner.identify.cli`: CSV logs and ``tuner identify``.
+
+The public entry point is :func:`identify`. Importing this package is light (numpy only);
+scipy and matplotlib are imported when they are used.
+"""
+
+from __future__ import annotations
+
+from .core import MAX_POLES, identify
+from .result import IdentifyResult
+
+__all__ = ["identify", "IdentifyResult", "MAX_POLES"]

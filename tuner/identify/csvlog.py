@@ -1,0 +1,72 @@
+"""Reading flight logs from CSV files (the stdlib :mod:`csv` module; no pandas).
+
+A log has a header row naming its columns; lines starting with ``#`` before the header are
+comments; the delimiter (comma, semicolon, tab) is detected. Every error names the file, the
+line and the column, and carries ``field`` = the role of the column (``"input"``, ``"output"``,
+``"time"``) so the caller can point at the option that chose it.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import InvalidDataError
+
+__all__ = ["read_columns", "MAX_ROWS"]
+
+MAX_ROWS = 10_000_000
+
+
+def _dialect(sample: str) -> type[csv.Dialect] | csv.Dialect:
+    try:
+        return csv.Sniffer().sniff(sample, delimiters=",;\t")
+    except csv.Error:
+        return csv.excel
+
+
+def read_columns(path: str | Path, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
+    """The named columns of a CSV log as float arrays, keyed by role: ``{"input": "pitch_cmd", ...}``."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as e:
+        raise InvalidDataError(f"{p}: cannot read: {e.strerror or e}", field="file") from None
+    except UnicodeDecodeError as e:
+        raise InvalidDataError(f"{p}: not a UTF-8 text file ({e.reason} at byte {e.start})", field="file") from None
+    lines = text.splitlines()
+    first = 0
+    while first < len(lines) and (not lines[first].strip() or lines[first].lstrip().startswith("#")):
+        first += 1
+    if first == len(lines):
+        raise InvalidDataError(f"{p}: empty (no header row)", field="file")
+    reader = csv.reader(lines[first:], _dialect("\n".join(lines[first:first + 20])))
+    header = [h.strip() for h in next(reader)]
+    idx: dict[str, int] = {}
+    for role, name in columns.items():
+        if name not in header:
+            raise InvalidDataError(f"{p}: no column {name!r} (for the {role}); columns: {header}", field=role)
+        idx[role] = header.index(name)
+    data: dict[str, list[float]] = {role: [] for role in columns}
+    for k, row in enumerate(reader):
+        line = first + 2 + k
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        if len(data[next(iter(columns))]) >= MAX_ROWS:
+            raise InvalidDataError(f"{p}: more than {MAX_ROWS} rows; decimate the log", field="file")
+        for role, i in idx.items():
+            cell = row[i].strip() if i < len(row) else ""
+            try:
+                v = float(cell)
+            except ValueError:
+                what = "empty" if not cell else f"not a number: {cell!r}"
+                raise InvalidDataError(f"{p}, line {line}, column {header[i]!r}: {what}", field=role) from None
+            if not math.isfinite(v):
+                raise InvalidDataError(f"{p}, line {line}, column {header[i]!r}: {cell} (non-finite); remove or "
+                                       "interpolate such samples", field=role)
+            data[role].append(v)
+    return {role: np.asarray(v, dtype=float) for role, v in data.items()}

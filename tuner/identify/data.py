@@ -1,0 +1,140 @@
+"""Time-domain records: validation, sample rate, detrending, the fit/holdout split.
+
+Every check raises :class:`~tuner.errors.InvalidDataError` with ``field`` set to the input it is
+about (``"input"``, ``"output"``, ``"time"``, ``"rate_hz"``, ``"band"``, ``"holdout"``) and a
+message that says what to change.
+
+Record-length rules (Tischler & Remple, *Aircraft and Rotorcraft System Identification*, ch. 7):
+spectra are averaged over windows of at most half the record, and a window resolves
+frequencies down to two periods in it, so the lowest identifiable frequency of a record of
+``T`` seconds is ``2 * 2*pi / (T/2) = 8*pi/T`` rad/s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InvalidDataError
+
+__all__ = ["Record", "make_record", "lowest_frequency_rad_s", "MIN_SAMPLES", "MAX_SAMPLES", "TIME_JITTER"]
+
+MIN_SAMPLES = 128
+MAX_SAMPLES = 10_000_000
+TIME_JITTER = 0.01  # sample intervals may differ from the mean by this fraction
+
+
+def lowest_frequency_rad_s(duration_s: float) -> float:
+    """Lowest frequency a record of ``duration_s`` resolves (two periods in half the record)."""
+    return 8.0 * np.pi / duration_s
+
+
+@dataclass(frozen=True, eq=False)
+class Record:
+    """A uniformly sampled input/output record (``u``, ``y`` as logged, ``dt`` in s, ``t0`` the first time)."""
+
+    u: np.ndarray
+    y: np.ndarray
+    dt: float
+    t0: float = 0.0
+
+    @property
+    def n(self) -> int:
+        return int(self.u.size)
+
+    @property
+    def duration_s(self) -> float:
+        return self.n * self.dt
+
+    @property
+    def nyquist_rad_s(self) -> float:
+        return float(np.pi / self.dt)
+
+    def detrended(self) -> "Record":
+        """Both signals minus their least-squares straight line (trim and slow drift removed)."""
+        from scipy.signal import detrend
+
+        return Record(u=detrend(self.u, type="linear"), y=detrend(self.y, type="linear"), dt=self.dt, t0=self.t0)
+
+    def split(self, holdout: float) -> tuple["Record", "Record | None"]:
+        """The first ``1 - holdout`` of the record (for the fit) and the rest (for the check)."""
+        if holdout <= 0:
+            return self, None
+        k = int(round(self.n * (1.0 - holdout)))
+        fit = Record(u=self.u[:k], y=self.y[:k], dt=self.dt, t0=self.t0)
+        rest = Record(u=self.u[k:], y=self.y[k:], dt=self.dt, t0=self.t0 + k * self.dt)
+        return fit, rest
+
+
+def _signal(values: Any, field: str) -> np.ndarray:
+    try:
+        a = np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise InvalidDataError(f"{field} must be a list of numbers", field=field) from e
+    if a.ndim != 1:
+        raise InvalidDataError(f"{field} must be a one-dimensional list of numbers, got shape {a.shape}", field=field)
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        i = int(bad[0])
+        raise InvalidDataError(f"{field}[{i}] is {a[i]!r} ({bad.size} non-finite samples in all): remove or "
+                               "interpolate them before identification", field=field)
+    return a
+
+
+def _rate_from_time(t: np.ndarray, n: int) -> tuple[float, float]:
+    if t.size != n:
+        raise InvalidDataError(f"time has {t.size} samples but input and output have {n}", field="time")
+    d = np.diff(t)
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        i = int(bad[0])
+        raise InvalidDataError(f"time is not strictly increasing: time[{i + 1}] = {t[i + 1]!r} after "
+                               f"time[{i}] = {t[i]!r}", field="time")
+    dt = float((t[-1] - t[0]) / (n - 1))
+    worst = int(np.argmax(np.abs(d - dt)))
+    if abs(d[worst] - dt) > TIME_JITTER * dt:
+        raise InvalidDataError(
+            f"time is not uniformly sampled: the interval after time[{worst}] is {d[worst]:.6g} s, the mean "
+            f"interval {dt:.6g} s (more than {TIME_JITTER:.0%} apart); resample the log to a uniform rate first",
+            field="time")
+    return dt, float(t[0])
+
+
+def make_record(input: Sequence[float], output: Sequence[float], *, time: Sequence[float] | None = None,
+                rate_hz: float | None = None) -> Record:
+    """Validate a logged record: equal lengths, finite values, a varying input, a uniform time base.
+
+    Give exactly one of ``time`` (s, strictly increasing, uniform within 1 %) or ``rate_hz``.
+    """
+    u = _signal(input, "input")
+    y = _signal(output, "output")
+    if u.size != y.size:
+        raise InvalidDataError(f"input has {u.size} samples but output has {y.size}: give equal-length "
+                               "records", field="output")
+    if u.size < MIN_SAMPLES:
+        raise InvalidDataError(f"{u.size} samples given; identification needs at least {MIN_SAMPLES}",
+                               field="input")
+    if u.size > MAX_SAMPLES:
+        raise InvalidDataError(f"{u.size} samples given; at most {MAX_SAMPLES} (decimate the log)", field="input")
+    if (time is None) == (rate_hz is None):
+        raise InvalidDataError("give exactly one of time (a time column, s) or rate_hz (the sample rate)",
+                               field="time" if time is not None else "rate_hz")
+    if time is not None:
+        dt, t0 = _rate_from_time(_signal(time, "time"), u.size)
+    else:
+        try:
+            r = float(rate_hz)  # type: ignore[arg-type]
+        except (TypeError, ValueError) as e:
+            raise InvalidDataError(f"rate_hz must be a number, got {rate_hz!r}", field="rate_hz") from e
+        if not np.isfinite(r) or r <= 0:
+            raise InvalidDataError(f"rate_hz must be finite and > 0, got {rate_hz!r}", field="rate_hz")
+        dt, t0 = 1.0 / r, 0.0
+    for a, field in ((u, "input"), (y, "output")):
+        spread = float(np.ptp(a))
+        if spread <= 1e-12 * max(1.0, float(np.max(np.abs(a)))):
+            what = "nothing excites the plant" if field == "input" else "the output does not respond"
+            raise InvalidDataError(f"{field} is constant ({a[0]:.6g}): {what}; a frequency sweep is needed",
+                                   field=field)
+    return Record(u=u, y=y, dt=dt, t0=t0)

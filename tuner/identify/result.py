@@ -1,0 +1,154 @@
+"""The outcome of an identification: model, cost, band, response, uncertainty, check, verdict."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .model import Model
+from .spectral import FrequencyResponse
+from .uncertainty import ParameterUncertainty
+from .validate import Validation
+
+__all__ = ["FitPoints", "IdentifyResult", "quality_of", "J_GOOD", "J_ACCEPTABLE", "J_POINT_MAX"]
+
+J_GOOD = 50.0  # CIFER guidelines: J <= 50 good, J <= 100 acceptable, single frequencies up to ~200
+J_ACCEPTABLE = 100.0
+J_POINT_MAX = 200.0
+
+
+def quality_of(cost: float) -> str:
+    """``"good"`` (J <= 50), ``"acceptable"`` (J <= 100) or ``"poor"``."""
+    return "good" if cost <= J_GOOD else ("acceptable" if cost <= J_ACCEPTABLE else "poor")
+
+
+@dataclass(frozen=True, eq=False)
+class FitPoints:
+    """The data at the fit frequencies, and each frequency's share of the cost."""
+
+    w: np.ndarray
+    mag_db: np.ndarray
+    phase_deg: np.ndarray
+    coherence: np.ndarray
+    cost: np.ndarray  # 20 W_gamma (dmag^2 + W_p dphase^2): J is their mean
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: getattr(self, k).tolist() for k in ("w", "mag_db", "phase_deg", "coherence", "cost")}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "FitPoints":
+        return cls(**{k: np.asarray(d[k], dtype=float) for k in ("w", "mag_db", "phase_deg", "coherence", "cost")})
+
+
+@dataclass(frozen=True, eq=False)
+class IdentifyResult:
+    """What :func:`tuner.identify` found. ``model`` is continuous (in ``s``), with its delay.
+
+    ``cost`` is CIFER's J over ``band_rad_s``; ``quality`` is ``good``/``acceptable``/``poor`` by
+    the J guidelines (``poor`` also when the held-out time-domain check fails); ``warnings`` say
+    what to change when something is off (a poor J, poorly determined parameters, a failed
+    time-domain check, ...).
+    """
+
+    model: Model
+    cost: float
+    band_rad_s: tuple[float, float]
+    frequency_response: FrequencyResponse
+    fit_points: FitPoints
+    uncertainty: dict[str, ParameterUncertainty]
+    validation: Validation | None
+    warnings: tuple[str, ...]
+    rate_hz: float
+    n_samples: int
+    fit_duration_s: float
+    options: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def quality(self) -> str:
+        """By CIFER's J guideline; ``"poor"`` also when the held-out check fails (Theil > 0.3)."""
+        if self.validation is not None and not self.validation.ok:
+            return "poor"
+        return quality_of(self.cost)
+
+    @property
+    def verdict(self) -> str:
+        lo, hi = self.band_rad_s
+        s = (f"{self.quality}: J = {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s "
+             f"({self.fit_points.w.size} frequencies)")
+        if self.validation is not None:
+            v = self.validation
+            s += f"; held-out check: Theil {v.theil_u:.3g}, fit {v.fit_pct:.3g} %"
+        return s
+
+    def plant(self):
+        """The model as a :class:`tuner.plant.Plant` (continuous, with its delay) for tuning."""
+        from ..plant import make_plant
+
+        num, den = self.model.tf()
+        return make_plant(num, den, delay=self.model.delay_s)
+
+    def describe(self) -> str:
+        return self.plant().describe()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready after :func:`tuner.analysis.jsonable` (non-finite bounds become strings)."""
+        return {
+            "model": self.model.to_dict(),
+            "cost": self.cost,
+            "quality": self.quality,
+            "verdict": self.verdict,
+            "warnings": list(self.warnings),
+            "band_rad_s": list(self.band_rad_s),
+            "frequency_response": self.frequency_response.to_dict(),
+            "fit_points": self.fit_points.to_dict(),
+            "uncertainty": {k: v.to_dict() for k, v in self.uncertainty.items()},
+            "validation": None if self.validation is None else self.validation.to_dict(),
+            "rate_hz": self.rate_hz,
+            "n_samples": self.n_samples,
+            "fit_duration_s": self.fit_duration_s,
+            "options": dict(self.options),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "IdentifyResult":
+        """Rebuild from :meth:`to_dict` (e.g. a stored result, to redraw its plot)."""
+        m = d["model"]
+        model = Model.from_values(int(m["poles"]), int(m["zeros"]), {k: _num(v) for k, v in m["parameters"].items()})
+        unc = {k: ParameterUncertainty(**{f: _num(x) for f, x in v.items()}) for k, v in d["uncertainty"].items()}
+        val = d.get("validation")
+        return cls(model=model, cost=_num(d["cost"]), band_rad_s=(_num(d["band_rad_s"][0]), _num(d["band_rad_s"][1])),
+                   frequency_response=FrequencyResponse.from_dict(_nums(d["frequency_response"])),
+                   fit_points=FitPoints.from_dict(_nums(d["fit_points"])), uncertainty=unc,
+                   validation=None if val is None else Validation.from_dict(_nums(val)),
+                   warnings=tuple(d.get("warnings", ())), rate_hz=_num(d["rate_hz"]), n_samples=int(d["n_samples"]),
+                   fit_duration_s=_num(d["fit_duration_s"]), options=dict(d.get("options", {})))
+
+    def plot(self, *, title: str | None = None, time_domain: bool = True):
+        """Bode plot of the data and the fit with a coherence panel (and the held-out check).
+
+        Returns a :class:`matplotlib.figure.Figure` (no pyplot state; save it with ``savefig``).
+        """
+        from .plot import fit_figure
+
+        return fit_figure(self, title=title, time_domain=time_domain)
+
+
+_SPECIAL = {"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}
+
+
+def _num(v: Any) -> float:
+    return _SPECIAL[v] if isinstance(v, str) else float(v)
+
+
+def _nums(d: Any) -> Any:
+    """Undo :func:`jsonable`'s strings for non-finite numbers, recursively."""
+    if isinstance(d, dict):
+        return {k: _nums(v) for k, v in d.items()}
+    if isinstance(d, list):
+        return [_nums(v) for v in d]
+    if isinstance(d, str) and d in _SPECIAL:
+        return _SPECIAL[d]
+    return d

@@ -1,0 +1,86 @@
+"""Parameter confidence at the optimum: Cramér–Rao bounds and insensitivities (CIFER practice).
+
+With ``A = dr/dtheta`` the exact Jacobian of the fit residuals (``J = sum r^2``) at the optimum,
+the residual variance estimated as ``s^2 = J / (m - p)`` (``m`` residuals, ``p`` parameters) and
+the Fisher information approximated by ``A^T A / s^2`` (the Gauss–Newton Hessian):
+
+* **Cramér–Rao bound** of parameter ``i``: ``sqrt([(A^T A)^-1]_ii * s^2)``, the standard deviation
+  no unbiased estimator can beat, *all other parameters free*;
+* **insensitivity**: ``sqrt(s^2 / (A^T A)_ii)``, the same with *the others held fixed* (large
+  when the cost hardly changes with the parameter).
+
+Both are given in the parameter's units and in % of its value (for the log-parameterised gain,
+frequencies and damping ratios the % is the relative bound directly). Guidelines (Tischler &
+Remple): CR bounds within about 20 %, insensitivities within about 10 %. The fit frequencies
+are treated as independent, so the bounds are indicative (optimistic when residuals are
+correlated), as in CIFER.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from .fit import Problem
+
+__all__ = ["ParameterUncertainty", "cramer_rao", "CR_LIMIT_PCT", "INSENSITIVITY_LIMIT_PCT"]
+
+CR_LIMIT_PCT = 20.0
+INSENSITIVITY_LIMIT_PCT = 10.0
+
+
+@dataclass(frozen=True)
+class ParameterUncertainty:
+    """One parameter: value and 1-sigma bounds (units of the value, and % of it; ``inf`` = not identifiable)."""
+
+    value: float
+    cr_bound: float
+    cr_bound_pct: float
+    insensitivity: float
+    insensitivity_pct: float
+
+    @property
+    def ok(self) -> bool:
+        return self.cr_bound_pct <= CR_LIMIT_PCT and self.insensitivity_pct <= INSENSITIVITY_LIMIT_PCT
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def cramer_rao(problem: Problem, theta: np.ndarray) -> dict[str, ParameterUncertainty]:
+    """Bounds for every parameter of ``problem`` at ``theta`` (log-parameters, then the delay if free)."""
+    theta = np.asarray(theta, dtype=float)
+    A = problem.jacobian(theta)
+    r = problem.residuals(theta)
+    m, p = A.shape
+    names = problem.structure.names()
+    values = problem.model(theta).values()
+    s2 = float(r @ r) / (m - p) if m > p else math.inf
+    M = A.T @ A
+    diag = np.diag(M)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        try:
+            cond = np.linalg.cond(M)
+            cov = np.linalg.inv(M) * s2 if np.isfinite(cond) and cond < 1e14 else np.full((p, p), np.inf)
+        except np.linalg.LinAlgError:
+            cov = np.full((p, p), np.inf)
+        sd = np.sqrt(np.abs(np.diag(cov)))
+        ins = np.sqrt(s2 / diag)
+    out: dict[str, ParameterUncertainty] = {}
+    for i, name in enumerate(names):
+        v = values[name]
+        sd_i = float(sd[i]) if np.isfinite(sd[i]) else math.inf
+        ins_i = float(ins[i]) if np.isfinite(ins[i]) else math.inf
+        if name == "delay_s":  # linear parameter: absolute bounds, % of the delay
+            cr, ci = sd_i, ins_i
+            cr_pct = 100.0 * cr / abs(v) if v else math.inf
+            ci_pct = 100.0 * ci / abs(v) if v else math.inf
+        else:  # log-parameter: d(value) = |value| d(log value)
+            cr, ci = abs(v) * sd_i, abs(v) * ins_i
+            cr_pct, ci_pct = 100.0 * sd_i, 100.0 * ins_i
+        out[name] = ParameterUncertainty(value=v, cr_bound=cr, cr_bound_pct=cr_pct, insensitivity=ci,
+                                         insensitivity_pct=ci_pct)
+    return out
