@@ -147,7 +147,7 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
     from ..jsonio import jsonable
     from .evaluate import evaluate_loop, evaluate_thesis, gains_entry
     from .report import render_report
-    from .schema import controller_of
+    from .schema import controller_of, identified
 
     out_dir.mkdir(parents=True, exist_ok=True)
     results = {name: (st.result or {"loop": name, "error": "not done"}) for name, st in statuses.items()}
@@ -167,6 +167,11 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
         for name, e in tuned.items():
             figs[name] = loop_plots(e.nominal, out_dir / "plots", name, band_pct=e.loop.spec.settling_band_pct,
                                     overshoot_max_pct=e.loop.spec.overshoot_max_pct, cascade=e.cascade)
+        for lp in study.order():  # the identification of data loops: Bode of data and fit, coherence
+            if lp.data is not None and lp.name in figs:
+                path = out_dir / "plots" / f"{lp.name}_fit.png"
+                identified(lp).plot().savefig(path, dpi=100)
+                figs.setdefault(lp.name, {})["fit"] = path
     doc = {"study": study.name, "file": source, "storage": storage,
            "meets_spec": all(e.meets_spec for e in tuned.values()) and len(tuned) == len(study.loop),
            "order": [lp.name for lp in study.order()], "loops": results,

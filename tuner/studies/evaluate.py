@@ -18,10 +18,19 @@ from ..controllers import ControllerTF
 from ..errors import TunerError
 from ..jsonio import jsonable
 from ..plant import Plant
-from .schema import InvalidStudyError, LoopDef, StudyDef, base_plants, controller_of, loop_key, thesis_controller_of
+from .schema import (
+    InvalidStudyError,
+    LoopDef,
+    StudyDef,
+    base_plants,
+    controller_of,
+    identified,
+    loop_key,
+    thesis_controller_of,
+)
 
 __all__ = ["LoopEval", "loop_plants", "evaluate_loop", "evaluate_gains", "evaluate_thesis", "tune_loop",
-           "gains_entry", "check_gains_file"]
+           "gains_entry", "check_gains_file", "identification_summary"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,4 +208,18 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
     out = {"loop": lp.name, "key": loop_key(study, lp.name), "structure": lp.structure,
            "gains": dict(res.gains), "dt": lp.dt, **ev.to_dict(), "solver": dict(res.solver),
            "spec": lp.spec.model_dump(), "plant": [p.describe() for p in plants]}
+    if lp.data is not None:
+        out["identification"] = identification_summary(lp)
     return jsonable(out)
+
+
+def identification_summary(lp: LoopDef) -> dict[str, Any]:
+    """What the study records about a data loop's identification (the full response is in the plot)."""
+    d = identified(lp).to_dict()
+    val = d["validation"]
+    if val is not None:
+        val = {k: v for k, v in val.items() if k != "series"}
+    keep = ("model", "cost", "quality", "verdict", "warnings", "band_rad_s", "uncertainty", "rate_hz", "n_samples",
+            "fit_duration_s")
+    return {"file": lp.data.file if lp.data else None, **{k: d[k] for k in keep}, "validation": val,
+            "plant": identified(lp).describe()}

@@ -67,6 +67,7 @@ def render_report(
     L += [f"{n_ok} of {len(study.loop)} loops meet their spec as judged by the verifier. "
           f"Storage: `{storage}`; seed {study.seed}.", ""]
 
+    L += _identified_section(study, results, plots, out_dir)
     L += ["## Tuned loops", ""]
     rows = []
     for lp in study.order():
@@ -149,3 +150,51 @@ def render_report(
             L.append(f"![{lp.name} {kind}]({p.relative_to(out_dir).as_posix()})")
         L.append("")
     return "\n".join(L).rstrip() + "\n"
+
+
+def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
+                        plots: Mapping[str, Mapping[str, Path]], out_dir: Path) -> list[str]:
+    """Loops whose plant is a flight log: the fit (band, J, bounds, held-out check) and its plot."""
+    loops = [lp for lp in study.order() if lp.data is not None]
+    if not loops:
+        return []
+    L = ["## Identified plants", "",
+         "Plants given as flight logs were identified before tuning (`tuner.identify`): frequency response and "
+         "coherence from composite Welch windows, a transfer function fitted over the coherent band by CIFER's "
+         "cost J (<= 50 good, <= 100 acceptable), Cramér–Rao bounds (guideline <= 20 %), and the model simulated "
+         "on the held-out end of the log (Theil's inequality coefficient, guideline <= 0.3). The delay is fitted "
+         "in whole samples of the loop's dt. The loops below were tuned and verified on these models.", ""]
+    rows, notes = [], []
+    for lp in loops:
+        ident = results.get(lp.name, {}).get("identification")
+        d = lp.data
+        src = f"`{d.file}`: {d.input} → {d.output}" if d else ""
+        if not ident:
+            rows.append([lp.name, src, f"error: {results.get(lp.name, {}).get('error', 'no result')}"] + ["—"] * 6)
+            continue
+        unc = ident.get("uncertainty", {})
+        worst = max(unc.items(), key=lambda kv: _as_float(kv[1].get("cr_bound_pct")), default=None)
+        val = ident.get("validation") or {}
+        band = ident.get("band_rad_s") or [None, None]
+        rows.append([lp.name, src, f"`{ident.get('plant', '')}`", f"{num(band[0])}–{num(band[1])}",
+                     num(ident.get("cost")), ident.get("quality", "—"),
+                     f"{num(worst[1].get('cr_bound_pct'))} ({worst[0]})" if worst else "—",
+                     num(val.get("theil_u")), num(val.get("nrmse"))])
+        notes += [f"- **{lp.name}**: {w}" for w in ident.get("warnings", [])]
+    L += _table(["loop", "log", "identified model", "band [rad/s]", "J", "quality", "largest CR bound [%]",
+                 "Theil (held out)", "NRMSE (held out)"], rows)
+    if notes:
+        L += ["Warnings of the fits:", "", *notes, ""]
+    for lp in loops:
+        p = plots.get(lp.name, {}).get("fit")
+        if p is not None:
+            L += [f"![{lp.name} fit]({p.relative_to(out_dir).as_posix()})", ""]
+    return L
+
+
+def _as_float(v: Any) -> float:
+    try:
+        x = float({"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}.get(v, v))
+    except (TypeError, ValueError):
+        return -math.inf
+    return -math.inf if math.isnan(x) else x

@@ -25,6 +25,16 @@ A study is a TOML file::
     plant = "9.81/s^2"          # from the inner loop's output to this loop's output
     ...
 
+    [[loop]]
+    name = "roll"               # a plant given as flight data: identified, then tuned
+    data = {file = "data/roll_sweep.csv", time = "t", input = "roll_cmd", output = "roll",
+            poles = 2, zeros = 0, delay = "auto"}
+    dt = 0.04                   # the delay is fitted in whole samples of dt
+    structure = "pid_z"
+
+``data.file`` is relative to the study file (when loaded with :func:`load_study`); a data
+loop's key includes a hash of the file's contents, so a new log means a new tune.
+
 Loops are tuned in dependency order (inner before outer). Every error names the loop
 and the field (:class:`InvalidStudyError`, a :class:`~tuner.errors.TunerError`).
 """
@@ -35,18 +45,19 @@ import hashlib
 import json
 import math
 import tomllib
+from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from ..controllers import ControllerTF, controller_from_expr, controller_tf, get_structure
 from ..errors import TunerError
 from ..plant import Plant, make_plant, plant_from_expr
 from ..spec import Spec
 
-__all__ = ["InvalidStudyError", "PlantCoeffs", "LoopDef", "StudyDef", "load_study", "parse_study",
-           "base_plants", "loop_key", "controller_of", "thesis_controller_of"]
+__all__ = ["InvalidStudyError", "PlantCoeffs", "PlantData", "LoopDef", "StudyDef", "load_study", "parse_study",
+           "base_plants", "loop_key", "controller_of", "thesis_controller_of", "identified", "data_path"]
 
 _NAME = r"^[A-Za-z0-9_.-]+$"
 
@@ -64,6 +75,37 @@ class PlantCoeffs(BaseModel):
 PlantText = str | PlantCoeffs
 
 
+class PlantData(BaseModel):
+    """A plant given as a flight log: the options of :func:`tuner.identify` and where the columns are."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    file: str = Field(min_length=1, description="CSV log, relative to the study file")
+    input: str = Field(min_length=1, description="column of the plant input")
+    output: str = Field(min_length=1, description="column of the plant output")
+    time: str | None = Field(None, min_length=1, description="time column, s (or rate_hz)")
+    rate_hz: float | None = Field(None, gt=0, description="sample rate, Hz (or time)")
+    poles: int = Field(ge=1, le=8)
+    zeros: int = Field(0, ge=0, le=8)
+    delay: Literal["auto", "none"] | float = Field("auto", description='"auto", "none" or seconds (whole samples of dt)')
+    band: list[float] | None = Field(None, min_length=2, max_length=2, description="fit band [w_min, w_max], rad/s")
+    holdout: float = Field(0.2, ge=0, le=0.5)
+    coherence_min: float = Field(0.6, gt=0, lt=1)
+    n_points: int = Field(25, ge=8, le=200)
+    _path: Path | None = PrivateAttr(None)  # the file resolved against the study's directory
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PlantData:
+        if (self.time is None) == (self.rate_hz is None):
+            raise ValueError("data: give exactly one of time (a column) or rate_hz")
+        if self.zeros > self.poles:
+            raise ValueError(f"data: zeros={self.zeros} is more than poles={self.poles}")
+        if isinstance(self.delay, float) and self.delay < 0:
+            raise ValueError("data: delay must be >= 0 s")
+        if self.band is not None and not 0 < self.band[0] < self.band[1]:
+            raise ValueError(f"data: band must be [w_min, w_max] with 0 < w_min < w_max, got {self.band}")
+        return self
+
+
 class LoopDef(BaseModel):
     """One loop of a study."""
 
@@ -72,6 +114,7 @@ class LoopDef(BaseModel):
     name: str = Field(pattern=_NAME, max_length=64)
     plant: PlantText | None = None
     plants: list[PlantText] | None = Field(None, min_length=1, max_length=50)
+    data: PlantData | None = Field(None, description="the plant as a flight log, identified before tuning")
     plant_dt: float | None = Field(None, gt=0, description="sample time of a plant given in z, s")
     delay: float = Field(0.0, ge=0, description="plant input delay, s")
     dt: float | None = Field(None, gt=0, description="controller sample time, s (None = continuous)")
@@ -94,8 +137,12 @@ class LoopDef(BaseModel):
 
     @model_validator(mode="after")
     def _one_plant_field(self) -> LoopDef:
-        if (self.plant is None) == (self.plants is None):
-            raise ValueError("give exactly one of plant (one model) or plants (a set, tuned robustly)")
+        if sum(x is not None for x in (self.plant, self.plants, self.data)) != 1:
+            raise ValueError("give exactly one of plant (one model), plants (a set, tuned robustly) or data (a "
+                             "flight log to identify the plant from)")
+        if self.data is not None and (self.delay or self.plant_dt is not None):
+            raise ValueError("data: the delay is identified (data.delay) and the plant is continuous; "
+                             "leave delay and plant_dt out")
         if self.structure == "pid_z" and self.dt is None:
             raise ValueError("structure pid_z is discrete: give dt")
         if self.dt is not None and self.delay:
@@ -204,7 +251,7 @@ def parse_study(raw: dict[str, Any], *, source: str = "study") -> StudyDef:
 
 
 def load_study(path: str | Path) -> StudyDef:
-    """Read and validate a study TOML file."""
+    """Read and validate a study TOML file (data files are found relative to it)."""
     p = Path(path)
     try:
         raw = tomllib.loads(p.read_text(encoding="utf-8"))
@@ -213,6 +260,10 @@ def load_study(path: str | Path) -> StudyDef:
     except tomllib.TOMLDecodeError as e:
         raise InvalidStudyError(f"{p}: not valid TOML: {e}") from None
     study = parse_study(raw, source=str(p))
+    for lp in study.loop:
+        if lp.data is not None:
+            f = Path(lp.data.file)
+            lp.data._path = f if f.is_absolute() else p.resolve().parent / f
     for lp in study.loop:  # build every plant and printed controller once, so errors surface early
         try:
             base_plants(lp)
@@ -228,8 +279,57 @@ def _plant(text: PlantText, lp: LoopDef) -> Plant:
     return plant_from_expr(text, dt=lp.plant_dt, delay=lp.delay)
 
 
+def data_path(d: PlantData) -> Path:
+    """Where a data loop's log is (relative to the study file, or to the working directory)."""
+    return d._path if d._path is not None else Path(d.file)
+
+
+def _digest(path: Path) -> str:
+    st = path.stat()
+    return _digest_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
+
+
+@lru_cache(maxsize=64)
+def _digest_cached(path: str, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+@lru_cache(maxsize=32)
+def _identify_cached(path: str, digest: str, options: str, dt: float | None) -> Any:
+    from ..identify import identify
+    from ..identify.csvlog import read_columns
+
+    o = json.loads(options)
+    cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {})}
+    data = read_columns(path, cols)
+    delay = None if o["delay"] == "none" else o["delay"]
+    return identify(data["input"], data["output"], time=data.get("time"), rate_hz=o["rate_hz"], poles=o["poles"],
+                    zeros=o["zeros"], delay=delay, delay_step=dt, band=o["band"], holdout=o["holdout"],
+                    coherence_min=o["coherence_min"], n_points=o["n_points"])
+
+
+def identified(lp: LoopDef) -> Any:
+    """The :class:`~tuner.identify.IdentifyResult` of a data loop (the delay in whole samples of the
+    loop's dt); computed once per file content and options."""
+    if lp.data is None:
+        raise InvalidStudyError(f"loop {lp.name!r} has no data")
+    path = data_path(lp.data)
+    try:
+        digest = _digest(path)
+    except OSError as e:
+        raise InvalidStudyError(f"data: {path}: cannot read: {e.strerror or e}") from None
+    try:
+        return _identify_cached(str(path), digest, lp.data.model_dump_json(), lp.dt)
+    except TunerError as e:
+        where = f"data.{e.field}" if getattr(e, "field", None) else "data"
+        raise type(e)(f"{where} ({lp.data.file}): {e}") from e
+
+
 def base_plants(lp: LoopDef) -> list[Plant]:
-    """The loop's own plants (for a cascade: from the inner loop's output to this loop's output)."""
+    """The loop's own plants (for a cascade: from the inner loop's output to this loop's output);
+    for a data loop, the identified model."""
+    if lp.data is not None:
+        return [identified(lp).plant()]
     out = []
     for i, text in enumerate(lp.plant_list):
         field = "plant" if lp.plant is not None else f"plants[{i}]"
@@ -262,11 +362,17 @@ def _canon(v: Any) -> Any:
 
 def loop_key(study: StudyDef, name: str) -> str:
     """A short hash of everything the loop's result depends on: its definition, the study's
-    seed and budget, and (for a cascade) the loops it wraps. A changed file gives a new key, so
-    results are reused only for the study as it is now."""
+    seed and budget, (for a cascade) the loops it wraps, and the contents of data files. A changed
+    file gives a new key, so results are reused only for the study as it is now."""
     parts = []
     for lp in study.chain(name):
         d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s"})
-        parts.append({k: _canon(v) for k, v in d.items()})
+        entry = {k: _canon(v) for k, v in d.items()}
+        if lp.data is not None:  # the log's contents, not where it lies
+            try:
+                entry["data_sha256"] = _digest(data_path(lp.data))
+            except OSError:
+                entry["data_sha256"] = None
+        parts.append(entry)
     blob = json.dumps({"seed": study.seed, "budget": study.time_budget_s, "loops": parts}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
