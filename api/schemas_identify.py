@@ -20,9 +20,17 @@ from tuner.identify.data import MIN_SAMPLES
 
 from .schemas import Number
 
-__all__ = ["IdentifyOptions", "IdentifyRequest", "IdentifyResponse", "IdentificationRecordOut",
-           "IdentificationSummaryOut", "IdentificationList", "IdentificationData", "MAX_SAMPLES",
-           "IDENTIFY_EXAMPLE"]
+__all__ = [
+    "IDENTIFY_EXAMPLE",
+    "MAX_SAMPLES",
+    "IdentificationData",
+    "IdentificationList",
+    "IdentificationRecordOut",
+    "IdentificationSummaryOut",
+    "IdentifyOptions",
+    "IdentifyRequest",
+    "IdentifyResponse",
+]
 
 MAX_SAMPLES = 250_000  # 200,000-sample logs are accepted; the body cap is TUNER_MAX_IDENTIFY_BODY_BYTES
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-__all__ = ["FlightLog", "AXES", "THIRD_ORDER", "fly", "pilot_sweep", "true_response"]
+__all__ = ["AXES", "THIRD_ORDER", "FlightLog", "fly", "pilot_sweep", "true_response"]
 
 # the thesis's identified attitude models (quadrotor.md), command -> angle
 AXES: dict[str, tuple[list[float], list[float]]] = {
@@ -103,15 +103,15 @@ def fly(num: list[float], den: list[float], *, delay_s: float = 0.04, seed: int 
     ``random_walk`` (per sqrt(s)) in output units.
     """
     rng = np.random.default_rng(seed)
-    n = int(round(duration_s * sim_hz)) + 1
+    n = round(duration_s * sim_hz) + 1
     t = np.arange(n) / sim_hz
     sweep_s = sweep_fraction * duration_s
     u = pilot_sweep(rng, t, sweep_s=sweep_s)
     gust = gust_frac * np.std(u) * _smooth_noise(rng, n, sim_hz, 1.5)
-    d = int(round(delay_s * sim_hz))
+    d = round(delay_s * sim_hz)
     u_plant = np.concatenate([np.zeros(d), u[: n - d]]) + gust
     _, y, _ = signal.lsim((num, den), u_plant, t, interp=True)
-    step = int(round(sim_hz / log_hz))
+    step = round(sim_hz / log_hz)
     tl, ul, yl = t[::step], u[::step], y[::step]
     noise = noise_frac * np.std(yl) * rng.standard_normal(tl.size)
     walk = random_walk * np.cumsum(rng.standard_normal(tl.size)) * np.sqrt(1.0 / log_hz)

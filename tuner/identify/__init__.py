@@ -22,4 +22,4 @@ from __future__ import annotations
 from .core import MAX_POLES, identify
 from .result import IdentifyResult
 
-__all__ = ["identify", "IdentifyResult", "MAX_POLES"]
+__all__ = ["MAX_POLES", "IdentifyResult", "identify"]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import logging
 import math
 import numbers
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -13,7 +14,7 @@ from ..errors import InvalidDataError
 from .data import MIN_SAMPLES, lowest_frequency_rad_s, make_record
 from .result import J_ACCEPTABLE, J_GOOD, J_POINT_MAX, FitPoints, IdentifyResult
 
-__all__ = ["identify", "MAX_POLES", "DelaySpec"]
+__all__ = ["MAX_POLES", "DelaySpec", "identify"]
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +150,7 @@ def identify(
         The fit failed from every start.
     """
     from .fit import fit_model
-    from .spectral import composite, coherent_band, frequency_response
+    from .spectral import coherent_band, composite, frequency_response
 
     poles = _int(poles, "poles", 1, MAX_POLES)
     zeros = _int(zeros, "zeros", 0, poles)

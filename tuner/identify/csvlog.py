@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
 from ..errors import InvalidDataError
 
-__all__ = ["read_columns", "MAX_ROWS"]
+__all__ = ["MAX_ROWS", "read_columns"]
 
 MAX_ROWS = 10_000_000
 

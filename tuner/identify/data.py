@@ -12,14 +12,15 @@ frequencies down to two periods in it, so the lowest identifiable frequency of a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..errors import InvalidDataError
 
-__all__ = ["Record", "make_record", "lowest_frequency_rad_s", "MIN_SAMPLES", "MAX_SAMPLES", "TIME_JITTER"]
+__all__ = ["MAX_SAMPLES", "MIN_SAMPLES", "TIME_JITTER", "Record", "lowest_frequency_rad_s", "make_record"]
 
 MIN_SAMPLES = 128
 MAX_SAMPLES = 10_000_000
@@ -52,17 +53,17 @@ class Record:
     def nyquist_rad_s(self) -> float:
         return float(np.pi / self.dt)
 
-    def detrended(self) -> "Record":
+    def detrended(self) -> Record:
         """Both signals minus their least-squares straight line (trim and slow drift removed)."""
         from scipy.signal import detrend
 
         return Record(u=detrend(self.u, type="linear"), y=detrend(self.y, type="linear"), dt=self.dt, t0=self.t0)
 
-    def split(self, holdout: float) -> tuple["Record", "Record | None"]:
+    def split(self, holdout: float) -> tuple[Record, Record | None]:
         """The first ``1 - holdout`` of the record (for the fit) and the rest (for the check)."""
         if holdout <= 0:
             return self, None
-        k = int(round(self.n * (1.0 - holdout)))
+        k = round(self.n * (1.0 - holdout))
         fit = Record(u=self.u[:k], y=self.y[:k], dt=self.dt, t0=self.t0)
         rest = Record(u=self.u[k:], y=self.y[k:], dt=self.dt, t0=self.t0 + k * self.dt)
         return fit, rest
@@ -78,7 +79,7 @@ def _signal(values: Any, field: str) -> np.ndarray:
     bad = np.flatnonzero(~np.isfinite(a))
     if bad.size:
         i = int(bad[0])
-        raise InvalidDataError(f"{field}[{i}] is {a[i]!r} ({bad.size} non-finite samples in all): remove or "
+        raise InvalidDataError(f"{field}[{i}] is {float(a[i])!r} ({bad.size} non-finite samples in all): remove or "
                                "interpolate them before identification", field=field)
     return a
 
@@ -90,8 +91,8 @@ def _rate_from_time(t: np.ndarray, n: int) -> tuple[float, float]:
     bad = np.flatnonzero(d <= 0)
     if bad.size:
         i = int(bad[0])
-        raise InvalidDataError(f"time is not strictly increasing: time[{i + 1}] = {t[i + 1]!r} after "
-                               f"time[{i}] = {t[i]!r}", field="time")
+        raise InvalidDataError(f"time is not strictly increasing: time[{i + 1}] = {float(t[i + 1])!r} after "
+                               f"time[{i}] = {float(t[i])!r}", field="time")
     dt = float((t[-1] - t[0]) / (n - 1))
     worst = int(np.argmax(np.abs(d - dt)))
     if abs(d[worst] - dt) > TIME_JITTER * dt:

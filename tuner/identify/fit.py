@@ -19,15 +19,15 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from ..errors import IdentificationError
 from .model import Model, Structure, section_kinds
 
-__all__ = ["W_G", "W_P", "coherence_weight", "cost_terms", "Problem", "FitOutcome", "fit_model"]
+__all__ = ["W_G", "W_P", "FitOutcome", "Problem", "coherence_weight", "cost_terms", "fit_model"]
 
 log = logging.getLogger(__name__)
 
@@ -210,8 +210,8 @@ def _whole_samples(prob: Problem, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                    starts: int) -> FitOutcome:
     """Re-fit with the delay fixed at the whole multiples of ``step`` around the free optimum."""
     tau = float(x[-1])
-    k_max = int(math.floor(tau_max / step + 1e-9))
-    ks = sorted({k for k in range(int(math.floor(tau / step)) - 1, int(math.ceil(tau / step)) + 2) if 0 <= k <= k_max}
+    k_max = math.floor(tau_max / step + 1e-9)
+    ks = sorted({k for k in range(math.floor(tau / step) - 1, math.ceil(tau / step) + 2) if 0 <= k <= k_max}
                 or {0})
     st = Structure(poles=prob.structure.poles, zeros=prob.structure.zeros, free_delay=False)
     best = None

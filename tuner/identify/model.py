@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Structure", "Model", "section_kinds"]
+__all__ = ["Model", "Structure", "section_kinds"]
 
 _DB = 20.0 / np.log(10.0)
 _DEG = 180.0 / np.pi
@@ -192,7 +192,7 @@ class Model:
                 "poles": self.structure.poles, "zeros": self.structure.zeros, "parameters": self.values()}
 
     @classmethod
-    def from_values(cls, poles: int, zeros: int, values: dict[str, float]) -> "Model":
+    def from_values(cls, poles: int, zeros: int, values: dict[str, float]) -> Model:
         """Rebuild from :meth:`values` (the delay becomes a fixed one)."""
         st = Structure(poles=poles, zeros=zeros, free_delay=False)
         names = st.names()

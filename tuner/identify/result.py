@@ -13,7 +13,7 @@ from .spectral import FrequencyResponse
 from .uncertainty import ParameterUncertainty
 from .validate import Validation
 
-__all__ = ["FitPoints", "IdentifyResult", "quality_of", "J_GOOD", "J_ACCEPTABLE", "J_POINT_MAX"]
+__all__ = ["J_ACCEPTABLE", "J_GOOD", "J_POINT_MAX", "FitPoints", "IdentifyResult", "quality_of"]
 
 J_GOOD = 50.0  # CIFER guidelines: J <= 50 good, J <= 100 acceptable, single frequencies up to ~200
 J_ACCEPTABLE = 100.0
@@ -39,7 +39,7 @@ class FitPoints:
         return {k: getattr(self, k).tolist() for k in ("w", "mag_db", "phase_deg", "coherence", "cost")}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "FitPoints":
+    def from_dict(cls, d: dict[str, Any]) -> FitPoints:
         return cls(**{k: np.asarray(d[k], dtype=float) for k in ("w", "mag_db", "phase_deg", "coherence", "cost")})
 
 
@@ -113,7 +113,7 @@ class IdentifyResult:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "IdentifyResult":
+    def from_dict(cls, d: dict[str, Any]) -> IdentifyResult:
         """Rebuild from :meth:`to_dict` (e.g. a stored result, to redraw its plot)."""
         m = d["model"]
         model = Model.from_values(int(m["poles"]), int(m["zeros"]), {k: _num(v) for k, v in m["parameters"].items()})

@@ -15,17 +15,28 @@ merged spectra, as COMPOSITE does.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..errors import InvalidDataError
 from .data import Record
 
-__all__ = ["FrequencyResponse", "WindowSpectra", "window_lengths", "window_spectra", "composite",
-           "frequency_response", "coherent_band", "OVERLAP", "N_WINDOWS", "POINTS_PER_DECADE",
-           "MIN_BAND_DECADES"]
+__all__ = [
+    "MIN_BAND_DECADES",
+    "N_WINDOWS",
+    "OVERLAP",
+    "POINTS_PER_DECADE",
+    "FrequencyResponse",
+    "WindowSpectra",
+    "coherent_band",
+    "composite",
+    "frequency_response",
+    "window_lengths",
+    "window_spectra",
+]
 
 OVERLAP = 0.8
 N_WINDOWS = 5
@@ -59,7 +70,7 @@ class FrequencyResponse:
                 "coherence": self.coherence.tolist(), "windows_s": list(self.windows_s)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "FrequencyResponse":
+    def from_dict(cls, d: dict[str, Any]) -> FrequencyResponse:
         w = np.asarray(d["w"], dtype=float)
         h = 10.0 ** (np.asarray(d["mag_db"], dtype=float) / 20.0) * np.exp(1j * np.radians(d["phase_deg"]))
         return cls(w=w, h=h, coherence=np.asarray(d["coherence"], dtype=float),
@@ -84,13 +95,14 @@ class WindowSpectra:
 
 
 def window_lengths(duration_s: float, dt: float, *, w_max_rad_s: float, n: int = N_WINDOWS) -> tuple[float, ...]:
-    """``n`` window lengths, log-spaced from half the record down to the longest of: an eighth of
-    that, 20 periods of ``w_max_rad_s``, 64 samples."""
+    """Up to ``n`` window lengths, log-spaced from half the record down to the longest of: an eighth
+    of that, 20 periods of ``w_max_rad_s``, 64 samples; neighbours at least 1.5 times apart."""
     t_max = duration_s / 2.0
     t_min = max(t_max / 8.0, 20.0 * 2.0 * np.pi / w_max_rad_s, 64 * dt)
-    if t_min >= t_max:
+    k = min(n, 1 + int(np.floor(np.log(t_max / t_min) / np.log(1.5)))) if t_min < t_max else 1
+    if k <= 1:
         return (t_max,)
-    return tuple(float(x) for x in np.geomspace(t_max, t_min, n))
+    return tuple(float(x) for x in np.geomspace(t_max, t_min, k))
 
 
 def _linear_detrend(n: int):

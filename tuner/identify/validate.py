@@ -7,7 +7,7 @@ the measured one over the held-out part of the record:
   space (:meth:`~tuner.identify.model.Model.state_space`), discretised at the log's sample time
   with the delay split into whole samples and a fraction (the modified z-transform of a delayed
   zero-order hold, Åström & Wittenmark), from rest, starting early enough before the held-out
-  part for the start to be forgotten (ten time constants of the slowest pole);
+  part for the start to be forgotten (twenty time constants of the slowest pole: e^-20);
 * an output bias and a linear drift over the held-out part are estimated by least squares
   (sensor offsets are not dynamics), as VERIFY estimates its bias and reference shift;
 * reported: ``nrmse = ||y - y_model|| / ||y - mean(y)||`` (0 = perfect, 1 = no better than the
@@ -27,7 +27,7 @@ import numpy as np
 from .data import Record
 from .model import Model
 
-__all__ = ["Validation", "simulate", "validate", "THEIL_LIMIT"]
+__all__ = ["THEIL_LIMIT", "Validation", "simulate", "validate"]
 
 THEIL_LIMIT = 0.3
 _MAX_SERIES = 1000  # points kept for the plot
@@ -63,7 +63,7 @@ class Validation:
                 "series": {"t": self.t.tolist(), "measured": self.measured.tolist(), "model": self.model.tolist()}}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Validation":
+    def from_dict(cls, d: dict[str, Any]) -> Validation:
         s = d.get("series") or {"t": [], "measured": [], "model": []}
         return cls(t_start_s=float(d["t_start_s"]), duration_s=float(d["duration_s"]), nrmse=float(d["nrmse"]),
                    theil_u=float(d["theil_u"]), rms_error=float(d["rms_error"]), bias=float(d["bias"]),
@@ -88,7 +88,7 @@ def simulate(model: Model, u: np.ndarray, dt: float) -> np.ndarray:
 
     A, B, C, D = model.state_space()
     u = np.asarray(u, dtype=float)
-    k = int(math.floor(model.delay_s / dt + 1e-9))
+    k = math.floor(model.delay_s / dt + 1e-9)
     frac = model.delay_s - k * dt
     uk = np.concatenate([np.zeros(k), u[: u.size - k]]) if k else u
     n = A.shape[0]
@@ -113,9 +113,9 @@ def simulate(model: Model, u: np.ndarray, dt: float) -> np.ndarray:
 def _warmup_samples(model: Model, dt: float) -> int:
     A = model.state_space()[0]
     if A.size == 0:
-        return int(math.ceil(model.delay_s / dt)) + 1
+        return math.ceil(model.delay_s / dt) + 1
     sigma = float(np.min(np.abs(np.linalg.eigvals(A).real)))
-    return int(math.ceil((10.0 / max(sigma, 1e-12) + model.delay_s) / dt)) + 1
+    return math.ceil((20.0 / max(sigma, 1e-12) + model.delay_s) / dt) + 1
 
 
 def validate(model: Model, rec: Record, start: int, *, u_trim: float = 0.0) -> Validation | None:
@@ -138,7 +138,7 @@ def validate(model: Model, rec: Record, start: int, *, u_trim: float = 0.0) -> V
     rms_e = float(np.sqrt(np.mean(e ** 2)))
     scale = float(np.sqrt(np.mean((y_p - ref) ** 2)) + np.sqrt(np.mean((y_model - ref) ** 2)))
     theil = rms_e / scale if scale > 0 else math.inf
-    step = max(1, int(math.ceil(y.size / _MAX_SERIES)))
+    step = max(1, math.ceil(y.size / _MAX_SERIES))
     return Validation(t_start_s=float(t[0]), duration_s=float(y.size * rec.dt), nrmse=nrmse, theil_u=theil,
                       rms_error=rms_e, bias=float(coef[0]), drift_per_s=float(coef[1]), t=t[::step],
                       measured=y_p[::step], model=y_model[::step])

@@ -1,0 +1,116 @@
+"""Study loops whose plant is a flight log: schema, paths, keys, errors, and the example study end to end."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tuner.cli import main
+from tuner.errors import TunerError
+from tuner.studies.schema import (
+    InvalidStudyError,
+    base_plants,
+    identified,
+    load_study,
+    loop_key,
+    parse_study,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+STUDY = ROOT / "studies" / "identified.toml"
+DATA = {"file": "data/pitch_sweep.csv", "time": "t", "input": "pitch_cmd", "output": "pitch", "poles": 2}
+
+
+def _write_study(tmp_path: Path, data: dict, **loop) -> Path:
+    (tmp_path / "data").mkdir(exist_ok=True)
+    shutil.copy(ROOT / "studies" / "data" / "pitch_sweep.csv", tmp_path / "data" / "pitch_sweep.csv")
+    items = ", ".join(f"{k} = {json.dumps(v)}" for k, v in data.items())
+    extra = "".join(f"{k} = {json.dumps(v)}\n" for k, v in loop.items())
+    p = tmp_path / "s.toml"
+    p.write_text(f'name = "s"\n[[loop]]\nname = "pitch"\ndata = {{ {items} }}\ndt = 0.04\nstructure = "pid_z"\n{extra}')
+    return p
+
+
+def test_committed_example_study_identifies_every_axis():
+    s = load_study(STUDY)
+    assert [lp.name for lp in s.loop] == ["roll", "pitch", "yaw"]
+    for lp in s.loop:
+        res = identified(lp)
+        assert res.quality == "good" and res.cost < 50 and res.warnings == ()
+        assert res.model.delay_s == pytest.approx(0.04)  # the logs' true delay, in whole samples of dt
+        (plant,) = base_plants(lp)
+        assert plant.delay_s == pytest.approx(0.04) and not plant.is_discrete
+
+
+def test_data_file_is_relative_to_the_study_file(tmp_path, monkeypatch):
+    p = _write_study(tmp_path, DATA)
+    monkeypatch.chdir(ROOT)  # not the study's directory
+    (lp,) = load_study(p).loop
+    assert identified(lp).quality == "good"
+
+
+def test_the_key_follows_the_logs_contents_not_its_path(tmp_path):
+    p = _write_study(tmp_path, DATA)
+    key = loop_key(load_study(p), "pitch")
+    other = tmp_path / "elsewhere"
+    other.mkdir()
+    shutil.copytree(tmp_path / "data", other / "data")
+    shutil.copy(p, other / "s.toml")
+    assert loop_key(load_study(other / "s.toml"), "pitch") == key  # same contents elsewhere: same key
+    f = other / "data" / "pitch_sweep.csv"
+    lines = f.read_text().splitlines()
+    lines[5] = lines[5].rsplit(",", 1)[0] + ",0.123"
+    f.write_text("\n".join(lines) + "\n")
+    assert loop_key(load_study(other / "s.toml"), "pitch") != key  # a new log: a new tune
+
+
+@pytest.mark.parametrize("data, loop, message", [
+    ({**DATA, "rate_hz": 50.0}, {}, "data: give exactly one of time (a column) or rate_hz"),
+    ({**DATA, "zeros": 3}, {}, "data: zeros=3 is more than poles=2"),
+    ({**DATA, "poles": 0}, {}, "data.poles: Input should be greater than or equal to 1"),
+    ({**DATA, "window": 3}, {}, "data.window: Extra inputs are not permitted"),
+    (DATA, {"delay": 0.04}, "data: the delay is identified (data.delay)"),
+    (DATA, {"plant": "1/s"}, "give exactly one of plant (one model), plants (a set, tuned robustly) or data"),
+])
+def test_schema_errors_name_the_loop_and_the_field(tmp_path, data, loop, message):
+    with pytest.raises(InvalidStudyError) as e:
+        load_study(_write_study(tmp_path, data, **loop))
+    assert "loop 'pitch'" in str(e.value) and message in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"file": "data/missing.csv"}, "data: "),
+    ({"output": "theta"}, "data.output (data/pitch_sweep.csv): "),
+    ({"band": [0.05, 10.0]}, "data.band (data/pitch_sweep.csv): band starts at 0.05 rad/s"),
+    ({"delay": 0.05}, "data.delay (data/pitch_sweep.csv): delay 0.05 s is not a whole number of delay_step=0.04"),
+])
+def test_identification_errors_surface_at_load_naming_the_loop(tmp_path, change, message):
+    with pytest.raises(TunerError) as e:
+        load_study(_write_study(tmp_path, {**DATA, **change}))
+    assert "loop 'pitch'" in str(e.value) and message in str(e.value), str(e.value)
+
+
+def test_parse_study_without_a_file_reads_data_relative_to_the_working_directory(monkeypatch):
+    monkeypatch.chdir(ROOT / "studies")
+    s = parse_study({"name": "t", "loop": [{"name": "pitch", "data": DATA, "dt": 0.04, "structure": "pid_z"}]})
+    assert identified(s.loop[0]).quality == "good"
+
+
+@pytest.mark.slow
+def test_example_study_runs_end_to_end_with_the_fit_in_the_report(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["study", "run", str(STUDY), "--out", str(out), "--check"]) == 0
+    report = (out / "report.md").read_text()
+    assert "## Identified plants" in report and "![pitch fit](plots/pitch_fit.png)" in report
+    for name in ("roll", "pitch", "yaw"):
+        assert (out / "plots" / f"{name}_fit.png").read_bytes()[:4] == b"\x89PNG"
+    res = json.loads((out / "results.json").read_text())
+    ident = res["loops"]["pitch"]["identification"]
+    assert ident["quality"] == "good" and ident["model"]["delay"] == pytest.approx(0.04)
+    assert "series" not in ident["validation"]
+    capsys.readouterr()
+    assert main(["verify", str(STUDY), "--gains", str(out / "gains.json")]) == 0
+    assert "all 3 loops of study 'identified' meet their spec" in capsys.readouterr().out
