@@ -6,14 +6,11 @@ import json
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 from flight import AXES, fly
 
 from api import testing
 from api.deps import get_identify_job
-from api.main import create_app
-from api.settings import Settings, get_settings
-from api.testing import wait_for_workers
+from api.settings import Settings
 
 MAX_BODY = 16_384  # every other route
 MAX_IDENTIFY_BODY = 16_000_000
@@ -24,27 +21,6 @@ def settings(tmp_path_factory):
     db = tmp_path_factory.mktemp("api-identify") / "tuner.db"
     return Settings(database_url=f"sqlite:///{db}", workers=1, queue_size=4, max_body_bytes=MAX_BODY,
                     max_identify_body_bytes=MAX_IDENTIFY_BODY)
-
-
-@pytest.fixture(scope="module")
-def app(settings):
-    return create_app(settings)
-
-
-@pytest.fixture(scope="module")
-def client(app):
-    with TestClient(app) as c:
-        wait_for_workers(c)
-        yield c
-
-
-@pytest.fixture
-def override_settings(app, settings):
-    def apply(**changes):
-        app.dependency_overrides[get_settings] = lambda: settings.model_copy(update=changes)
-
-    yield apply
-    app.dependency_overrides.pop(get_settings, None)
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,6 @@ import threading
 import time
 
 import pytest
-from fastapi.testclient import TestClient
 from quadrotor import DT, ROLL, ROLL_C, YAW
 
 from api import testing
@@ -32,13 +31,6 @@ def app(tmp_path_factory):
                         solve_grace_s=GRACE, solve_grace_fraction=0.0, analyze_timeout_s=30,
                         worker_memory_mb=2048)
     return create_app(settings)
-
-
-@pytest.fixture(scope="module")
-def client(app):
-    with TestClient(app) as c:
-        wait_for_workers(c)
-        yield c
 
 
 @pytest.fixture

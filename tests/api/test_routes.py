@@ -11,13 +11,10 @@ import re
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 from numpy.testing import assert_allclose
 from quadrotor import DT, ROLL, ROLL_C, YAW
 
-from api.main import create_app
-from api.settings import Settings, get_settings
-from api.testing import wait_for_workers
+from api.settings import Settings
 
 MAX_BODY = 16_384
 BUDGET = 1.5  # s, per tune in this module
@@ -28,29 +25,6 @@ def settings(tmp_path_factory):
     db = tmp_path_factory.mktemp("api") / "tuner.db"
     return Settings(database_url=f"sqlite:///{db}", workers=2, queue_size=8, default_budget_s=BUDGET,
                     solve_grace_s=5.0, max_body_bytes=MAX_BODY, max_plants=4)
-
-
-@pytest.fixture(scope="module")
-def app(settings):
-    return create_app(settings)
-
-
-@pytest.fixture(scope="module")
-def client(app):
-    with TestClient(app) as c:
-        wait_for_workers(c)
-        yield c
-
-
-@pytest.fixture
-def override_settings(app, settings):
-    """Run a test with changed settings, injected where the routes read them."""
-
-    def apply(**changes):
-        app.dependency_overrides[get_settings] = lambda: settings.model_copy(update=changes)
-
-    yield apply
-    app.dependency_overrides.pop(get_settings, None)
 
 
 ROLL_BODY = {"plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z", "options": {"seed": 0, "time_budget_s": BUDGET}}
