@@ -108,7 +108,7 @@ def _print(res: Any, a: argparse.Namespace) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    con = Console(highlight=False)
+    con = Console(highlight=False, soft_wrap=True)  # long lines (paths) are not broken
     con.print(f"G(s) = {res.describe()}")
     t = Table(title="parameters (1-sigma Cramér–Rao bound and insensitivity)")
     for c in ("parameter", "value", "CR bound", "CR %", "insensitivity %"):
