@@ -57,8 +57,8 @@ def plot_job(payload: dict[str, Any]) -> bytes:
 def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload``: ``input``, ``output`` (arrays), ``time`` or ``rate_hz``, and the options of
     :func:`tuner.identify` (``poles``, ``zeros``, ``delay``, ...). Returns the JSON-ready result."""
-    from tuner.analysis.verify import jsonable
     from tuner.identify import identify
+    from tuner.jsonio import jsonable
 
     opts = {k: v for k, v in payload.items() if k not in ("input", "output")}
     return jsonable(identify(payload["input"], payload["output"], **opts).to_dict())

@@ -28,11 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.append(str(ROOT / "tests"))  # after the repository: tests/tuner must not shadow the package
 
-from flight import AXES, THIRD_ORDER, fly, true_response
+from flight import AXES, THIRD_ORDER, fly, true_response  # noqa: E402
 
-from tuner import identify
-from tuner.analysis import analyze
-from tuner.plant import make_plant
+from tuner import identify  # noqa: E402
+from tuner.analysis import analyze  # noqa: E402
+from tuner.plant import make_plant  # noqa: E402
 
 DT = 0.04
 CASES = [("roll", AXES["roll"], 2, 1), ("pitch", AXES["pitch"], 2, 2), ("yaw", AXES["yaw"], 1, 3),

@@ -2,7 +2,8 @@
 
 The public surface is ``__all__``: build a plant (:func:`make_plant`, :func:`plant_from_expr`),
 state what "good" means (:class:`Spec`), then :func:`tune` a structure or :func:`analyze` a given
-controller; from flight data, :func:`identify` the plant first. Everything returned has been checked by the verifier (:mod:`tuner.analysis`).
+controller; from flight data, :func:`identify` the plant first. Everything returned has been checked
+by the verifier (:mod:`tuner.analysis`).
 """
 
 from __future__ import annotations

@@ -86,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli"]  # modules with add_parser(sub) registering more sub-commands
+# modules with add_parser(sub) registering more sub-commands
+_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli"]
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:

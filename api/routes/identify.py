@@ -11,7 +11,7 @@ from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from tuner.analysis.verify import jsonable
+from tuner.jsonio import jsonable
 
 from ..convert import FieldError, error_type
 from ..deps import get_identify_job, get_identify_plot_job, get_pool, get_store
@@ -86,8 +86,8 @@ async def post_identify(
                                  "stopped; decimate the record or fit fewer poles") from None
     except JobFailed as e:
         if e.kind == "tuner_error":
-            field = e.info.get("field") or "input"
-            raise FieldError(("body", field), e.info["message"], type=error_type(e.info["error"])) from None
+            field = tuple(e.info.get("field") or ("input",))  # the library's path is the body's
+            raise FieldError(("body", *field), e.info["message"], type=error_type(e.info["error"])) from None
         raise HTTPException(500, internal_message(e.info, "identification")) from None
     request = {**options, "n_samples": len(body.input), "sampling": "time" if body.time is not None else "rate_hz"}
     data = {"input": body.input, "output": body.output, "time": body.time, "rate_hz": body.rate_hz}

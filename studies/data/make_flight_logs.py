@@ -19,7 +19,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1] / "tests"))
 
-from flight import AXES, fly
+from flight import AXES, fly  # noqa: E402
 
 SEEDS = {"roll": 11, "pitch": 12, "yaw": 13}
 DELAY_S = 0.04

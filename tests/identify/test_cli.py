@@ -30,7 +30,8 @@ def log():
 
 @pytest.fixture
 def csv_file(tmp_path, log):
-    return _write(tmp_path / "pitch.csv", ([f"{t:.6g}", f"{u:.6g}", f"{y:.6g}"] for t, u, y in zip(log.t, log.u, log.y)))
+    rows = ([f"{t:.6g}", f"{u:.6g}", f"{y:.6g}"] for t, u, y in zip(log.t, log.u, log.y))
+    return _write(tmp_path / "pitch.csv", rows)
 
 
 ARGS = ["--time", "t", "--input", "cmd", "--output", "angle", "--poles", "2", "--delay-step", "0.04"]

@@ -20,7 +20,7 @@ def log():
 def _raises(field: str, match: str, **kw):
     with pytest.raises(InvalidDataError, match=match) as e:
         identify(**kw)
-    assert e.value.field == field, e.value.field
+    assert e.value.field == (field,), e.value.field
     assert isinstance(e.value, TunerError) and isinstance(e.value, ValueError)
     return e.value
 

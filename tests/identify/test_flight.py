@@ -122,8 +122,8 @@ def test_identification_is_deterministic(cases):
 def test_plant_plot_and_round_trip(cases):
     from matplotlib.figure import Figure
 
-    from tuner.analysis.verify import jsonable
     from tuner.identify import IdentifyResult
+    from tuner.jsonio import jsonable
 
     _, res = cases["roll"]
     p = res.plant()

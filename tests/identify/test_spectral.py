@@ -109,6 +109,6 @@ def test_coherent_band_refuses_a_chance_stretch():
     coh = np.where((w >= 1.0) & (w <= 1.5), 0.7, 0.1)  # 0.18 decades
     with pytest.raises(InvalidDataError, match=r"only over .* \(0.1[0-9] decades; at least 0.25") as e:
         coherent_band(FrequencyResponse(w=w, h=np.ones(w.size, complex), coherence=coh))
-    assert e.value.field == "output"
+    assert e.value.field == ("output",)
     with pytest.raises(InvalidDataError, match="no coherent band"):
         coherent_band(_fr(np.full(50, 0.3)))

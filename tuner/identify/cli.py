@@ -80,7 +80,7 @@ def _run(a: argparse.Namespace):
                         zeros=a.zeros, delay=a.delay, delay_step=a.delay_step, band=a.band, holdout=a.holdout,
                         coherence_min=a.coherence_min, n_points=a.points, seed=a.seed)
     except TunerError as e:
-        opt = _OPTION.get(e.field or "")
+        opt = _OPTION.get(str(e.field[0]) if e.field else "")
         if opt is None or str(e).startswith(str(a.file)):
             raise
         name = {"--input": a.input, "--output": a.output, "--time": a.time}.get(opt)
@@ -88,7 +88,7 @@ def _run(a: argparse.Namespace):
 
 
 def _cmd_identify(a: argparse.Namespace) -> int:
-    from ..analysis.verify import jsonable
+    from ..jsonio import jsonable
 
     res = _run(a)
     if a.plot:

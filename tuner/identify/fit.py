@@ -115,7 +115,8 @@ def _bounds(st: Structure, band: tuple[float, float], k0: float, tau_max: float)
     return np.array(lo), np.array(hi)
 
 
-def _shape_starts(st: Structure, band: tuple[float, float], n_starts: int, rng: np.random.Generator) -> list[list[float]]:
+def _shape_starts(st: Structure, band: tuple[float, float], n_starts: int,
+                  rng: np.random.Generator) -> list[list[float]]:
     """Section parameters (log wn, log zeta, log a; poles then zeros) for each start."""
     kinds = section_kinds(st.poles) + section_kinds(st.zeros)
     lo, hi = math.log(band[0]), math.log(band[1])

@@ -86,7 +86,7 @@ class PlantData(BaseModel):
     rate_hz: float | None = Field(None, gt=0, description="sample rate, Hz (or time)")
     poles: int = Field(ge=1, le=8)
     zeros: int = Field(0, ge=0, le=8)
-    delay: Literal["auto", "none"] | float = Field("auto", description='"auto", "none" or seconds (whole samples of dt)')
+    delay: Literal["auto", "none"] | float = Field("auto", description='"auto", "none", or seconds (whole samples)')
     band: list[float] | None = Field(None, min_length=2, max_length=2, description="fit band [w_min, w_max], rad/s")
     holdout: float = Field(0.2, ge=0, le=0.5)
     coherence_min: float = Field(0.6, gt=0, lt=1)
@@ -321,8 +321,8 @@ def identified(lp: LoopDef) -> Any:
     try:
         return _identify_cached(str(path), digest, lp.data.model_dump_json(), lp.dt)
     except TunerError as e:
-        where = f"data.{e.field}" if getattr(e, "field", None) else "data"
-        raise type(e)(f"{where} ({lp.data.file}): {e}") from e
+        where = "data." + ".".join(str(x) for x in e.field) if e.field else "data"
+        raise type(e)(f"{where} ({lp.data.file}): {e}", field=("data", *e.field)) from e
 
 
 def base_plants(lp: LoopDef) -> list[Plant]:
