@@ -139,7 +139,9 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     if a.out:
-        Path(a.out).write_text(text)
+        head = ("# Identification cases (issue 13)\n\nWritten by `.venv/bin/python bench/identify_cases.py --out "
+                f"{a.out}`; see the script's docstring for what each column is. Errors are identified minus true.\n\n")
+        Path(a.out).write_text(head + text)
 
 
 if __name__ == "__main__":
