@@ -218,3 +218,20 @@ def test_storage_does_not_change_the_result(stored):
     _, with_db, in_memory = stored
     assert with_db.gains == in_memory.gains
     assert with_db.meets_spec and in_memory.meets_spec
+
+
+@pytest.mark.parametrize("name", ["lead", "lag", "leadlag", "pd", "pid"])
+@pytest.mark.parametrize("dt", [1.0, 10.0, 1000.0, 10000.0])
+def test_box_stays_ordered_at_a_large_dt(name, dt):
+    """Issue 11: at dt = 1000 the frequency floor 1e-4/w0 passed the ceiling pi/dt (inverted bounds, then
+    Optuna's ValueError and a 500). Every coordinate's box must be non-empty, and every point of it a valid
+    controller (frequencies in (0, pi/dt] where the box is not a ratio)."""
+    st = get_structure(name)
+    plant = plant_from_expr("1/(s+1)")
+    space = make_space(st, plant, dt)
+    assert np.all(space.lo < space.hi), (space.names, space.lo, space.hi)
+    for v in _box_points(space):
+        _check_valid(st, space.params(v), dt)
+    for i, (kind, j) in enumerate(zip(st.kinds, space._ratio_of)):
+        if kind == "freq" and j is None:
+            assert 10 ** space.hi[i] <= np.pi / dt * (1 + 1e-12)

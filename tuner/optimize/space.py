@@ -119,7 +119,9 @@ def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: P
                 hi.append(max(0.0, RATIO_DECADES * sign) - (1e-3 if sign < 0 else 0.0))
                 names.append(f"log10_{p}_over_{structure.params[j]}")
             else:
-                lo_v = max(lo_p[i], 1e-4 / w0)
+                # a time constant's box starts at 0 (no log): floor it at 1e-4/w0; a frequency's box
+                # is already > 0 and its floor must not pass its ceiling (pi/dt at a large dt)
+                lo_v = lo_p[i] if kind == "freq" else max(lo_p[i], 1e-4 / w0)
                 lo.append(math.log10(lo_v)), hi.append(math.log10(hi_p[i]))
                 names.append(f"log10_{p}")
         else:
