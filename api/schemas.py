@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from tuner.controllers import STRUCTURES
+from tuner.controllers import MAX_CONTROLLER_ORDER, STRUCTURES
 from tuner.plant import MAX_ORDER
 from tuner.problem import MAX_PLANTS
 from tuner.spec import Spec
@@ -84,8 +84,11 @@ class ControllerIn(_In):
 
     expr: str | None = Field(None, min_length=1, max_length=MAX_EXPR_CHARS,
                              description="e.g. 3.868*(z^2-1.305*z+0.5668)/(z*(z-1))")
-    num: list[Coeff] | None = Field(None, min_length=1, max_length=2 * MAX_ORDER + 1)
-    den: list[Coeff] | None = Field(None, min_length=1, max_length=2 * MAX_ORDER + 1)
+    num: list[Coeff] | None = Field(None, min_length=1, max_length=MAX_CONTROLLER_ORDER + 1,
+                                    description="numerator, highest power first")
+    den: list[Coeff] | None = Field(None, min_length=1, max_length=MAX_CONTROLLER_ORDER + 1,
+                                    description=f"denominator, highest power first; order <= {MAX_CONTROLLER_ORDER} "
+                                                "(also for expr)")
     structure: StructureName | None = None
     gains: dict[str, Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
         None, max_length=16, description="named parameters of the structure, e.g. {K, a1, a2} for pid_z")

@@ -33,12 +33,14 @@ import numpy as np
 
 from .errors import InvalidControllerError, TunerError
 from .lti import SS, Zpk, realize
-from .plant import check_dt, tf_freqresp
+from .plant import MAX_ORDER, check_dt, tf_freqresp
 
 GAIN_SPAN = 100.0
+MAX_CONTROLLER_ORDER = 2 * MAX_ORDER  # one limit for every form (expression, coefficients): 40
 
 __all__ = [
     "GAIN_SPAN",
+    "MAX_CONTROLLER_ORDER",
     "ControllerTF",
     "Structure",
     "STRUCTURES",
@@ -292,7 +294,29 @@ def controller_from_expr(text: str, *, dt: float | None) -> ControllerTF:
     if p.num.size > p.den.size:
         raise InvalidControllerError("controller is improper (more zeros than poles): add a filter pole",
                                      field="expr")
-    return ControllerTF(num=p.num, den=p.den, dt=dt)
+    _check_order(p.den.size - 1, "expr")
+    return _checked(ControllerTF(num=p.num, den=p.den, dt=dt), "expr")
+
+
+def _check_order(order: int, field: str) -> None:
+    if order > MAX_CONTROLLER_ORDER:
+        raise InvalidControllerError(f"controller order {order} is above the limit {MAX_CONTROLLER_ORDER} "
+                                     "(the same for an expression and for coefficients): reduce the order",
+                                     field=field)
+
+
+def _checked(c: ControllerTF, field: str) -> ControllerTF:
+    """``c`` if its zeros, poles and gain are finite (the factored form every computation uses)."""
+    with np.errstate(all="ignore"):
+        try:
+            zk = c.zpk
+        except (np.linalg.LinAlgError, ValueError) as e:
+            raise InvalidControllerError(f"the controller's zeros and poles cannot be computed ({e}): rescale "
+                                         "its coefficients", field=field) from None
+    if not (np.all(np.isfinite(zk.zeros)) and np.all(np.isfinite(zk.poles)) and np.isfinite(zk.gain)):
+        raise InvalidControllerError("the controller's zeros, poles or gain are not finite: rescale its "
+                                     "coefficients", field=field)
+    return c
 
 
 def controller_from_coeffs(num: Sequence[float], den: Sequence[float], *, dt: float | None) -> ControllerTF:
@@ -321,4 +345,5 @@ def controller_from_coeffs(num: Sequence[float], den: Sequence[float], *, dt: fl
     if not (np.all(np.isfinite(n)) and np.all(np.isfinite(d))):
         raise InvalidControllerError("coefficients overflow when the denominator is made monic: rescale them",
                                      field="den")
-    return ControllerTF(num=n, den=d, dt=dt)
+    _check_order(d.size - 1, "den")
+    return _checked(ControllerTF(num=n, den=d, dt=dt), "den")
