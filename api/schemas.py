@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from tuner.controllers import MAX_CONTROLLER_ORDER, STRUCTURES
-from tuner.plant import MAX_ORDER
+from tuner.plant import MAX_DT_S, MAX_ORDER, MIN_DT_S
 from tuner.problem import MAX_PLANTS
 from tuner.spec import Spec
 
@@ -26,8 +26,6 @@ __all__ = [
 
 MAX_EXPR_CHARS = 1000
 MAX_COEFF = 1e100  # |coefficient| bound: far beyond any physical model, far from float overflow
-MIN_DT_S = 1e-6  # 1 us: faster than any digital controller this tunes; keeps pi/dt and grids finite
-MAX_DT_S = 1e4
 MAX_DELAY_S = 1e4
 
 Coeff = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COEFF, le=MAX_COEFF)]

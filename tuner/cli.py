@@ -1,7 +1,12 @@
 """The ``tuner`` command line.
 
-Exit codes: 0 success; 1 a checked spec is not met (``verify``, or ``--check``);
-2 bad input (the message names the problem; no traceback).
+Exit codes, the same for every command (:data:`EXIT_CODES`, printed by ``--help``):
+
+* 0: done, and every spec checked is met;
+* 1: done, but a spec is not met (``analyze``, ``tune``, ``verify``, ``study run``): the output (also
+  ``--json``, on stdout) says what fails;
+* 2: bad input: one line on stderr naming the argument and what to change, no traceback;
+* 3: an internal error (a bug: please report it; ``-v`` prints the traceback).
 """
 
 from __future__ import annotations
@@ -16,9 +21,16 @@ from typing import Any
 
 from .errors import TunerError
 
-__all__ = ["main"]
+__all__ = ["main", "EXIT_OK", "EXIT_SPEC_NOT_MET", "EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_CODES"]
 
 log = logging.getLogger("tuner")
+
+EXIT_OK, EXIT_SPEC_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
+EXIT_CODES = """exit codes (every command):
+  0  done, and every spec checked is met
+  1  done, but a spec is not met (the output, --json included, says what fails)
+  2  bad input: one line on stderr naming the argument and what to change
+  3  internal error (a bug: please report it; -v prints the traceback)"""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -57,9 +69,12 @@ def _spec_from_args(a: argparse.Namespace):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="tuner", description="Optimisation-based controller tuning with an independent verifier.")
-    p.add_argument("-v", "--verbose", action="store_true")
+    p = _Parser(prog="tuner", description="Optimisation-based controller tuning with an independent verifier.",
+                epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress; print the traceback of an "
+                   "internal error")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+    sub.add_parser = _with_exit_codes(sub.add_parser)
 
     a = sub.add_parser("analyze", help="verify a controller on a plant: margins, step metrics, spec checks")
     a.add_argument("--plant", required=True, help="plant expression in s, or in z with --dt")
@@ -67,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds")
     a.add_argument("--controller", required=True, help="controller expression (in z with --dt, else in s)")
     a.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    a.add_argument("--check", action="store_true", help="exit 1 when the spec is not met")
+    a.add_argument("--check", action="store_true",
+                   help="kept for compatibility: the exit code is 1 whenever the spec is not met")
     _add_spec_args(a)
 
     t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec")
@@ -84,6 +100,28 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _EXTRA_COMMANDS:
         __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
     return p
+
+
+def _with_exit_codes(add_parser: Any) -> Any:
+    """Every sub-command's ``--help`` ends with the exit codes (nested sub-commands too)."""
+
+    def add(*args: Any, **kw: Any) -> argparse.ArgumentParser:
+        kw.setdefault("epilog", EXIT_CODES)
+        kw.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        parser = add_parser(*args, **kw)
+        parser.add_subparsers = _nested(parser.add_subparsers)
+        return parser
+
+    return add
+
+
+def _nested(add_subparsers: Any) -> Any:
+    def make(*args: Any, **kw: Any) -> Any:
+        action = add_subparsers(*args, **kw)
+        action.add_parser = _with_exit_codes(action.add_parser)
+        return action
+
+    return make
 
 
 # modules with add_parser(sub) registering more sub-commands
@@ -155,11 +193,11 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
             f"{c.name} = {fmt(c.achieved)} (required {c.op} {fmt(c.required)})" for c in res.failing
         )
         print(f"controller {verdict}")
-    return 1 if (a.check and not res.meets_spec) else 0
+    return EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
 
 
 def _cmd_tune(a: argparse.Namespace) -> int:
-    from .plant import plant_from_expr
+    from .plant import check_dt, plant_from_expr
     from .tuning import tune
 
     spec = _spec_from_args(a)
@@ -167,15 +205,18 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     for i, text in enumerate(a.plant):
         with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
             plants.append(plant_from_expr(text, dt=a.dt, delay=a.delay))
-    if not (0 < a.budget <= 3600):
+    if not (0 < a.budget <= 3600):  # (nan fails too)
         raise TunerError("--budget: must be > 0 and <= 3600 seconds")
+    with field("--dt"):
+        check_dt(a.dt)
     if not (0 <= a.seed < 2**32):  # Optuna's sampler seeds numpy, which rejects anything else
         raise TunerError("--seed: must be an integer from 0 to 2**32 - 1")
     res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget)
     out = res.to_json()
+    code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
         print(json.dumps(out, indent=2))
-        return 0
+        return code
     gains = ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items())
     c = res.controller
     var = "z" if c.dt else "s"
@@ -193,10 +234,26 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         print("meets the spec on every plant" if len(plants) > 1 else "meets the spec")
     else:
         print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
-    return 0
+    return code
 
 
 _COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune}
+
+
+_ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
+              "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec"}
+
+
+def _argument_of(f: tuple[str | int, ...]) -> str | None:
+    """The command-line argument a library error's ``field`` is about (``("plants", 1, "delay")`` -> --delay)."""
+    if not f:
+        return None
+    if f[0] in ("plants", "plant"):
+        rest = f[2:] if len(f) > 1 and isinstance(f[1], int) else f[1:]
+        if rest[:1] in (("delay",), ("dt",)):
+            return _ARGUMENTS[str(rest[0])]
+        return f"--plant #{f[1] + 1}" if len(f) > 1 and isinstance(f[1], int) and f[1] > 0 else "--plant"
+    return _ARGUMENTS.get(str(f[0]))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -207,11 +264,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(handler(args))
     except TunerError as e:
-        print(f"tuner: error: {e}", file=sys.stderr)
-        return 2
+        msg = str(e)
+        arg = _argument_of(e.field)
+        if arg and not msg.startswith("-"):
+            msg = f"{arg}: {msg}"
+        print(f"tuner: error: {msg}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("tuner: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # a bug, not the user's input: say so, and keep exit 1 meaning "spec not met"
+        if args.verbose:
+            log.exception("internal error")
+        print(f"tuner: internal error ({type(e).__name__}: {e}); this is a bug, please report it "
+              "(-v prints the traceback)", file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

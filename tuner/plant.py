@@ -25,22 +25,29 @@ from .lti import SS, Zpk, realize, zoh, zpk_from_ss
 from .lti import freqresp as lti_freqresp
 
 __all__ = ["Plant", "tf_freqresp", "make_plant", "make_plant_zpk", "plant_from_expr", "MAX_ORDER", "delay_in_samples",
-           "check_dt"]
+           "check_dt", "MIN_DT_S", "MAX_DT_S"]
 
 MAX_ORDER = 20
+MIN_DT_S = 1e-6  # 1 us: faster than any digital controller this tunes; keeps pi/dt and the grids finite
+MAX_DT_S = 1e4  # the library's, the CLI's and the service's limits (one constant)
 _SAMPLE_TOL = 1e-9
 
 
 def check_dt(dt: float | None, *, what: str = "dt") -> float | None:
-    """Validate a sample time: ``None`` (continuous) or a finite number > 0."""
+    """Validate a sample time: ``None`` (continuous) or a number in [``MIN_DT_S``, ``MAX_DT_S``] seconds."""
     if dt is None:
         return None
+    if isinstance(dt, bool):
+        raise InvalidPlantError(f"{what} must be a number of seconds, got {dt!r}", field=what)
     try:
         v = float(dt)
     except (TypeError, ValueError) as e:
-        raise InvalidPlantError(f"{what} must be a number, got {dt!r}", field=what) from e
+        raise InvalidPlantError(f"{what} must be a number of seconds, got {dt!r}", field=what) from e
     if not np.isfinite(v) or v <= 0:
         raise InvalidPlantError(f"{what} must be finite and > 0, got {dt!r}", field=what)
+    if not MIN_DT_S <= v <= MAX_DT_S:
+        raise InvalidPlantError(f"{what} = {v:g} s is outside [{MIN_DT_S:g}, {MAX_DT_S:g}] s: give a sample time "
+                                "in that range", field=what)
     return v
 
 

@@ -37,7 +37,7 @@ def _strict_json(text: str):
 def test_table_reports_pitch_x27_failing_with_values(capsys):
     rc = main(PITCH_X27)
     out, err = capsys.readouterr()
-    assert rc == 0  # without --check, a failed spec is reported, not an error
+    assert rc == 1  # a failed spec is reported, and exit 1 says so (with or without --check)
     assert err == ""
     assert "51.37" in out and "18.87" in out  # PM 51.4 deg, overshoot 18.9 %
     assert out.count("FAIL") == 2
@@ -67,7 +67,7 @@ def test_spec_options_change_the_verdict(capsys):
 # -- --json -------------------------------------------------------------------------------------
 
 def test_json_pitch_x27(capsys):
-    assert main(PITCH_X27 + ["--json"]) == 0
+    assert main(PITCH_X27 + ["--json"]) == 1  # spec not met: exit 1, the JSON still on stdout
     doc = _strict_json(capsys.readouterr().out)
     assert set(doc) == {"metrics", "checks", "meets_spec"}
     m = doc["metrics"]
@@ -144,7 +144,7 @@ def test_real_processes():
 
     # --json, through the console script
     p = done["json"]
-    assert p.returncode == 0, p.stderr
+    assert p.returncode == 1, p.stderr  # the spec is not met
     doc = _strict_json(p.stdout)
     assert set(doc["metrics"]) == METRIC_KEYS
     assert doc["metrics"]["phase_margin_deg"] == pytest.approx(51.4, abs=0.5)

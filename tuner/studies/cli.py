@@ -1,8 +1,8 @@
 """``tuner study run`` and ``tuner verify``: the command-line side of studies.
 
 Registered in :mod:`tuner.cli` through ``_EXTRA_COMMANDS``. Exit codes as for the rest of
-the CLI: 0 success; 1 a loop fails its spec (``verify``, ``study run --check``) or the
-study could not be finished; 2 bad input (one line naming the problem).
+the CLI (:data:`tuner.cli.EXIT_CODES`): 0 success; 1 a loop fails its spec (``verify``, ``study run``)
+or the study could not be finished; 2 bad input (one line naming the problem); 3 internal error.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ def add_parser(sub: Any) -> None:
                    help="Optuna storage shared by the workers (default sqlite:///DIR/study.db); "
                         "postgresql://user@host:5432/db for several machines")
     r.add_argument("--out", default=None, metavar="DIR", help="output directory (default results/<study name>)")
-    r.add_argument("--check", action="store_true", help="exit 1 when a loop does not meet its spec")
+    r.add_argument("--check", action="store_true",
+                   help="kept for compatibility: the exit code is 1 whenever a loop does not meet its spec")
     r.add_argument("--heartbeat", type=int, default=2, metavar="S", help="claim heartbeat interval, s (2)")
     r.add_argument("--grace", type=int, default=30, metavar="S",
                    help="a claim without a heartbeat for this long is taken over, s (30)")
@@ -205,7 +206,7 @@ def _cmd_study_run(a: argparse.Namespace) -> int:
         return 1
     doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots)
     _print_summary(doc, time.perf_counter() - t0, out)
-    return 1 if (a.check and not doc["meets_spec"]) else 0
+    return 0 if doc["meets_spec"] else 1
 
 
 def _print_summary(doc: dict[str, Any], wall: float, out: Path) -> None:
@@ -238,6 +239,8 @@ def _cmd_verify(a: argparse.Namespace) -> int:
         data = json.loads(Path(a.gains).read_text(encoding="utf-8"))
     except OSError as e:
         raise TunerError(f"--gains {a.gains}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise TunerError(f"--gains {a.gains}: not UTF-8 text (byte {e.start}): save it as UTF-8 JSON") from None
     except json.JSONDecodeError as e:
         raise TunerError(f"--gains {a.gains}: not valid JSON: {e}") from None
     evals = evaluate_gains(study, check_gains_file(study, data, source=a.gains))

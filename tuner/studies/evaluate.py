@@ -158,6 +158,9 @@ def check_gains_file(study: StudyDef, data: Any, *, source: str = "gains") -> di
             raise InvalidStudyError(f"{source}: loop {lp.name!r}: structure is {e.get('structure')!r}, "
                                     f"the study says {lp.structure!r}")
         dt = e.get("dt", lp.dt)
+        if dt is not None and (isinstance(dt, bool) or not isinstance(dt, (int, float))):
+            raise InvalidStudyError(f"{source}: loop {lp.name!r}: dt must be a number of seconds (or null), "
+                                    f"got {dt!r}")
         if (dt is None) != (lp.dt is None) or (dt is not None and abs(float(dt) - lp.dt) > 1e-12 * lp.dt):
             raise InvalidStudyError(f"{source}: loop {lp.name!r}: dt is {dt}, the study says {lp.dt}")
         try:

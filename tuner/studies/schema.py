@@ -53,7 +53,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
 
 from ..controllers import ControllerTF, controller_from_expr, controller_tf, get_structure
 from ..errors import TunerError
-from ..plant import Plant, make_plant, plant_from_expr
+from ..plant import MAX_DT_S, MIN_DT_S, Plant, make_plant, plant_from_expr
 from ..spec import Spec
 
 __all__ = ["InvalidStudyError", "PlantCoeffs", "PlantData", "LoopDef", "StudyDef", "load_study", "parse_study",
@@ -115,9 +115,11 @@ class LoopDef(BaseModel):
     plant: PlantText | None = None
     plants: list[PlantText] | None = Field(None, min_length=1, max_length=50)
     data: PlantData | None = Field(None, description="the plant as a flight log, identified before tuning")
-    plant_dt: float | None = Field(None, gt=0, description="sample time of a plant given in z, s")
-    delay: float = Field(0.0, ge=0, description="plant input delay, s")
-    dt: float | None = Field(None, gt=0, description="controller sample time, s (None = continuous)")
+    plant_dt: float | None = Field(None, ge=MIN_DT_S, le=MAX_DT_S, allow_inf_nan=False,
+                                   description="sample time of a plant given in z, s")
+    delay: float = Field(0.0, ge=0, allow_inf_nan=False, description="plant input delay, s")
+    dt: float | None = Field(None, ge=MIN_DT_S, le=MAX_DT_S, allow_inf_nan=False,
+                             description="controller sample time, s (None = continuous)")
     structure: str
     spec: Spec = Spec()
     inner: str | None = Field(None, description="name of the loop this one wraps (a cascade)")
@@ -257,6 +259,8 @@ def load_study(path: str | Path) -> StudyDef:
         raw = tomllib.loads(p.read_text(encoding="utf-8"))
     except OSError as e:
         raise InvalidStudyError(f"{p}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise InvalidStudyError(f"{p}: not UTF-8 text (byte {e.start}): save the study file as UTF-8") from None
     except tomllib.TOMLDecodeError as e:
         raise InvalidStudyError(f"{p}: not valid TOML: {e}") from None
     study = parse_study(raw, source=str(p))
