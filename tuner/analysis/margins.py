@@ -59,6 +59,7 @@ def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
         roots = roots[(np.abs(roots) > 1e-12) & (np.abs(roots - 1.0) > 1e-9)]
         roots = np.log(roots.astype(complex)) / loop.dt
     mags = np.abs(roots)
+    mags = np.concatenate([mags, _asymptote_crossings(loop)])
     mags = mags[(mags > 1e-9) & np.isfinite(mags)]
     wnyq = loop.nyquist_w()
     lo = (mags.min() if mags.size else 1.0) / 100.0
@@ -70,6 +71,37 @@ def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
         hi = max(hi, 20.0 / loop.delay_s)
         lo = min(lo, 0.01 / loop.delay_s)
     return np.logspace(np.log10(lo), np.log10(hi), n)
+
+
+def _asymptote_crossings(loop: Loop) -> np.ndarray:
+    """Where the low- and high-frequency asymptotes of ``|L|`` cross 1 (rad/s), from the factored form in logs.
+
+    A loop with a very large or very small gain crosses over far from every pole and zero (a gain of
+    1e150 on 1/(s+1) crosses at 1e150 rad/s): the grid must reach it, or "no crossing" would be reported.
+    Low: ``|L| ~ |K_q| / w^q`` with ``q`` integrators (z = 1 in discrete time: ``w dt`` for ``w``);
+    high (continuous): ``|L| ~ |k| w^-r`` with relative degree ``r``.
+    """
+    zk = loop.zpk
+    if zk.gain == 0 or not np.isfinite(zk.gain):
+        return np.zeros(0)
+    x0 = 0.0 if loop.dt is None else 1.0
+    zeros, poles = zk.zeros, zk.poles
+    if loop.dt is not None:  # delay poles at z = 0 have |1 - 0| = 1: they do not change |K_q|
+        poles = poles[np.abs(poles) > 1e-12]
+    tol = 1e-9
+    zi, pi_ = np.abs(zeros - x0) < tol, np.abs(poles - x0) < tol
+    out = []
+    q = int(pi_.sum() - zi.sum())
+    with np.errstate(divide="ignore"):
+        if q > 0:
+            lk = math.log10(abs(zk.gain)) + np.sum(np.log10(np.abs(x0 - zeros[~zi]))) \
+                - np.sum(np.log10(np.abs(x0 - poles[~pi_])))
+            w = 10.0 ** np.clip(lk / q, -300, 300)
+            out.append(w / loop.dt if loop.dt is not None else w)
+        r = zk.poles.size - zk.zeros.size
+        if loop.dt is None and r > 0:
+            out.append(10.0 ** np.clip(math.log10(abs(zk.gain)) / r, -300, 300))
+    return np.asarray(out, dtype=float)
 
 
 def _root(fv, a: float, b: float, *, rounds: int = 4, n: int = 24) -> float:

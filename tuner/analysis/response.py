@@ -35,7 +35,7 @@ from scipy import linalg
 
 from ..loop import FineDelayLoop, Loop, _continuous_loop
 
-__all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "step_response", "step_metrics",
+__all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response", "step_metrics",
            "default_horizon", "steady_state"]
 
 SAMPLES_PER_DT = 20
@@ -116,13 +116,54 @@ def closed_loop_poles(loop: Loop) -> np.ndarray:
     return np.linalg.eigvals(A) if A.size else np.zeros(0, complex)
 
 
-def is_stable(loop: Loop, poles: np.ndarray | None = None) -> bool:
+def stability(loop: Loop, poles: np.ndarray | None = None) -> bool | None:
+    """``True`` stable, ``False`` unstable (or marginal), ``None`` when double precision cannot tell.
+
+    Each pole must be inside by ``1e-9 * max(1, |p|)`` (its own magnitude: a pole at -1 beside one
+    at -1e10 is as stable as alone), and by the precision of the eigenvalues, ``1e3 eps ||A||`` of the
+    balanced closed-loop matrix. A pole within that precision of the boundary but clear of the
+    ``1e-9`` band is undecidable (``None``): the loop's dynamics span too many decades (a gain of
+    1e150 on 1/(s+1) with integral action puts poles at -1 and -1e150).
+    """
     p = closed_loop_poles(loop) if poles is None else poles
     if p.size == 0:
         return True
     if loop.dt is None:
-        return bool(np.max(p.real) < -1e-9 * max(1.0, np.max(np.abs(p))))
-    return bool(np.max(np.abs(p)) < 1.0 - 1e-9)
+        margin, own = -p.real, 1e-9 * np.maximum(1.0, np.abs(p))
+    else:
+        margin, own = 1.0 - np.abs(p), np.full(p.size, 1e-9)
+    prec = _eig_precision(loop)
+    if np.all(margin > np.maximum(own, prec)):
+        return True
+    if np.any(margin < -np.maximum(own, prec)):
+        return False
+    undecided = (np.abs(margin) <= prec) & (prec > own)
+    if np.any((np.abs(margin) <= own) & ~undecided):  # marginal, and precision can tell
+        return False
+    return None
+
+
+def _eig_precision(loop: Loop) -> float:
+    """Absolute accuracy of the closed-loop eigenvalues: ``1e3 eps ||A||_1`` of the balanced matrix (the
+    delay model's poles are refined on the exact equation: their own tolerance applies)."""
+    if loop.delay_s:
+        return 0.0
+    key = "eig_precision"
+    if key not in loop._cache:
+        A = loop.closed_loop().A
+        if A.size == 0:
+            prec = 0.0
+        else:
+            with np.errstate(all="ignore"):
+                Ab = linalg.matrix_balance(A, permute=False)[0]
+                prec = float(1e3 * np.finfo(float).eps * np.max(np.sum(np.abs(Ab), axis=0)))
+        loop._cache[key] = prec if math.isfinite(prec) else math.inf
+    return loop._cache[key]
+
+
+def is_stable(loop: Loop, poles: np.ndarray | None = None) -> bool:
+    """Stable for certain (:func:`stability` is ``True``); an undecidable loop is not."""
+    return stability(loop, poles) is True
 
 
 def default_horizon(loop: Loop, poles: np.ndarray | None = None) -> float:

@@ -20,11 +20,12 @@ from typing import Any
 import numpy as np
 
 from ..controllers import ControllerTF
+from ..errors import InvalidControllerError
 from ..loop import Loop, build_loop
 from ..plant import Plant
 from ..spec import Check, Spec, check_spec
 from .margins import Margins, margins
-from .response import StepResponse, closed_loop_poles, is_stable, step_metrics, step_response
+from .response import StepResponse, closed_loop_poles, is_stable, stability, step_metrics, step_response
 
 __all__ = ["Metrics", "Analysis", "analyze", "analyze_loop"]
 
@@ -101,4 +102,12 @@ def analyze(
     plant: Plant, controller: ControllerTF, spec: Spec | None = None, *, horizon_s: float | None = None,
 ) -> Analysis:
     """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks."""
-    return analyze_loop(build_loop(plant, controller), spec, horizon_s=horizon_s)
+    loop = build_loop(plant, controller)
+    poles = closed_loop_poles(loop)
+    if stability(loop, poles) is None:
+        p = np.abs(poles[np.isfinite(poles)])
+        span = f" (closed-loop poles from {p.min():.3g} to {p.max():.3g})" if p.size else ""
+        raise InvalidControllerError(
+            "the loop's dynamics span too many decades for double precision to tell whether it is stable"
+            f"{span}: rescale the controller gain or the plant's time scale", field="controller")
+    return analyze_loop(loop, spec, horizon_s=horizon_s, poles=poles)
