@@ -69,3 +69,58 @@ def hog_job(payload: Any) -> None:
     """Asks for far more memory than any solve should (8 GiB at once)."""
     block = bytearray(8 * 1024**3)
     return len(block)
+
+
+# -- issue 11: the hand-found hostile requests (each answered < 500) --------------------------------------
+# Used by tests/api/test_schemathesis.py (explicit cases) and bench/hostile.py (the campaign).
+
+_P1 = {"expr": "1/(s+1)"}
+_DEG80 = "(s+1)^40*(s+1)^40/((s+2)^40*(s+2)^40)"
+HOSTILE_REQUESTS: list[tuple[str, str, dict[str, Any]]] = [
+    # gains above ~1e155 and plant x controller products that overflow (500 before)
+    *[("gain_" + f"{g:g}", "/analyze", {"plant": _P1, "controller": {"num": [g], "den": [1.0]}})
+      for g in (1e155, 1e156, 1e200, 1e300, -1e300)],
+    *[("pi_gain_" + f"{g:g}", "/analyze", {"plant": _P1, "controller": {"structure": "pi", "gains": {"Kp": g, "Ki": g}}})
+      for g in (1e150, 1e200, 1e300)],
+    ("pid_z_gain_1e300", "/analyze", {"plant": _P1, "dt": 0.1,
+                                      "controller": {"structure": "pid_z", "gains": {"K": 1e300, "a1": -1, "a2": 0}}}),
+    ("expr_gain_1e200", "/analyze", {"plant": _P1, "controller": {"expr": "1e200"}}),
+    ("product_overflow", "/analyze", {"plant": {"num": [1e100], "den": [1e-100, 1.0]},
+                                      "controller": {"num": [1e100, 1e100], "den": [1e-100, 1.0]}}),
+    ("product_overflow_z", "/analyze", {"plant": {"num": [1e100], "den": [1e-100, 1.0]}, "dt": 0.01,
+                                        "controller": {"num": [1e100, -1e100], "den": [1.0, -1.0]}}),
+    # a degree-80 controller expression (accepted, then 500), and the coefficient form at the limit
+    ("controller_expr_deg80", "/analyze", {"plant": _P1, "controller": {"expr": _DEG80}}),
+    ("controller_coeffs_deg40", "/analyze", {"plant": _P1, "controller": {"num": [1.0], "den": [1.0] + [0.5] * 40}}),
+    # inverted search bounds: lead/lag/leadlag at a large dt
+    *[(f"{s}_dt{dt:g}", "/tune", {"plant": _P1, "dt": dt, "structure": s, "options": {"time_budget_s": 1}})
+      for s in ("lead", "lag", "leadlag") for dt in (100.0, 1000.0, 10000.0)],
+    ("lag_dt1000_slow_plant", "/tune", {"plant": {"expr": "1/(1000*s+1)"}, "dt": 1000, "structure": "lag",
+                                        "options": {"time_budget_s": 1}}),
+    # cost: slow plant with a tiny delay, long discrete delays, order 20, fine dt
+    *[(f"slow_delay_{d:g}_{r}", r, {"plant": {"expr": "1/(1000*s+1)", "delay": d},
+                                    **({"structure": "pi", "options": {"time_budget_s": 1}} if r == "/tune" else
+                                       {"controller": {"structure": "pi", "gains": {"Kp": 1.0, "Ki": 0.001}}})})
+      for d in (1e-6, 1e-5, 1e-3) for r in ("/analyze", "/tune")],
+    ("delay_1e10_samples", "/tune", {"plant": {"expr": "1/(s+1)", "delay": 1e4}, "dt": 1e-6, "structure": "pi",
+                                     "options": {"time_budget_s": 1}}),
+    ("delay_201_samples", "/analyze", {"plant": {"expr": "1/(s+1)", "delay": 2.01}, "dt": 0.01,
+                                       "controller": {"structure": "pi", "gains": {"Kp": 0.1, "Ki": 0.05}}}),
+    ("order20_delay3", "/tune", {"plant": {"expr": "1/(s+1)^20", "delay": 3}, "structure": "pid",
+                                 "options": {"time_budget_s": 1}}),
+    ("order20_delay3_x3", "/tune", {"plant": {"expr": "1/(s+1)^20", "delay": 3}, "structure": "pid",
+                                    "plants": [{"expr": "1/(1.1*s+1)^20", "delay": 3},
+                                               {"expr": "1/(0.9*s+1)^20", "delay": 3}],
+                                    "options": {"time_budget_s": 1}}),
+    ("order20_dt0.001", "/tune", {"plant": {"expr": "1/(s+1)^20"}, "dt": 0.001, "structure": "pid_z",
+                                  "options": {"time_budget_s": 0.5}}),
+    ("order10_dt0.001", "/tune", {"plant": {"expr": "1/(s+1)^10"}, "dt": 0.001, "structure": "pid_z",
+                                  "options": {"time_budget_s": 1}}),
+    ("dt_min_order10", "/analyze", {"plant": {"expr": "1/(s+1)^10"}, "dt": 1e-6,
+                                    "controller": {"structure": "pid_z", "gains": {"K": 1e-3, "a1": -1.9, "a2": 0.9}}}),
+    ("dt_below_min", "/analyze", {"plant": _P1, "dt": 1e-9, "controller": {"expr": "1"}}),
+    ("coeff_extremes", "/analyze", {"plant": {"num": [1e-100], "den": [1e100, 1e-100, 1e100]},
+                                    "controller": {"num": [1e100, 1e-100], "den": [1e-100, 1e100]}}),
+    ("pure_delay", "/analyze", {"plant": {"expr": "1", "delay": 1}, "dt": 0.1,
+                                "controller": {"structure": "pi", "gains": {"Kp": 0.2, "Ki": 1.0}}}),
+]

@@ -31,9 +31,11 @@ from .errors import InvalidControllerError, InvalidPlantError, TunerError
 from .lti import SS, Zpk, freqresp, zoh_delayed
 from .plant import Plant, delay_in_samples
 
-__all__ = ["Loop", "ClosedLoop", "FineDelayLoop", "build_loop", "tustin", "MIN_CONTINUOUS_DELAY_S"]
+__all__ = ["Loop", "ClosedLoop", "FineDelayLoop", "build_loop", "tustin", "MIN_CONTINUOUS_DELAY_S",
+           "MAX_DELAY_SAMPLES"]
 
 MIN_CONTINUOUS_DELAY_S = 1e-6
+MAX_DELAY_SAMPLES = 200  # a sampled-data loop's delay, in samples: d states, O(d^2) per simulated sample
 
 
 @dataclass(frozen=True, eq=False)
@@ -307,6 +309,11 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
     except TunerError as e:
         raise (e if e.field == ("dt",) else e.at("plant")) from None
     d = delay_in_samples(pd.delay_s, dt)
+    if d > MAX_DELAY_SAMPLES:
+        raise InvalidPlantError(
+            f"delay of {d} samples of dt={dt:g} s is above the limit of {MAX_DELAY_SAMPLES} samples (each sample "
+            "of delay is a state of the closed loop): give a larger dt, or a continuous controller (dt null)",
+            field=("plant", "delay"))
     pct = plant.continuous_equivalent() if plant.is_discrete else plant
     return Loop(plant=plant, controller=controller, dt=dt, delay_s=0.0, delay_samples=d,
                 plant_ct=pct, plant_d=pd)

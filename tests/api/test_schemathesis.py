@@ -45,3 +45,15 @@ schema.app, schema.location = _app, "/openapi.json"  # requests go to the app in
 def test_no_server_error_and_answers_match_the_schema(case):
     case.call_and_validate(timeout=120, checks=[not_a_server_error, status_code_conformance, content_type_conformance,
                                                 response_schema_conformance])
+
+
+@pytest.mark.parametrize(("name", "path", "body"), testing.HOSTILE_REQUESTS, ids=[c[0] for c in testing.HOSTILE_REQUESTS])
+def test_hand_found_classes_answer_below_500(name, path, body):
+    """Issue 11's hand-found classes (34 x 500 before), as explicit cases through the same checks."""
+    case = schema[path]["POST"].Case(body=body, media_type="application/json")
+    response = case.call_and_validate(timeout=120, checks=[not_a_server_error, status_code_conformance,
+                                                           content_type_conformance, response_schema_conformance])
+    assert response.status_code < 500, response.text
+    if response.status_code == 422:
+        detail = response.json()["detail"]
+        assert detail and all(d["loc"][0] == "body" and d["msg"] for d in detail), detail
