@@ -316,7 +316,17 @@ def _checked(c: ControllerTF, field: str) -> ControllerTF:
     if not (np.all(np.isfinite(zk.zeros)) and np.all(np.isfinite(zk.poles)) and np.isfinite(zk.gain)):
         raise InvalidControllerError("the controller's zeros, poles or gain are not finite: rescale its "
                                      "coefficients", field=field)
+    with np.errstate(all="ignore"):
+        ss = c.ss()
+    if not _finite_ss(ss):
+        raise InvalidControllerError("the controller's state-space realisation overflows (its gain and poles span "
+                                     "beyond double precision): rescale its coefficients", field=field)
     return c
+
+
+def _finite_ss(ss: SS) -> bool:
+    return bool(np.all(np.isfinite(ss.A)) and np.all(np.isfinite(ss.B)) and np.all(np.isfinite(ss.C))
+                and np.isfinite(ss.D))
 
 
 def controller_from_coeffs(num: Sequence[float], den: Sequence[float], *, dt: float | None) -> ControllerTF:

@@ -301,8 +301,8 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
                 f"delay {plant.delay_s:g} s is below {MIN_CONTINUOUS_DELAY_S:g} s, too short to simulate exactly "
                 "in a continuous loop (the simulation step divides the delay); give 0 or a longer delay",
                 field=("plant", "delay"))
-        return Loop(plant=plant, controller=controller, dt=None, delay_s=plant.delay_s, delay_samples=0,
-                    plant_ct=plant, plant_d=None)
+        return _finite(Loop(plant=plant, controller=controller, dt=None, delay_s=plant.delay_s, delay_samples=0,
+                            plant_ct=plant, plant_d=None))
     dt = controller.dt
     try:
         pd = plant.zoh(dt)  # validates dt match for discrete plants and whole-sample delay
@@ -315,5 +315,20 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
             "of delay is a state of the closed loop): give a larger dt, or a continuous controller (dt null)",
             field=("plant", "delay"))
     pct = plant.continuous_equivalent() if plant.is_discrete else plant
-    return Loop(plant=plant, controller=controller, dt=dt, delay_s=0.0, delay_samples=d,
-                plant_ct=pct, plant_d=pd)
+    return _finite(Loop(plant=plant, controller=controller, dt=dt, delay_s=0.0, delay_samples=d,
+                        plant_ct=pct, plant_d=pd))
+
+
+def _finite(loop: Loop) -> Loop:
+    """``loop`` if its closed-loop state-space model is finite (plant x controller gains can overflow although
+    each is finite: 1e200/(s+1e100) with a controller gain of 1e200)."""
+    with np.errstate(all="ignore"):
+        if loop.delay_s:  # the fine model is built from the same products as the delay-free loop
+            cl = _continuous_loop(loop.plant.ss(), loop.controller.ss())
+        else:
+            cl = loop.closed_loop()
+    if not all(np.all(np.isfinite(m)) for m in (cl.A, cl.B, cl.Cy, cl.Dy, cl.Cu, cl.Du)):
+        raise InvalidControllerError("the loop's state-space model overflows: the product of the plant's and the "
+                                     "controller's gains is beyond double precision; rescale the controller or "
+                                     "the plant", field="controller")
+    return loop

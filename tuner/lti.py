@@ -110,6 +110,12 @@ def _factors(roots: np.ndarray) -> list[tuple[np.ndarray, float]]:
     return out
 
 
+def _log_ratio(a: float, b: float) -> float:
+    """``|log(a / b)|`` for magnitudes that may be 0 or span more than the float range (a pole at 0 and a
+    zero at 1e59: the quotient underflows to 0, and its log was a math domain error)."""
+    return abs(math.log(min(max(a, 1e-300), 1e300)) - math.log(min(max(b, 1e-300), 1e300)))
+
+
 def _sections(zpk: Zpk) -> list[tuple[np.ndarray, np.ndarray]]:
     """Proper sections (num, den), poles sorted slow to fast, zeros paired with the nearest poles."""
     dens = sorted(_factors(zpk.poles), key=lambda f: f[1])
@@ -121,7 +127,7 @@ def _sections(zpk: Zpk) -> list[tuple[np.ndarray, np.ndarray]]:
         if not free and deg == 2:  # merge two first-order pole sections that have no zero yet
             ones = [i for i, s in enumerate(sec) if s[1].size == 2 and s[0].size == 1]
             if len(ones) >= 2:
-                ones.sort(key=lambda i: abs(math.log(max(sec[i][2], 1e-300) / max(zm, 1e-300))))
+                ones.sort(key=lambda i: _log_ratio(sec[i][2], zm))
                 i, j = sorted(ones[:2])
                 merged = [np.ones(1), np.polymul(sec[i][1], sec[j][1]), math.sqrt(max(sec[i][2] * sec[j][2], 0.0))]
                 sec = [s for k, s in enumerate(sec) if k not in (i, j)] + [merged]
@@ -131,7 +137,7 @@ def _sections(zpk: Zpk) -> list[tuple[np.ndarray, np.ndarray]]:
             free = [len(sec) - 1]
             if deg > 0:
                 raise ValueError("improper system: more zeros than poles")
-        i = min(free, key=lambda i: abs(math.log(max(sec[i][2], 1e-300) / max(zm, 1e-300))))
+        i = min(free, key=lambda i: _log_ratio(sec[i][2], zm))
         sec[i][0] = np.polymul(sec[i][0], zf)
     return [(s[0], s[1]) for s in sec]
 

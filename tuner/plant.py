@@ -319,7 +319,18 @@ def make_plant(
     if not (np.all(np.isfinite(zpk.zeros)) and np.all(np.isfinite(zpk.poles)) and np.isfinite(zpk.gain)) \
             or zpk.gain == 0:
         raise InvalidPlantError("the plant's poles, zeros or gain are not finite: rescale the model", field="den")
-    return Plant(num=n, den=d, dt=dt, delay_s=tau, zpk=zpk)
+    plant = Plant(num=n, den=d, dt=dt, delay_s=tau, zpk=zpk)
+    try:
+        with np.errstate(all="ignore"):
+            ss = plant.ss()
+    except (ValueError, np.linalg.LinAlgError) as e:
+        raise InvalidPlantError(f"the plant cannot be realised in state space ({e}): rescale the model",
+                                field="den") from None
+    if not (np.all(np.isfinite(ss.A)) and np.all(np.isfinite(ss.B)) and np.all(np.isfinite(ss.C))
+            and np.isfinite(ss.D)):
+        raise InvalidPlantError("the plant's state-space realisation overflows (its gain and poles span beyond "
+                                "double precision): rescale the model", field="den")
+    return plant
 
 
 def make_plant_zpk(

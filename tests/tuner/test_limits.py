@@ -70,3 +70,24 @@ def test_stiff_but_decidable_loop_is_stable():
     -1e-9 * the largest pole's magnitude, i.e. of -10) called it unstable."""
     an = analyze(plant_from_expr("1/(s+1)"), controller_tf("pi", {"Kp": 1e10, "Ki": 1e10}, dt=None))
     assert an.metrics.stable
+
+
+def test_campaign_finds_answer_with_the_field():
+    """Three 500s of bench/hostile.py's first run, each now a TunerError naming the field or an answer."""
+    from tuner import make_plant
+
+    # 1e200/(s+1e100) with 1e200 (s+1)/(s+1e100): each finite, the loop's products overflow
+    with pytest.raises(TunerError, match="product of the plant's and the controller's gains") as ei:
+        analyze(make_plant([1e100], [1e-100, 1.0]), controller_from_coeffs([1e100, 1e100], [1e-100, 1.0], dt=None))
+    assert ei.value.field == ("controller",)
+    # a controller whose own realisation overflows (gain 1e200, pole at -1e200)
+    with pytest.raises(TunerError, match="realisation overflows") as ei:
+        controller_from_coeffs([1e100, 1e-100], [1e-100, 1e100], dt=None)
+    assert ei.value.field == ("den",)
+    # a pole at 0 and a zero at 2e59: the section pairing took log(0) (math domain error)
+    p = make_plant([4.4532155357515966e-58, -95.88195199719486],
+                   [1.0, -4.0560509220854306e+51, 2.5304970965264796e+41, -2.536894277375648e+59,
+                    3.054748781226136e-11, 7.016154498437253e-17, 0.2339484807328639, 0.001006527050394427,
+                    706.5491265075992, 971.4541594422008, 7.160237279471231e-22, 7.09600543634719])
+    an = analyze(p, controller_from_expr("1.7377440335371554e-175*(s+0.5)/(s+0.9)", dt=None))
+    assert an.metrics.stable is False  # poles at +4e51 and more: unstable whatever the tiny gain
