@@ -80,7 +80,8 @@ HOSTILE_REQUESTS: list[tuple[str, str, dict[str, Any]]] = [
     # gains above ~1e155 and plant x controller products that overflow (500 before)
     *[("gain_" + f"{g:g}", "/analyze", {"plant": _P1, "controller": {"num": [g], "den": [1.0]}})
       for g in (1e155, 1e156, 1e200, 1e300, -1e300)],
-    *[("pi_gain_" + f"{g:g}", "/analyze", {"plant": _P1, "controller": {"structure": "pi", "gains": {"Kp": g, "Ki": g}}})
+    *[("pi_gain_" + f"{g:g}", "/analyze",
+       {"plant": _P1, "controller": {"structure": "pi", "gains": {"Kp": g, "Ki": g}}})
       for g in (1e150, 1e200, 1e300)],
     ("pid_z_gain_1e300", "/analyze", {"plant": _P1, "dt": 0.1,
                                       "controller": {"structure": "pid_z", "gains": {"K": 1e300, "a1": -1, "a2": 0}}}),

@@ -264,7 +264,7 @@ def faults(svc: Service, kills: int, ids: list[str], stats: dict[str, Any]) -> N
 
         result: dict[str, Any] = {}
 
-        def post() -> None:
+        def post(result: dict[str, Any] = result) -> None:
             try:
                 result["status"] = httpx.post(f"{svc.url}/tune", json=body, timeout=30).status_code
             except httpx.HTTPError as e:

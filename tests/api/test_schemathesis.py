@@ -47,7 +47,8 @@ def test_no_server_error_and_answers_match_the_schema(case):
                                                 response_schema_conformance])
 
 
-@pytest.mark.parametrize(("name", "path", "body"), testing.HOSTILE_REQUESTS, ids=[c[0] for c in testing.HOSTILE_REQUESTS])
+@pytest.mark.parametrize(("name", "path", "body"), testing.HOSTILE_REQUESTS,
+                         ids=[c[0] for c in testing.HOSTILE_REQUESTS])
 def test_hand_found_classes_answer_below_500(name, path, body):
     """Issue 11's hand-found classes (34 x 500 before), as explicit cases through the same checks."""
     case = schema[path]["POST"].Case(body=body, media_type="application/json")

@@ -35,8 +35,8 @@ from scipy import linalg
 
 from ..loop import FineDelayLoop, Loop, _continuous_loop
 
-__all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response", "step_metrics",
-           "default_horizon", "steady_state"]
+__all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
+           "step_metrics", "default_horizon", "steady_state"]
 
 SAMPLES_PER_DT = 20
 CONTINUOUS_POINTS = 4000
