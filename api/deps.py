@@ -1,4 +1,4 @@
-"""Dependencies: the store, the solver pool, the API key, and the functions run in the pool.
+"""Dependencies: the store, the pools, the API key, the client's identity, and the functions run in the pools.
 
 Tests replace any of them with ``app.dependency_overrides`` (e.g. a job function
 that sleeps, to test the time limit, or one that kills its process).
@@ -6,6 +6,7 @@ that sleeps, to test the time limit, or one that kills its process).
 
 from __future__ import annotations
 
+import hashlib
 import secrets
 from collections.abc import Callable
 from typing import Any
@@ -17,8 +18,8 @@ from .pool import WorkerPool
 from .settings import Settings, get_settings
 from .store import Store
 
-__all__ = ["get_store", "get_pool", "require_api_key", "get_tune_job", "get_analyze_job", "get_plot_job",
-           "get_identify_job", "get_identify_plot_job"]
+__all__ = ["get_store", "get_pool", "get_plot_pool", "get_plot_cache", "require_api_key", "client_id",
+           "get_tune_job", "get_analyze_job", "get_plot_job", "get_identify_job", "get_identify_plot_job"]
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
                                description="required when the server sets TUNER_API_KEY")
@@ -30,6 +31,25 @@ def get_store(request: Request) -> Store:
 
 def get_pool(request: Request) -> WorkerPool:
     return request.app.state.pool
+
+
+def get_plot_pool(request: Request) -> WorkerPool:
+    """The plot processes: apart from the solvers, so that drawing never takes a solver."""
+    return request.app.state.plot_pool
+
+
+def get_plot_cache(request: Request) -> Any:
+    return request.app.state.plot_cache
+
+
+def client_id(request: Request, key: str | None = Security(_api_key_header)) -> str:
+    """Who asks, for the per-client limits: the client's address, with its API key's fingerprint if
+    it sent one. The address is the one uvicorn reports (behind a proxy, run uvicorn with
+    ``--proxy-headers --forwarded-allow-ips`` so that it is the client's, not the proxy's)."""
+    host = request.client.host if request.client is not None else "unknown"
+    if key:
+        return f"key:{hashlib.sha256(key.encode()).hexdigest()[:12]}@{host}"
+    return f"addr:{host}"
 
 
 def require_api_key(

@@ -3,7 +3,9 @@
 * 422: FastAPI's format, ``{"detail": [{"loc": [...], "msg": ..., "type": ...}]}``,
   for schema errors and for the library's :class:`~tuner.errors.TunerError`
   (located by :mod:`api.convert`); the input is not echoed back.
-* 413, 503, 504: ``{"detail": "..."}`` saying what happened and what to do.
+* 413, 429, 503, 504: ``{"detail": "..."}`` saying what happened and what to do; 429 and 503
+  carry ``Retry-After`` (429: this client has as many requests waiting as it may; 503: every
+  solver busy and the queue full, or the database unreachable).
 * 500: ``{"detail": "internal error ..."}``; the traceback goes to the log only.
 """
 
@@ -19,7 +21,7 @@ from fastapi.responses import JSONResponse
 from tuner.jsonio import jsonable
 
 from .convert import FieldError
-from .pool import JobTimeout, PoolBusy, PoolClosed, WorkerCrashed
+from .pool import ClientBusy, JobTimeout, PoolBusy, PoolClosed, WorkerCrashed
 from .store import StoreError
 
 __all__ = ["install_error_handlers", "validation_items", "internal_message"]
@@ -50,6 +52,11 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(FieldError)
     async def _field(request: Request, exc: FieldError) -> JSONResponse:
         return JSONResponse({"detail": exc.detail()}, status_code=422)
+
+    @app.exception_handler(ClientBusy)  # before PoolBusy: handlers are looked up along the class's MRO
+    async def _client_busy(request: Request, exc: ClientBusy) -> JSONResponse:
+        return JSONResponse({"detail": f"{exc}; retry after {exc.retry_after_s} s"}, status_code=429,
+                            headers={"Retry-After": str(exc.retry_after_s)})
 
     @app.exception_handler(PoolBusy)
     async def _busy(request: Request, exc: PoolBusy) -> JSONResponse:

@@ -1,10 +1,13 @@
-"""Request-body size cap, as plain ASGI middleware (before any parsing).
+"""Plain ASGI middleware: the request-body size cap, and ``HEAD`` on every ``GET`` route.
 
-A declared ``Content-Length`` above the cap is refused at once; a body sent
-without one (chunked) is counted as it arrives and refused as soon as it passes
-the cap. Either way: 413 with a JSON body. Accepted bodies are replayed to the app.
-``path_limits`` gives some paths a cap of their own (e.g. ``/identify``, whose bodies
-are flight logs); every other path has ``max_bytes``.
+:class:`BodySizeLimit`: a declared ``Content-Length`` above the cap is refused at once; a body
+sent without one (chunked) is counted as it arrives and refused as soon as it passes the cap.
+Either way: 413 with a JSON body. Accepted bodies are replayed to the app. ``path_limits``
+gives some paths a cap of their own (e.g. ``/identify``, whose bodies are flight logs); every
+other path has ``max_bytes``.
+
+:class:`HeadAsGet`: FastAPI's routes answer ``HEAD`` with 405; this answers it as the ``GET`` of
+the same URL would (status and headers, ``Content-Length`` included), without the body.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import json
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["BodySizeLimit"]
+__all__ = ["BodySizeLimit", "HeadAsGet"]
 
 
 class BodySizeLimit:
@@ -68,3 +71,22 @@ class BodySizeLimit:
                     "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
                                 (b"connection", b"close")]})
         await send({"type": "http.response.body", "body": body})
+
+
+class HeadAsGet:
+    def __init__(self, app: Callable[..., Any]) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict[str, Any], receive: Callable[..., Any], send: Callable[..., Any]) -> None:
+        if scope["type"] != "http" or scope["method"] != "HEAD":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_headers_only(msg: dict[str, Any]) -> None:
+            if msg["type"] == "http.response.body":
+                if not msg.get("more_body", False):
+                    await send({"type": "http.response.body", "body": b"", "more_body": False})
+                return
+            await send(msg)
+
+        await self.app({**scope, "method": "GET"}, receive, send_headers_only)

@@ -2,20 +2,27 @@
 
     uvicorn api.main:create_app --factory --host 127.0.0.1 --port 8000
 
-Nothing heavy happens at import time: :func:`create_app` builds the routes, and
-the app's lifespan opens the database (creating the table if needed) and starts
-the solver processes; shutting down stops them.
+Nothing heavy happens at import time: :func:`create_app` builds the routes, and the app's
+lifespan starts the solver and plot processes and opens the database (creating the table if
+needed); shutting down stops them. A database that is unreachable at start-up does not stop the
+service: it starts, logs so, answers ``/health`` with 503 "database unreachable" and the routes
+that need storage with 503, and retries in the background until the database is back.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import TYPE_CHECKING
 
 from fastapi import FastAPI
 
 from .settings import Settings
+
+if TYPE_CHECKING:
+    from .store import Store
 
 __all__ = ["create_app"]
 
@@ -35,41 +42,56 @@ Optimisation-based controller tuning with an independent verifier, as a service.
 Non-finite numbers are the strings `"Infinity"`, `"-Infinity"`, `"NaN"`
 (e.g. an infinite gain margin: no phase crossover). Invalid input gets 422 with the field
 named in `loc`. Solves run in a bounded pool of processes: past the time budget the best
-verified result is returned, or 504 if the solver overran (it is stopped); when every solver
-is busy and the queue is full, 503 with `Retry-After`.
+verified result is returned (`solver.budget_exhausted` says so), or 504 if nothing could be
+verified and the solver overran (it is stopped); when every solver is busy and the queue is full,
+503 with `Retry-After`. One client (API key, else address) holds at most
+`TUNER_MAX_INFLIGHT_PER_CLIENT` solvers at once (by default all but one); its further requests
+wait behind other clients', and beyond `TUNER_MAX_QUEUED_PER_CLIENT` waiting ones it gets 429
+with `Retry-After`. Plots are drawn in processes of their own and cached.
 """
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app. ``settings`` default to the environment (``TUNER_*``)."""
     from .errors import install_error_handlers
-    from .limits import BodySizeLimit
+    from .limits import BodySizeLimit, HeadAsGet
     from .routes import api_router, public_router
 
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        from fastapi.concurrency import run_in_threadpool
-
+        from .plotcache import PlotCache
         from .pool import WorkerPool
         from .store import Store
+        from .worker import PLOT_MODULES
 
         store = Store(settings.database_url)
-        await run_in_threadpool(store.create_schema)
         pool = WorkerPool(
             size=settings.workers, queue_size=settings.effective_queue_size,
             queue_timeout_s=settings.queue_timeout_s, start_timeout_s=settings.worker_start_timeout_s,
             max_tasks_per_worker=settings.max_tasks_per_worker, start_method=settings.start_method,
-            memory_mb=settings.worker_memory_mb,
+            memory_mb=settings.worker_memory_mb, max_running_per_client=settings.effective_max_inflight_per_client,
+            max_waiting_per_client=settings.effective_max_queued_per_client,
         )
-        await pool.start()
-        app.state.store, app.state.pool = store, pool
-        log.info("tuner service: %d solver processes, database %s", settings.workers, store.backend)
+        plot_pool = WorkerPool(
+            size=settings.plot_workers, queue_size=settings.plot_queue_size, queue_timeout_s=settings.plot_timeout_s,
+            start_timeout_s=settings.worker_start_timeout_s, max_tasks_per_worker=settings.max_tasks_per_worker,
+            start_method=settings.start_method, memory_mb=settings.worker_memory_mb, warm=PLOT_MODULES, nice=5,
+            max_running_per_client=settings.plot_workers,
+            max_waiting_per_client=max(1, settings.plot_queue_size // 2),
+        )
+        await asyncio.gather(pool.start(), plot_pool.start())
+        app.state.store, app.state.pool, app.state.plot_pool = store, pool, plot_pool
+        app.state.plot_cache = PlotCache(int(settings.plot_cache_mb * 1024 * 1024))
+        connecting = asyncio.get_running_loop().create_task(_connect(store, settings.db_retry_s))
+        log.info("tuner service: %d solver processes, %d plot process(es), database %s", settings.workers,
+                 settings.plot_workers, store.backend)
         try:
             yield
         finally:
-            await pool.close()
+            connecting.cancel()
+            await asyncio.gather(pool.close(), plot_pool.close())
             store.dispose()
 
     app = FastAPI(
@@ -83,7 +105,30 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(api_router)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
                        path_limits={"/identify": settings.max_identify_body_bytes})
+    app.add_middleware(HeadAsGet)
     return app
+
+
+async def _connect(store: Store, max_pause_s: float) -> None:
+    """Create the tables; while the database is unreachable, say so once and retry with back-off."""
+    from .store import StoreError, reason
+
+    pause, attempt = 0.25, 0
+    while True:
+        try:
+            await asyncio.to_thread(store.create_schema)
+        except StoreError as e:
+            attempt += 1
+            if attempt == 1:
+                log.warning("database unreachable at start-up (%s): the service runs; /health answers 503 "
+                            "\"database unreachable\" and storage routes 503 until it is back; retrying every "
+                            "%g s at most", reason(e.__cause__), max_pause_s)
+            await asyncio.sleep(pause)
+            pause = min(max_pause_s, 2 * pause)
+            continue
+        if attempt:
+            log.info("database reachable again after %d attempt(s): tables ready", attempt + 1)
+        return
 
 
 def _version() -> str:

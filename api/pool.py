@@ -1,59 +1,69 @@
-"""A bounded pool of solver processes with hard time limits.
+"""The solver processes: pebble's :class:`~pebble.ProcessPool`, with admission and fairness in front.
 
-Why not :class:`concurrent.futures.ProcessPoolExecutor`: it cannot stop one running
-task, and one dead worker breaks the whole executor. Here every worker is a
-process of its own with a pipe:
+pebble runs each job in a worker process with a per-task ``timeout`` (counted from when a worker
+takes the job, so no job pays for a wait or a start): past it the process is stopped
+(``SIGTERM``, which :func:`api.worker.init_worker` makes fatal at once) and replaced, so a runaway
+solve really stops, whatever it is doing. A worker that dies mid-job fails that job only
+(``ProcessExpired``) and is replaced; ``max_tasks`` recycles workers; the ``initializer`` caps each
+worker's memory, pins it to one thread and ties its life to the service's. Workers are forked from
+a forkserver that has imported the tuning stack once (``api._preload``), so a replacement is warm
+in milliseconds and no job's budget pays for imports (where there is no forkserver, ``spawn`` is
+used and each worker imports the stack in its initializer, before it takes a job).
 
-* **Admission.** At most ``size + queue_size`` jobs are admitted at once (running
-  or waiting for a worker). Beyond that, and when no worker frees up within
-  ``queue_timeout_s``, :class:`PoolBusy` is raised at once (the route answers
-  503 with ``Retry-After``). Nothing waits without bound.
-* **Hard limit.** A job runs with a timeout; past it the worker process is
-  killed (``SIGKILL``: a runaway solve really stops, whatever it is doing) and a
-  fresh one is started. :class:`JobTimeout` is raised.
-* **Memory.** Each worker's address space is capped (``memory_mb``): a solve that
-  would exhaust the machine fails with ``MemoryError`` in its own process instead.
-  A worker whose job raised anything but a library error is replaced.
-* **Crashes.** A worker that dies mid-job (segfault, ``os._exit``, OOM kill)
-  raises :class:`WorkerCrashed` for that job only; a replacement is started and
-  the next job is served.
-* **Warm start.** Workers are forked from a forkserver that has imported the tuning
-  stack once (``api._preload``), so a replacement is ready in milliseconds; a worker
-  reports ready only when warm, so no job's clock pays for imports. (Where there is no
-  forkserver, ``spawn`` is used and each worker imports the stack itself.)
+What this module adds on top:
 
-The event loop never blocks: waiting on a pipe happens in a small thread pool,
-with ``poll(timeout)`` so no thread waits longer than its job's limit.
+* **Admission.** At most ``size + queue_size`` jobs at once (running or waiting for a solver);
+  beyond that, and when no solver frees up within ``queue_timeout_s``: :class:`PoolBusy` (503 with
+  ``Retry-After``). Nothing waits without bound. Jobs are handed to pebble only when a solver is
+  free, so pebble's own queue stays empty and the wait is ours to bound.
+* **Fairness.** One client (see :func:`api.deps.client_id`) holds at most ``max_running_per_client``
+  solvers at once (default: all but one, so one client cannot hold every solver); its further
+  jobs wait behind other clients' jobs, at most ``max_waiting_per_client`` of them
+  (:class:`ClientBusy`, 429 with ``Retry-After``, beyond that).
+* **Recovery from a broken pebble pool.** pebble declares its pool broken when a worker dies while
+  no job is running (e.g. the kernel's OOM killer took an idle worker; pebble issue #70). No job
+  can have been running then, so the pool is rebuilt and the jobs it aborted are resubmitted.
+
+Exceptions for the routes (mapped in :mod:`api.errors`): :class:`PoolBusy`, :class:`ClientBusy`,
+:class:`PoolClosed`, :class:`JobTimeout`, :class:`WorkerCrashed`, :class:`JobFailed`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import collections
+import itertools
 import logging
 import math
 import multiprocessing
-import threading
+import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from multiprocessing.connection import Connection
+from concurrent.futures import BrokenExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass
 from typing import Any
 
-from .worker import worker_main
+from pebble import ProcessExpired, ProcessPool
 
-__all__ = ["WorkerPool", "PoolBusy", "PoolClosed", "JobTimeout", "WorkerCrashed", "JobFailed"]
+from .worker import EXIT_OUT_OF_MEMORY, SERVICE_PID_VAR, SOLVER_MODULES, init_worker, run_job
+
+__all__ = ["WorkerPool", "start_forkserver", "PoolBusy", "ClientBusy", "PoolClosed", "JobTimeout", "WorkerCrashed",
+           "JobFailed"]
 
 log = logging.getLogger("api.pool")
 
 
 class PoolBusy(Exception):
-    """Every worker is busy and the queue is full (or the wait for a worker timed out)."""
+    """Every solver is busy and the queue is full (or the wait for a solver timed out)."""
 
     def __init__(self, message: str, *, retry_after_s: int) -> None:
         super().__init__(message)
         self.retry_after_s = retry_after_s
+
+
+class ClientBusy(PoolBusy):
+    """This client already has as many jobs waiting as it may (429)."""
 
 
 class PoolClosed(Exception):
@@ -61,7 +71,7 @@ class PoolClosed(Exception):
 
 
 class JobTimeout(Exception):
-    """The job overran its limit; its worker was killed."""
+    """The job overran its limit; its worker was stopped."""
 
     def __init__(self, limit_s: float) -> None:
         super().__init__(f"job exceeded {limit_s:g} s")
@@ -82,27 +92,25 @@ class JobFailed(Exception):
 
 
 @dataclass(eq=False)
-class _Worker:
-    process: Any
-    conn: Connection
-    started: float = field(default_factory=time.monotonic)
-    tasks: int = 0
-    deadline: float | None = None  # monotonic time the running job will be stopped at
-
-    @property
-    def pid(self) -> int | None:
-        return self.process.pid
+class _Waiter:
+    client: str
+    future: asyncio.Future[None]
 
 
-def _recv(conn: Connection, timeout: float) -> Any:
-    """Next message, or TimeoutError; EOFError/OSError when the process died."""
-    if conn.poll(max(0.0, timeout)):
-        return conn.recv()
-    raise TimeoutError
+def start_forkserver() -> None:
+    """Start the forkserver from this thread (the service's main thread), told to die with this process.
+
+    Its death signal is tied to the thread that starts it, so it is started here, not from a pool
+    thread that may end; a forkserver already running is left as it is.
+    """
+    from multiprocessing import forkserver
+
+    os.environ[SERVICE_PID_VAR] = str(os.getpid())  # read by api._preload in the forkserver
+    forkserver.ensure_running()
 
 
 class WorkerPool:
-    """``size`` worker processes; see the module docstring."""
+    """``size`` solver processes; see the module docstring."""
 
     def __init__(
         self,
@@ -113,8 +121,11 @@ class WorkerPool:
         start_timeout_s: float = 120.0,
         max_tasks_per_worker: int | None = None,
         start_method: str = "forkserver",
-        warm: bool = True,
+        warm: bool | tuple[str, ...] = True,
         memory_mb: int | None = None,
+        nice: int = 0,
+        max_running_per_client: int | None = None,
+        max_waiting_per_client: int | None = None,
     ) -> None:
         if size < 1:
             raise ValueError(f"size must be >= 1, got {size}")
@@ -122,292 +133,252 @@ class WorkerPool:
         self.queue_size = max(0, queue_size)
         self.queue_timeout_s = queue_timeout_s
         self.start_timeout_s = start_timeout_s
-        self.max_tasks_per_worker = max_tasks_per_worker
+        self.max_running_per_client = max(1, min(size, max_running_per_client or max(1, size - 1)))
+        self.max_waiting_per_client = self.queue_size if max_waiting_per_client is None else max_waiting_per_client
         if start_method == "forkserver" and "forkserver" not in multiprocessing.get_all_start_methods():
             start_method = "spawn"  # pragma: no cover - not on this platform
         self._ctx = multiprocessing.get_context(start_method)
         if start_method == "forkserver":
             # the forkserver imports the tuning stack once; every solver is then forked from it, warm
             self._ctx.set_forkserver_preload(["api._preload"])
-        self._warm = warm
-        self._memory_mb = memory_mb
-        self._idle: collections.deque[_Worker] = collections.deque()
-        self._busy: set[_Worker] = set()
-        self._n_starting = 0  # processes being started or warming up
-        self._procs: set[Any] = set()  # every process started and not yet reaped
-        self._lock = threading.Lock()  # guards _procs and _closed against the starting threads
-        self._waiters: collections.deque[asyncio.Future[_Worker]] = collections.deque()
+        modules = SOLVER_MODULES if warm is True else (warm or ())
+        self._pebble_kwargs = {"max_workers": size, "max_tasks": max_tasks_per_worker or 0,
+                               "initializer": init_worker, "initargs": (os.getpid(), memory_mb, modules, nice),
+                               "context": self._ctx}
+        self._pebble: ProcessPool | None = None
+        self._rebuilding: asyncio.Lock | None = None
+        self._monitor: asyncio.Task[None] | None = None
+        self._free = size  # solvers not handed a job
+        self._running: collections.Counter[str] = collections.Counter()  # solvers held, per client
+        self._waiting: collections.Counter[str] = collections.Counter()
+        self._waiters: collections.deque[_Waiter] = collections.deque()
+        self._deadlines: dict[int, tuple[str, float]] = {}  # running job -> (client, monotonic end)
+        self._inflight: set[Any] = set()  # pebble futures
+        self._keys = itertools.count()
         self._admitted = 0
         self._closed = False
-        self._tasks: set[asyncio.Task[Any]] = set()
-        self._threads = ThreadPoolExecutor(max_workers=2 * size + 2, thread_name_prefix="pool-io")
         self.crashes = 0
         self.timeouts = 0
+        self.rebuilds = 0
 
     # -- life cycle ---------------------------------------------------------------------
 
     async def start(self) -> None:
-        for _ in range(self.size):
-            self._spawn()
+        """Start the solver processes (in a thread: the first fork waits for the forkserver's imports)."""
+        if self._ctx.get_start_method() == "forkserver":
+            start_forkserver()
+        self._rebuilding = asyncio.Lock()
+        self._pebble = await asyncio.wait_for(asyncio.to_thread(self._new_pebble), self.start_timeout_s)
+        self._monitor = asyncio.get_running_loop().create_task(self._watch())
+
+    def _new_pebble(self) -> ProcessPool:
+        pool = ProcessPool(**self._pebble_kwargs)
+        pool.active  # noqa: B018 - starts pebble's threads and forks the workers now
+        return pool
 
     async def wait_ready(self, timeout: float | None = None) -> bool:
         """Wait until every worker is up (for tests and warm start); True if they are."""
         end = None if timeout is None else time.monotonic() + timeout
-        while len(self._idle) + len(self._busy) < self.size:
+        while self._pebble is None or len(self.pids()) < self.size:
             if end is not None and time.monotonic() > end:
                 return False
             await asyncio.sleep(0.05)
         return True
 
     async def close(self) -> None:
-        """Stop every solver process (idle ones exit cleanly; anything still running is killed)."""
-        with self._lock:
-            self._closed = True
-            procs = list(self._procs)
-        for fut in self._waiters:
-            if not fut.done():
-                fut.set_exception(PoolClosed("the service is shutting down"))
+        """Stop every solver process (anything still running is killed)."""
+        self._closed = True
+        for w in self._waiters:
+            if not w.future.done():
+                w.future.set_exception(PoolClosed("the service is shutting down"))
         self._waiters.clear()
-        for t in list(self._tasks):
-            t.cancel()
-        for w in [*self._idle, *self._busy]:
-            try:
-                w.conn.send(None)
-            except (OSError, ValueError):
-                pass
-        self._idle.clear()
-        loop = asyncio.get_running_loop()
-        await loop.run_in_executor(self._threads, self._join_all, procs)
-        self._threads.shutdown(wait=False, cancel_futures=True)
+        if self._monitor is not None:
+            self._monitor.cancel()
+        for f in list(self._inflight):
+            f.cancel()
+        if self._pebble is not None:
+            await asyncio.to_thread(self._stop_pebble, self._pebble)
 
     @staticmethod
-    def _join_all(procs: list[Any]) -> None:
-        end = time.monotonic() + 2.0
-        for p in procs:
-            p.join(max(0.0, end - time.monotonic()))
-        for p in procs:
-            if p.is_alive():
-                p.kill()
-                p.join(5)
+    def _stop_pebble(pool: ProcessPool) -> None:
+        pool.stop()
+        try:
+            pool.join(timeout=10)
+        except (RuntimeError, TimeoutError) as e:  # pragma: no cover - pebble could not stop a worker
+            log.error("stopping the solver processes: %s", e)
+
+    async def _watch(self) -> None:
+        """Rebuild a broken pebble pool before a request finds it broken."""
+        while not self._closed:
+            await asyncio.sleep(0.25)
+            if self._pebble is not None and not self._pebble.active:
+                await self._rebuild(self._pebble)
+
+    async def _rebuild(self, broken: ProcessPool) -> None:
+        assert self._rebuilding is not None
+        async with self._rebuilding:
+            if self._closed or self._pebble is not broken:
+                return  # someone else rebuilt it
+            log.error("the solver pool broke (a worker died while idle); starting fresh solver processes")
+            self.rebuilds += 1
+            self.crashes += 1
+            self._pebble = await asyncio.to_thread(self._new_pebble)
+        await asyncio.to_thread(self._stop_pebble, broken)
+
+    def _workers(self) -> list[Any]:
+        """pebble's live worker processes (its internals: for ``stats`` and ``pids`` only)."""
+        manager = getattr(getattr(self._pebble, "_pool_manager", None), "worker_manager", None)
+        procs = list(getattr(manager, "workers", {}).values()) if manager is not None else []
+        return [p for p in procs if p.is_alive()]
+
+    def pids(self) -> list[int]:
+        return [p.pid for p in self._workers() if p.pid is not None]
 
     def stats(self) -> dict[str, Any]:
+        live = len(self._workers())
+        busy = self.size - self._free
         return {
             "size": self.size,
-            "ready": len(self._idle),
-            "busy": len(self._busy),
-            "starting": self._n_starting,
+            "ready": max(0, live - busy),
+            "busy": busy,
+            "starting": max(0, self.size - live),
             "waiting": len(self._waiters),
             "queue_size": self.queue_size,
+            "max_running_per_client": self.max_running_per_client,
             "crashes": self.crashes,
             "timeouts": self.timeouts,
         }
 
-    def pids(self) -> list[int]:
-        return [w.pid for w in [*self._idle, *self._busy] if w.pid is not None]
+    # -- admission and fairness ---------------------------------------------------------
 
-    # -- running jobs -------------------------------------------------------------------
-
-    async def run(self, fn: Callable[[Any], Any], payload: Any, *, timeout_s: float) -> Any:
-        """Run ``fn(payload)`` in a worker; the worker is killed if it takes longer than ``timeout_s``.
-
-        ``fn`` must be a module-level function (it is pickled by reference).
-        Raises :class:`PoolBusy`, :class:`JobTimeout`, :class:`WorkerCrashed`,
-        :class:`JobFailed` or :class:`PoolClosed`.
-        """
-        if self._closed:
-            raise PoolClosed("the service is shutting down")
-        if self._admitted >= self.size + self.queue_size:
-            raise PoolBusy(
-                f"all {self.size} solver processes are busy and the queue ({self.queue_size}) is full",
-                retry_after_s=self.retry_after_s(),
-            )
-        self._admitted += 1
-        try:
-            worker = await self._acquire()
-            return await self._run_on(worker, fn, payload, timeout_s)
-        finally:
-            self._admitted -= 1
-
-    def retry_after_s(self) -> int:
-        """An estimate of when a worker frees up: the earliest running job's limit (1..60 s)."""
+    def retry_after_s(self, client: str | None = None) -> int:
+        """When a solver (this client's, if given) likely frees up: the earliest running limit (1..60 s)."""
         now = time.monotonic()
-        ends = [w.deadline - now for w in self._busy if w.deadline is not None]
+        ends = [end - now for c, end in self._deadlines.values() if client is None or c == client]
         est = min(ends) if ends else 1.0
         return int(min(60, max(1, math.ceil(est))))
 
-    async def _acquire(self) -> _Worker:
-        while True:
-            worker = await self._next_worker()
-            if worker.process.is_alive():
-                return worker
-            log.error("solver process %s died while idle (exit code %s); replacing it", worker.pid,
-                      worker.process.exitcode)
-            self.crashes += 1
-            self._kill(worker)
-            self._spawn()
+    def _eligible(self, client: str) -> bool:
+        return self._free > 0 and self._running[client] < self.max_running_per_client
 
-    async def _next_worker(self) -> _Worker:
-        if self._idle:
-            return self._idle.popleft()
-        loop = asyncio.get_running_loop()
-        fut: asyncio.Future[_Worker] = loop.create_future()
-        self._waiters.append(fut)
-        try:
-            await asyncio.wait({fut}, timeout=self.queue_timeout_s)
-        except asyncio.CancelledError:
-            self._drop_waiter(fut)
-            raise
-        if fut.done():
-            return fut.result()  # PoolClosed is raised here
-        self._drop_waiter(fut)
-        raise PoolBusy(
-            f"no solver process became free within {self.queue_timeout_s:g} s",
-            retry_after_s=self.retry_after_s(),
-        )
+    def _grant(self, client: str) -> None:
+        self._free -= 1
+        self._running[client] += 1
 
-    def _drop_waiter(self, fut: asyncio.Future[_Worker]) -> None:
-        if fut.done() and not fut.cancelled() and fut.exception() is None:
-            self._release(fut.result())  # it was handed a worker just as it gave up
-        else:
-            fut.cancel()
-        try:
-            self._waiters.remove(fut)
-        except ValueError:
-            pass
-
-    def _release(self, worker: _Worker) -> None:
-        """Hand a ready worker to the first waiter, else park it."""
-        if self._closed:
-            self._retire(worker)
-            return
-        while self._waiters:
-            fut = self._waiters.popleft()
-            if not fut.done():
-                fut.set_result(worker)
+    def _dispatch(self) -> None:
+        """Hand free solvers to the first waiters whose client is under its limit."""
+        for w in list(self._waiters):
+            if self._free == 0:
                 return
-        self._idle.append(worker)
+            if w.future.done():
+                self._waiters.remove(w)
+            elif self._running[w.client] < self.max_running_per_client:
+                self._waiters.remove(w)
+                self._grant(w.client)
+                w.future.set_result(None)
 
-    async def _run_on(self, worker: _Worker, fn: Callable[[Any], Any], payload: Any, timeout_s: float) -> Any:
-        loop = asyncio.get_running_loop()
-        self._busy.add(worker)
-        worker.deadline = time.monotonic() + timeout_s
-        ok = False
+    def _release(self, client: str) -> None:
+        self._free += 1
+        self._running[client] -= 1
+        if self._running[client] <= 0:
+            del self._running[client]
+        self._dispatch()
+
+    async def _acquire(self, client: str) -> None:
+        if self._eligible(client) and not any(w.client == client for w in self._waiters):
+            self._grant(client)
+            return
+        if self._waiting[client] >= self.max_waiting_per_client:
+            raise ClientBusy(f"this client already has {self._running[client]} job(s) running and "
+                             f"{self._waiting[client]} waiting, the most it may",
+                             retry_after_s=self.retry_after_s(client))
+        waiter = _Waiter(client, asyncio.get_running_loop().create_future())
+        self._waiters.append(waiter)
+        self._waiting[client] += 1
+        granted = False
         try:
-            try:
-                worker.conn.send((fn, payload))
-            except (OSError, ValueError) as e:  # died while idle
-                raise WorkerCrashed("the solver process was gone") from e
-            try:
-                kind, value = await loop.run_in_executor(self._threads, _recv, worker.conn, timeout_s)
-            except TimeoutError:
-                self.timeouts += 1
-                log.warning("solver process %s overran its limit of %.3g s; killed", worker.pid, timeout_s)
-                raise JobTimeout(timeout_s) from None
-            except (EOFError, OSError) as e:
-                self.crashes += 1
-                log.error("solver process %s died during a job (exit code %s)", worker.pid, worker.process.exitcode)
-                raise WorkerCrashed("the solver process died while running the job") from e
-            ok = True
+            await asyncio.wait_for(asyncio.shield(waiter.future), self.queue_timeout_s)  # PoolClosed is raised here
+            granted = True
+        except TimeoutError:
+            raise PoolBusy(f"no solver process became free within {self.queue_timeout_s:g} s",
+                           retry_after_s=self.retry_after_s()) from None
         finally:
-            self._busy.discard(worker)
-            worker.deadline = None
-            if ok:
-                worker.tasks += 1
-                # after an unexpected error (e.g. MemoryError) the process may be unhealthy: replace it
-                if kind == "error" or (self.max_tasks_per_worker and worker.tasks >= self.max_tasks_per_worker):
-                    self._retire(worker)
-                    self._spawn()
+            self._waiting[client] -= 1
+            if self._waiting[client] <= 0:
+                del self._waiting[client]
+            if waiter in self._waiters:
+                self._waiters.remove(waiter)
+            if not granted:
+                f = waiter.future
+                if f.done() and not f.cancelled() and f.exception() is None:
+                    self._release(client)  # it was handed a solver just as it gave up
                 else:
-                    self._release(worker)
-            else:  # timed out, crashed or cancelled: the process may still be running the job
-                self._kill(worker)
-                if not self._closed:
-                    self._spawn()
-        if kind == "ok":
-            return value
-        raise JobFailed(kind, value)
+                    f.cancel()
 
-    # -- processes ----------------------------------------------------------------------
+    # -- running jobs -------------------------------------------------------------------
 
-    def _spawn(self) -> None:
-        """Start a replacement in the background; it joins the idle set once warm."""
-        self._n_starting += 1
-        self._background(self._start_worker())
+    async def run(self, fn: Callable[[Any], Any], payload: Any, *, timeout_s: float, client: str = "") -> Any:
+        """Run ``fn(payload)`` in a solver; the solver is stopped if it takes longer than ``timeout_s``.
 
-    def _start_process(self) -> _Worker:
-        """Blocking (the first start waits for the forkserver's imports): runs in a thread."""
-        t0 = time.monotonic()
-        parent, child = self._ctx.Pipe(duplex=True)
-        proc = self._ctx.Process(target=worker_main, args=(child, self._warm, self._memory_mb), daemon=True,
-                                 name="tuner-solver")
+        ``fn`` must be a module-level function (it is pickled by reference). ``client`` names who
+        asks, for the per-client limits. Raises :class:`PoolBusy`, :class:`ClientBusy`,
+        :class:`JobTimeout`, :class:`WorkerCrashed`, :class:`JobFailed` or :class:`PoolClosed`.
+        """
+        if self._closed or self._pebble is None:
+            raise PoolClosed("the service is shutting down")
+        if self._admitted >= self.size + self.queue_size:
+            raise PoolBusy(f"all {self.size} solver processes are busy and the queue ({self.queue_size}) is full",
+                           retry_after_s=self.retry_after_s())
+        self._admitted += 1
         try:
-            proc.start()
+            await self._acquire(client)
+            try:
+                return await self._run_on_solver(fn, payload, timeout_s, client)
+            finally:
+                self._release(client)
         finally:
-            child.close()
-        with self._lock:
-            self._procs.add(proc)
-            closed = self._closed
-        if closed:  # the pool closed while this one was starting
-            proc.kill()
-        return _Worker(process=proc, conn=parent, started=t0)
+            self._admitted -= 1
 
-    async def _start_worker(self, attempt: int = 0) -> None:
-        loop = asyncio.get_running_loop()
-        worker: _Worker | None = None
-        ready = False
-        try:
-            worker = await loop.run_in_executor(self._threads, self._start_process)
-            msg = await loop.run_in_executor(self._threads, _recv, worker.conn, self.start_timeout_s)
-            ready = isinstance(msg, tuple) and msg[0] == "ready"
-        except (TimeoutError, EOFError, OSError) as e:
-            log.error("a solver process failed to start: %r", e)
-        finally:
-            self._n_starting -= 1
-        if worker is not None and (self._closed or not ready):
-            self._kill(worker)
-        if self._closed:
-            return
-        if ready:
-            log.info("solver process %s ready in %.2f s", worker.pid, time.monotonic() - worker.started)
-            self._release(worker)
-            return
-        await asyncio.sleep(min(30.0, 0.5 * 2 ** attempt))  # back off, then try again
-        if not self._closed:
-            self._n_starting += 1
-            self._background(self._start_worker(attempt + 1))
+    async def _run_on_solver(self, fn: Callable[[Any], Any], payload: Any, timeout_s: float, client: str) -> Any:
+        for _attempt in range(2):  # a second time only on a pool rebuilt after it broke (the job never ran)
+            pool = self._pebble
+            if self._closed or pool is None:
+                raise PoolClosed("the service is shutting down")
+            key = next(self._keys)
+            self._deadlines[key] = (client, time.monotonic() + timeout_s)
+            try:
+                future = pool.schedule(run_job, args=(fn, payload), timeout=timeout_s)
+            except RuntimeError:  # pebble's pool is broken or stopped
+                self._deadlines.pop(key, None)
+                await self._rebuild(pool)
+                continue
+            self._inflight.add(future)
+            try:
+                kind, value = await asyncio.wrap_future(future)
+            except FutureTimeout:
+                self.timeouts += 1
+                log.warning("a solver overran its limit of %.3g s; stopped", timeout_s)
+                raise JobTimeout(timeout_s) from None
+            except ProcessExpired as e:
+                if e.exitcode == EXIT_OUT_OF_MEMORY:
+                    raise JobFailed("error", {"error": "MemoryError",
+                                              "message": "out of the solver's memory allowance"}) from None
+                self.crashes += 1
+                log.error("solver process %s died during a job (exit code %s)", e.pid, e.exitcode)
+                raise WorkerCrashed("the solver process died while running the job") from e
+            except BrokenExecutor:  # the pool broke while no job ran: this one never started
+                if self._closed:
+                    raise PoolClosed("the service is shutting down") from None
+                await self._rebuild(pool)
+                continue
+            except asyncio.CancelledError:
+                future.cancel()  # a running job's worker is stopped by pebble
+                raise
+            finally:
+                self._inflight.discard(future)
+                self._deadlines.pop(key, None)
+            if kind == "ok":
+                return value
+            raise JobFailed(kind, value)
+        raise WorkerCrashed("the solver pool could not be restarted")
 
-    def _kill(self, worker: _Worker) -> None:
-        try:
-            worker.process.kill()
-        except (OSError, ValueError, AttributeError):
-            pass
-        self._background(self._reap(worker))
-
-    def _retire(self, worker: _Worker) -> None:
-        try:
-            worker.conn.send(None)
-        except (OSError, ValueError):
-            pass
-        self._background(self._reap(worker, grace_s=5.0))
-
-    async def _reap(self, worker: _Worker, grace_s: float = 0.0) -> None:
-        loop = asyncio.get_running_loop()
-
-        def join() -> None:
-            worker.process.join(grace_s or 5.0)
-            if worker.process.is_alive():
-                worker.process.kill()
-                worker.process.join(5.0)
-            worker.conn.close()
-            with self._lock:
-                self._procs.discard(worker.process)
-
-        try:
-            await loop.run_in_executor(self._threads, join)
-        except RuntimeError:  # executor shut down
-            join()
-
-    def _background(self, coro: Any) -> None:
-        task = asyncio.get_running_loop().create_task(coro)
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)

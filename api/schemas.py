@@ -223,6 +223,7 @@ class HealthOut(_Out):
     status: Literal["ok", "degraded"]
     database: Literal["ok", "unreachable"]
     workers: dict[str, int]
+    plots: dict[str, int]
     versions: dict[str, str]
 
 

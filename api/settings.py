@@ -8,9 +8,14 @@ variable                       default                     meaning
 ``TUNER_API_KEY``              unset                       if set, ``/tune``, ``/analyze`` and ``/tunes``
                                                            need a matching ``X-API-Key`` header
 ``TUNER_WORKERS``              number of usable CPUs       solver processes
-``TUNER_QUEUE_SIZE``           ``2 * workers``             requests that may wait for a solver; beyond
+``TUNER_QUEUE_SIZE``           ``16 * workers``            requests that may wait for a solver; beyond
                                                            workers + queue: 503 with ``Retry-After``
-``TUNER_QUEUE_TIMEOUT_S``      ``30``                      longest wait for a free solver, then 503
+``TUNER_QUEUE_TIMEOUT_S``      ``60``                      longest wait for a free solver, then 503
+``TUNER_MAX_INFLIGHT_PER_``    ``workers - 1`` (at least   solvers one client (API key, else address)
+``CLIENT``                     1)                          holds at once; its further requests wait
+                                                           behind other clients' (fair queue)
+``TUNER_MAX_QUEUED_PER_``      ``queue size / 2`` (at      requests one client may have waiting; beyond
+``CLIENT``                     least 1)                    that: 429 with ``Retry-After``
 ``TUNER_DEFAULT_BUDGET_S``     ``10``                      solve budget when the request gives none
 ``TUNER_MAX_BUDGET_S``         ``60``                      largest budget a request may ask for (<= 60)
 ``TUNER_SOLVE_GRACE_S``        ``2``                       a solve is stopped (504) at budget + grace,
@@ -18,6 +23,13 @@ variable                       default                     meaning
                                                            (the solver's final verification may overrun)
 ``TUNER_ANALYZE_TIMEOUT_S``    ``10``                      limit of one ``/analyze`` (then 504)
 ``TUNER_PLOT_TIMEOUT_S``       ``20``                      limit of drawing one plot (then 504)
+``TUNER_PLOT_WORKERS``         ``1``                       plot processes (apart from the solvers; run at
+                                                           a lower CPU priority than the solvers)
+``TUNER_PLOT_QUEUE_SIZE``      ``32``                      plot requests that may wait; beyond: 503
+``TUNER_PLOT_CACHE_MB``        ``64``                      drawn plots kept in memory, per result id and
+                                                           format (results never change)
+``TUNER_DB_RETRY_S``           ``5``                       while the database is unreachable at start-up,
+                                                           the longest pause between two attempts
 ``TUNER_MAX_BODY_BYTES``       ``1000000``                 larger request bodies: 413
 ``TUNER_MAX_IDENTIFY_BODY_BYTES`` ``24000000``             the same for ``POST /identify`` only (flight
                                                            logs: 200,000 samples of input, output and
@@ -60,14 +72,20 @@ class Settings(BaseSettings):
     api_key: SecretStr | None = None
 
     workers: int = Field(default_factory=_cpus, ge=1, le=64)
-    queue_size: int | None = Field(None, ge=0, le=10_000, description="default: 2 * workers")
-    queue_timeout_s: float = Field(30.0, gt=0, le=3600)
+    queue_size: int | None = Field(None, ge=0, le=10_000, description="default: 16 * workers")
+    queue_timeout_s: float = Field(60.0, gt=0, le=3600)
+    max_inflight_per_client: int | None = Field(None, ge=1, le=64, description="default: workers - 1 (>= 1)")
+    max_queued_per_client: int | None = Field(None, ge=0, le=10_000, description="default: queue size / 2")
     default_budget_s: float = Field(10.0, gt=0, le=MAX_BUDGET_S)
     max_budget_s: float = Field(MAX_BUDGET_S, gt=0, le=MAX_BUDGET_S)
     solve_grace_s: float = Field(2.0, ge=0, le=60)
     solve_grace_fraction: float = Field(0.25, ge=0, le=1)
     analyze_timeout_s: float = Field(10.0, gt=0, le=600)
     plot_timeout_s: float = Field(20.0, gt=0, le=600)
+    plot_workers: int = Field(1, ge=1, le=16)
+    plot_queue_size: int = Field(32, ge=0, le=10_000)
+    plot_cache_mb: float = Field(64.0, ge=0)
+    db_retry_s: float = Field(5.0, gt=0, le=300)
     worker_start_timeout_s: float = Field(120.0, gt=0)
     start_method: Literal["forkserver", "spawn"] = "forkserver"
     worker_memory_mb: int | None = Field(4096, ge=256, description="address-space cap of a solver process")
@@ -90,7 +108,18 @@ class Settings(BaseSettings):
 
     @property
     def effective_queue_size(self) -> int:
-        return 2 * self.workers if self.queue_size is None else self.queue_size
+        return 16 * self.workers if self.queue_size is None else self.queue_size
+
+    @property
+    def effective_max_inflight_per_client(self) -> int:
+        """Solvers one client may hold: by default all but one, so that others always find one."""
+        n = max(1, self.workers - 1) if self.max_inflight_per_client is None else self.max_inflight_per_client
+        return min(n, self.workers)
+
+    @property
+    def effective_max_queued_per_client(self) -> int:
+        q = self.effective_queue_size
+        return max(1, q // 2) if self.max_queued_per_client is None else self.max_queued_per_client
 
 
 def get_settings(request: Request) -> Settings:

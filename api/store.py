@@ -7,12 +7,16 @@ apart so that listing and reading results never loads it), the result JSON. A ro
 before the service answers, so an ``id`` that was returned can always be read back, across
 restarts.
 
-The calls are blocking; routes run them in a thread.
+The calls are blocking; routes run them in a thread. The service starts even when the database
+is unreachable: :meth:`Store.create_schema` is then retried in the background, and every call
+made before it has succeeded tries it once more first (so the first request after the database
+is back is served), else raises :class:`StoreError` (503).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import threading
 import uuid
 from dataclasses import dataclass
 from typing import Any
@@ -22,7 +26,8 @@ from sqlalchemy.engine import Engine, make_url
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
-__all__ = ["Store", "TuneRecord", "TuneSummary", "IdentificationRecord", "IdentificationSummary", "StoreError"]
+__all__ = ["Store", "TuneRecord", "TuneSummary", "IdentificationRecord", "IdentificationSummary", "StoreError",
+           "reason"]
 
 
 class StoreError(Exception):
@@ -111,6 +116,15 @@ def _now_id() -> tuple[str, _dt.datetime]:
     return uuid.uuid4().hex, _dt.datetime.now(_dt.UTC)
 
 
+def reason(e: BaseException | None) -> str:
+    """The driver's first line (e.g. "connection refused"), without the SQL or parameters."""
+    if e is None:
+        return "unknown"
+    orig = getattr(e, "orig", None) or e
+    line = str(orig).strip().splitlines()[0] if str(orig).strip() else type(orig).__name__
+    return line[:200]
+
+
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
     cur = dbapi_conn.cursor()
     cur.execute("PRAGMA journal_mode=WAL")  # readers do not block the writer
@@ -135,17 +149,32 @@ class Store:
             event.listen(self.engine, "connect", _sqlite_pragmas)
         self._session = sessionmaker(self.engine, expire_on_commit=False)
         self.backend = u.get_backend_name()
+        self.ready = False  # the tables exist (create_schema has succeeded once)
+        self._schema_lock = threading.Lock()
 
     def create_schema(self) -> None:
-        try:
-            _Base.metadata.create_all(self.engine)
-        except SQLAlchemyError as e:
-            raise StoreError(f"cannot create the tables: {type(e).__name__}") from e
+        with self._schema_lock:
+            if self.ready:
+                return
+            try:
+                _Base.metadata.create_all(self.engine)
+            except SQLAlchemyError as e:
+                raise StoreError("database unreachable") from e
+            self.ready = True
+
+    def require_ready(self) -> None:
+        if not self.ready:
+            self.create_schema()
 
     def dispose(self) -> None:
         self.engine.dispose()
 
     def ping(self) -> bool:
+        if not self.ready:
+            try:
+                self.create_schema()
+            except StoreError:
+                return False
         try:
             with self.engine.connect() as c:
                 c.execute(text("SELECT 1"))
@@ -154,6 +183,7 @@ class Store:
             return False
 
     def _insert(self, row: Any) -> None:
+        self.require_ready()
         try:
             with Session(self.engine, expire_on_commit=False) as s, s.begin():
                 s.add(row)
@@ -161,6 +191,7 @@ class Store:
             raise StoreError(f"the result could not be stored: {type(e).__name__}") from e
 
     def _read(self, fn: Any) -> Any:
+        self.require_ready()
         try:
             with self._session() as s:
                 return fn(s)

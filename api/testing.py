@@ -10,15 +10,24 @@ import os
 import time
 from typing import Any
 
-__all__ = ["spin_job", "crash_job", "sleep_job", "invalid_plant_job", "failing_job", "capped_tune_job",
-           "wait_for_workers", "hog_job"]
+__all__ = ["spin_job", "spin_marked", "crash_job", "sleep_job", "invalid_plant_job", "unverified_job", "failing_job",
+           "capped_tune_job", "wait_for_workers", "wait_until", "hog_job"]
 
 
 def spin_job(payload: Any) -> None:
-    """A runaway solve: burns CPU and ignores every budget."""
+    """A runaway solve: burns CPU and ignores every budget (first creating ``payload["started_file"]``,
+    if given, so that a test knows it runs)."""
+    if isinstance(payload, dict) and payload.get("started_file"):
+        with open(payload["started_file"], "w") as f:
+            f.write(str(os.getpid()))
     x = 0
     while True:
         x += 1
+
+
+def spin_marked(started_file: str, payload: Any) -> None:
+    """:func:`spin_job` that writes its pid to ``started_file`` first (bind it with functools.partial)."""
+    spin_job({"started_file": started_file})
 
 
 def crash_job(payload: Any) -> None:
@@ -40,6 +49,16 @@ def invalid_plant_job(payload: Any) -> None:
     raise InvalidPlantError("plant cannot be tuned: test rejection raised in the solver", field=("plants", 0))
 
 
+def unverified_job(payload: Any) -> None:
+    """The library found nothing it could verify within the budget (a TunerError that is a TimeoutError)."""
+    from tuner.errors import TunerError
+
+    class NothingVerifiedError(TunerError, TimeoutError):
+        pass
+
+    raise NothingVerifiedError("no candidate could be verified within the budget (test)")
+
+
 def failing_job(payload: Any) -> None:
     """A bug inside the solver (an exception that is not a TunerError)."""
     raise ZeroDivisionError("division by zero in a test job")
@@ -54,12 +73,21 @@ def capped_tune_job(payload: dict[str, Any]) -> Any:
     return result.to_json()
 
 
+def wait_until(cond: Any, *, timeout_s: float = 60.0, what: str = "condition") -> None:
+    """Poll ``cond()`` until it is true: a wait for an event, the bound only there so that a bug cannot
+    hang a test suite (no test asserts how long it took)."""
+    end = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < end, f"{what}: not within {timeout_s:g} s"
+        time.sleep(0.02)
+
+
 def wait_for_workers(client: Any, *, timeout_s: float = 120.0, headers: dict[str, str] | None = None) -> None:
-    """Poll ``/health`` until every solver process is up (their start is not part of any time budget)."""
+    """Poll ``/health`` until every solver and plot process is up (their start is no job's time)."""
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
-        w = client.get("/health", headers=headers or {}).json()["workers"]
-        if w["ready"] + w["busy"] >= w["size"]:
+        h = client.get("/health", headers=headers or {}).json()
+        if all(w["ready"] + w["busy"] >= w["size"] for w in (h["workers"], h["plots"])):
             return
         time.sleep(0.1)
     raise TimeoutError("solver processes did not start")

@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse
 from tuner.jsonio import jsonable
 
 from ..convert import FieldError, analysis_inputs, body_loc
-from ..deps import get_analyze_job, get_pool
+from ..deps import client_id, get_analyze_job, get_pool
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_ANALYZE_EXAMPLE, AnalyzeRequest, AnalyzeResponse
@@ -39,11 +39,12 @@ async def post_analyze(
     settings: Settings = Depends(get_settings),
     pool: WorkerPool = Depends(get_pool),
     job: Callable[[dict[str, Any]], Any] = Depends(get_analyze_job),
+    client: str = Depends(client_id),
 ) -> JSONResponse:
     plant, ctrl, spec = analysis_inputs(body)
     payload = {"plant": plant, "controller": ctrl, "spec": spec}
     try:
-        out = await pool.run(job, payload, timeout_s=settings.analyze_timeout_s)
+        out = await pool.run(job, payload, timeout_s=settings.analyze_timeout_s, client=client)
     except JobTimeout:
         raise HTTPException(504, f"the analysis took longer than {settings.analyze_timeout_s:g} s and was "
                                  "stopped") from None

@@ -10,7 +10,8 @@ from fastapi import APIRouter, Depends
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from ..deps import get_pool, get_store
+from ..deps import get_plot_cache, get_plot_pool, get_pool, get_store
+from ..plotcache import PlotCache
 from ..pool import WorkerPool
 from ..schemas import HealthOut
 from ..store import Store
@@ -36,8 +37,12 @@ def versions() -> dict[str, str]:
 
 @router.get("/health", response_model=HealthOut, summary="Service status and library versions",
             responses={503: {"model": HealthOut, "description": "the database is unreachable"}})
-async def health(store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool)) -> JSONResponse:
+async def health(store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+                 plot_pool: WorkerPool = Depends(get_plot_pool),
+                 plot_cache: PlotCache = Depends(get_plot_cache)) -> JSONResponse:
     db_ok = await run_in_threadpool(store.ping)
     body = {"status": "ok" if db_ok else "degraded", "database": "ok" if db_ok else "unreachable",
-            "workers": pool.stats(), "versions": versions()}
+            "workers": pool.stats(), "plots": {**plot_pool.stats(), **{f"cache_{k}": v for k, v in
+                                                                       plot_cache.stats().items()}},
+            "versions": versions()}
     return JSONResponse(body, status_code=200 if db_ok else 503)

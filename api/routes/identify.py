@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse, Response
 from tuner.jsonio import jsonable
 
 from ..convert import FieldError, error_type
-from ..deps import get_identify_job, get_identify_plot_job, get_pool, get_store
+from ..deps import client_id, get_identify_job, get_identify_plot_job, get_plot_pool, get_pool, get_store
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas_identify import (
@@ -73,6 +73,7 @@ async def post_identify(
     store: Store = Depends(get_store),
     pool: WorkerPool = Depends(get_pool),
     job: Callable[[dict[str, Any]], Any] = Depends(get_identify_job),
+    client: str = Depends(client_id),
 ) -> JSONResponse:
     _check(body)
     options = body.model_dump(exclude=set(_SAMPLES))
@@ -80,7 +81,7 @@ async def post_identify(
                "time": None if body.time is None else np.asarray(body.time, dtype=float),
                "rate_hz": body.rate_hz, **options}
     try:
-        result = await pool.run(job, payload, timeout_s=settings.identify_timeout_s)
+        result = await pool.run(job, payload, timeout_s=settings.identify_timeout_s, client=client)
     except JobTimeout:
         raise HTTPException(504, f"the identification took longer than {settings.identify_timeout_s:g} s and was "
                                  "stopped; decimate the record or fit fewer poles") from None
@@ -145,7 +146,8 @@ async def _plot(ident_id: str, fmt: str, store: Store, pool: WorkerPool, job: Ca
 @router.get("/identifications/{ident_id}/plot.png", response_class=Response, tags=["results"],
             summary="Plot of a stored identification (PNG)", description=_PLOT_DOC,
             responses={**PLOT_ERRORS, 200: {"content": {"image/png": {}}}})
-async def plot_png(ident_id: str = IdentId, store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+async def plot_png(ident_id: str = IdentId, store: Store = Depends(get_store),
+                   pool: WorkerPool = Depends(get_plot_pool),
                    job: Callable[[dict[str, Any]], Any] = Depends(get_identify_plot_job),
                    settings: Settings = Depends(get_settings)) -> Response:
     return await _plot(ident_id, "png", store, pool, job, settings, "image/png")
@@ -154,7 +156,8 @@ async def plot_png(ident_id: str = IdentId, store: Store = Depends(get_store), p
 @router.get("/identifications/{ident_id}/plot.svg", response_class=Response, tags=["results"],
             summary="Plot of a stored identification (SVG)", description=_PLOT_DOC,
             responses={**PLOT_ERRORS, 200: {"content": {"image/svg+xml": {}}}})
-async def plot_svg(ident_id: str = IdentId, store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+async def plot_svg(ident_id: str = IdentId, store: Store = Depends(get_store),
+                   pool: WorkerPool = Depends(get_plot_pool),
                    job: Callable[[dict[str, Any]], Any] = Depends(get_identify_plot_job),
                    settings: Settings = Depends(get_settings)) -> Response:
     return await _plot(ident_id, "svg", store, pool, job, settings, "image/svg+xml")

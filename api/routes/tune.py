@@ -13,7 +13,7 @@ from tuner.jsonio import jsonable
 from tuner.problem import MAX_PLANTS
 
 from ..convert import FieldError, body_loc, plant_dict, tuning_problem
-from ..deps import get_pool, get_store, get_tune_job
+from ..deps import client_id, get_pool, get_store, get_tune_job
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_EXAMPLE, ErrorOut, TuneRequest, TuneResponse, ValidationErrorOut
@@ -43,9 +43,12 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     422: {"model": ValidationErrorOut, "description": "invalid input; `loc` names the field"},
     500: {"model": ErrorOut, "description": "the solver failed internally or crashed (it is replaced); "
                                             "never an answer to invalid input"},
+    429: {"model": ErrorOut, "description": "this client already has as many requests waiting as it may "
+                                            "(TUNER_MAX_QUEUED_PER_CLIENT; see Retry-After)"},
     503: {"model": ErrorOut, "description": "every solver busy and the queue full (see Retry-After), "
                                             "or storage unavailable"},
-    504: {"model": ErrorOut, "description": "the solve overran its time budget and was stopped"},
+    504: {"model": ErrorOut, "description": "nothing could be verified: the solve overran its time budget "
+                                            "plus grace and was stopped"},
 }
 
 
@@ -61,6 +64,7 @@ async def post_tune(
     store: Store = Depends(get_store),
     pool: WorkerPool = Depends(get_pool),
     job: Callable[[dict[str, Any]], Any] = Depends(get_tune_job),
+    client: str = Depends(client_id),
 ) -> JSONResponse:
     budget = body.options.time_budget_s or settings.default_budget_s
     if budget > settings.max_budget_s:
@@ -73,14 +77,19 @@ async def post_tune(
                          f"{1 + len(extra)} plants given (plant + plants); at most {limit} per request")
     problem = tuning_problem(body)
     payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
+    await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)
     try:
-        result = await pool.run(job, payload, timeout_s=settings.solve_limit_s(budget))
+        result = await pool.run(job, payload, timeout_s=settings.solve_limit_s(budget), client=client)
     except JobTimeout as e:
         raise HTTPException(504, f"the solve did not finish within its time budget of {budget:g} s "
                                  f"(stopped at {e.limit_s:.3g} s, grace included); no verified result to "
                                  f"return. Retry with a larger options.time_budget_s (at most "
                                  f"{settings.max_budget_s:g}) or a simpler structure.") from None
     except JobFailed as e:
+        if e.kind == "tuner_error" and e.info.get("timeout"):  # the library: nothing verified within the budget
+            raise HTTPException(504, f"nothing could be verified within the time budget of {budget:g} s "
+                                     f"({e.info['message']}). Retry with a larger options.time_budget_s (at most "
+                                     f"{settings.max_budget_s:g}) or a simpler structure.") from None
         if e.kind == "tuner_error":
             raise FieldError(body_loc(e.info.get("field") or ()), e.info["message"], type="tuner_error") from None
         raise HTTPException(500, internal_message(e.info, "solver")) from None

@@ -5,13 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
 from tuner.jsonio import jsonable
 
-from ..deps import get_plot_job, get_pool, get_store
+from ..deps import client_id, get_plot_cache, get_plot_job, get_plot_pool, get_store
+from ..plotcache import PlotCache
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ErrorOut, TuneList, TuneRecordOut
 from ..settings import Settings, get_settings
@@ -27,7 +28,10 @@ NOT_FOUND = {404: {"model": ErrorOut, "description": "no stored result with this
               **UNAVAILABLE}
 PLOT_ERRORS = {**NOT_FOUND,
                 500: {"model": ErrorOut, "description": "the plot could not be drawn"},
-                503: {"model": ErrorOut, "description": "every solver busy (see Retry-After), or storage unavailable"},
+                429: {"model": ErrorOut, "description": "this client has as many plot requests waiting as it may "
+                                                        "(see Retry-After)"},
+                503: {"model": ErrorOut, "description": "every plot process busy (see Retry-After), or storage "
+                                                        "unavailable"},
                 504: {"model": ErrorOut, "description": "drawing overran its time limit"}}
 TuneId = Path(min_length=1, max_length=64, description="the id returned by POST /tune")
 
@@ -61,43 +65,63 @@ async def get_tune(tune_id: str = TuneId, store: Store = Depends(get_store)) -> 
 
 
 async def draw_in_pool(pool: WorkerPool, job: Callable[[dict[str, Any]], Any], payload: dict[str, Any],
-                       settings: Settings) -> bytes:
-    """Run a plot job in the solver pool: 504 past ``plot_timeout_s``, 500 if drawing failed."""
+                       settings: Settings, client: str = "") -> bytes:
+    """Run a plot job in the plot pool: 504 past ``plot_timeout_s``, 500 if drawing failed."""
     try:
-        return await pool.run(job, payload, timeout_s=settings.plot_timeout_s)
+        return await pool.run(job, payload, timeout_s=settings.plot_timeout_s, client=client)
     except JobTimeout:
         raise HTTPException(504, f"drawing took longer than {settings.plot_timeout_s:g} s and was stopped") from None
     except JobFailed as e:
         raise HTTPException(500, f"the plot could not be drawn ({e.info.get('error')}); it has been logged") from None
 
 
-async def _plot(rec: TuneRecord, fmt: str, pool: WorkerPool, job: Callable[[dict[str, Any]], Any],
-                settings: Settings) -> bytes:
+async def _draw(rec: TuneRecord, fmt: str, pool: WorkerPool, job: Callable[[dict[str, Any]], Any],
+                settings: Settings, client: str) -> bytes:
     gains = ", ".join(f"{k}={v:.4g}" for k, v in rec.result.get("gains", {}).items())
     payload = {"plants": rec.plants, "controller": rec.result["controller"], "spec": rec.result["spec"],
                "fmt": fmt, "title": f"{rec.structure}: {gains}" + ("" if rec.meets_spec else " (spec NOT met)")}
-    return await draw_in_pool(pool, job, payload, settings)
+    return await draw_in_pool(pool, job, payload, settings, client)
 
 
 _PLOT_DOC = ("Step response (continuous output, and the samples as markers) and Bode plot of the open loop with "
-             "the phase and gain margins marked; all plants of a robust tune, the nominal one solid.")
+             "the phase and gain margins marked; all plants of a robust tune, the nominal one solid. Drawn in a "
+             "process apart from the solvers and cached (a stored result never changes): `ETag` and "
+             "`If-None-Match` are honoured; `Cache-Control` is `private` when the server needs an API key.")
+_MEDIA = {"png": "image/png", "svg": "image/svg+xml"}
+
+
+async def _plot_response(request: Request, tune_id: str, fmt: str, store: Store, pool: WorkerPool,
+                         cache: PlotCache, job: Callable[[dict[str, Any]], Any], settings: Settings,
+                         client: str) -> Response:
+    from importlib import metadata
+
+    rec = await _record(store, tune_id)
+    try:
+        version = metadata.version("tuner")
+    except metadata.PackageNotFoundError:  # pragma: no cover
+        version = "0"
+    etag = f'"{rec.id}.{fmt}.{version}"'
+    scope = "private" if settings.api_key is not None else "public"
+    headers = {"Cache-Control": f"{scope}, max-age=86400, immutable", "ETag": etag}
+    if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
+        return Response(status_code=304, headers=headers)
+    data = await cache.get_or_draw((rec.id, fmt), lambda: _draw(rec, fmt, pool, job, settings, client))
+    return Response(data, media_type=_MEDIA[fmt], headers=headers)
 
 
 @router.get("/{tune_id}/plot.png", response_class=Response, summary="Plot of a stored result (PNG)",
             description=_PLOT_DOC, responses={**PLOT_ERRORS, 200: {"content": {"image/png": {}}}})
-async def plot_png(tune_id: str = TuneId, store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+async def plot_png(request: Request, tune_id: str = TuneId, store: Store = Depends(get_store),
+                   pool: WorkerPool = Depends(get_plot_pool), cache: PlotCache = Depends(get_plot_cache),
                    job: Callable[[dict[str, Any]], Any] = Depends(get_plot_job),
-                   settings: Settings = Depends(get_settings)) -> Response:
-    rec = await _record(store, tune_id)
-    return Response(await _plot(rec, "png", pool, job, settings), media_type="image/png",
-                    headers={"Cache-Control": "public, max-age=86400"})
+                   settings: Settings = Depends(get_settings), client: str = Depends(client_id)) -> Response:
+    return await _plot_response(request, tune_id, "png", store, pool, cache, job, settings, client)
 
 
 @router.get("/{tune_id}/plot.svg", response_class=Response, summary="Plot of a stored result (SVG)",
             description=_PLOT_DOC, responses={**PLOT_ERRORS, 200: {"content": {"image/svg+xml": {}}}})
-async def plot_svg(tune_id: str = TuneId, store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
+async def plot_svg(request: Request, tune_id: str = TuneId, store: Store = Depends(get_store),
+                   pool: WorkerPool = Depends(get_plot_pool), cache: PlotCache = Depends(get_plot_cache),
                    job: Callable[[dict[str, Any]], Any] = Depends(get_plot_job),
-                   settings: Settings = Depends(get_settings)) -> Response:
-    rec = await _record(store, tune_id)
-    return Response(await _plot(rec, "svg", pool, job, settings), media_type="image/svg+xml",
-                    headers={"Cache-Control": "public, max-age=86400"})
+                   settings: Settings = Depends(get_settings), client: str = Depends(client_id)) -> Response:
+    return await _plot_response(request, tune_id, "svg", store, pool, cache, job, settings, client)

@@ -1,15 +1,22 @@
 """The bounded solver pool behind the routes: 504 on overrun (the solve really stops), 503 when
-full, a crashed worker replaced, library errors from inside the solver answered as 422.
+full, a crashed worker replaced, library errors from inside the solver answered as 422, solvers
+that end with the service.
 
 One worker and no queue, so that a single slow request fills the service. Misbehaving
-solves are injected with ``dependency_overrides`` (functions in :mod:`api.testing`).
+solves are injected with ``dependency_overrides`` (functions in :mod:`api.testing`). No test
+asserts a duration: each waits for events (a process gone, a file written, a counter moved) with
+generous bounds.
 """
 
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
+import textwrap
 import threading
-import time
+from pathlib import Path
 
 import pytest
 from quadrotor import DT, ROLL, ROLL_C, YAW
@@ -18,10 +25,10 @@ from api import testing
 from api.deps import get_analyze_job, get_tune_job
 from api.main import create_app
 from api.settings import Settings
-from api.testing import wait_for_workers
+from api.testing import wait_for_workers, wait_until
 
 GRACE = 0.5  # s: budget + GRACE is when the service stops a solve
-MARGIN = 1.5  # s: what answering may add to that (killing, replying); generous for a loaded CI machine
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -65,53 +72,75 @@ def alive(pid: int) -> bool:
         return False
 
 
-def test_runaway_solve_is_stopped_and_answered_504_within_budget_plus_grace(app, client, inject):
-    inject(testing.spin_job)
-    (pid,) = app.state.pool.pids()
-    budget = 0.5
-    t0 = time.monotonic()
-    r = client.post("/tune", json=tune_body(budget))
-    elapsed = time.monotonic() - t0
+def test_runaway_solve_is_stopped_and_answered_504(app, client, inject, tmp_path):
+    started = tmp_path / "started"
+    inject(_with_marker(started))
+    body = tune_body(0.5)
+    timeouts = app.state.pool.stats()["timeouts"]
+    r = client.post("/tune", json=body)
     assert r.status_code == 504, r.text
     detail = r.json()["detail"]
     assert "time budget of 0.5 s" in detail and "stopped" in detail and "Traceback" not in r.text
-    assert budget + GRACE <= elapsed + 0.05  # not cut before its limit
-    assert elapsed < budget + GRACE + MARGIN  # but at it
-    for _ in range(100):  # the runaway process is gone, not left burning a core
-        if not alive(pid):
-            break
-        time.sleep(0.05)
-    assert not alive(pid)
-    assert app.state.pool.stats()["timeouts"] >= 1
+    pid = int(started.read_text())  # the process that ran the runaway job
+    assert not alive(pid)  # pebble stops (and reaps) the process before it answers the timeout
+    assert app.state.pool.stats()["timeouts"] == timeouts + 1
+
+
+def _with_marker(path):
+    """The spin job, told to write its pid to ``path`` first (a partial is picklable by reference)."""
+    import functools
+
+    return functools.partial(testing.spin_marked, str(path))
+
+
+def test_a_job_inside_its_limit_is_not_cut(client, inject):
+    inject(testing.sleep_job)  # sleeps its budget, 0.2 s, well inside budget + grace
+    r = client.post("/tune", json=tune_body(0.2))
+    assert r.status_code == 200, r.text
+    assert r.json()["slept_s"] == 0.2
 
 
 def test_service_answers_again_after_a_504(client, inject):
+    from tuner.analysis.verify import analyze
+    from tuner.controllers import ControllerTF
+    from tuner.plant import plant_from_expr
+    from tuner.spec import Spec
+
     inject(testing.spin_job)
     assert client.post("/tune", json=tune_body(0.2)).status_code == 504
     r = client.post("/analyze", json=ANALYZE)  # a fresh worker takes the next request
-    assert r.status_code == 200 and r.json()["meets_spec"] in (True, False)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    ctrl = out["controller"]
+    import numpy as np
+
+    direct = analyze(plant_from_expr(ROLL, dt=DT), ControllerTF(num=np.array(ctrl["num"]), den=np.array(ctrl["den"]),
+                                                               dt=ctrl["dt"]), Spec())
+    assert out["meets_spec"] == direct.meets_spec
+    assert out["metrics"]["phase_margin_deg"] == pytest.approx(direct.metrics.phase_margin_deg, rel=1e-9)
 
 
-def test_real_solve_past_its_budget_returns_the_best_verified_result(app, client):
-    """``tune`` stops itself at its budget (its final verification may run on a little, which the
-    default grace of 2 s + 25 % allows); the answer is a verified result, in time."""
+def test_real_solve_with_a_budget_returns_a_verified_result(app, client):
+    """``tune`` stops itself at its budget with its best verified result (its final verification may run
+    on a little, which the default grace of 2 s + 25 % allows): 200, a result the verifier confirms."""
     from api.settings import get_settings
 
     settings = app.state.settings.model_copy(update={"solve_grace_s": 2.0, "solve_grace_fraction": 0.25})
     app.dependency_overrides[get_settings] = lambda: settings
-    budget = 1.0
     try:
-        t0 = time.monotonic()
         r = client.post("/tune", json={"plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z",
-                                       "options": {"time_budget_s": budget}})
-        elapsed = time.monotonic() - t0
+                                       "options": {"time_budget_s": 1.0}})
     finally:
         app.dependency_overrides.pop(get_settings)
     assert r.status_code == 200, r.text
-    assert elapsed < settings.solve_limit_s(budget) + MARGIN
     out = r.json()
-    assert out["solver"]["wall_time_s"] < settings.solve_limit_s(budget)
-    assert out["meets_spec"] == all(c["ok"] for c in out["checks"])
+    assert isinstance(out["solver"]["budget_exhausted"], bool)
+    c = out["controller"]
+    check = client.post("/analyze", json={"plant": {"expr": ROLL}, "dt": DT,
+                                          "controller": {"num": c["num"], "den": c["den"]}})
+    assert check.status_code == 200, check.text
+    assert check.json()["meets_spec"] == out["meets_spec"]
+    assert check.json()["metrics"]["settling_time_s"] == pytest.approx(out["metrics"]["settling_time_s"], rel=1e-9)
     assert out["failing"] == sorted(c["name"] for c in out["checks"] if not c["ok"])
 
 
@@ -126,11 +155,7 @@ def test_busy_service_answers_503_with_retry_after(client, inject):
     t.start()
     try:
         pool = client.app.state.pool
-        for _ in range(200):
-            if pool.stats()["busy"] == 1:
-                break
-            time.sleep(0.02)
-        assert pool.stats()["busy"] == 1
+        wait_until(lambda: pool.stats()["busy"] == 1, what="the first request on the solver")
         r = client.post("/tune", json=tune_body(0.5))
         assert r.status_code == 503, r.text
         retry = int(r.headers["Retry-After"])
@@ -146,14 +171,15 @@ def test_busy_service_answers_503_with_retry_after(client, inject):
 
 def test_crashed_worker_does_not_take_the_service_down(app, client, inject):
     inject(testing.crash_job)
+    crashes = app.state.pool.stats()["crashes"]
     r = client.post("/tune", json=tune_body(1.0))
     assert r.status_code == 500
     assert "crashed" in r.json()["detail"] and "Traceback" not in r.text
-    assert app.state.pool.stats()["crashes"] >= 1
+    assert app.state.pool.stats()["crashes"] == crashes + 1
     app.dependency_overrides.pop(get_tune_job)
-    r = client.post("/tune", json=tune_body(0.5))  # waits for the replacement, then is served
+    r = client.post("/analyze", json=ANALYZE)  # waits for the replacement, then is served
     assert r.status_code == 200, r.text
-    assert set(r.json()["gains"]) == {"Kp", "Ki"}
+    assert r.json()["controller"]["dt"] == DT
 
 
 def test_library_error_inside_the_solver_is_422(client, inject):
@@ -162,6 +188,13 @@ def test_library_error_inside_the_solver_is_422(client, inject):
     assert r.status_code == 422
     assert r.json()["detail"] == [{"loc": ["body", "plant"], "type": "tuner_error",
                                    "msg": "plant cannot be tuned: test rejection raised in the solver"}]
+
+
+def test_nothing_verified_within_the_budget_is_504(client, inject):
+    inject(testing.unverified_job)
+    r = client.post("/tune", json=tune_body(0.5))
+    assert r.status_code == 504, r.text
+    assert "nothing could be verified within the time budget of 0.5 s" in r.json()["detail"]
 
 
 def test_bug_inside_the_solver_is_a_500_without_traceback(client, inject):
@@ -173,14 +206,9 @@ def test_bug_inside_the_solver_is_a_500_without_traceback(client, inject):
 
 def test_worker_killed_while_idle_costs_no_request(app, client):
     """E.g. the kernel's OOM killer took an idle solver: the next request gets a fresh one, not an error."""
-    import signal
-
     (pid,) = app.state.pool.pids()
     os.kill(pid, signal.SIGKILL)  # a solver process this test's app started
-    for _ in range(100):
-        if not alive(pid):
-            break
-        time.sleep(0.02)
+    wait_until(lambda: not alive(pid), what="the killed solver gone")
     r = client.post("/analyze", json=ANALYZE)
     assert r.status_code == 200, r.text
     assert pid not in app.state.pool.pids()
@@ -197,3 +225,37 @@ def test_memory_hungry_solve_fails_alone_and_the_next_request_is_served(app, cli
     r = client.post("/analyze", json=ANALYZE)
     assert r.status_code == 200
     assert pid not in app.state.pool.pids()  # the process that hit the cap was replaced
+
+
+SERVICE_THEN_KILLED = textwrap.dedent("""
+    import asyncio, sys
+    from api import testing
+    from api.pool import WorkerPool
+
+    async def main(started):
+        pool = WorkerPool(size=1, queue_size=0)
+        await pool.start()
+        await pool.run(testing.spin_job, {"started_file": started}, timeout_s=600)
+
+    asyncio.run(main(sys.argv[1]))
+""")
+
+
+@pytest.mark.slow
+def test_a_busy_solver_ends_with_the_service(tmp_path):
+    """kill -9 of the service while its solver runs a (runaway) job: the solver goes too, at once
+    (PR_SET_PDEATHSIG through the forkserver), instead of running its job to the end."""
+    started = tmp_path / "started"
+    service = subprocess.Popen([sys.executable, "-c", SERVICE_THEN_KILLED, str(started)], cwd=ROOT)
+    try:
+        wait_until(lambda: started.exists() and started.read_text().strip(), timeout_s=180,
+                   what="the solver running its job")
+        solver = int(started.read_text())
+        assert alive(solver)
+        service.kill()
+        service.wait(30)
+        wait_until(lambda: not alive(solver), timeout_s=30, what="the solver gone after its service")
+    finally:
+        if service.poll() is None:
+            service.kill()
+            service.wait()

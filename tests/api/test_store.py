@@ -139,7 +139,7 @@ def test_unreachable_database_raises_store_error_not_a_driver_error():
     s = Store("postgresql+psycopg://nobody@127.0.0.1:1/none")  # nothing listens on port 1
     try:
         assert s.ping() is False
-        with pytest.raises(StoreError, match="could not be stored"):
+        with pytest.raises(StoreError, match="database unreachable"):
             s.add(request=REQUEST, plants=PLANTS, result=RESULT)
         with pytest.raises(StoreError):
             s.get("x")

@@ -1,8 +1,10 @@
 """The service as deployed: a real uvicorn process on 127.0.0.1, started with the documented command.
 
-16 concurrent ``POST /tune`` on a pool of 2 solver processes: every one answered 200 (no 5xx),
-each result re-verified through ``/analyze``; then the process is stopped, a new one started on
-the same SQLite file, and every result read back.
+16 concurrent ``POST /tune`` from 4 clients (4 loopback addresses) on a pool of 2 solver
+processes, with the default queue settings: every one answered 200 (no 5xx), each result
+re-verified through ``/analyze``; then the process is stopped, a new one started on the same
+SQLite file, and every result read back. And ``kill -9`` of uvicorn while a solve runs: nothing
+of the service is left running.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -98,15 +101,23 @@ def body(i: int) -> dict:
     return {"plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z", "options": {"seed": i, "time_budget_s": 0.3}}
 
 
+CLIENTS = 4  # requests i, i + 4, ... come from 127.0.0.(1 + i % 4): each client holds at most one solver
+
+
+def client_for(i: int) -> httpx.Client:
+    return httpx.Client(transport=httpx.HTTPTransport(local_address=f"127.0.0.{1 + i % CLIENTS}"), timeout=180)
+
+
 def test_16_concurrent_tunes_then_restart_and_read_back(tmp_path):
     env = {"TUNER_DATABASE_URL": f"sqlite:///{tmp_path / 'tuner.db'}", "TUNER_WORKERS": "2",
-           "TUNER_QUEUE_SIZE": str(N), "TUNER_QUEUE_TIMEOUT_S": "120", "TUNER_SOLVE_GRACE_S": "3"}
+           "TUNER_SOLVE_GRACE_S": "3"}  # the default queue (16 per solver) and queue timeout (30 s)
     server = Server(tmp_path, env)
     try:
         server.wait_ready()
 
         def post(i: int) -> httpx.Response:
-            return httpx.post(f"{server.url}/tune", json=body(i), timeout=180)
+            with client_for(i) as c:
+                return c.post(f"{server.url}/tune", json=body(i))
 
         with ThreadPoolExecutor(N) as ex:
             responses = list(ex.map(post, range(N)))
@@ -154,3 +165,52 @@ def test_16_concurrent_tunes_then_restart_and_read_back(tmp_path):
             assert got == out
     finally:
         again.stop()
+
+
+def test_kill_9_of_the_service_leaves_no_solver_running(tmp_path):
+    """A solve that runs for a long time (20 s budget on an order-10 plant at a fine sample time);
+    uvicorn is killed with SIGKILL mid-solve: every process of the service's session goes too."""
+    env = {"TUNER_DATABASE_URL": f"sqlite:///{tmp_path / 'tuner.db'}", "TUNER_WORKERS": "1"}
+    server = Server(tmp_path, env)
+    box: dict = {}
+
+    def long_solve() -> None:
+        try:
+            box["r"] = httpx.post(f"{server.url}/tune", timeout=120, json={
+                "plant": {"expr": "1/(s+1)^10"}, "dt": 0.001, "structure": "pid", "options": {"time_budget_s": 20}})
+        except httpx.HTTPError as e:  # the server dies under it
+            box["r"] = e
+
+    try:
+        server.wait_ready()
+        t = threading.Thread(target=long_solve)
+        t.start()
+        end = time.monotonic() + 60
+        while httpx.get(f"{server.url}/health", timeout=5).json()["workers"]["busy"] != 1:
+            assert time.monotonic() < end, "the solve never started"
+            time.sleep(0.05)
+        assert _session_alive(server.proc.pid, besides=server.proc.pid)  # the solver (and forkserver) run
+        server.proc.kill()
+        server.proc.wait(10)
+        end = time.monotonic() + 30  # a bound against a hang, not a timing claim
+        while _session_alive(server.proc.pid):
+            assert time.monotonic() < end, "processes of the killed service still run"
+            time.sleep(0.05)
+        t.join(30)
+        assert isinstance(box["r"], httpx.HTTPError)
+    finally:
+        server.stop()
+
+
+def _session_alive(sid: int, *, besides: int | None = None) -> bool:
+    """Is any process (zombies aside) of session ``sid`` running, other than ``besides``?"""
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit() or int(d.name) == besides:
+            continue
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except (FileNotFoundError, ProcessLookupError, IndexError):
+            continue
+        if fields[0] != "Z" and int(fields[3]) == sid:  # state, ppid, pgrp, session
+            return True
+    return False

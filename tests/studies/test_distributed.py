@@ -90,6 +90,16 @@ def _claims(coord: Coordinator) -> dict[str, list[tuple[int, str, str | None]]]:
     return out
 
 
+def _retries(coord: Coordinator, lp) -> list[int]:
+    """Per COMPLETE trial of the loop: the number of the trial it retries (Optuna's ``failed_trial``)."""
+    out = []
+    for _, _, sid in coord.claim_studies(lp):
+        for t in coord.storage.get_all_trials(sid, deepcopy=False):
+            if t.state == TrialState.COMPLETE:
+                out.append(t.system_attrs.get("failed_trial"))
+    return out
+
+
 def _completed(rows) -> list[tuple[int, str, str | None]]:
     return [r for r in rows if r[1] == TrialState.COMPLETE.name]
 
@@ -137,10 +147,11 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         # every loop completed exactly once, across all workers and attempts
         for loop, rows in claims.items():
             assert len(_completed(rows)) == 1, (loop, rows)
-        # the killed worker's loop: its claim failed (stale heartbeat), re-done once by B, in the next epoch
+        # the killed worker's loop: its trial failed (stale heartbeat), Optuna re-queued it, B re-did it once
         rows = claims[killed_loop]
         assert (killed_epoch, "FAIL", wid_a) in rows, rows
-        assert _completed(rows) == [(killed_epoch + 1, "COMPLETE", wid_b)], rows
+        assert _completed(rows) == [(killed_epoch, "COMPLETE", wid_b)], rows
+        assert _retries(coord, study.get(killed_loop)) == [0], "the COMPLETE trial is Optuna's retry of trial 0"
 
         # nothing lost: B's results.json has every loop, as stored
         doc = json.loads((tmp_path / "b" / "results.json").read_text())
@@ -149,7 +160,7 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         for loop, r in doc["loops"].items():
             assert "error" not in r and r["gains"] == sts[loop].result["gains"], loop
         assert doc["loops"][killed_loop]["worker"] == wid_b
-        assert doc["loops"][killed_loop]["epoch"] == killed_epoch + 1
+        assert (doc["loops"][killed_loop]["epoch"], doc["loops"][killed_loop]["attempt"]) == (killed_epoch, 1)
 
         # re-running the finished study reuses its results at once: no new claim anywhere
         c = _run(f, pg_url, tmp_path / "c")
@@ -169,17 +180,20 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
 
 
 def test_claims_are_exclusive_and_a_stale_claim_is_taken_over(tmp_path):
-    """In-process, on SQLite: one claim per epoch; a claim whose heartbeat stops is failed after the
-    grace period and claimed again; the zombie cannot complete it any more."""
+    """In-process, on SQLite: one claim per loop; a claim whose heartbeat stops is failed after the
+    grace period and re-queued by Optuna, taken by exactly one worker; the zombie cannot complete it."""
     f, _ = _study_file(tmp_path)
     study = load_study(f)
     url = f"sqlite:///{tmp_path / 'study.db'}"
     a = Coordinator(study, open_storage(url, heartbeat_s=1, grace_s=2), worker="A")
     b = Coordinator(study, open_storage(url, heartbeat_s=1, grace_s=2), worker="B")
+    c = Coordinator(study, open_storage(url, heartbeat_s=1, grace_s=2), worker="C")
     yaw = study.get("yaw")
-    ca = a.claim(yaw, 0)
+    free = a.statuses()["yaw"]
+    assert (free.state, free.epoch, free.trial_id) == ("free", 0, None)
+    ca = a.claim(yaw, free)
     assert ca is not None
-    assert b.claim(yaw, 0) is None  # the same epoch cannot be claimed twice
+    assert b.claim(yaw, free) is None  # the same loop cannot be claimed twice
     assert b.statuses()["yaw"].state == "running"
     assert b.statuses()["y"].state == "blocked"  # waits for its inner loop, roll
 
@@ -188,13 +202,39 @@ def test_claims_are_exclusive_and_a_stale_claim_is_taken_over(tmp_path):
     deadline = time.monotonic() + 20
     while (st := b.statuses()["yaw"]).state != "free" and time.monotonic() < deadline:
         time.sleep(0.3)
-    assert (st.state, st.epoch) == ("free", 1)
-    cb = b.claim(yaw, 1)
-    assert cb is not None and cb.complete({"loop": "yaw", "gains": {"K": 1.0, "a1": 0.0, "a2": 0.0}})
+    assert (st.state, st.epoch, st.attempt) == ("free", 0, 1) and st.trial_id is not None  # re-queued
+    cb = b.claim(yaw, st)
+    assert cb is not None
+    assert c.claim(yaw, st) is None  # the re-queued trial is taken once
+    assert cb.complete({"loop": "yaw", "gains": {"K": 1.0, "a1": 0.0, "a2": 0.0}})
     assert not ca.complete({"loop": "yaw", "gains": {"K": 2.0, "a1": 0.0, "a2": 0.0}})  # the zombie loses
     done = b.statuses()["yaw"]
-    assert (done.state, done.worker, done.result["gains"]["K"]) == ("done", "B", 1.0)
-    assert _claims(b)["yaw"] == [(0, "FAIL", "A"), (1, "COMPLETE", "B")]
+    assert (done.state, done.worker, done.result["gains"]["K"], done.attempt) == ("done", "B", 1.0, 1)
+    assert _claims(b)["yaw"] == [(0, "FAIL", "A"), (0, "COMPLETE", "B")]
+    assert _retries(b, yaw) == [0]
+
+
+def test_a_claim_study_left_empty_is_claimed_again_in_the_next_epoch(tmp_path):
+    """A worker that died between creating a loop's claim study and adding its trial: after the
+    grace period the loop is claimed under the next epoch's name, once."""
+    from optuna.study import StudyDirection
+
+    f, _ = _study_file(tmp_path)
+    study = load_study(f)
+    url = f"sqlite:///{tmp_path / 'study.db'}"
+    a = Coordinator(study, open_storage(url, heartbeat_s=1, grace_s=1), worker="A")
+    b = Coordinator(study, open_storage(url, heartbeat_s=1, grace_s=1), worker="B")
+    fopdt = study.get("fopdt")
+    a.storage.create_new_study([StudyDirection.MINIMIZE], f"{a.prefix(fopdt)}0")  # ... and A dies
+    assert b.statuses()["fopdt"].state == "running"
+    deadline = time.monotonic() + 20
+    while (st := b.statuses()["fopdt"]).state != "free" and time.monotonic() < deadline:
+        time.sleep(0.3)
+    assert (st.state, st.epoch, st.trial_id) == ("free", 1, None)
+    cb = b.claim(fopdt, st)
+    assert cb is not None and a.claim(fopdt, st) is None
+    assert cb.complete({"loop": "fopdt", "gains": {"Kp": 1.0, "Ki": 0.1}})
+    assert _claims(b)["fopdt"] == [(1, "COMPLETE", "B")]
 
 
 @pytest.mark.slow
@@ -209,3 +249,24 @@ def test_local_workers_share_a_sqlite_study(tmp_path, capsys):
     claims = _claims(coord)
     assert all(len(_completed(rows)) == 1 and len(rows) == 1 for rows in claims.values()), claims
     assert json.loads((out / "gains.json").read_text()).keys() == doc["loops"].keys()
+
+
+def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
+    """A worker's early plots carry a fingerprint (loop definition + gains): the report uses them for
+    that result only, and draws again for another (e.g. a re-tuned loop in the same folder)."""
+    from tuner.studies.cli import _drawn_early, _fingerprint
+
+    f, _ = _study_file(tmp_path)
+    study = load_study(f)
+    yaw = study.get("yaw")
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    result = {"gains": {"K": 1.0, "a1": -0.5, "a2": 0.1}}
+    for kind in ("step", "bode"):
+        (plots / f"yaw_{kind}.png").write_bytes(b"\x89PNG")
+    (plots / "yaw.plotted").write_text(json.dumps({"fingerprint": _fingerprint(study, yaw, result),
+                                                   "figures": {"step": "yaw_step.png", "bode": "yaw_bode.png"}}))
+    assert _drawn_early(study, yaw, result, plots) == {"step": plots / "yaw_step.png", "bode": plots / "yaw_bode.png"}
+    assert _drawn_early(study, yaw, {"gains": {**result["gains"], "K": 2.0}}, plots) is None  # other gains
+    (plots / "yaw_bode.png").unlink()
+    assert _drawn_early(study, yaw, result, plots) is None  # a figure is missing

@@ -51,19 +51,91 @@ def add_parser(sub: Any) -> None:
 
 # -- study run ------------------------------------------------------------------------------------
 
-def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pid: int) -> None:
+_STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", "tuner.studies.evaluate",
+          "tuner.analysis.plots")
+
+
+def _preload_stack() -> None:
+    """Import what the workers tune with and the parent reports with, once, before forking the workers."""
+    import importlib
+
+    for mod in _STACK:
+        importlib.import_module(mod)
+
+
+def _context() -> Any:
+    """``fork`` where it is safe and cheap (Linux: the workers inherit the imported stack), else ``spawn``."""
+    return mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
+
+
+def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pid: int, wakeup: Any,
+                  plots_dir: str | None) -> None:
     """A worker process: the same claim loop as every other worker, on its own connection."""
+    from .._process import set_parent_death_signal
     from .runner import Coordinator, open_storage, work
     from .schema import load_study
 
-    def watchdog() -> None:  # a parent killed with SIGKILL cannot take its workers down: they notice
-        while True:
-            if os.getppid() != parent_pid:
-                os._exit(3)
-            time.sleep(1.0)
+    # a parent killed with SIGKILL cannot leave its workers running: the kernel ends them with it
+    if not set_parent_death_signal() or os.getppid() != parent_pid:
+        def watchdog() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(1.0)
+            os._exit(3)
 
-    threading.Thread(target=watchdog, daemon=True).start()
-    work(Coordinator(load_study(path), open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)))
+        threading.Thread(target=watchdog, daemon=True).start()
+    study = load_study(path)
+    work(Coordinator(study, open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)), wakeup=wakeup,
+         on_done=_early_plotter(study, plots_dir))
+
+
+def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
+    """What a loop's plots depend on: its definition (the loop key) and its gains."""
+    import hashlib
+
+    from .schema import loop_key
+
+    doc = json.dumps({"key": loop_key(study, lp.name), "gains": result.get("gains")}, sort_keys=True)
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+def _early_plotter(study: Any, plots_dir: str | None) -> Any:
+    """``on_done`` of a worker: draw a loop's plots as soon as it is tuned, while other loops are still
+    being tuned (loops without an inner loop: an outer one's plots need its inner loop's evaluation,
+    which :func:`write_outputs` draws). A ``<name>.plotted`` file names the plots and what they show."""
+    if plots_dir is None:
+        return None
+
+    def draw(lp: Any, result: dict[str, Any]) -> None:
+        if lp.inner is not None or "gains" not in result:
+            return
+        from .schema import controller_of
+
+        try:
+            ctrl = controller_of(lp, result["gains"])
+            _, figs = _evaluate_and_plot(study, lp, {lp.name: ctrl}, None, Path(plots_dir))
+            marker = Path(plots_dir) / f"{lp.name}.plotted"
+            tmp = marker.with_suffix(f".tmp{os.getpid()}")
+            tmp.write_text(json.dumps({"fingerprint": _fingerprint(study, lp, result),
+                                       "figures": {k: Path(v).name for k, v in figs.items()}}))
+            tmp.replace(marker)
+        except Exception:  # the parent draws what is missing
+            import logging
+
+            logging.getLogger(__name__).exception("plots of loop %s not drawn early", lp.name)
+
+    return draw
+
+
+def _drawn_early(study: Any, lp: Any, result: dict[str, Any], plots_dir: Path) -> dict[str, Path] | None:
+    """The plots a worker drew for this very result, if any (see :func:`_early_plotter`)."""
+    try:
+        doc = json.loads((plots_dir / f"{lp.name}.plotted").read_text())
+    except (OSError, ValueError):
+        return None
+    if doc.get("fingerprint") != _fingerprint(study, lp, result):
+        return None
+    figs = {k: plots_dir / v for k, v in doc.get("figures", {}).items()}
+    return figs if figs and all(p.exists() for p in figs.values()) else None
 
 
 def _progress_loop(study: Any, storage: Any, stop: threading.Event) -> None:
@@ -101,8 +173,8 @@ def _progress_loop(study: Any, storage: Any, stop: threading.Event) -> None:
                 elif st.state == "blocked":
                     prog.update(tasks[lp.name], status=f"waiting for {lp.inner}")
                 else:
-                    again = f"re-queued (attempt {st.epoch + 1})"
-                    prog.update(tasks[lp.name], status="queued" if st.epoch == 0 else again)
+                    again = f"re-queued (attempt {st.attempt + 1})"
+                    prog.update(tasks[lp.name], status="queued" if st.attempt == 0 and st.epoch == 0 else again)
             if final:
                 return
             stop.wait(0.5)
@@ -113,10 +185,27 @@ def _short(v: Any) -> str:
 
 
 def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s: int = 2, grace_s: int = 30,
-              progress: bool = True) -> dict[str, Any]:
-    """Run ``workers`` workers on this machine until every loop is done; returns the statuses."""
-    from .runner import Coordinator, open_storage, work
+              progress: bool = True, plots_dir: Path | None = None) -> dict[str, Any]:
+    """Run ``workers`` workers on this machine until every loop is done; returns the statuses.
 
+    Several workers are forked from this process once it has imported the tuning stack (none of
+    them imports it again), before this process opens the storage or starts its progress thread;
+    they wake each other when a loop is done."""
+    from .runner import Coordinator, Wakeup, open_storage, work
+
+    procs = []
+    if workers > 1:
+        # Optuna creates its tables on first use: once, here (workers starting together would race), with
+        # no connection left open across the fork
+        open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
+        _preload_stack()
+        ctx = _context()
+        wakeup = Wakeup(ctx)
+        pdir = str(plots_dir) if plots_dir is not None else None
+        procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
+                             name=f"tuner-worker-{i}") for i in range(workers)]
+        for p in procs:
+            p.start()
     storage = open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)
     stop = threading.Event()
     mon = None
@@ -126,15 +215,9 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
         mon.start()
     try:
         if workers <= 1:
-            work(Coordinator(study, storage))
-        else:
-            ctx = mp.get_context("spawn")
-            procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid()),
-                                 name=f"tuner-worker-{i}") for i in range(workers)]
-            for p in procs:
-                p.start()
-            for p in procs:
-                p.join()
+            work(Coordinator(study, storage), on_done=_early_plotter(study, str(plots_dir) if plots_dir else None))
+        for p in procs:
+            p.join()
     finally:
         stop.set()
         if mon is not None:
@@ -142,37 +225,78 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     return Coordinator(study, storage, observe_only=True).statuses()
 
 
+def _evaluate_and_plot(study: Any, lp: Any, ctrls: dict[str, Any], inner_bw: float | None, plots_dir: Path | None
+                       ) -> tuple[Any, dict[str, Any]]:
+    """One loop's re-verification (and its plots): the unit of work of :func:`write_outputs`."""
+    from .evaluate import evaluate_loop
+
+    e = evaluate_loop(study, lp, ctrls[lp.name], ctrls, inner_bandwidth_rad_s=inner_bw)
+    figs: dict[str, Any] = {}
+    if plots_dir is not None:
+        from ..analysis.plots import loop_plots
+
+        figs = loop_plots(e.nominal, plots_dir, lp.name, band_pct=e.loop.spec.settling_band_pct,
+                          overshoot_max_pct=e.loop.spec.overshoot_max_pct, cascade=e.cascade)
+    return e, figs
+
+
+def _evaluate_all(study: Any, ctrls: dict[str, Any], plots_dir: Path | None, jobs: int,
+                  drawn: dict[str, dict[str, Path]] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Every tuned loop re-verified and plotted (unless ``drawn`` already), inner loops first (an outer
+    loop's evaluation needs its inner loop's bandwidth), ``jobs`` loops at a time in forked processes."""
+    drawn = drawn or {}
+    from concurrent.futures import ProcessPoolExecutor
+
+    tuned: dict[str, Any] = {}
+    figs: dict[str, Any] = {}
+    todo = [lp for lp in study.order() if lp.name in ctrls]
+    ex = ProcessPoolExecutor(min(jobs, len(todo)), mp_context=_context()) if jobs > 1 and len(todo) > 1 else None
+    try:
+        while todo:
+            wave = [lp for lp in todo if lp.inner is None or lp.inner in tuned]
+            if not wave:  # its inner loop has no result
+                break
+            args = [(study, lp, ctrls, tuned[lp.inner].nominal.metrics.bandwidth_rad_s if lp.inner else None,
+                     None if lp.name in drawn else plots_dir) for lp in wave]
+            outs = list(ex.map(_evaluate_and_plot, *zip(*args))) if ex is not None and len(wave) > 1 else \
+                [_evaluate_and_plot(*a) for a in args]
+            for lp, (e, f) in zip(wave, outs):
+                tuned[lp.name] = e
+                if f or lp.name in drawn:
+                    figs[lp.name] = f or drawn[lp.name]
+            todo = [lp for lp in todo if lp.name not in tuned]
+    finally:
+        if ex is not None:
+            ex.shutdown()
+    return tuned, figs
+
+
 def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storage: str, source: str,
-                  plots: bool = True) -> dict[str, Any]:
-    """results.json, gains.json, report.md and plots/ from the stored results (re-verified)."""
+                  plots: bool = True, jobs: int = 1) -> dict[str, Any]:
+    """results.json, gains.json, report.md and plots/ from the stored results (re-verified, ``jobs``
+    loops at a time)."""
     from ..jsonio import jsonable
-    from .evaluate import evaluate_loop, evaluate_thesis, gains_entry
+    from .evaluate import evaluate_thesis, gains_entry
     from .report import render_report
     from .schema import controller_of, identified
 
     out_dir.mkdir(parents=True, exist_ok=True)
     results = {name: (st.result or {"loop": name, "error": "not done"}) for name, st in statuses.items()}
-    ctrls, tuned = {}, {}
-    for lp in study.order():
-        r = results[lp.name]
-        if "gains" not in r or (lp.inner is not None and lp.inner not in tuned):
-            continue
-        ctrls[lp.name] = controller_of(lp, r["gains"])
-        inner_bw = tuned[lp.inner].nominal.metrics.bandwidth_rad_s if lp.inner else None
-        tuned[lp.name] = evaluate_loop(study, lp, ctrls[lp.name], ctrls, inner_bandwidth_rad_s=inner_bw)
+    ctrls = {lp.name: controller_of(lp, results[lp.name]["gains"]) for lp in study.order()
+             if "gains" in results[lp.name]}
+    plots_dir = out_dir / "plots" if plots else None
+    drawn = {} if plots_dir is None else {
+        lp.name: f for lp in study.order() if lp.name in ctrls
+        and (f := _drawn_early(study, lp, results[lp.name], plots_dir)) is not None}
+    tuned, figs = _evaluate_all(study, ctrls, plots_dir, jobs, drawn)
+    ctrls = {n: c for n, c in ctrls.items() if n in tuned}
     thesis = evaluate_thesis(study, ctrls)
-    figs: dict[str, Any] = {}
     if plots:
-        from ..analysis.plots import loop_plots
-
-        for name, e in tuned.items():
-            figs[name] = loop_plots(e.nominal, out_dir / "plots", name, band_pct=e.loop.spec.settling_band_pct,
-                                    overshoot_max_pct=e.loop.spec.overshoot_max_pct, cascade=e.cascade)
         for lp in study.order():  # the identification of data loops: Bode of data and fit, coherence
             if lp.data is not None and lp.name in figs:
                 path = out_dir / "plots" / f"{lp.name}_fit.png"
                 identified(lp).plot().savefig(path, dpi=100)
-                figs.setdefault(lp.name, {})["fit"] = path
+                figs[lp.name] = {**figs[lp.name], "fit": path}
     doc = {"study": study.name, "file": source, "storage": storage,
            "meets_spec": all(e.meets_spec for e in tuned.values()) and len(tuned) == len(study.loop),
            "order": [lp.name for lp in study.order()], "loops": results,
@@ -199,12 +323,13 @@ def _cmd_study_run(a: argparse.Namespace) -> int:
     url = a.storage or default_storage_url(str(out))
     t0 = time.perf_counter()
     statuses = run_study(study, a.file, url, workers=a.workers, heartbeat_s=a.heartbeat, grace_s=a.grace,
-                         progress=True)
+                         progress=True, plots_dir=None if a.no_plots else out / "plots")
     missing = [n for n, s in statuses.items() if s.state != "done"]
     if missing:
         print(f"tuner: study {study.name!r} not finished: {', '.join(missing)} (workers stopped)", file=sys.stderr)
         return 1
-    doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots)
+    doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots,
+                        jobs=a.workers)
     _print_summary(doc, time.perf_counter() - t0, out)
     return 0 if doc["meets_spec"] else 1
 

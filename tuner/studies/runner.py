@@ -1,19 +1,38 @@
 """Running a study: workers that share its loops through an Optuna storage.
 
 The storage (SQLite by default, PostgreSQL for several machines) is the only coordination
-point. For each loop, *claims* are Optuna studies named ``<study>:<loop>:<key>@<epoch>``:
+point. Each loop is one Optuna study, ``<study>:<loop>:<key>@<epoch>``, whose trials are the
+attempts at tuning it; a worker holds the loop while it holds a RUNNING trial.
 
-* ``key`` hashes everything the loop's result depends on (:func:`tuner.studies.schema.loop_key`), so
-  an edited study file is tuned afresh and an unchanged one reuses its results at once;
-* a worker claims epoch ``e`` by *creating* that study (names are unique in the storage, so
-  exactly one worker succeeds) and asks one trial in it: a RUNNING trial whose heartbeat the
-  worker records every ``heartbeat_s`` (Optuna's RDB heartbeat);
-* the result is stored as the trial's user attribute ``result`` and the trial is told
-  COMPLETE. A worker that dies stops its heartbeat; after ``grace_s`` any worker fails the
-  stale trial (:func:`optuna.storages.fail_stale_trials`, a row-locked state change, so once)
-  and the loop is claimed again as epoch ``e + 1``. A zombie that wakes up after that cannot
-  complete its trial any more, so every loop has at most one COMPLETE claim;
-* an outer loop is claimed only once its inner loop is done (workers poll the storage).
+What Optuna provides and this module uses as it is:
+
+* **Heartbeats and stale trials**: ``RDBStorage(heartbeat_interval, grace_period)`` records
+  heartbeats; :func:`optuna.storages.fail_stale_trials` fails a RUNNING trial whose heartbeat is
+  older than the grace period (a row-locked state change: once, whoever calls it);
+* **Re-queuing a dead worker's loop**: the storage's stale-trial callback,
+  :class:`optuna.storages.RetryHeartbeatStaleTrialCallback` (``RetryFailedTrialCallback`` before
+  Optuna 5), adds a WAITING copy of the failed trial, with its ``retry_history``;
+* **Exclusive claims**: a WAITING trial is claimed with ``set_trial_state_values(RUNNING)``, which
+  succeeds for exactly one caller (the primitive behind Optuna's own ``ask`` of enqueued trials);
+  a trial told COMPLETE cannot be failed, and one failed as stale cannot be completed, so a zombie
+  that wakes up late loses and every loop has at most one COMPLETE trial.
+
+What still needs this module, and why:
+
+* **Which loop, once**: Optuna has no "create this study with one trial" in one step, so the
+  study's *name* is the exclusive event: whoever creates ``...@0`` adds its first WAITING trial.
+  A worker that died between the two leaves an empty study; after the grace period any worker
+  claims the name ``...@1`` instead (the epoch). Only this rare path changes the epoch;
+* **The heartbeat thread**: Optuna runs its own only inside ``Study.optimize``, which would also
+  create a fresh trial when the WAITING one was taken; the claim beats (``record_heartbeat``)
+  before it takes its trial, so a claimed trial always has a heartbeat (Optuna never fails a
+  RUNNING trial without one);
+* **Cascades and results**: an outer loop is claimed only once its inner loop is done; the
+  result is the trial's user attribute ``result`` (stored before the trial is told COMPLETE);
+  ``key`` hashes everything the loop's result depends on (:func:`tuner.studies.schema.loop_key`),
+  so an edited study file is tuned afresh and an unchanged one reuses its results at once;
+* **Waking up**: workers on one machine wake each other when a loop is done
+  (:class:`Wakeup`), instead of polling the storage; across machines they poll it.
 """
 
 from __future__ import annotations
@@ -40,8 +59,8 @@ from optuna.trial import TrialState
 from ..errors import TunerError
 from .schema import LoopDef, StudyDef, controller_of, loop_key
 
-__all__ = ["StorageError", "open_storage", "LoopStatus", "Coordinator", "work", "default_storage_url",
-           "delete_study_records", "redact"]
+__all__ = ["StorageError", "open_storage", "LoopStatus", "Coordinator", "Claim", "Wakeup", "work",
+           "default_storage_url", "delete_study_records", "redact"]
 
 log = logging.getLogger(__name__)
 optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -75,7 +94,9 @@ def open_storage(url: str, *, heartbeat_s: int = HEARTBEAT_S, grace_s: int = GRA
     try:
         with warnings.catch_warnings():  # heartbeat_interval is marked experimental; it is what we build on
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            return RDBStorage(url, engine_kwargs=engine, heartbeat_interval=int(heartbeat_s), grace_period=int(grace_s))
+            key, retry = _retry_callback()  # a dead worker's loop is re-queued by Optuna itself
+            return RDBStorage(url, engine_kwargs=engine, heartbeat_interval=int(heartbeat_s), grace_period=int(grace_s),
+                              **{key: retry})
     except Exception as e:  # SQLAlchemy/driver errors of every kind: one clear message
         raise StorageError(f"--storage {redact(url)}: cannot open: {str(e).splitlines()[0]}") from e
 
@@ -85,10 +106,25 @@ class LoopStatus:
     """What the storage says about one loop."""
 
     state: str  # "done", "running", "free" (claimable), "blocked" (its inner loop is not done)
-    epoch: int  # the epoch to claim next ("free"), or the current one
+    epoch: int  # the claim study to use: to create ("free" without trial_id), or the current one
     result: dict[str, Any] | None = None
     worker: str | None = None
     since: datetime | None = None
+    trial_id: int | None = None  # "free": the WAITING trial to claim (None: create the epoch's study)
+    attempt: int = 0  # how many earlier attempts failed (Optuna's retry history)
+
+
+def _retry_callback() -> Any:
+    cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)  # Optuna >= 5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        if cls is not None:
+            return "heartbeat_stale_trial_callback", cls()
+        return "failed_trial_callback", optuna.storages.RetryFailedTrialCallback()
+
+
+def _attempt(t: Any) -> int:
+    return len(t.system_attrs.get("retry_history", []))
 
 
 class Coordinator:
@@ -106,7 +142,7 @@ class Coordinator:
         return f"{self.study.name}:{lp.name}:{self.keys[lp.name]}@"
 
     def claim_studies(self, lp: LoopDef, names: list[str] | None = None) -> list[tuple[int, str, int]]:
-        """(epoch, study name, study id) of the loop's claims, oldest first."""
+        """(epoch, study name, study id) of the loop's claim studies, oldest first."""
         pre = self.prefix(lp)
         if names is None:
             names = [s.study_name for s in self.storage.get_all_studies()]
@@ -121,46 +157,50 @@ class Coordinator:
 
     def status(self, lp: LoopDef, statuses: dict[str, LoopStatus] | None = None,
                names: list[str] | None = None) -> LoopStatus:
-        """The loop's state; a worker (not an observer) also fails the claims of dead workers here."""
+        """The loop's state; a worker (not an observer) also fails the trials of dead workers here
+        (Optuna re-queues each as a WAITING trial)."""
         claims = self.claim_studies(lp, names)
         trials: list[Any] = []
         for e, _, sid in claims:
-            # one read per claim, decided from that read alone: a COMPLETE trial is done (its result is
-            # stored before it is told COMPLETE), whatever a later read would say
+            # one read per claim study, decided from that read alone: a COMPLETE trial is done (its result
+            # is stored before it is told COMPLETE), whatever a later read would say
             trials = self.storage.get_all_trials(sid, deepcopy=False)
             for t in trials:
                 if t.state == TrialState.COMPLETE:
                     return LoopStatus("done", e, t.user_attrs.get("result"), t.user_attrs.get("worker"),
-                                      t.datetime_start)
+                                      t.datetime_start, attempt=_attempt(t))
         if lp.inner is not None and statuses is not None and statuses[lp.inner].state != "done":
             return LoopStatus("blocked", claims[-1][0] + 1 if claims else 0)
         if not claims:
             return LoopStatus("free", 0)
         e, name, sid = claims[-1]
-        if not trials:  # the owner is between creating the claim and asking its trial, or died there
+        if not trials:  # its creator is between creating it and adding its trial, or died there
             if not self.observe_only and self._waited(("empty", sid)) > self.storage.grace_period:
                 return LoopStatus("free", e + 1)
             return LoopStatus("running", e)
-        t = trials[0]
-        if t.state == TrialState.RUNNING and not self.observe_only:
+        if not self.observe_only and any(t.state == TrialState.RUNNING for t in trials):
             with warnings.catch_warnings():  # marked experimental since Optuna 2.9; it is what we build on
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
                 fail_stale_trials(optuna.Study(name, self.storage))
-            tid = self.storage.get_trial_id_from_study_id_trial_number(sid, t.number)
-            if "alive" not in t.user_attrs and self._waited(("mute", tid)) > self.storage.grace_period:
-                self._fail(tid)  # died before its first heartbeat
-            t = self.storage.get_trial(tid)
-        if t.state == TrialState.COMPLETE:  # completed between the two reads above
-            return LoopStatus("done", e, t.user_attrs.get("result"), t.user_attrs.get("worker"), t.datetime_start)
-        if t.state == TrialState.RUNNING:
-            return LoopStatus("running", e, worker=t.user_attrs.get("worker"), since=t.datetime_start)
-        return LoopStatus("free", e + 1)  # FAIL: a dead worker's claim
-
-    def _fail(self, trial_id: int) -> None:
-        try:
-            self.storage.set_trial_state_values(trial_id, state=TrialState.FAIL)
-        except UpdateFinishedTrialError:
-            pass
+            trials = self.storage.get_all_trials(sid, deepcopy=False)
+        for t in trials:
+            if t.state == TrialState.COMPLETE:  # completed between the two reads above
+                return LoopStatus("done", e, t.user_attrs.get("result"), t.user_attrs.get("worker"),
+                                  t.datetime_start, attempt=_attempt(t))
+        for t in trials:
+            if t.state == TrialState.RUNNING:
+                return LoopStatus("running", e, worker=t.user_attrs.get("worker"), since=t.datetime_start,
+                                  attempt=_attempt(t))
+        waiting = [t for t in trials if t.state == TrialState.WAITING]
+        if waiting:
+            t = waiting[0]
+            return LoopStatus("free", e, trial_id=self.storage.get_trial_id_from_study_id_trial_number(sid, t.number),
+                              attempt=_attempt(t))
+        # every trial failed and none re-queued (the worker that failed one died before re-queuing it):
+        # after the grace period, a fresh claim study
+        if not self.observe_only and self._waited(("dead", sid)) > self.storage.grace_period:
+            return LoopStatus("free", e + 1)
+        return LoopStatus("running", e)
 
     def statuses(self) -> dict[str, LoopStatus]:
         out: dict[str, LoopStatus] = {}
@@ -169,29 +209,35 @@ class Coordinator:
             out[lp.name] = self.status(lp, out, names)
         return out
 
-    def claim(self, lp: LoopDef, epoch: int) -> Claim | None:
-        name = f"{self.prefix(lp)}{epoch}"
+    def claim(self, lp: LoopDef, st: LoopStatus) -> Claim | None:
+        """Take the loop as ``st`` (a "free" status) says: its WAITING trial, or a new claim study."""
+        name = f"{self.prefix(lp)}{st.epoch}"
+        trial_id = st.trial_id
+        if trial_id is None:
+            try:
+                sid = self.storage.create_new_study([StudyDirection.MINIMIZE], name)
+            except DuplicatedStudyError:
+                return None  # another worker created this epoch's study first
+            trial_id = self.storage.create_new_trial(sid, template_trial=optuna.trial.create_trial(
+                state=TrialState.WAITING))
+        self.storage.record_heartbeat(trial_id)  # before it is RUNNING: a claimed trial always has a heartbeat
         try:
-            sid = self.storage.create_new_study([StudyDirection.MINIMIZE], name)
-        except DuplicatedStudyError:
-            return None  # another worker claimed this epoch first
-        study = optuna.Study(name, self.storage)
-        with warnings.catch_warnings():  # "heartbeat is supposed to be used with optimize": we beat ourselves
-            warnings.simplefilter("ignore", UserWarning)
-            trial = study.ask()
-        trial_id = self.storage.get_trial_id_from_study_id_trial_number(sid, trial.number)
-        self.storage.record_heartbeat(trial_id)
-        trial.set_user_attr("worker", self.worker)
-        trial.set_user_attr("alive", True)
-        return Claim(self, lp, epoch, study, trial, trial_id)
+            if not self.storage.set_trial_state_values(trial_id, state=TrialState.RUNNING):
+                return None  # another worker took this trial first
+        except UpdateFinishedTrialError:
+            return None
+        self.storage.set_trial_user_attr(trial_id, "worker", self.worker)
+        return Claim(self, lp, st.epoch, optuna.Study(name, self.storage), trial_id, attempt=st.attempt)
 
 
 class Claim:
     """A loop held by this worker: a RUNNING trial with a heartbeat thread."""
 
-    def __init__(self, coord: Coordinator, lp: LoopDef, epoch: int, study: optuna.Study, trial: Any, trial_id: int):
-        self.coord, self.loop, self.epoch = coord, lp, epoch
-        self.study, self.trial, self.trial_id = study, trial, trial_id
+    def __init__(self, coord: Coordinator, lp: LoopDef, epoch: int, study: optuna.Study, trial_id: int, *,
+                 attempt: int = 0):
+        self.coord, self.loop, self.epoch, self.attempt = coord, lp, epoch, attempt
+        self.study, self.trial_id = study, trial_id
+        self.number = coord.storage.get_trial(trial_id).number
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, daemon=True, name=f"heartbeat-{lp.name}")
         self._thread.start()
@@ -207,10 +253,10 @@ class Claim:
     def complete(self, result: dict[str, Any]) -> bool:
         """Store the result and complete the trial; False if the claim was lost (failed as stale)."""
         try:
-            self.trial.set_user_attr("result", result)
+            self.coord.storage.set_trial_user_attr(self.trial_id, "result", result)
             ts = result.get("metrics", {}).get("settling_time_s")
             value = ts if isinstance(ts, (int, float)) and math.isfinite(ts) else 1e9
-            self.study.tell(self.trial, value)
+            self.study.tell(self.number, value)
             return True
         except (UpdateFinishedTrialError, ValueError, RuntimeError) as e:
             log.warning("claim of loop %s (epoch %d) was lost: %s", self.loop.name, self.epoch, e)
@@ -231,7 +277,8 @@ def _controllers(study: StudyDef, lp: LoopDef, statuses: dict[str, LoopStatus]) 
     return out
 
 
-def run_claimed(coord: Coordinator, claim: Claim, statuses: dict[str, LoopStatus]) -> bool:
+def run_claimed(coord: Coordinator, claim: Claim, statuses: dict[str, LoopStatus]) -> dict[str, Any] | None:
+    """Tune the claimed loop and complete the claim: the stored result, or None if the claim was lost."""
     from .evaluate import tune_loop
 
     lp = claim.loop
@@ -244,14 +291,43 @@ def run_claimed(coord: Coordinator, claim: Claim, statuses: dict[str, LoopStatus
         log.exception("tuning loop %s failed", lp.name)
         result = {"loop": lp.name, "key": coord.keys[lp.name], "error": f"{type(e).__name__}: {e}",
                   "meets_spec": False}
-    result.update({"worker": coord.worker, "epoch": claim.epoch, "wall_time_s": time.perf_counter() - t0})
-    return claim.complete(result)
+    result.update({"worker": coord.worker, "epoch": claim.epoch, "attempt": claim.attempt,
+                   "wall_time_s": time.perf_counter() - t0})
+    return result if claim.complete(result) else None
+
+
+class Wakeup:
+    """Workers of one machine wake each other when a loop is done (a generation count under a
+    condition variable, shared by the processes it is handed to at their start)."""
+
+    def __init__(self, ctx: Any) -> None:
+        self._cond = ctx.Condition()
+        self._gen = ctx.Value("q", 0, lock=False)
+
+    def seen(self) -> int:
+        return int(self._gen.value)
+
+    def notify(self) -> None:
+        with self._cond:
+            self._gen.value += 1
+            self._cond.notify_all()
+
+    def wait(self, seen: int, timeout_s: float) -> None:
+        """Until something changed since ``seen`` (or ``timeout_s``: other machines' workers do not notify)."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._gen.value != seen, timeout_s)
 
 
 def work(coord: Coordinator, *, poll_s: float = 0.5, stop: threading.Event | None = None,
-         on_claim: Callable[[str], None] | None = None) -> dict[str, LoopStatus]:
-    """Claim and tune loops until every loop of the study is done; returns the final statuses."""
+         on_claim: Callable[[str], None] | None = None, wakeup: Wakeup | None = None,
+         on_done: Callable[[LoopDef, dict[str, Any]], None] | None = None) -> dict[str, LoopStatus]:
+    """Claim and tune loops until every loop of the study is done; returns the final statuses.
+
+    With nothing to claim (every free loop taken, or waiting for its inner loop) the worker waits
+    for ``wakeup`` (a loop done on this machine) or ``poll_s``, whichever comes first. ``on_done``
+    runs after each loop this worker completed (e.g. to draw its plots while others still tune)."""
     while True:
+        seen = wakeup.seen() if wakeup is not None else 0
         statuses = coord.statuses()
         if all(s.state == "done" for s in statuses.values()):
             return statuses
@@ -262,16 +338,23 @@ def work(coord: Coordinator, *, poll_s: float = 0.5, stop: threading.Event | Non
             st = statuses[lp.name]
             if st.state != "free":
                 continue
-            claim = coord.claim(lp, st.epoch)
+            claim = coord.claim(lp, st)
             if claim is None:
                 continue
             if on_claim is not None:
                 on_claim(lp.name)
-            run_claimed(coord, claim, statuses)
+            result = run_claimed(coord, claim, statuses)
+            if wakeup is not None:
+                wakeup.notify()
+            if result is not None and on_done is not None:
+                on_done(lp, result)
             claimed = True
             break
         if not claimed:
-            time.sleep(poll_s)
+            if wakeup is not None:
+                wakeup.wait(seen, poll_s)
+            else:
+                time.sleep(poll_s)
 
 
 def delete_study_records(storage: RDBStorage, study_name: str) -> int:

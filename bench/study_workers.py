@@ -1,0 +1,74 @@
+"""``tuner study run STUDY --workers 1`` against ``--workers 2``, interleaved, repeated.
+
+    .venv/bin/python bench/study_workers.py [--study studies/process.toml] [--repeat 3]
+
+Each run is a fresh output directory (a fresh SQLite storage: nothing reused). Reported per
+worker count: the median wall time and the median CPU time of the run (the command and its
+children), and the ratio of the medians; the load average before and after each run is printed,
+since the machine may be shared. Nothing here asserts a timing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_once(study: str, workers: int, plots: bool) -> tuple[float, float]:
+    """(wall s, CPU s of the command and its children)."""
+    with tempfile.TemporaryDirectory() as out:
+        cmd = [sys.executable, "-m", "tuner.cli", "study", "run", study, "--workers", str(workers), "--out", out]
+        if not plots:
+            cmd.append("--no-plots")
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        wall = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if proc.returncode != 0:
+            raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--study", default="studies/process.toml")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-plots", action="store_true")
+    a = ap.parse_args(argv)
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    cpus: dict[int, list[float]] = {1: [], 2: []}
+    print(f"{a.study}, {a.repeat} x (workers 1, workers 2), interleaved; {os.cpu_count()} CPUs")
+    for i in range(a.repeat):
+        for w in (1, 2):
+            load0 = os.getloadavg()[0]
+            wall, cpu = run_once(a.study, w, not a.no_plots)
+            walls[w].append(wall)
+            cpus[w].append(cpu)
+            print(f"  run {i + 1} workers {w}: {wall:6.2f} s wall, {cpu:6.2f} s CPU "
+                  f"(load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after)", flush=True)
+    m1, m2 = statistics.median(walls[1]), statistics.median(walls[2])
+    print()
+    print("| workers | median wall [s] | median CPU [s] | runs (wall) |")
+    print("|---|---|---|---|")
+    for w in (1, 2):
+        print(f"| {w} | {statistics.median(walls[w]):.2f} | {statistics.median(cpus[w]):.2f} | "
+              + ", ".join(f"{x:.2f}" for x in walls[w]) + " |")
+    pairs = [x / y for x, y in zip(walls[1], walls[2])]
+    print(f"\nspeed-up of 2 workers (ratio of the medians): {m1 / m2:.2f}x; per interleaved pair: "
+          + ", ".join(f"{p:.2f}" for p in pairs))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
