@@ -35,7 +35,8 @@ from tuner.optimize.space import make_space  # noqa: E402
 from tuner.plant import Plant  # noqa: E402
 from tuner.studies.evaluate import check_gains_file, evaluate_thesis, loop_plants  # noqa: E402
 from tuner.studies.schema import load_study  # noqa: E402
-from tuner.tuning import designed_starts, tune  # noqa: E402
+from tuner.optimize.engine import designed_starts  # noqa: E402
+from tuner.tuning import tune  # noqa: E402
 
 REFERENCE_CACHE = HERE / "reference.json"
 QUALITY_TOL = 0.02  # "within 2 % (or one sample) of the reference"

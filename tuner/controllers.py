@@ -14,6 +14,9 @@ pi          Kp + Ki/s                                   Kp + Ki*dt*z/(z-1)      
 pd          Kp + Kd*s/(Tf*s+1)                          Kp + Kd*(z-1)/((Tf+dt)*z-Tf)  (backward Euler)
 pid         Kp + Ki/s + Kd*s/(Tf*s+1)                   sum of the two rows above
 pid_z       --                                          K*(z^2+a1*z+a2)/(z*(z-1))     (the thesis form)
+pidf2       (Kp + Ki/s + Kd*s)/(Tf^2 s^2 + sqrt2 Tf s + 1)  [Kp + Ki*dt*z/(z-1) + Kd*(z-1)/(dt*z)] * F(z),
+                                                        F = the filter by Tustin  (DyadControlSystems'
+                                                        form; Tf > 0)
 lead, lag   K*(s/wz+1)/(s/wp+1)                         K*(1-pd)/(1-zd)*(z-zd)/(z-pd), zd=exp(-wz*dt),
                                                         pd=exp(-wp*dt)                (matched, DC gain K)
 leadlag     lead(K, wz1, wp1) * lag(1, wz2, wp2)        product of the matched forms
@@ -140,6 +143,20 @@ def _pid(x, dt, exp):
     return _sum_fractions(_pi_terms(x[0], x[1], dt) + [_d_term(x[2], x[3], dt)])
 
 
+_SQRT2 = 2.0 ** 0.5
+
+
+def _pidf2(x, dt, exp):
+    """(Kp + Ki/s + Kd s) / (Tf^2 s^2 + sqrt(2) Tf s + 1); at dt: the backward-Euler PID with a one-sample
+    derivative times the filter by Tustin (unit DC gain, no trigonometric function of the parameters)."""
+    kp, ki, kd, tf = x
+    if dt is None:
+        return [kd, kp, ki], _pmul([tf * tf, _SQRT2 * tf, 1], [1, 0])
+    pn = [kp + ki * dt + kd / dt, -(kp + 2 * kd / dt), kd / dt]  # over z (z - 1)
+    a, b = tf * tf * 4 / (dt * dt), _SQRT2 * tf * 2 / dt
+    return _pmul(pn, [1, 2, 1]), _pmul([1, -1, 0], [a + b + 1, 2 - 2 * a, a - b + 1])
+
+
 def _pid_z(x, dt, exp):
     k, a1, a2 = x
     return [k, k * a1, k * a2], [1, -1, 0]
@@ -181,6 +198,7 @@ class Structure:
     orderings: tuple[tuple[str, str], ...] = ()  # (a, b): a < b
     integrating: bool = False
     gain_units: tuple[int, ...] = ()  # per parameter: the gain scales as K0 * w0**unit (Ki: +1, Kd: -1)
+    positive_time: bool = False  # time constants must be > 0 in discrete time too (pidf2's filter)
 
     def gain_scale(self, k0: float, w0: float) -> np.ndarray:
         units = self.gain_units or (0,) * len(self.params)
@@ -191,11 +209,13 @@ class Structure:
         dt = check_dt(dt)
         if self.discrete_only and dt is None:
             raise InvalidControllerError(f"structure {self.name!r} is discrete: give dt", field="dt")
-        if dt is None:
+        if dt is None or self.positive_time:
             zero_t = [p for k, p, v in zip(self.kinds, self.params, x) if k == "time" and v == 0]
             if zero_t:
+                why = "in continuous time (a pure derivative is improper)" if dt is None else \
+                    "(the measurement filter's time constant)"
                 raise InvalidControllerError(
-                    f"{self.name}: {zero_t[0]} must be > 0 in continuous time (a pure derivative is improper)",
+                    f"{self.name}: {zero_t[0]} must be > 0 {why}",
                     field=("gains", zero_t[0]),
                 )
         num, den = self.coeffs(x, dt, np.exp)
@@ -249,6 +269,8 @@ STRUCTURES: dict[str, Structure] = {
         Structure("pid", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid, integrating=True,
                   gain_units=(0, 1, -1, 0)),
         Structure("pid_z", ("K", "a1", "a2"), ("gain", "coef", "coef"), _pid_z, discrete_only=True, integrating=True),
+        Structure("pidf2", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pidf2, integrating=True,
+                  gain_units=(0, 1, -1, 0), positive_time=True),
         Structure("lead", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wz", "wp"),)),
         Structure("lag", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wp", "wz"),)),
         Structure(

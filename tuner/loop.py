@@ -102,9 +102,13 @@ class Loop:
         return self._cache["zpk"]
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
-        """Open-loop ``L`` at ``w`` rad/s (delay exact), from the realisations."""
+        """Open-loop ``L`` at ``w`` rad/s (delay exact): continuous from the factors, sampled from the
+        realisations (the zero-order-hold plant exists as a realisation)."""
         w = np.asarray(w, dtype=float)
-        x = 1j * w if self.dt is None else np.exp(1j * w * self.dt)
+        if self.dt is None:  # from the factors: exact to rounding at any frequency (see lti.Zpk)
+            L = self.zpk(1j * w)
+            return L * np.exp(-1j * w * self.delay_s) if self.delay_s else L
+        x = np.exp(1j * w * self.dt)  # |x| = 1: the realisations' Schur form is accurate on the circle
         L = freqresp(self.controller.ss(), x) * freqresp(self.loop_plant.ss(), x)
         if self.delay_s:
             L = L * np.exp(-1j * w * self.delay_s)
@@ -322,6 +326,12 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
 def _finite(loop: Loop) -> Loop:
     """``loop`` if its closed-loop state-space model is finite (plant x controller gains can overflow although
     each is finite: 1e200/(s+1e100) with a controller gain of 1e200)."""
+    c, g = loop.controller.zpk.gain, loop.loop_plant.zpk.gain
+    if c != 0 and g != 0 and not -300 <= math.log10(abs(c)) + math.log10(abs(g)) <= 300:
+        raise InvalidControllerError(f"the loop gain, the product of the plant's and the controller's gains "
+                                     f"({g:g} x {c:g}), is beyond double precision; rescale the controller or "
+                                     "the plant",
+                                     field="controller")
     with np.errstate(all="ignore"):
         if loop.delay_s:  # the fine model is built from the same products as the delay-free loop
             cl = _continuous_loop(loop.plant.ss(), loop.controller.ss())

@@ -143,6 +143,11 @@ def test_structure_frequency_response_matches_documented_formula(name, dt):
             return Kp + (i_term if "i" in name else 0) + (d_term if "d" in name else 0)
         if name == "pid_z":
             return x["K"] * (v**2 + x["a1"] * v + x["a2"]) / (v * (v - 1))
+        if name == "pidf2":  # the documented form; at dt: backward-Euler PID (one-sample derivative) x Tustin filter
+            if dt is None:
+                return (Kp + Ki / v + Kd * v) / (Tf**2 * v**2 + math.sqrt(2) * Tf * v + 1)
+            sv = 2 / dt * (v - 1) / (v + 1)
+            return (Kp + Ki * dt * v / (v - 1) + Kd * (v - 1) / (dt * v)) / (Tf**2 * sv**2 + math.sqrt(2) * Tf * sv + 1)
         if name in ("lead", "lag"):
             return first_order(x["K"], x["wz"], x["wp"], v)
         assert name == "leadlag"

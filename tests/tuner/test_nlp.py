@@ -31,15 +31,15 @@ from scipy import linalg, signal
 from tuner.analysis.verify import analyze
 from tuner.controllers import STRUCTURES, ControllerTF, get_structure
 from tuner.loop import build_loop
+from tuner.optimize.batch import BatchEvaluator
 from tuner.optimize.design import initial_guess
 from tuner.optimize.nlp import refine as refine_mod
 from tuner.optimize.nlp import transcribe
 from tuner.optimize.nlp.plantdata import lift
 from tuner.optimize.nlp.refine import refine
-from tuner.optimize.scoring import Evaluator
 from tuner.optimize.space import make_space
 from tuner.plant import make_plant, plant_from_expr
-from tuner.spec import Spec
+from tuner.problem import TuningProblem
 from tuner.tuning import tune
 
 BUDGET = 120.0
@@ -203,6 +203,13 @@ def _textbook(name, x, dt, w):
         return x["K"] * (z**2 + x["a1"] * z + x["a2"]) / (z * (z - 1))
     if name in ("lead", "lag"):
         return first(x["K"], x["wz"], x["wp"])
+    if name == "pidf2":
+        tf = x["Tf"]
+        if dt is None:
+            return (x["Kp"] + x["Ki"] / s + x["Kd"] * s) / (tf**2 * s**2 + math.sqrt(2) * tf * s + 1)
+        sv = 2 / dt * (z - 1) / (z + 1)  # the filter by Tustin; the PID with a one-sample derivative
+        pid = x["Kp"] + x["Ki"] * dt * z / (z - 1) + x["Kd"] * (z - 1) / (dt * z)
+        return pid / (tf**2 * sv**2 + math.sqrt(2) * tf * sv + 1)
     assert name == "leadlag"
     return first(x["K"], x["wz1"], x["wp1"]) * first(1.0, x["wz2"], x["wp2"])
 
@@ -236,11 +243,10 @@ def test_symbolic_tustin_matches_python_control():
 def roll_refined():
     plant = plant_from_expr(ROLL)
     st = get_structure("pid_z")
-    space = make_space(st, plant, DT)
-    ev = Evaluator([plant], st, DT, Spec())
+    batch, space = _batch(plant, "pid_z")
     x0 = st.vector(initial_guess(st, plant, DT))
     v0 = space.from_params(x0)
-    res = refine(ev, space, v0, deadline=time.perf_counter() + BUDGET)
+    res = refine(batch, space, v0, deadline=time.perf_counter() + BUDGET)
     return plant, st, space, x0, res
 
 
@@ -261,8 +267,7 @@ def test_refine_improves_on_the_initial_guess(roll_refined):
 # -- the problem cache ---------------------------------------------------------------------------
 
 def _slow_start(plant, st, decades):
-    """The structure's initial guess with the gains scaled by 10**decades: a slow loop, whose settling
-    time (> 80 dt / 3) puts refine's horizon at its cap of 80 samples, whatever the plant."""
+    """The structure's initial guess with the gains scaled by 10**decades: a slow loop."""
     space = make_space(st, plant, DT)
     x = st.vector(initial_guess(st, plant, DT))
     for i, kind in enumerate(st.kinds):
@@ -271,8 +276,17 @@ def _slow_start(plant, st, decades):
     return space, space.from_params(x)
 
 
+def _batch(plant, st, spec=None):
+    problem = TuningProblem.build(plant, structure=st, dt=DT, spec=spec)
+    space = make_space(problem.structure, plant, DT, scale=problem.scale)
+    return BatchEvaluator(problem, space), space
+
+
 def test_problem_is_built_once_per_structure(monkeypatch):
+    """One build per problem structure: another start or another plant of the same sizes only changes the
+    parameters. (The horizon is pinned to 64 samples here so that both starts share it.)"""
     monkeypatch.setattr(transcribe, "_CACHE", {})  # a clean cache: counts do not depend on test order
+    monkeypatch.setattr(refine_mod, "_bucket", lambda k: 64)
     got: list = []
     real = refine_mod.get_problem
 
@@ -286,15 +300,15 @@ def test_problem_is_built_once_per_structure(monkeypatch):
 
     def run(plant, structure, decades):
         s = get_structure(structure)
-        space, v0 = _slow_start(plant, s, decades)
-        ev = Evaluator([plant], s, DT, Spec())
+        _, v0 = _slow_start(plant, s, decades)
+        batch, space = _batch(plant, structure)
         before = transcribe.BUILDS["count"]
-        res = refine(ev, space, v0, deadline=time.perf_counter() + BUDGET)
+        res = refine(batch, space, v0, deadline=time.perf_counter() + BUDGET)
         assert res.candidates, res.status
         return transcribe.BUILDS["count"] - before, got[-1]
 
     built, p1 = run(roll, "pid_z", -1.0)
-    assert built == 1 and p1.key.K == 80
+    assert built == 1 and p1.key.K == 64
     # another start, same plant
     built, p2 = run(roll, "pid_z", -1.2)
     assert p2.key == p1.key, "precondition: the same structure key"

@@ -198,7 +198,7 @@ def assert_honest(an) -> None:
     loop = an.loop
     if loop.dt is None:
         zk = loop.zpk
-        if zk.poles.size > zk.zeros.size and not np.any(np.abs(zk.zeros) == 0):
+        if zk.gain != 0 and zk.poles.size > zk.zeros.size and not np.any(np.abs(zk.zeros) == 0):  # L = 0: none
             at0 = math.inf if np.any(np.abs(zk.poles) == 0) else abs(complex(zk(np.array([0.0]))[0]))
             if at0 > 1.0 + 1e-9:
                 assert math.isfinite(m.crossover_rad_s), f"|L(0)| = {at0:g} > 1 but no gain crossover reported"

@@ -7,14 +7,16 @@
   is finite.
 * A gain coordinate is ``unit * 2e-3 * sinh(v ln 10)``: re-derived here from the formula in the
   module docstring, so a change of the mapping that silently rescales the gains is caught.
-* ``global_search`` with a fixed seed returns the same candidates twice; with an Optuna storage
-  URL the trials land in the database, and the tune result is the in-memory one.
+* :class:`SeededSearch` with a fixed seed asks the same points twice, and models the points told to it;
+  the :class:`Engine` (round 0, Optuna rounds, refinements) is deterministic for a seed; with an Optuna
+  storage URL every scored point lands in the database, and the tune result is the in-memory one.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import time
 
 import numpy as np
 import optuna
@@ -23,10 +25,11 @@ from quadrotor import DT, ROLL
 
 from tuner.controllers import GAIN_SPAN, STRUCTURES, get_structure
 from tuner.optimize.design import bounds
-from tuner.optimize.scoring import Evaluator
-from tuner.optimize.search import global_search
+from tuner.optimize.engine import Engine
+from tuner.optimize.search import UNSCORABLE, SeededSearch
 from tuner.optimize.space import make_space
 from tuner.plant import make_plant, plant_from_expr
+from tuner.problem import TuningProblem
 from tuner.spec import Spec
 from tuner.tuning import tune
 
@@ -136,55 +139,68 @@ def test_pid_z_box_holds_the_thesis_roll_controller():
 
 # -- global search -----------------------------------------------------------------------------
 
-def _search(seed, **kw):
-    st = get_structure("pid_z")
-    plant = PLANTS["roll"]
-    space = make_space(st, plant, DT)
-    ev = Evaluator([plant], st, DT, Spec())
-    return ev, global_search(ev, space, seed=seed, n_trials=30, top_k=3, **kw)
-
-
-def test_global_search_is_deterministic():
-    ev1, r1 = _search(3)
-    ev2, r2 = _search(3)
-    assert r1.n_evals == r2.n_evals == 30
-    assert ev1.n_evals == 30  # one verifier evaluation per trial
-    assert r1.best_score == r2.best_score
-    assert len(r1.top) == len(r2.top) == 3
-    for (s1, v1), (s2, v2) in zip(r1.top, r2.top):
-        assert s1 == s2
-        np.testing.assert_array_equal(v1, v2)
-    # best first, and the best score is the first candidate's
-    scores = [s for s, _ in r1.top]
-    assert scores == sorted(scores) and scores[0] == r1.best_score
-    # the scores are the evaluator's: re-score the top candidates with a fresh evaluator
+def _seeded(seed):
     space = make_space(get_structure("pid_z"), PLANTS["roll"], DT)
-    ev = Evaluator([PLANTS["roll"]], get_structure("pid_z"), DT, Spec())
-    for s, v in r1.top:
-        assert ev.score(space.params(v)).score == s
+    return space, SeededSearch(space, seed=seed)
 
 
-def test_global_search_top_candidates_are_distinct():
-    _, r = _search(5)
-    space = make_space(get_structure("pid_z"), PLANTS["roll"], DT)
-    span = space.hi - space.lo
-    for (_, a), (_, b) in itertools.combinations(r.top, 2):
-        assert np.linalg.norm((a - b) / span) > 0.05
+def test_seeded_search_is_deterministic_and_stays_in_the_box():
+    space, a = _seeded(3)
+    _, b = _seeded(3)
+    _, c = _seeded(4)
+    rng = np.random.default_rng(0)
+    told = [space.lo + rng.random(space.lo.size) * (space.hi - space.lo) for _ in range(12)]
+    for s in (a, b, c):
+        s.tell(told, [float(np.sum(v ** 2)) for v in told])
+    ta, Va = a.ask(8)
+    tb, Vb = b.ask(8)
+    _, Vc = c.ask(8)
+    np.testing.assert_array_equal(Va, Vb)
+    assert not np.array_equal(Va, Vc)  # the seed matters
+    assert np.all(Va >= space.lo) and np.all(Va <= space.hi)
+    a.told(ta, [1.0] * 8)
+    assert a.n_trials() == 20
 
 
-def test_global_search_enqueued_starts_are_evaluated_first():
-    """x0 starts are the first trials (the designed starts of tune rely on it)."""
-    st = get_structure("pid_z")
-    plant = PLANTS["roll"]
-    space = make_space(st, plant, DT)
-    ev = Evaluator([plant], st, DT, Spec())
-    x = np.array([3.868, -1.305, 0.5668])  # the thesis roll controller, which meets the spec
-    v = space.from_params(x)
-    r = global_search(ev, space, seed=0, n_trials=1, x0=[v], top_k=1)
-    assert r.n_evals == 1
-    np.testing.assert_allclose(r.top[0][1], v, rtol=1e-12)
-    # its score is its settling time (feasible), as the verifier says at search resolution
-    assert r.best_score == ev.score(space.params(v)).score < 1e3
+def test_told_points_are_what_the_sampler_models():
+    """Points scored elsewhere (designed starts, NLP solutions) told in bulk are completed trials with their
+    values; a non-finite score is told as UNSCORABLE, never as NaN (TPE would drop it)."""
+    space, s = _seeded(0)
+    v = space.from_params(np.array([3.868, -1.305, 0.5668]))
+    s.tell([v, 0.5 * (space.lo + space.hi)], [0.12, math.inf])
+    trials = s.study.get_trials(deepcopy=False)
+    assert [t.value for t in trials] == [0.12, UNSCORABLE]
+    np.testing.assert_allclose([trials[0].params[n] for n in space.names], v, rtol=1e-12)
+    assert s.study.best_value == 0.12
+
+
+def _engine(seed):
+    problem = TuningProblem.build([PLANTS["roll"]], structure="pid_z", spec=Spec(), dt=DT)
+    eng = Engine(problem, seed=seed, deadline=time.perf_counter() + BUDGET)
+    info = eng.run()
+    return eng, info
+
+
+def test_engine_is_deterministic():
+    e1, i1 = _engine(3)
+    e2, i2 = _engine(3)
+    assert i1.rounds == i2.rounds and i1.stop == i2.stop
+    assert i1.batch_evaluations == i2.batch_evaluations > 0
+    assert i1.history == i2.history
+    assert [s for s, _, _ in e1.pool] == [s for s, _, _ in e2.pool]
+    for a, b in zip(e1.finalists(), e2.finalists()):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_engine_scores_are_the_verifiers():
+    """The pool's scores are the batched verifier's; re-score the best with the scalar verifier at search
+    resolution: the same settling time to a sample (the batch uses the same horizon and band)."""
+    eng, info = _engine(0)
+    assert info.stop in ("converged", "budget")
+    s, v, _ = min(eng.pool, key=lambda t: t[0])
+    assert s < 1e3  # the thesis roll loop meets the default spec
+    scalar = eng.ev.score(eng.space.params(v)).score
+    assert scalar == pytest.approx(s, abs=DT)
 
 
 @pytest.fixture(scope="module")
@@ -204,11 +220,8 @@ def test_storage_url_is_accepted_and_trials_land_in_it(stored):
     assert len(names) == 1
     study = optuna.load_study(study_name=names[0], storage=url)
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
-    # the in-memory run with the same seed makes exactly as many global evaluations
-    assert len(done) == in_memory.solver["global_evaluations"] > 0
-    # and the result reports the trials it ran (not each one twice)
-    assert with_db.solver["global_evaluations"] == len(done)
-    assert study.best_value == pytest.approx(with_db.solver["global_best"], rel=1e-12)
+    # every point the tune scored is a trial, once; the in-memory run with the same seed scores as many
+    assert len(done) == with_db.solver["global_evaluations"] == in_memory.solver["global_evaluations"] > 0
     # the trial parameters are the space's coordinates
     space = make_space(get_structure("pid_z"), plant_from_expr(ROLL), DT)
     assert set(done[0].params) == set(space.names)

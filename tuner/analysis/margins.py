@@ -59,8 +59,9 @@ def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
         roots = roots[(np.abs(roots) > 1e-12) & (np.abs(roots - 1.0) > 1e-9)]
         roots = np.log(roots.astype(complex)) / loop.dt
     mags = np.abs(roots)
-    mags = np.concatenate([mags, _asymptote_crossings(loop)])
-    mags = mags[(mags > 1e-9) & np.isfinite(mags)]
+    mags = mags[(mags > 1e-9) & np.isfinite(mags)]  # roots at 0 up to rounding are not frequencies
+    asym = _asymptote_crossings(loop)  # deliberate: a gain of 1e-100 on 1/s crosses at 1e-100 rad/s
+    mags = np.concatenate([mags, asym[(asym > 0) & np.isfinite(asym)]])
     wnyq = loop.nyquist_w()
     lo = (mags.min() if mags.size else 1.0) / 100.0
     if wnyq:
@@ -104,7 +105,7 @@ def _asymptote_crossings(loop: Loop) -> np.ndarray:
     return np.asarray(out, dtype=float)
 
 
-def _root(fv, a: float, b: float, *, rounds: int = 4, n: int = 24) -> float:
+def _root(fv, a: float, b: float, *, rounds: int = 2, n: int = 72) -> float:
     """Root of a real function in ``[a, b]`` (bracketed by a sign change): each round samples ``fv`` (an
     array function) at ``n`` log-spaced points and keeps the sub-bracket, ``n^rounds``-fold narrower in
     all; then linear interpolation. Vectorised: ``rounds`` calls instead of one per Brent step."""
@@ -220,7 +221,7 @@ def _limit_values(loop: Loop) -> np.ndarray:
     return v[np.isfinite(v) & (v != 1.0) & (v != -1.0)]
 
 
-def _peak(fv, w: np.ndarray, vals: np.ndarray, *, rounds: int = 3, n: int = 33) -> float:
+def _peak(fv, w: np.ndarray, vals: np.ndarray, *, rounds: int = 2, n: int = 65) -> float:
     """Maximum over the grid, refined around the grid maximum: each round samples ``fv`` (an array
     function) at ``n`` points between the neighbours of the best point so far; then a parabola."""
     i = int(np.nanargmax(vals))

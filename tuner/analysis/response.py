@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
+from ..errors import InvalidPlantError
 from ..loop import FineDelayLoop, Loop, _continuous_loop
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
@@ -109,7 +110,13 @@ def closed_loop_poles(loop: Loop) -> np.ndarray:
     closed-loop state-space model. Continuous loops with delay: see the module docstring."""
     if loop.delay_s:
         h = loop.delay_s / STABILITY_STEPS_PER_DELAY
-        z = np.linalg.eigvals(loop.closed_loop(h).dense().A)
+        Ad = loop.closed_loop(h).dense().A
+        if not np.all(np.isfinite(Ad)):
+            raise InvalidPlantError(
+                f"the loop's dynamics span too many decades to discretise at the delay's step ({h:g} s): its "
+                "fastest pole overflows the matrix exponential; rescale the plant, or model the fast pole as "
+                "static", field="plant")
+        z = np.linalg.eigvals(Ad)
         z = z[np.abs(z) > 1e-300]
         return _refine_delay_roots(loop, np.log(z.astype(complex)) / h)
     A = loop.closed_loop().A

@@ -13,13 +13,27 @@ The steps of CIFER (Tischler & Remple), one module each:
 * :mod:`~tuner.identify.result`: :class:`IdentifyResult` (``.plant()``, ``.plot()``, ``.to_dict()``);
 * :mod:`~tuner.identify.csvlog` and :mod:`~tuner.identify.cli`: CSV logs and ``tuner identify``.
 
-The public entry point is :func:`identify`. Importing this package is light (numpy only);
-scipy and matplotlib are imported when they are used.
+The public entry point is :func:`identify`. Importing this package costs nothing (its names load on
+first use: ``tuner --help`` registers ``tuner identify`` without numpy); numpy comes with them, scipy and
+matplotlib when they are used.
 """
 
 from __future__ import annotations
 
-from .core import MAX_POLES, identify
-from .result import IdentifyResult
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .core import MAX_POLES, identify
+    from .result import IdentifyResult
 
 __all__ = ["MAX_POLES", "IdentifyResult", "identify"]
+_WHERE = {"MAX_POLES": "core", "identify": "core", "IdentifyResult": "result"}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'tuner.identify' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    globals()[name] = value
+    return value

@@ -16,9 +16,20 @@ from ..controllers import GAIN_SPAN, Structure
 from ..errors import InvalidControllerError
 from ..plant import Plant
 
-__all__ = ["PlantScale", "plant_scale", "plant_sign", "slow_poles", "bounds", "initial_guess"]
+__all__ = ["PlantScale", "plant_scale", "plant_sign", "slow_poles", "bounds", "initial_guess", "zero_variants",
+           "tf_min",
+           "TF_MIN_W0", "TF_MIN_DT"]
 
 PlantScale = tuple[float, float]  # (K0, w0): characteristic gain and frequency of the loop to design
+
+TF_MIN_W0 = 1e-3  # continuous loops: Tf >= 1e-3 / w0 (the derivative filter's corner at most 1000 w0)
+TF_MIN_DT = 1e-3  # sampled loops: Tf >= 1e-3 dt (the filter pole Tf/(Tf+dt) <= 0.001: the one-sample
+                  # derivative of pid_z, which pid therefore contains up to that)
+
+
+def tf_min(dt: float | None, w0: float) -> float:
+    """The documented lower bound on a derivative or measurement filter's time constant ``Tf``."""
+    return TF_MIN_DT * dt if dt else TF_MIN_W0 / w0
 
 
 def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None
@@ -33,38 +44,64 @@ def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale |
         elif kind == "freq":
             lo.append(1e-3 * w0), hi.append(min(wmax, 1e2 * w0))
         elif kind == "time":
-            lo.append(0.0), hi.append(10.0 / w0)
+            lo.append(tf_min(dt, w0)), hi.append(max(10.0 / w0, 10 * tf_min(dt, w0)))
         else:  # polynomial coefficient of a monic quadratic with zeros in |z| <= 1.5
             lo.append(-3.0), hi.append(3.0)
     return np.array(lo), np.array(hi)
 
 
-def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None
-                  ) -> dict[str, float]:
+def zero_variants(plant: Plant, dt: float | None, w0: float) -> list[np.ndarray]:
+    """Where a start may put the controller's two zeros (s-plane; a one-zero structure uses the first): on the
+    plant's two slowest stable poles (the classic pole-cancelling design), and the corners: one on the slowest
+    pole and the other far away (at z = 0 in discrete time, cancelling the derivative filter's own pole: a
+    PI-like design; at 10 w0 in continuous time), both on the slowest pole; a damped pair at half the slowest
+    pole's frequency and at half ``w0``; one zero at twice the slowest pole's frequency and at 1.5 ``w0``."""
+    base = slow_poles(plant, w0)
+    p1 = base[0] if abs(base[0].imag) <= 1e-9 else complex(-abs(base[0]))
+    far = -np.inf if dt is not None else -10.0 * w0
+    r1 = abs(p1)
+    out = [base, np.array([p1, far], dtype=complex), np.array([p1, p1], dtype=complex)]
+    # zeros slower than the slowest pole (a lag plant's settling-optimal PID: a damped pair at about half
+    # its frequency), and placements from the loop's own scale (integrating plants have no slow pole)
+    for r in (0.5 * r1, 0.5 * w0):
+        out.append(r * np.array([complex(-0.7, 0.71), complex(-0.7, -0.71)]))
+    for r in (2.0 * r1, 1.5 * w0):
+        out.append(np.array([-r, far], dtype=complex))
+    if dt is not None:  # zeros beyond Nyquist fold: keep them below it
+        wn = 0.9 * math.pi / dt
+        with np.errstate(invalid="ignore"):
+            out = [np.where(np.isfinite(z) & (np.abs(z) > wn), z * wn / np.maximum(np.abs(z), 1e-300), z) for z in out]
+    return out
+
+
+def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None,
+                  zeros: np.ndarray | None = None) -> dict[str, float]:
     """A pole-cancellation start (IMC / lambda-tuning style), sign from the plant.
 
     The controller's zeros go on the plant's slowest stable poles (two for
-    PID/pid_z/lead-lag, one for PI/PD/lead); the gain puts the loop's
-    crossover at a third of the plant's ultimate frequency ``w0``.
+    PID/pid_z/lead-lag, one for PI/PD/lead), or where ``zeros`` says (s-plane; ``-inf`` is z = 0 in
+    discrete time, see :func:`zero_variants`); the gain puts the loop's crossover at a third of the
+    plant's ultimate frequency ``w0``.
     """
     k0, w0 = scale or plant_scale(plant, dt)
     sgn = plant_sign(plant)
-    poles = slow_poles(plant, w0)
+    poles = slow_poles(plant, w0) if zeros is None else np.asarray(zeros, dtype=complex)
     z1 = float(abs(poles[0]))  # one-zero structures: the slowest pole's frequency
-    _, c1, c2 = np.real(np.poly(poles))  # two-zero structures: s^2 + c1 s + c2
+    with np.errstate(invalid="ignore"):
+        _, c1, c2 = np.real(np.poly(poles))  # two-zero structures: s^2 + c1 s + c2
     g = {"Kp": 1.0, "Ki": z1, "Kd": 0.0, "Tf": 0.0, "K": 1.0, "wz": z1, "wp": min(10 * z1, 3 * w0),
          "wz1": z1, "wp1": min(10 * z1, 3 * w0), "wz2": 0.1 * z1, "wp2": 0.01 * z1}
-    if st.name in ("pid", "pd"):
+    if st.name in ("pid", "pd", "pidf2"):
         # Kd s^2 + Kp s + Ki = Kd (s^2 + c1 s + c2)   (pd: Kd s + Kp = Kd (s + z1))
-        g.update(Kd=1.0, Kp=c1 if st.name == "pid" else z1, Ki=c2,
-                 Tf=(0.1 / w0) if dt is None else 0.0)
-    if dt is not None and st.name in ("pid", "pi"):
+        g.update(Kd=1.0, Kp=z1 if st.name == "pd" else c1, Ki=c2,
+                 Tf=(0.1 / w0) if dt is None else tf_min(dt, w0))
+    if dt is not None and st.name in ("pid", "pi", "pidf2"):
         # in discrete time put the zeros exactly on the ZOH plant's poles: with Tf = 0 the
         # backward-Euler PID numerator is (Kp + Ki dt + Kd/dt) z^2 - (Kp + 2 Kd/dt) z + Kd/dt
         zp = np.exp(poles * dt)
-        if st.name == "pid":
+        if st.name in ("pid", "pidf2"):
             _, a1, a2 = np.real(np.poly(zp))
-            g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=0.0)
+            g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=tf_min(dt, w0))
         else:  # (Kp + Ki dt) z - Kp = z - e^{-z1 dt}
             e1 = float(np.exp(-z1 * dt))
             g.update(Kp=e1, Ki=(1 - e1) / dt)
@@ -75,13 +112,10 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
             raise InvalidControllerError("pid_z is discrete: give dt")
         _, a1, a2 = np.real(np.poly(np.exp(poles * dt)))
         g.update(a1=float(a1), a2=float(a2))
-    # overall gain: crossover of the loop at w0/3
-    wc = w0 / 3.0
     x = np.array([g[p] for p in st.params], dtype=float)
     c1 = st.tf(x, dt)
     p_eff = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)
-    mag = abs(c1.freqresp(np.array([wc]))[0] * p_eff.freqresp(np.array([wc]))[0])
-    k = sgn / mag if np.isfinite(mag) and mag > 0 else sgn * k0 * 0.1
+    k = sgn * _margin_gain(c1, p_eff, sgn, w0, dt, k0)
     for i, kind in enumerate(st.kinds):
         if kind == "gain":
             x[i] *= k
@@ -101,18 +135,48 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     return out
 
 
-def _low_freq_coeffs(plant: Plant) -> tuple[np.ndarray, np.ndarray]:
-    """num/den as polynomials in a variable that is 0 at DC (s, or z-1)."""
-    if plant.dt is None:
-        return plant.num, plant.den
-    shift = np.poly1d([1.0, 1.0])
-    return np.poly1d(plant.num)(shift).coeffs, np.poly1d(plant.den)(shift).coeffs
+START_PM_DEG = 65.0  # the designed starts' phase margin (a little above the default spec's 60)
+START_GM_DB = 8.0
+
+
+def _margin_gain(c1, p_eff: Plant, sgn: float, w0: float, dt: float | None, k0: float) -> float:
+    """The gain magnitude that gives the loop ``k c1 G`` a phase margin of ``START_PM_DEG`` at the first
+    frequency where its phase has fallen that far (and at most ``START_GM_DB`` of gain margin used up at its
+    phase crossover); the classic crossover at ``w0 / 3`` where the phase never falls that far."""
+    key = ("start_grid", w0, dt)
+    if key not in p_eff._cache:  # the plant's response once per tune, not once per start
+        wmax = math.pi / dt * 0.999 if dt else 30.0 * w0
+        w = np.geomspace(1e-3 * w0, wmax, 400)
+        with np.errstate(all="ignore"):
+            p_eff._cache[key] = (w, p_eff.freqresp(w))
+    w, G = p_eff._cache[key]
+    with np.errstate(all="ignore"):
+        L1 = sgn * c1.freqresp(w) * G
+    mag, ph = np.abs(L1), np.unwrap(np.angle(L1))
+    ok = np.isfinite(mag) & (mag > 0) & np.isfinite(ph)
+    if not ok.all():
+        w, mag, ph = w[ok], mag[ok], ph[ok]
+    if w.size < 2:
+        return k0 * 0.1
+    ph = ph - 2 * np.pi * np.round((ph[0] + 0.5 * np.pi) / (2 * np.pi))  # low frequencies near (-180, 0]
+    gains = []
+    for target, margin in ((-np.pi + math.radians(START_PM_DEG), 1.0), (-np.pi, 10 ** (-START_GM_DB / 20))):
+        idx = np.flatnonzero((ph[:-1] > target) & (ph[1:] <= target))
+        if idx.size:
+            i = int(idx[0])
+            f = (ph[i] - target) / (ph[i] - ph[i + 1])
+            m = math.exp((1 - f) * math.log(mag[i]) + f * math.log(mag[i + 1]))
+            gains.append(margin / m)
+    if gains:
+        return float(min(gains))
+    m = float(np.interp(math.log(w0 / 3), np.log(w), mag))
+    return 1.0 / m if m > 0 and math.isfinite(m) else k0 * 0.1
 
 
 def slow_poles(plant: Plant, w0: float) -> np.ndarray:
     """The plant's two slowest stable, non-integrating poles in the s-plane (a complex pair counts
     as two); made-up real poles at fractions of ``w0`` when the plant has fewer."""
-    poles = np.roots(plant.den).astype(complex)
+    poles = np.asarray(plant.poles, dtype=complex)
     if plant.dt is not None:
         poles = poles[np.abs(poles) > 1e-9]
         poles = np.log(poles) / plant.dt
@@ -125,16 +189,18 @@ def slow_poles(plant: Plant, w0: float) -> np.ndarray:
 
 
 def plant_sign(plant: Plant) -> float:
-    """Feedback sign for the plant: the sign of its low-frequency gain (ratio of lowest-order
-    coefficients), flipped once per unstable real pole (1/(s-1) has gain -1 at DC yet needs a
-    positive controller gain to be stabilised)."""
-    n, d = _low_freq_coeffs(plant)
-    nl = n[np.flatnonzero(np.abs(n) > 1e-14 * np.max(np.abs(n)))[-1]]
-    dl = d[np.flatnonzero(np.abs(d) > 1e-14 * np.max(np.abs(d)))[-1]]
-    poles = np.roots(plant.den)
+    """Feedback sign for the plant: the sign of its low-frequency gain (from the factored form, the
+    integrators divided out), flipped once per unstable real pole (1/(s-1) has gain -1 at DC yet needs
+    a positive controller gain to be stabilised)."""
+    zk = plant.zpk
+    x = 0.0 if plant.dt is None else 1.0
+    scale = max(1.0, *(abs(r) for r in np.concatenate([zk.zeros, zk.poles]))) if zk.poles.size else 1.0
+    at_dc = lambda r: np.abs(r - x) <= 1e-9 * scale
+    g = zk.gain * np.prod(x - zk.zeros[~at_dc(zk.zeros)]) / np.prod(x - zk.poles[~at_dc(zk.poles)])
+    poles = zk.poles
     unstable_real = poles[(np.abs(poles.imag) < 1e-9) & ((poles.real > 1e-9) if plant.dt is None
                                                           else (np.abs(poles) > 1 + 1e-9))]
-    return (float(np.sign(nl * dl)) or 1.0) * (-1.0) ** unstable_real.size
+    return (float(np.sign(np.real(g))) or 1.0) * (-1.0) ** unstable_real.size
 
 
 def plant_scale(plant: Plant, dt: float | None) -> PlantScale:

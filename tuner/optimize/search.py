@@ -1,92 +1,74 @@
-"""Everything Optuna: the seeded global stage that finds the basins.
+"""Everything Optuna: the seeded global search, in batches.
 
-The sampler and the storage are injectable (in-memory TPE by default; a storage
-URL such as ``sqlite:///study.db`` or ``postgresql://...`` is accepted). Trials
-are scored by the verifier through :class:`tuner.optimize.scoring.Evaluator`; the best
-few *distinct* candidates (by distance in the normalised coordinates) are
-handed to the local stage.
+A :class:`SeededSearch` wraps one Optuna study over the structure's coordinates (the sampler and the
+storage are injectable: seeded TPE in memory by default; a storage URL such as ``sqlite:///study.db``
+or ``postgresql://...`` is accepted). Points scored elsewhere (the designed starts, the local stage's
+solutions) are told to the study in bulk, so the sampler models everything the tune has seen; new
+points are asked in batches and scored by the batched verifier
+(:class:`tuner.optimize.batch.BatchEvaluator`) in one call.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import optuna
 
-from .scoring import UNSTABLE, Evaluator
 from .space import Space
 
-UNSCORABLE = 10 * UNSTABLE
-
-__all__ = ["GlobalResult", "global_search", "default_sampler"]
+__all__ = ["SeededSearch", "default_sampler", "UNSCORABLE"]
 
 log = logging.getLogger(__name__)
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-
-@dataclass(frozen=True)
-class GlobalResult:
-    top: list[tuple[float, np.ndarray]]  # (score, coordinates), best first, distinct
-    best_score: float
-    n_evals: int
-    best_enqueued: tuple[float, np.ndarray] | None = None  # the best of the plant-based starts
+UNSCORABLE = 1e6  # the score told for a point that could not be scored at all
 
 
 def default_sampler(seed: int, n_params: int) -> optuna.samplers.BaseSampler:
     return optuna.samplers.TPESampler(
-        seed=seed, multivariate=True, group=False, n_startup_trials=max(10, 4 * n_params),
-        constant_liar=False,
+        seed=seed, multivariate=True, group=False, n_startup_trials=max(10, 4 * n_params), constant_liar=False,
     )
 
 
-def global_search(
-    ev: Evaluator, space: Space, *, seed: int, n_trials: int, deadline: float | None = None,
-    sampler: Any = None, storage: Any = None, study_name: str | None = None, x0: Sequence[np.ndarray] = (),
-    top_k: int = 3,
-) -> GlobalResult:
-    """Seeded search over ``space``; returns the best ``top_k`` distinct candidates."""
-    sampler = sampler or default_sampler(seed, len(space.names))
-    study = optuna.create_study(direction="minimize", sampler=sampler, storage=storage,
-                                study_name=study_name, load_if_exists=study_name is not None)
-    dists = {n: optuna.distributions.FloatDistribution(float(lo), float(hi))
-             for n, lo, hi in zip(space.names, space.lo, space.hi)}
-    for v in x0:
-        study.enqueue_trial({n: float(np.clip(x, lo, hi)) for n, x, lo, hi in
-                             zip(space.names, v, space.lo, space.hi)}, skip_if_exists=True)
-    scored: list[tuple[float, np.ndarray]] = []
-    for i in range(n_trials):
-        # the enqueued plant-based starts are always scored, so even a tiny budget has candidates
-        if i >= len(x0) and deadline is not None and time.perf_counter() > deadline:
-            break
-        trial = study.ask(dists)
-        v = np.array([trial.params[n] for n in space.names])
-        s = ev.score(space.params(v)).score
-        s = s if math.isfinite(s) else UNSCORABLE
-        study.tell(trial, s)
-        scored.append((s, v))
-    n_run = len(scored)
-    enq = sorted(scored[: len(x0)], key=lambda sv: sv[0])
-    if storage is not None:  # a shared storage: every completed trial of the study counts (ours included)
-        scored = [(float(t.value), np.array([t.params[n] for n in space.names]))
-                  for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-                  if all(n in t.params for n in space.names)]
-    scored.sort(key=lambda sv: sv[0])
-    return GlobalResult(top=_distinct(scored, space, top_k), best_score=scored[0][0] if scored else math.inf,
-                        n_evals=n_run, best_enqueued=enq[0] if enq else None)
+class SeededSearch:
+    """The Optuna side of a tune: ``tell`` scored points in bulk, ``ask`` new ones in batches."""
 
+    def __init__(self, space: Space, *, seed: int, sampler: Any = None, storage: Any = None,
+                 study_name: str | None = None) -> None:
+        self.space = space
+        self.sampler = sampler or default_sampler(seed, len(space.names))
+        self.study = optuna.create_study(direction="minimize", sampler=self.sampler, storage=storage,
+                                         study_name=study_name, load_if_exists=study_name is not None)
+        self.dists = {n: optuna.distributions.FloatDistribution(float(lo), float(hi))
+                      for n, lo, hi in zip(space.names, space.lo, space.hi)}
 
-def _distinct(scored: list[tuple[float, np.ndarray]], space: Space, k: int) -> list[tuple[float, np.ndarray]]:
-    span = np.maximum(space.hi - space.lo, 1e-12)
-    out: list[tuple[float, np.ndarray]] = []
-    for s, v in scored:
-        if all(np.linalg.norm((v - w) / span) > 0.05 for _, w in out):
-            out.append((s, v))
-        if len(out) >= k:
-            break
-    return out
+    def _params(self, v: np.ndarray) -> dict[str, float]:
+        return {n: float(np.clip(x, lo, hi)) for n, x, lo, hi in zip(self.space.names, v, self.space.lo,
+                                                                      self.space.hi)}
+
+    def tell(self, V: Sequence[np.ndarray], scores: Sequence[float]) -> None:
+        """Add points scored elsewhere as completed trials (one storage call)."""
+        trials = [optuna.trial.create_trial(params=self._params(v), distributions=self.dists,
+                                            value=float(s) if math.isfinite(s) else UNSCORABLE)
+                  for v, s in zip(V, scores)]
+        if trials:
+            self.study.add_trials(trials)
+
+    def ask(self, n: int) -> tuple[list[Any], np.ndarray]:
+        """``n`` new points from the sampler: (trials, coordinates)."""
+        trials = [self.study.ask(self.dists) for _ in range(n)]
+        V = np.array([[t.params[k] for k in self.space.names] for t in trials]) if trials else \
+            np.zeros((0, len(self.space.names)))
+        return trials, V
+
+    def told(self, trials: Sequence[Any], scores: Sequence[float]) -> None:
+        """Complete asked trials with their scores."""
+        for t, s in zip(trials, scores):
+            self.study.tell(t, float(s) if math.isfinite(s) else UNSCORABLE)
+
+    def n_trials(self) -> int:
+        return len(self.study.get_trials(deepcopy=False))

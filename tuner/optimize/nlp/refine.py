@@ -1,14 +1,17 @@
-"""Local refinement of one start with the cached CasADi/IPOPT problem.
+"""Local refinement of one start with the cached CasADi problem.
 
 Numbers enter the symbolic world here (parameter vector, initial point, bounds, all packed by
 name through the problem's :class:`~tuner.optimize.nlp.layout.Layout`) and leave it here (the
 solution coordinates). What the NLP says about margins or settling is not reported anywhere:
 the caller re-verifies the solution.
 
-Steps: :func:`_grid` (horizon and time grid from the start's settling time), :func:`_plant_data`
-(lifted plant models and crossover estimates from the start's analysis), :func:`_values` (the
-spec's numbers), :func:`_box` (start and bounds), then :class:`_Solves` runs the solves: one for
-an objective other than the settling time, a bisection on the settling time otherwise.
+Steps: :func:`_grid` (horizon and time grid from the start), :func:`_plant_data` (lifted plant
+models, factored forms and crossover estimates from the start's analysis), :func:`_values` (the
+spec's numbers, the frequency grid with the plant's response on it, the time weights), :func:`_box`
+(start and bounds), then :class:`_Solves` runs the solves: for the settling time a bisection on the
+settling time; for the other objectives one solve. After each accepted solve the frequency-domain
+limits are checked on the verifier's dense grid and any peak the NLP's grid missed is added to it
+(exchange), then the solve is repeated from the solution.
 """
 
 from __future__ import annotations
@@ -21,21 +24,27 @@ from typing import Any
 
 import numpy as np
 
-from ...analysis.verify import Analysis
+from ...analysis.margins import frequency_grid
 from ...controllers import ControllerTF
 from ...loop import build_loop
-from ..scoring import SEARCH_BAND_GUARD, Evaluator
+from ..batch import GUARD, BatchEvaluator, Start
 from ..space import Space
 from .plantdata import LiftedPlant, lift
-from .transcribe import MS_GRID, Problem, ProblemKey, get_problem
+from .transcribe import GRID_EXTRA, MS_GRID, Problem, ProblemKey, get_problem
 
-__all__ = ["RefineResult", "refine", "POINTS_PER_SAMPLE"]
+__all__ = ["RefineResult", "refine", "POINTS_PER_SAMPLE", "MAX_NLP_STEPS"]
 
 log = logging.getLogger(__name__)
 
 POINTS_PER_SAMPLE = 4
-CONTINUOUS_STEPS = 240
-_MIN_SAMPLES, _MAX_SAMPLES = 15, 80
+CONTINUOUS_STEPS = 400
+MIN_SAMPLES = 16
+MAX_NLP_STEPS = 2048  # the NLP's horizon in samples (cost limit of one local solve); documented in the README
+_ABS_EPS = 1e-9
+_TIGHT = 1 - 2e-4  # the NLP keeps its peak limits this much inside the spec: optima sit on the limits, and the
+                   # verifier's dense grid must still find them inside (margins: twice the search's guard)
+_TIGHT_OS = 0.995
+NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
 
 
 @dataclass
@@ -43,6 +52,7 @@ class RefineResult:
     candidates: list[np.ndarray] = field(default_factory=list)  # coordinates
     iterations: int = 0
     evaluations: int = 0
+    solves: int = 0
     success: bool = False
     status: str = ""
 
@@ -61,23 +71,55 @@ class _Grid:
         return np.arange(self.K * self.N) / self.N * self.step
 
 
-def _horizon(settle: float, dt: float | None, w0: float) -> float:
-    unit = dt if dt else 1.0 / w0
-    base = 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
-    if dt:
-        return float(np.clip(base, _MIN_SAMPLES * dt, _MAX_SAMPLES * dt))
-    return float(np.clip(base, 5.0 / w0, 500.0 / w0))
+def _bucket(k: int) -> int:
+    """Horizons in a few sizes (powers of two and 1.5 times them), so a warm process reuses its builds."""
+    k = max(k, MIN_SAMPLES)
+    p = 2 ** math.floor(math.log2(k))
+    for size in (p, int(1.5 * p), 2 * p):
+        if size >= k:
+            return min(size, MAX_NLP_STEPS)
+    return min(2 * p, MAX_NLP_STEPS)
 
 
-def _grid(ev: Evaluator, settle: float, w0: float) -> _Grid:
-    T = _horizon(settle, ev.dt, w0)
+def _target(start: Start, incumbent: float | None) -> float:
+    """The settling time the refinement must reach to matter: the start's, or the incumbent's if smaller
+    (a solution that settles later than the best known one is of no use to the search)."""
+    settle = float(np.max(start.settle))
+    if incumbent is not None and math.isfinite(incumbent) and incumbent > 0:
+        settle = min(settle, incumbent) if math.isfinite(settle) else incumbent
+    return settle
+
+
+def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None) -> float:
+    """What the objective needs: three target settling times (:func:`_target`) for the settling time, the
+    start's own horizon (ten time constants of its slowest pole, where the verifier integrates) for the
+    integral objectives."""
+    settle = _target(start, incumbent)
+    unit = ev.dt if ev.dt else 1.0 / w0
+    if ev.spec.objective == "settling_time":
+        return 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
+    T = np.nanmax(start.horizon) if np.any(np.isfinite(start.horizon)) else 60 * unit
+    return float(T)
+
+
+def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None) -> int:
+    """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
+    them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway)."""
+    settle = _target(start, incumbent)
+    samples = settle / ev.dt if math.isfinite(settle) else math.inf
+    return POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
+
+
+def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None) -> _Grid:
+    T = _horizon(ev, start, w0, incumbent)
     if ev.dt is not None:
-        return _Grid(K=int(math.ceil(T / ev.dt / 5.0) * 5), N=POINTS_PER_SAMPLE, step=ev.dt, h=None)
+        return _Grid(K=_bucket(int(math.ceil(T / ev.dt))), N=_points_per_sample(ev, start, incumbent),
+                     step=ev.dt, h=None)
     h = T / CONTINUOUS_STEPS
-    taus = [p.delay_s for p in ev.plants if p.delay_s]
+    taus = [p.delay_s for p in ev.problem.plants if p.delay_s]
     if taus:
         h = min(taus) / max(1, math.ceil(min(taus) / h))
-    return _Grid(K=int(math.ceil(T / h)), N=1, step=h, h=h)
+    return _Grid(K=_bucket(int(math.ceil(T / h))), N=1, step=h, h=h)
 
 
 @dataclass
@@ -88,55 +130,82 @@ class _PlantData:
     has_pc: list[bool] = field(default_factory=list)
 
 
-def _plant_data(ev: Evaluator, start: tuple[Analysis, ...], ctrl: ControllerTF, grid: _Grid, w0: float) -> _PlantData:
-    """Lifted model of every plant, and the start's crossovers (from the verifier's analysis)."""
+def _plant_data(ev: BatchEvaluator, start: Start, ctrl: ControllerTF, grid: _Grid, w0: float) -> _PlantData:
+    """Lifted model of every plant, and the start's crossovers (from the batched verifier)."""
     out = _PlantData()
     wnyq = math.pi / ev.dt if ev.dt else math.inf
-    for p, a in zip(ev.plants, start):
+    for p, wc, wp in zip(ev.problem.plants, start.wc, start.wp):
         if grid.h is not None:  # continuous loop: ZOH at the fine step, the plant's own zpk for L(jw)
             lf = lift(build_loop(p, ControllerTF(num=np.ones(1), den=np.ones(1), dt=grid.h)), 1)
             lf = lf.with_response_of(p.zpk)
         else:
             lf = lift(build_loop(p, ctrl), grid.N)
-        mg = a.margins
-        has_pc = math.isfinite(mg.phase_crossover_rad_s) and 0 < mg.phase_crossover_rad_s < 0.98 * wnyq
+        has_pc = bool(math.isfinite(wp) and 0 < wp < 0.98 * wnyq)
         out.lifted.append(lf)
-        out.wc.append(mg.crossover_rad_s if math.isfinite(mg.crossover_rad_s) else w0)
+        out.wc.append(float(wc) if math.isfinite(wc) else w0)
         out.has_pc.append(has_pc)
         if has_pc:
-            out.wp.append(mg.phase_crossover_rad_s)
+            out.wp.append(float(wp))
     return out
 
 
-def _wmax(ev: Evaluator, w0: float) -> float:
+def _wmax(ev: BatchEvaluator, w0: float) -> float:
     return math.pi / ev.dt * 0.999 if ev.dt else 1e3 * w0
 
 
-def _values(ev: Evaluator, space: Space, grid: _Grid, data: _PlantData) -> dict[str, Any]:
+def _time_weights(grid: _Grid, objective: str) -> np.ndarray:
+    """Trapezoid weights of the verifier's integrals on the NLP's time grid (times t for the ITAE)."""
+    t = grid.t
+    w = np.full(t.size, grid.step / grid.N)
+    w[0] = w[-1] = 0.5 * grid.step / grid.N
+    return w * t if objective == "itae" else w
+
+
+def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key: ProblemKey) -> dict[str, Any]:
     """Every parameter block but the settling mask, by name."""
     spec = ev.spec
+    kiu = next((u for p, u in zip(space.structure.params, space.units) if p in ("Ki", "ki")), space.k0 * space.w0)
     values: dict[str, Any] = {
-        "dt": ev.dt or grid.h, "h": grid.step, "band": spec.settling_band_pct / 100.0 * SEARCH_BAND_GUARD,
-        "os": min(spec.overshoot_max_pct / 100.0 * 0.99, 10.0),
-        "cospm": math.cos(math.radians(spec.phase_margin_min_deg)), "g": 10 ** (-spec.gain_margin_min_db / 20.0),
-        "cpk": spec.control_peak_max or 1.0, "msinv": 1.0 / spec.ms_max if spec.ms_max else 0.0,
-        "units": np.asarray(space.units, float)}
-    for i, (p, lf) in enumerate(zip(ev.plants, data.lifted)):
+        "dt": ev.dt or grid.h, "h": grid.step, "band": spec.settling_band_pct / 100.0 * GUARD["band"],
+        "os": min(spec.overshoot_max_pct / 100.0 * GUARD["overshoot"] * _TIGHT_OS, 10.0),
+        "cospm": math.cos(math.radians(min(spec.phase_margin_min_deg + 2 * GUARD["margin_deg"], 180.0))),
+        "g": 10 ** (-(spec.gain_margin_min_db + 2 * GUARD["margin_db"]) / 20.0),
+        "cpk": (spec.control_peak_max or 1.0) * _TIGHT, "msinv": 1.0 / (spec.ms_max * _TIGHT) if spec.ms_max else 0.0,
+        "mt": (spec.mt_max or 1.0) * _TIGHT, "mks": (spec.mks_max or 1.0) * _TIGHT,
+        "alpha": (spec.disk_margin_min or 0.0) / _TIGHT,
+        "eps": _ABS_EPS, "kiu": abs(float(kiu)) or 1.0, "units": np.asarray(space.units, float),
+        "tw": _time_weights(grid, spec.objective)}
+    for i, (p, lf) in enumerate(zip(ev.problem.plants, data.lifted)):
         values.update(lf.blocks(i, delay_s=p.delay_s if grid.h is not None else 0.0))
-    values["wms"] = (np.logspace(math.log10(space.w0 * 1e-2), math.log10(_wmax(ev, space.w0)), MS_GRID)
-                     if spec.ms_max else np.zeros(0))
+    wgrid = np.zeros(key.n_grid)
+    if key.grid:
+        base = np.geomspace(space.w0 * 1e-2, _wmax(ev, space.w0), MS_GRID)
+        wgrid = np.concatenate([base, np.repeat(base[MS_GRID // 2], GRID_EXTRA)])  # spare slots: a duplicate
+    values["wgrid"] = wgrid
+    _grid_response(ev, values) if key.grid else values.update(
+        {f"{k}{i}": np.zeros(0) for i in range(len(ev.problem.plants)) for k in ("Gre", "Gim")})
     return values
+
+
+def _grid_response(ev: BatchEvaluator, values: dict[str, Any]) -> None:
+    """The plants' frequency responses (delay included) at the NLP's grid frequencies."""
+    unit = ControllerTF(num=np.ones(1), den=np.ones(1), dt=ev.dt)
+    for i, p in enumerate(ev.problem.plants):
+        G = build_loop(p, unit).freqresp(values["wgrid"])
+        values[f"Gre{i}"], values[f"Gim{i}"] = G.real, G.imag
 
 
 def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: float, wmax: float
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start, lower and upper bounds of the decision vector."""
     vlo, vhi = space.bounds(linear_gains=True)
+    key = prob.key
+    wc = data.wc if key.pm else []
+    wp = data.wp if key.gm else []
     lay = prob.variables
-    xs = lay.pack({"v": space.from_params(x0, linear_gains=True), "slack": 0.0, "wc": data.wc, "wp": data.wp})
-    lbx = lay.pack({"v": vlo, "slack": -1.0, "wc": [1e-6 * space.w0] * len(data.wc), "wp": [w / 3 for w in data.wp]})
-    ubx = lay.pack({"v": vhi, "slack": band, "wc": [wmax] * len(data.wc),
-                    "wp": [min(3 * w, wmax) for w in data.wp]})
+    xs = lay.pack({"v": space.from_params(x0, linear_gains=True), "slack": 0.0, "wc": wc, "wp": wp})
+    lbx = lay.pack({"v": vlo, "slack": -1.0, "wc": [1e-6 * space.w0] * len(wc), "wp": [w / 3 for w in wp]})
+    ubx = lay.pack({"v": vhi, "slack": band, "wc": [wmax] * len(wc), "wp": [min(3 * w, wmax) for w in wp]})
     return np.clip(xs, lbx, ubx), lbx, ubx
 
 
@@ -150,18 +219,32 @@ class _Solves:
         self.lam: dict[str, np.ndarray] = {}
         self.slack = prob.variables.slice("slack").start
 
+    def settles_at(self, x: np.ndarray) -> float:
+        """The settling time of solution ``x`` on the NLP's own time grid (every plant; the envelope's band):
+        the first grid time from which every output stays in the band; ``inf`` if the last point is out."""
+        Y = np.asarray(self.prob.step(x, self.prob.params.pack({**self.values, "mask": np.zeros(self.tgrid.size)})))
+        Y = Y.reshape(-1, self.tgrid.size)
+        out = np.any(np.abs(Y - 1.0) > self.values["band"], axis=0)
+        if not out.any():
+            return 0.0
+        j = int(np.flatnonzero(out)[-1])
+        return math.inf if j + 1 >= self.tgrid.size else float(self.tgrid[j + 1])
+
     def __call__(self, ts: float, x_init: np.ndarray) -> tuple[float, np.ndarray] | None:
-        """Maximise the band slack with the settling envelope from ``ts`` on: (slack, x), slack < 0 if infeasible."""
+        """Solve with the settling envelope from ``ts`` on (``inf``: none): (slack or objective, x); the first
+        is < 0 if the settling problem is infeasible."""
         res, prob = self.res, self.prob
-        p = prob.params.pack({**self.values, "mask": (self.tgrid >= ts - 1e-12).astype(float)})
+        mask = (self.tgrid >= ts - 1e-12).astype(float) if math.isfinite(ts) else np.zeros(self.tgrid.size)
+        p = prob.params.pack({**self.values, "mask": mask})
         try:
             sol = prob.solver(x0=x_init, p=p, lbx=self.lbx, ubx=self.ubx, lbg=prob.lbg, ubg=prob.ubg, **self.lam)
-        except RuntimeError as e:  # IPOPT failures surface as RuntimeError in CasADi
-            res.status = f"ipopt error: {e}"
+        except RuntimeError as e:  # solver failures surface as RuntimeError in CasADi
+            res.status = f"solver error: {e}"
             return None
         stats = prob.solver.stats()
+        res.solves += 1
         res.iterations += int(stats.get("iter_count", 0))
-        res.evaluations += int(stats.get("n_call_nlp_f", 0)) + int(stats.get("n_call_nlp_g", 0))
+        res.evaluations += sum(int(stats.get(k, 0)) for k in ("n_call_nlp_f", "n_call_nlp_g", "n_call_nlp_fg"))
         res.success = res.success or bool(stats.get("success", False))
         res.status = str(stats.get("return_status", ""))
         x = np.asarray(sol["x"]).ravel()
@@ -170,35 +253,73 @@ class _Solves:
         if self.solver == "ipopt":  # warm start the next bisection solve from this one's multipliers
             self.lam.update(lam_x0=np.asarray(sol["lam_x"]).ravel(), lam_g0=np.asarray(sol["lam_g"]).ravel())
         ok = stats.get("success", False) or res.status == "Solved_To_Acceptable_Level"
-        return (float(x[self.slack]) if ok else -1.0), x
+        if prob.key.objective == "settling_time":
+            return (float(x[self.slack]) if ok else -1.0), x
+        return (float(sol["f"]) if ok else math.inf), x
 
 
-def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
-           solver: str = "ipopt") -> RefineResult:
-    """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates."""
+def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray) -> float | None:
+    """The frequency where the verifier's dense grid finds a frequency-domain limit violated, or None."""
+    spec = ev.spec
+    ctrl = ev.st.tf(space.params(v), ev.dt)
+    worst, w_worst = _TIGHT + 1e-6, None  # the NLP keeps the peaks at most _TIGHT times the limits
+    for p in ev.problem.plants:
+        lp = build_loop(p, ctrl)
+        w = frequency_grid(lp)
+        with np.errstate(all="ignore"):
+            L = lp.freqresp(w)
+            C = ctrl.freqresp(w)
+            S = 1 / (1 + L)
+        checks = []
+        if spec.ms_max:
+            checks.append(np.abs(S) / spec.ms_max)
+        if spec.mt_max:
+            checks.append(np.abs(L * S) / spec.mt_max)
+        if spec.mks_max:
+            checks.append(np.abs(C * S) / spec.mks_max)
+        if spec.disk_margin_min:
+            checks.append(spec.disk_margin_min / np.maximum(2 * np.abs(1 + L) / np.abs(1 - L), 1e-300))
+        for r in checks:
+            r = np.where(np.isfinite(r), r, 0.0)
+            i = int(np.argmax(r))
+            if r[i] > worst:
+                worst, w_worst = float(r[i]), float(w[i])
+    return w_worst
+
+
+def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
+           solver: str = "sqp", incumbent: float | None = None, start: Start | None = None) -> RefineResult:
+    """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
+
+    ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
+    bisection's intermediate solutions. ``incumbent``: the best settling time known to the caller; the
+    refinement then looks only for solutions that settle no later (its horizon follows that target,
+    not the start's possibly much longer settling). ``start``: what the batch already said about ``v0``."""
     res = RefineResult()
     spec = ev.spec
     x0 = space.params(v0)
     try:
-        start = ev.analyse(x0)
+        ctrl0 = ev.st.tf(x0, ev.dt)
     except (ValueError, ArithmeticError) as e:
-        res.status = f"start not analysable: {e}"
+        res.status = f"start not usable: {e}"
         return res
-    settle = max((a.metrics.settling_time_s for a in start), default=math.inf)
-    grid = _grid(ev, settle, space.w0)
-    if ev.dt is not None and any(build_loop(p, ev.controller(x0)).plant_ct is None for p in ev.plants):
+    start = start or Start.of(ev, x0)
+    incumbent = incumbent if spec.objective == "settling_time" else None
+    grid = _grid(ev, start, space.w0, incumbent)
+    if ev.dt is not None and any(build_loop(p, ctrl0).plant_ct is None for p in ev.problem.plants):
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
         grid = _Grid(K=grid.K, N=1, step=grid.step, h=None)
-    data = _plant_data(ev, start, ev.controller(x0), grid, space.w0)
+    data = _plant_data(ev, start, ctrl0, grid, space.w0)
     key = ProblemKey(structure=space.structure.name, continuous=ev.dt is None,
                      orders=tuple(lf.n for lf in data.lifted), zeros=tuple(lf.zeros.size for lf in data.lifted),
                      poles=tuple(lf.poles.size for lf in data.lifted),
-                     delays=tuple(lf.delay_samples for lf in data.lifted),
-                     K=grid.K, N=grid.N, phase_cross=tuple(data.has_pc),
-                     control_peak=spec.control_peak_max is not None, ms=spec.ms_max is not None,
-                     objective=spec.objective, solver=solver)
+                     delays=tuple(lf.delay_samples for lf in data.lifted), K=grid.K, N=grid.N,
+                     phase_cross=tuple(data.has_pc), control_peak=spec.control_peak_max is not None,
+                     objective=spec.objective, solver=solver, pm=spec.phase_margin_min_deg > 0,
+                     gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
+                     mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None)
     prob = get_problem(key, space.structure, space)
-    values = _values(ev, space, grid, data)
+    values = _values(ev, space, grid, data, key)
     xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0))
     solve = _Solves(prob, values, grid, lbx, ubx, res, solver)
 
@@ -208,21 +329,38 @@ def refine(ev: Evaluator, space: Space, v0: np.ndarray, *, deadline: float | Non
     def to_search(x: np.ndarray) -> np.ndarray:  # NLP coordinates -> the search's coordinates
         return space.from_params(space.params(x[prob.variables.slice("v")], linear_gains=True))
 
+    def exchange(x: np.ndarray, ts: float) -> np.ndarray:
+        """Add the frequencies where the limits are violated between the grid's points, and solve again."""
+        for slot in range(GRID_EXTRA if key.grid else 0):
+            w_miss = _missed_peak(ev, space, to_search(x))
+            if w_miss is None or out_of_time():
+                break
+            values["wgrid"][MS_GRID + slot] = w_miss
+            _grid_response(ev, values)
+            r = solve(ts, x)
+            if r is None:
+                break
+            x = r[1]
+        return x
+
     if out_of_time():
         res.status = "no time left"
         return res
     if spec.objective != "settling_time":
         r = solve(math.inf, xs)
         if r is not None:
-            res.candidates.append(to_search(r[1]))
+            res.candidates.append(to_search(exchange(r[1], math.inf)))
         return res
-    _bisect(solve, ev, space, settle, grid, xs, res, to_search, out_of_time)
+    target = _target(start, incumbent)
+    near = incumbent is not None and target == incumbent and float(np.max(start.settle)) > incumbent
+    _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time, exchange, near=near)
     return res
 
 
-def _bisect(solve: _Solves, ev: Evaluator, space: Space, settle: float, grid: _Grid, xs: np.ndarray,
-            res: RefineResult, to_search: Any, out_of_time: Any) -> None:
-    """Bisection on Ts: feasible (slack >= 0) at hi, infeasible at lo; every feasible solution is a candidate."""
+def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, grid: _Grid, xs: np.ndarray,
+            res: RefineResult, to_search: Any, out_of_time: Any, exchange: Any, near: bool = False) -> None:
+    """Bisection on Ts from ``settle`` (feasible at hi, infeasible at lo); every feasible solution is a
+    candidate. ``near``: ``settle`` is an incumbent's, the optimum is probably close below it."""
     tgrid = grid.t
     hi = settle if math.isfinite(settle) and settle < tgrid[-1] else 0.9 * tgrid[-1]
     r = solve(hi, xs)
@@ -231,17 +369,32 @@ def _bisect(solve: _Solves, ev: Evaluator, space: Space, settle: float, grid: _G
     res.candidates.append(to_search(r[1]))
     if r[0] < 0:
         return
-    best, lo = r[1], 0.3 * hi
-    tol = grid.step / 2  # half a sample (the verifier then judges between samples)
-    while hi - lo > tol and not out_of_time():
+    best = exchange(r[1], hi)
+    res.candidates.append(to_search(best))
+    ts_nlp = solve.settles_at(best)
+    if 0 < ts_nlp < hi:
+        hi = ts_nlp
+    # the lower end: a guess near hi when the target is an incumbent (another refinement's local optimum:
+    # this one is likely to end near it), widened to 0.3 hi if the bisection reaches the guess untested
+    lo, proven = (NEAR * hi, False) if near else (0.3 * hi, True)
+    tol = grid.step / grid.N  # the NLP grid's resolution (the verifier then judges between its points)
+    while not out_of_time():
+        if hi - lo <= tol:
+            if proven:
+                break
+            lo, proven = 0.3 * hi, True
+            continue
         mid = 0.5 * (lo + hi)
         r = solve(mid, best)
         if r is not None and r[0] >= 0:
-            hi, best = mid, r[1]
+            hi, best = mid, exchange(r[1], mid)
             res.candidates.append(to_search(best))
-            # the solution may settle earlier than asked: jump there (judged by the verifier)
-            sc = ev.score(space.params(to_search(best)))
-            if sc.feasible and lo < sc.score < hi:
-                hi = sc.score
+            # the solution may settle earlier than asked (on the NLP's grid): jump there; the verifier judges
+            # every candidate afterwards
+            ts_nlp = solve.settles_at(best)
+            if 0 < ts_nlp < hi:
+                hi = ts_nlp
+                if hi <= lo:  # lo was a failed solve, not an infeasible problem: reopen the bracket
+                    lo, proven = 0.3 * hi, True
         else:
-            lo = mid
+            lo, proven = mid, True

@@ -1,31 +1,42 @@
 """The tuning NLP in CasADi, built once per problem *structure* and re-used.
 
-Structure key = (controller structure, continuous or discrete, plant order and
-delay per plant, horizon K, points per sample N, which crossovers exist, the
-optional constraints). Plant data, dt, the spec's numbers and the time grid
-enter as parameters, so re-solving from another start, or for another plant of
-the same order, does not rebuild anything (``BUILDS`` counts real builds).
+Structure key = (controller structure, continuous or discrete, plant sizes and delay per plant,
+horizon K, points per sample N, which constraints exist, the objective, the solver). Plant data,
+dt, the spec's numbers, the frequency grid and the time grid enter as parameters, so re-solving
+from another start, or for another plant of the same sizes, does not rebuild anything (``BUILDS``
+counts real builds).
 
-Decision variables: the structure's coordinates ``v`` (see :mod:`tuner.optimize.space`;
-gains linear in their plant-based unit, frequencies logarithmic), the band slack, and per plant the gain-crossover
-frequency ``wc`` (and the phase-crossover frequency ``wp`` where the loop has
-one below Nyquist).
+Decision variables: the structure's coordinates ``v`` (see :mod:`tuner.optimize.space`; gains
+linear in their plant-based unit, frequencies logarithmic), the band slack, and per plant the
+gain-crossover frequency ``wc`` (and the phase-crossover frequency ``wp`` where the loop has one
+below Nyquist), when the phase and gain margins are constrained.
 
 Constraints, per plant:
 
 * ``|L(j wc)| = 1`` and ``Re L(j wc) >= -cos(PM_min)``  (phase margin at wc);
-* ``Im L(j wp) = 0`` and ``Re L(j wp) >= -10^(-GM/20)``  (gain margin at wp), and
-  for sampled-data loops the same at the Nyquist frequency, where L is real;
-* step response between samples (lifted ZOH model, exact at N points per
-  sample): ``y <= 1 + overshoot``, and the settling envelope
-  ``|y_i - 1| <= b - slack`` for every ``t_i >= Ts``, the set of such points
-  given as a 0/1 parameter ``mask`` (so moving ``Ts`` never rebuilds);
-* optional ``|u_k| <= control_peak_max`` and ``|1 + L(j w)| >= 1/Ms_max`` on a grid.
+* ``Im L(j wp) = 0`` and ``Re L(j wp) >= -10^(-GM/20)``  (gain margin at wp), and for sampled-data
+  loops the same at the Nyquist frequency, where L is real; the plant's response at these free
+  frequencies comes from its zeros, poles and gain (factored, never expanded);
+* on a frequency grid (the plant's response there is a parameter): ``|S| <= Ms``, ``|T| <= Mt``,
+  ``|C S| <= Mks``, ``2|1 + L| >= alpha |1 - L|`` (disk margin), as requested; the grid has spare
+  slots that :mod:`~tuner.optimize.nlp.refine` fills with the frequencies where the verifier finds a
+  peak the grid missed (an exchange method), so the limits hold on the verifier's dense grid;
+* the unit step response between samples (lifted ZOH model, exact at N points per sample):
+  ``y <= 1 + overshoot`` and, for the settling-time objective, the envelope ``|y_i - 1| <= b - slack``
+  for every ``t_i >= Ts`` (a 0/1 parameter ``mask``, so moving ``Ts`` never rebuilds); optionally
+  ``|u_k| <= control_peak_max``.
 
-Objective: for a given ``Ts``, maximise the slack (the caller bisects on
-``Ts``: the smallest ``Ts`` with slack >= 0 is the minimum settling time, exact
-on the grid); for other objectives a smooth ITAE surrogate. The verifier
-re-judges every solution.
+Objectives, each the verifier's own definition on the same grid (exact, not a proxy):
+
+* ``settling_time``: for a given ``Ts``, maximise the slack; the caller bisects on ``Ts`` (the
+  smallest ``Ts`` with slack >= 0 is the minimum settling time on the grid);
+* ``iae``: the trapezoid integral of ``|y|`` after a unit load step at the plant input (``|.|`` as
+  ``sqrt(y^2 + eps^2)`` with ``eps`` far below the verifier's resolution, so its derivative exists);
+* ``itae``: the same of ``t |1 - y|`` for the reference step;
+* ``ie``: ``-Ki`` (the integral gain ``lim s C(s)``: IE = 1/Ki after a load step), the MIGO criterion.
+
+Solvers: ``"sqp"`` (default; CasADi's SQP with a limited-memory Hessian and the DAQP active-set QP
+solver: deterministic, no state kept between calls) or ``"ipopt"``.
 """
 
 from __future__ import annotations
@@ -41,10 +52,15 @@ from ...controllers import Structure
 from ..space import Space
 from .layout import Layout
 
-__all__ = ["ProblemKey", "Problem", "get_problem", "parameter_layout", "variable_layout", "BUILDS", "MS_GRID"]
+__all__ = ["ProblemKey", "Problem", "get_problem", "parameter_layout", "variable_layout", "BUILDS", "MS_GRID",
+           "GRID_EXTRA", "SOLVERS"]
 
 BUILDS = {"count": 0}
 MS_GRID = 60
+GRID_EXTRA = 8  # spare grid slots for the exchange method
+SOLVERS = ("sqp", "ipopt")
+MAX_SQP_ITER = 40  # per solve: a feasible bisection step takes 3-25; a start too far to reach the target takes
+                   # 50-100 to say so (its point is still scored); the next start is a better use of the time
 _CACHE: dict[ProblemKey, Problem] = {}
 
 
@@ -60,9 +76,22 @@ class ProblemKey:
     N: int
     phase_cross: tuple[bool, ...]  # per plant: a phase crossover below Nyquist
     control_peak: bool
-    ms: bool
     objective: str
-    solver: str = "ipopt"  # "ipopt" (interior point) or "sqp" (CasADi sqpmethod with qpOASES)
+    solver: str = "sqp"
+    pm: bool = True  # phase margin constrained
+    gm: bool = True  # gain margin constrained
+    ms: bool = False
+    mt: bool = False
+    mks: bool = False
+    dm: bool = False
+
+    @property
+    def grid(self) -> bool:
+        return self.ms or self.mt or self.mks or self.dm
+
+    @property
+    def n_grid(self) -> int:
+        return MS_GRID + GRID_EXTRA if self.grid else 0
 
 
 @dataclass
@@ -74,6 +103,31 @@ class Problem:
     ubg: np.ndarray
     params: Layout  # the parameter vector p
     variables: Layout  # the decision vector x
+    step: Any = None  # casadi Function (x, p) -> the reference-step outputs of every plant, stacked (K N each)
+
+
+# the spec's numbers and the steps, in the parameter vector (see refine for their values)
+GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu")
+
+
+def parameter_layout(key: ProblemKey, nv: int) -> Layout:
+    """The parameter vector: spec numbers, gain units, per-plant data, the frequency grid, time weights, mask."""
+    blocks: list[tuple[str, tuple[int, ...]]] = [(n, ()) for n in GLOBALS] + [("units", (nv,))]
+    ng = key.n_grid
+    for i, n in enumerate(key.orders):
+        blocks += [(f"Phi{i}", (n, n)), (f"Gam{i}", (n,)), (f"C{i}", (n,)), (f"D{i}", ()), (f"Cf{i}", (key.N, n)),
+                   (f"Df{i}", (key.N,)), (f"zr{i}", (key.zeros[i],)), (f"zi{i}", (key.zeros[i],)),
+                   (f"pr{i}", (key.poles[i],)), (f"pi{i}", (key.poles[i],)), (f"k{i}", ()), (f"tau{i}", ()),
+                   (f"Gre{i}", (ng,)), (f"Gim{i}", (ng,))]
+    blocks += [("wgrid", (ng,)), ("tw", (key.K * key.N,)), ("mask", (key.K * key.N,))]
+    return Layout(tuple(blocks))
+
+
+def variable_layout(key: ProblemKey, nv: int) -> Layout:
+    """The decision vector: coordinates ``v``, the band slack, crossover frequencies per plant."""
+    n_wc = len(key.orders) if key.pm else 0
+    n_wp = sum(key.phase_cross) if key.gm else 0
+    return Layout((("v", (nv,)), ("slack", ()), ("wc", (n_wc,)), ("wp", (n_wp,))))
 
 
 def _cplx_poly(coeffs: list[Any], w: Any, dt: Any, continuous: bool) -> tuple[Any, Any]:
@@ -83,8 +137,7 @@ def _cplx_poly(coeffs: list[Any], w: Any, dt: Any, continuous: bool) -> tuple[An
     for i, c in enumerate(coeffs):
         k = deg - i
         if continuous:
-            # (j w)^k = w^k * j^k
-            wk = w ** k if k else 1
+            wk = w ** k if k else 1  # (j w)^k = w^k j^k
             r = k % 4
             if r == 0:
                 re = re + c * wk
@@ -102,6 +155,10 @@ def _cplx_poly(coeffs: list[Any], w: Any, dt: Any, continuous: bool) -> tuple[An
 
 def _cmul(a: tuple[Any, Any], b: tuple[Any, Any]) -> tuple[Any, Any]:
     return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
+
+
+def _abs2(a: tuple[Any, Any]) -> Any:
+    return a[0] ** 2 + a[1] ** 2
 
 
 def _tustin(num: list[Any], den: list[Any], h: Any) -> tuple[list[Any], list[Any]]:
@@ -142,25 +199,22 @@ def _canonical(num: list[Any], den: list[Any]) -> tuple[list[Any], list[Any], An
     return a, beta, b[0]
 
 
-def parameter_layout(key: ProblemKey, nv: int) -> Layout:
-    """The parameter vector: spec numbers, gain units, per-plant data, the Ms grid, the settling mask."""
-    blocks: list[tuple[str, tuple[int, ...]]] = [(n, ()) for n in GLOBALS] + [("units", (nv,))]
-    for i, n in enumerate(key.orders):
-        nz, npo = key.zeros[i], key.poles[i]
-        blocks += [(f"Phi{i}", (n, n)), (f"Gam{i}", (n,)), (f"C{i}", (n,)), (f"D{i}", ()), (f"Cf{i}", (key.N, n)),
-                   (f"Df{i}", (key.N,)), (f"zr{i}", (nz,)), (f"zi{i}", (nz,)), (f"pr{i}", (npo,)), (f"pi{i}", (npo,)),
-                   (f"k{i}", ()), (f"tau{i}", ())]
-    blocks += [("wms", (MS_GRID if key.ms else 0,)), ("mask", (key.K * key.N,))]
-    return Layout(tuple(blocks))
+def integral_gain(num: list[Any], den: list[Any], dt: Any, continuous: bool) -> Any:
+    """``lim s C(s)`` (continuous) or ``lim (z - 1) C(z) / dt`` (discrete), symbolically: the denominator's
+    root at DC divided out by synthetic division (the structure's integrator is exactly there)."""
+    x = 0.0 if continuous else 1.0
+    q = [den[0]]
+    for c in den[1:-1]:
+        q.append(c + q[-1] * x)
 
+    def at(p: list[Any]) -> Any:
+        v = 0
+        for c in p:
+            v = v * x + c
+        return v
 
-def variable_layout(key: ProblemKey, nv: int) -> Layout:
-    """The decision vector: coordinates ``v``, the band slack, crossover frequencies per plant."""
-    return Layout((("v", (nv,)), ("slack", ()), ("wc", (len(key.orders),)), ("wp", (sum(key.phase_cross),))))
-
-
-# the spec's numbers and the steps, in the parameter vector (see refine for their values)
-GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv")
+    ki = at(num) / at(q)
+    return ki if continuous else ki / dt
 
 
 class _Constraints:
@@ -209,32 +263,52 @@ def _open_loop_at(w: Any, key: ProblemKey, i: int, cnum: list, cden: list, P: di
     Dd = _cmul(cd, gd)
     re = Nn[0] * Dd[0] + Nn[1] * Dd[1]
     im = Nn[1] * Dd[0] - Nn[0] * Dd[1]
-    return re, im, Nn[0] ** 2 + Nn[1] ** 2, Dd[0] ** 2 + Dd[1] ** 2
+    return re, im, _abs2(Nn), _abs2(Dd)
 
 
-def _frequency_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any],
-                           wc: Any, wp: Any | None) -> None:
+def _margin_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any],
+                        wc: Any | None, wp: Any | None) -> None:
     """Phase margin at the gain crossover ``wc``; gain margin at the phase crossover ``wp`` and (sampled-data)
-    at the Nyquist frequency; the optional Ms bound on its grid."""
-    re, im, nn2, dd2 = _open_loop_at(wc, key, i, cnum, cden, P)
-    c.add((nn2 - dd2) / (nn2 + dd2), 0.0, 0.0)  # |L(j wc)| = 1
-    c.add((re + P["cospm"] * dd2) / (nn2 + dd2), 0.0, cs.inf)  # Re L >= -cos(PM)
-    if wp is not None:
-        re, im, nn2, dd2 = _open_loop_at(wp, key, i, cnum, cden, P)
-        c.add(im / (nn2 + dd2), 0.0, 0.0)
-        c.add((re + P["g"] * dd2) / (nn2 + dd2), 0.0, cs.inf)
-    if not key.continuous:
-        re, im, nn2, dd2 = _open_loop_at(math.pi / P["dt"], key, i, cnum, cden, P)
-        c.add((re + P["g"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
-    if key.ms:
-        for j in range(MS_GRID):
-            re, im, nn2, dd2 = _open_loop_at(P["wms"][j], key, i, cnum, cden, P)
-            # |1 + L|^2 >= msinv^2  <=>  dd2 + 2 re + nn2 >= msinv^2 dd2
-            c.add((dd2 + 2 * re + nn2 - P["msinv"] ** 2 * dd2) / (nn2 + dd2), 0.0, cs.inf)
+    at the Nyquist frequency."""
+    if wc is not None:
+        re, im, nn2, dd2 = _open_loop_at(wc, key, i, cnum, cden, P)
+        c.add((nn2 - dd2) / (nn2 + dd2), 0.0, 0.0)  # |L(j wc)| = 1
+        c.add((re + P["cospm"] * dd2) / (nn2 + dd2), 0.0, cs.inf)  # Re L >= -cos(PM)
+    if key.gm:
+        if wp is not None:
+            re, im, nn2, dd2 = _open_loop_at(wp, key, i, cnum, cden, P)
+            c.add(im / (nn2 + dd2), 0.0, 0.0)
+            c.add((re + P["g"] * dd2) / (nn2 + dd2), 0.0, cs.inf)
+        if not key.continuous:
+            re, im, nn2, dd2 = _open_loop_at(math.pi / P["dt"], key, i, cnum, cden, P)
+            c.add((re + P["g"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
 
 
-def _step_response(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[str, Any]) -> tuple[Any, list]:
-    """The closed loop's unit-step output at N points per sample (lifted model) and the control sequence."""
+def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any]) -> None:
+    """Ms, Mt, Mks and disk-margin limits on the frequency grid: with L = Cn G / Cd (G a parameter there),
+    each is a ratio of squared magnitudes, multiplied through by the (positive) denominators."""
+    for j in range(key.n_grid):
+        w = P["wgrid"][j]
+        cn = _cplx_poly(cnum, w, P["dt"], key.continuous)
+        cd = _cplx_poly(cden, w, P["dt"], key.continuous)
+        cng = _cmul(cn, (P[f"Gre{i}"][j], P[f"Gim{i}"][j]))  # Cn G
+        one_plus = _abs2((cd[0] + cng[0], cd[1] + cng[1]))  # |Cd + Cn G|^2 = |Cd|^2 |1 + L|^2
+        scale = _abs2(cd) + _abs2(cng) + 1e-300
+        if key.ms:
+            c.add((one_plus - P["msinv"] ** 2 * _abs2(cd)) / scale, 0.0, cs.inf)
+        if key.mt:
+            c.add((P["mt"] ** 2 * one_plus - _abs2(cng)) / scale, 0.0, cs.inf)
+        if key.mks:
+            c.add((P["mks"] ** 2 * one_plus - _abs2(cn)) / (scale + _abs2(cn)), 0.0, cs.inf)
+        if key.dm:
+            one_minus = _abs2((cd[0] - cng[0], cd[1] - cng[1]))
+            c.add((4 * one_plus - P["alpha"] ** 2 * one_minus) / scale, 0.0, cs.inf)
+
+
+def _responses(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[str, Any], r: float, w: float
+               ) -> tuple[Any, list]:
+    """The closed loop's output at N points per sample (lifted model) and the control sequence, for a unit
+    step of the reference ``r`` and of the load ``w`` at the plant input (before its delay)."""
     a, beta, d0 = ctrl
     m = len(a)
     n, dly = key.orders[i], key.delays[i]
@@ -245,15 +319,15 @@ def _step_response(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dic
     ys, us = [], []
     for _ in range(key.K):
         if dly == 0:
-            u = (cs.dot(cs.vertcat(*beta), xc) + d0 * (1 - cs.dot(Cx, x))) / (1 + d0 * Dp) if m else \
-                d0 * (1 - cs.dot(Cx, x)) / (1 + d0 * Dp)
-            ua = u
-            e = 1 - (cs.dot(Cx, x) + Dp * ua)
+            # u = (beta xc + d0 (r - C x - D w)) / (1 + d0 D); plant input u + w
+            u = ((cs.dot(cs.vertcat(*beta), xc) if m else 0) + d0 * (r - cs.dot(Cx, x) - Dp * w)) / (1 + d0 * Dp)
+            ua = u + w
+            e = r - (cs.dot(Cx, x) + Dp * ua)
         else:
             ua = buf[0]
-            e = 1 - (cs.dot(Cx, x) + Dp * ua)
+            e = r - (cs.dot(Cx, x) + Dp * ua)
             u = (cs.dot(cs.vertcat(*beta), xc) if m else 0) + d0 * e
-            buf = buf[1:] + [u]
+            buf = buf[1:] + [u + w]
         ys.append(cs.mtimes(Cf, x) + Df * ua)
         us.append(u)
         x = cs.mtimes(Phi, x) + Gam * ua
@@ -263,26 +337,39 @@ def _step_response(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dic
     return cs.vertcat(*ys), us
 
 
-def _envelope(c: _Constraints, y: Any, slack: Any, P: dict[str, Any]) -> None:
+def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str, Any]) -> None:
     """Upper: y_i - 1 <= overshoot before Ts, <= band - slack from Ts on (the band is the tighter one);
-    lower: 1 - y_i <= band - slack from Ts on (vacuous before). ``mask`` is 1 from Ts on."""
+    lower: 1 - y_i <= band - slack from Ts on. ``mask`` is 1 from Ts on. Other objectives: the overshoot
+    only (their mask is 0)."""
     mask = P["mask"]
     c.add(y - 1 - (1 - mask) * P["os"] - mask * (P["band"] - slack), -cs.inf, 0.0)
-    c.add(mask * (1 - y + slack - P["band"]), -cs.inf, 0.0)
+    if key.objective == "settling_time":
+        c.add(mask * (1 - y + slack - P["band"]), -cs.inf, 0.0)
 
 
 def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
     if key.solver == "sqp":
-        opts = {"qpsol": "qpoases", "print_time": False, "print_header": False, "print_iteration": False,
-                "print_status": False, "max_iter": 60, "error_on_fail": False,
-                "qpsol_options": {"printLevel": "none", "error_on_fail": False}}
+        # min_step_size: CasADi's default (1e-10 in the inf-norm) stops well-progressing solves whose steps in
+        # a coordinate are small (a pid at dt near its optimum: "Search_Direction_Becomes_Too_Small")
+        opts = {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
+                "min_step_size": 1e-16, "print_time": False, "print_header": False, "print_iteration": False,
+                "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
+                "qpsol_options": {"error_on_fail": False}}
         return cs.nlpsol(f"tune_{key.structure}", "sqpmethod", nlp, opts)
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
             "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 5,
             "ipopt.mu_strategy": "adaptive", "ipopt.warm_start_init_point": "yes",
             "ipopt.warm_start_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
-            "ipopt.max_wall_time": 30.0}  # a safety net only: budgets are enforced between solves
+            "ipopt.max_wall_time": 30.0, "show_eval_warnings": False}  # a safety net only: budgets between solves
     return cs.nlpsol(f"tune_{key.structure}", "ipopt", nlp, opts)
+
+
+def _objective(key: ProblemKey, terms: list[Any], cnum: list, cden: list, P: dict[str, Any], X: dict[str, Any]) -> Any:
+    if key.objective == "settling_time":
+        return -X["slack"]
+    if key.objective == "ie":
+        return -integral_gain(cnum, cden, P["dt"], key.continuous) / P["kiu"]
+    return cs.mmax(cs.vertcat(*terms)) if len(terms) > 1 else terms[0]
 
 
 def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
@@ -297,27 +384,31 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
     snum, sden = _tustin(cnum, cden, P["h"]) if key.continuous else (cnum, cden)
     ctrl = _canonical(snum, sden)
     c = _Constraints()
-    obj_terms = []
+    terms = []
+    outputs = []
     ipc = 0
-    t = cs.DM(np.arange(key.K * key.N) / key.N) * P["h"]
     for i in range(len(key.orders)):
         wp = None
-        if key.phase_cross[i]:
+        if key.gm and key.phase_cross[i]:
             wp, ipc = X["wp"][ipc], ipc + 1
-        _frequency_constraints(c, key, i, cnum, cden, P, X["wc"][i], wp)
-        y, us = _step_response(key, i, ctrl, P)
-        _envelope(c, y, X["slack"], P)
+        _margin_constraints(c, key, i, cnum, cden, P, X["wc"][i] if key.pm else None, wp)
+        if key.grid:
+            _grid_constraints(c, key, i, cnum, cden, P)
+        y, us = _responses(key, i, ctrl, P, 1.0, 0.0)
+        outputs.append(y)
+        _envelope(c, key, y, X["slack"], P)
         if key.control_peak:
             c.add(cs.vertcat(*us) / P["cpk"], -1.0, 1.0)
-        if key.objective != "settling_time":  # a smooth ITAE of the reference step
-            obj_terms.append(cs.sum1(t * cs.sqrt((y - 1) ** 2 + 1e-8)) * (P["h"] / key.N))
-    if key.objective == "settling_time":
-        f = -X["slack"]
-    else:
-        f = cs.mmax(cs.vertcat(*obj_terms)) if len(obj_terms) > 1 else obj_terms[0]
+        if key.objective == "itae":
+            terms.append(cs.dot(P["tw"], cs.sqrt((1 - y) ** 2 + P["eps"] ** 2)))
+        elif key.objective == "iae":
+            yl, _ = _responses(key, i, ctrl, P, 0.0, 1.0)
+            terms.append(cs.dot(P["tw"], cs.sqrt(yl ** 2 + P["eps"] ** 2)))
+    f = _objective(key, terms, cnum, cden, P, X)
     nlp = {"x": xvar, "p": p, "f": f, "g": cs.vertcat(*c.g)}
     return Problem(key=key, solver=_solver(key, nlp), n_v=nv, lbg=np.array(c.lbg, dtype=float),
-                   ubg=np.array(c.ubg, dtype=float), params=play, variables=xlay)
+                   ubg=np.array(c.ubg, dtype=float), params=play, variables=xlay,
+                   step=cs.Function("step", [xvar, p], [cs.vertcat(*outputs)]))
 
 
 def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:

@@ -1,0 +1,667 @@
+"""The search-resolution verifier, batched: hundreds of candidates per numpy call.
+
+The global stage and the local stage's ranking score candidates here; the reported numbers always
+come from the full verifier (:mod:`tuner.analysis`). The same numerics as the verifier, vectorised
+over a batch of controllers of one structure:
+
+* the plant's realisation (the ZOH of its cascade realisation, or the continuous one), its lifted
+  between-sample outputs and its frequency response on a fixed grid are computed once per problem;
+* each candidate's controller is realised in controllable canonical form (low order) and the closed
+  loops are assembled as a stack ``(B, nz, nz)``: poles are their eigenvalues, responses are one
+  state recursion for the whole stack;
+* margins, Ms, Mt, Mks and the disk margin come from ``L = C G`` on the grid (crossings by linear
+  interpolation between grid points), so they are a little optimistic or pessimistic between grid
+  points: the search tightens every limit by a small guard, and the final verification decides.
+
+The horizon follows the plant and each candidate: ten time constants of its own slowest closed-loop pole
+(at least ``MIN_HORIZON_W0 / w0``); candidates are simulated in groups of similar length (powers of two
+of samples), so none is cut short and none pays for another's, up to the verifier's own limit of
+``MAX_SAMPLES`` samples.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import linalg
+
+from ..analysis.response import _lifted
+from ..controllers import ControllerTF
+from ..loop import build_loop
+from ..lti import zoh_delayed
+from ..problem import TuningProblem
+from ..spec import SSE_TOL
+from .space import Space
+
+__all__ = ["BatchEvaluator", "BatchResult", "GUARD", "Start"]
+
+# how much the search tightens each limit (the batch's grid is coarser than the verifier's); the frequency-domain
+# peaks are not tightened: optima sit on those limits, and the final verification judges them on its dense grid
+GUARD = {"band": 0.97, "margin_deg": 0.01, "margin_db": 0.002, "peak": 1.0, "overshoot": 0.99}
+GRID_POINTS = 500
+SAMPLES_PER_DT = 6
+CONTINUOUS_STEPS = 600
+MIN_HORIZON_W0 = 40.0
+MAX_SAMPLES = 20_000  # the verifier's limit too (tuner.analysis.response.MAX_SAMPLES): a candidate needing more
+                      # is judged on that many samples
+INFEASIBLE = 1e3
+UNSTABLE = 1e5
+
+
+@dataclass
+class BatchResult:
+    """Per candidate: ``score`` (objective if feasible, else graded penalties above INFEASIBLE), ``feasible``,
+    the metrics used, and ``violation`` (sum of normalised violations)."""
+
+    score: np.ndarray
+    feasible: np.ndarray
+    violation: np.ndarray
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)  # worst over the plants
+    per_plant: list[dict[str, np.ndarray]] = field(default_factory=list)
+
+
+@dataclass(frozen=True, eq=False)
+class _PlantData:
+    Phi: np.ndarray
+    Gam: np.ndarray
+    C: np.ndarray
+    D: float
+    d: int  # delay in samples (sampled-data loops)
+    tau: float  # continuous delay
+    Cf: np.ndarray | None  # lifted outputs between samples (N, n)
+    Df: np.ndarray | None
+    G: np.ndarray  # frequency response on the grid (delay included)
+    G_nyq: complex | None  # at z = -1
+    G_dc: complex | None  # at DC, when finite
+    G_inf: float  # continuous: G(inf)
+    fine: tuple | None = None  # continuous loops with delay: zoh_delayed(...) at the search step
+
+
+def _canonical(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Batched controllable canonical form of num/den (B, m+1) (den not necessarily monic)."""
+    a0 = den[:, :1]
+    a = den[:, 1:] / a0
+    b = num / a0
+    B, m = a.shape
+    A = np.zeros((B, m, m))
+    if m:
+        A[:, 0, :] = -a
+        A[:, 1:, :-1] = np.eye(m - 1)[None]
+    Bc = np.zeros((B, m))
+    if m:
+        Bc[:, 0] = 1.0
+    Cc = b[:, 1:] - b[:, :1] * a
+    return A, Bc, Cc, b[:, 0]
+
+
+@dataclass(frozen=True)
+class Start:
+    """What the batched verifier says about the start, per plant."""
+
+    settle: np.ndarray
+    wc: np.ndarray
+    wp: np.ndarray
+    horizon: np.ndarray
+
+    @classmethod
+    def row(cls, r: BatchResult, j: int) -> Start:
+        """Row ``j`` of a :class:`~tuner.optimize.batch.BatchResult`."""
+        return cls(*(np.array([float(m[k][j]) for m in r.per_plant]) for k in ("settling_time_s", "wc", "wp",
+                                                                                  "horizon_s")))
+
+    @classmethod
+    def of(cls, batch: BatchEvaluator, x0: np.ndarray) -> Start:
+        return cls.row(batch.evaluate(x0[None]), 0)
+
+
+class BatchEvaluator:
+    """Scores batches of structure parameters (rows of ``X``) on every plant of ``problem``."""
+
+    def __init__(self, problem: TuningProblem, space: Space, *, grid_points: int = GRID_POINTS,
+                 samples_per_dt: int = SAMPLES_PER_DT) -> None:
+        self.problem, self.space = problem, space
+        self.st, self.dt, self.spec = problem.structure, problem.dt, problem.spec
+        w0 = space.w0
+        wmax = math.pi / self.dt * 0.9999 if self.dt else 1e3 * w0
+        wmin = min(1e-3 * w0, *(self._slowest(p) for p in problem.plants))
+        self.w = np.geomspace(wmin, wmax, grid_points)
+        self.N = samples_per_dt if self.dt else 1
+        self.horizon_floor = MIN_HORIZON_W0 / w0
+        self.n_evals = 0
+        self.plants = [self._plant_data(p) for p in problem.plants]
+        sp = self.spec
+        wanted = {"ms": sp.ms_max, "mt": sp.mt_max, "mks": sp.mks_max, "dm": sp.disk_margin_min,
+                  "bw": sp.bandwidth_min_rad_s if sp.objective != "bandwidth" else 1.0}
+        self._needs = frozenset(k for k, lim in wanted.items() if lim is not None)  # what the spec checks
+
+    @staticmethod
+    def _slowest(p) -> float:
+        r = np.concatenate([p.zeros, p.poles])
+        if p.dt is not None:
+            r = r[(np.abs(r) > 1e-12) & (np.abs(r - 1) > 1e-9)]
+            r = np.log(r.astype(complex)) / p.dt
+        m = np.abs(r)
+        m = m[m > 1e-9]
+        return float(m.min()) / 10 if m.size else math.inf
+
+    def _plant_data(self, plant) -> _PlantData:
+        unit = ControllerTF(num=np.ones(1), den=np.ones(1), dt=self.dt)
+        lp = build_loop(plant, unit)
+        g = lp.loop_plant.ss()
+        Cf = Df = None
+        if self.dt is not None and lp.plant_ct is not None and self.N > 1:
+            Cf, Df = _lifted(lp, self.N)
+        G = lp.freqresp(self.w)
+        G_nyq = lp.value_at(-1.0) if self.dt else None
+        G_dc = None if lp.integrating else lp.value_at(0.0 if self.dt is None else 1.0)
+        return _PlantData(g.A, g.B, g.C, float(g.D), lp.delay_samples, lp.delay_s, Cf, Df, G, G_nyq, G_dc,
+                          float(g.D) if self.dt is None else 0.0)
+
+    # -- the controllers ------------------------------------------------------------------------
+
+    def controllers(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Numerator and denominator coefficients (B, m+1) of each candidate's controller."""
+        B = X.shape[0]
+        cols = [X[:, j] for j in range(X.shape[1])]
+        with np.errstate(all="ignore"):
+            num, den = self.st.coeffs(cols, self.dt, np.exp)
+        den = np.stack([np.broadcast_to(np.asarray(c, float), (B,)) for c in den], axis=1)
+        num = np.stack([np.broadcast_to(np.asarray(c, float), (B,)) for c in num], axis=1)
+        if num.shape[1] < den.shape[1]:
+            num = np.concatenate([np.zeros((B, den.shape[1] - num.shape[1])), num], axis=1)
+        return num, den
+
+    def _c_at(self, num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """C at the points x (s or z values), (B, len(x)), by Horner (controllers are low order)."""
+        cn = np.zeros((num.shape[0], x.size), complex)
+        cd = np.zeros_like(cn)
+        for k in range(num.shape[1]):
+            cn = cn * x[None, :] + num[:, k:k + 1]
+            cd = cd * x[None, :] + den[:, k:k + 1]
+        with np.errstate(all="ignore"):
+            return cn / cd
+
+    # -- evaluation -----------------------------------------------------------------------------
+
+    def evaluate(self, X: np.ndarray, *, incumbent_s: float | None = None) -> BatchResult:
+        """Score every row of ``X`` (structure parameters).
+
+        ``incumbent_s``: the best feasible settling time (or, for other objectives, the horizon that matters)
+        found so far. A candidate is then simulated over at most three times that: if it has not settled by
+        then it is worse than the incumbent anyway, and is scored as not settled."""
+        self._incumbent = incumbent_s
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        self.n_evals += X.shape[0]
+        num, den = self.controllers(X)
+        ok = np.all(np.isfinite(num), axis=1) & np.all(np.isfinite(den), axis=1) & (np.abs(den[:, 0]) > 0)
+        num = np.where(ok[:, None], num, 0.0)
+        den = np.where(ok[:, None], den, 1.0)
+        per_plant = [self._evaluate_plant(pd, num, den, ok) for pd in self.plants]
+        return self._combine(per_plant, X)
+
+    def _evaluate_plant(self, pd: _PlantData, num, den, ok) -> dict[str, np.ndarray]:
+        x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
+        C = self._c_at(num, den, x)
+        L = C * pd.G[None, :]
+        m: dict[str, np.ndarray] = {}
+        m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs))
+        A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant = self._closed_loop(pd, num, den)
+        if self.dt is None and pd.tau:
+            A_eig = self._fine_delay_dense(pd, num, den)[0]
+        else:
+            A_eig = A
+        with np.errstate(all="ignore"):
+            good = ok & np.all(np.isfinite(A_eig), axis=(1, 2))
+            poles = np.full((A_eig.shape[0], A_eig.shape[1]), np.nan, complex)
+            if good.any():
+                poles[good] = np.linalg.eigvals(A_eig[good])
+        if self.dt is None and not pd.tau:
+            out = np.nanmax(poles.real, axis=1)
+            tol = -1e-9 * np.maximum(1.0, np.nanmax(np.abs(poles), axis=1))
+            stable = good & (out < tol)
+            sig = np.where(poles.real < 0, -poles.real, np.inf)
+        else:
+            h = self._fine_h(pd) if self.dt is None else self.dt
+            r = np.nanmax(np.abs(poles), axis=1)
+            stable = good & (r < 1 - 1e-9)
+            out = r - 1
+            sig = -np.log(np.clip(np.abs(poles), 1e-300, None)) / h
+            sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.inf)
+        m["stable"] = stable
+        m["outside"] = np.where(stable, 0.0, np.where(np.isfinite(out), np.maximum(out, 1e-9), 1e3))
+        smin = np.min(sig, axis=1)
+        m.update(self._time_metrics(pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant, stable, smin, num, den))
+        return m
+
+    # -- closed loops ---------------------------------------------------------------------------
+
+    def _closed_loop(self, pd: _PlantData, num, den):
+        """The stacked closed loops (B, nz, nz) with inputs [r, w] and the maps to y, u and the plant input."""
+        Ac, Bc, Cc, Dc = _canonical(num, den)
+        Bn, m = Bc.shape
+        n = pd.Phi.shape[0]
+        d = pd.d if self.dt is not None else 0
+        if self.dt is None and pd.tau:
+            d = 0  # the delay is in the fine model (simulation), not in this matrix
+        nz = n + d + m
+        ix, ic = slice(0, n), slice(n + d, nz)
+        A = np.zeros((Bn, nz, nz))
+        Bm = np.zeros((Bn, nz, 2))
+        g_C, g_D = pd.C, pd.D
+        e_r = np.array([1.0, 0.0])
+        if d > 0:
+            Ca = np.zeros((Bn, nz))
+            Ca[:, n + d - 1] = 1.0
+            Da = np.zeros((Bn, 2))
+            Cy = np.zeros((Bn, nz))
+            Cy[:, :n] = g_C
+            Cy = Cy + g_D * Ca
+            Dy = g_D * Da
+            Cu = -Dc[:, None] * Cy
+            Cu[:, ic] += Cc
+            Du = Dc[:, None] * (e_r[None, :] - Dy)
+        else:
+            dnm = 1.0 + Dc * g_D
+            dnm = np.where(np.abs(dnm) < 1e-12, np.nan, dnm)
+            Cu = np.zeros((Bn, nz))
+            Cu[:, ix] = -(Dc / dnm)[:, None] * g_C[None, :]
+            Cu[:, ic] = Cc / dnm[:, None]
+            Du = np.stack([Dc, -Dc * g_D], axis=1) / dnm[:, None]
+            Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
+            Cy = np.zeros((Bn, nz))
+            Cy[:, :n] = g_C
+            Cy = Cy + g_D * Ca
+            Dy = g_D * Da
+        Ce, De = -Cy, e_r[None, :] - Dy
+        A[:, ix, :] += pd.Gam[None, :, None] * Ca[:, None, :]
+        A[:, ix, ix] += pd.Phi[None]
+        Bm[:, ix, :] += pd.Gam[None, :, None] * Da[:, None, :]
+        if d > 0:
+            A[:, n, :] = Cu
+            Bm[:, n, :] = Du + np.array([0.0, 1.0])
+            for j in range(1, d):
+                A[:, n + j, n + j - 1] = 1.0
+        A[:, ic, :] += Bc[:, :, None] * Ce[:, None, :]
+        A[:, ic, ic] += Ac
+        Bm[:, ic, :] += Bc[:, :, None] * De[:, None, :]
+        return A, Bm, Cy, Dy, Cu, Du, Ca, Da, n
+
+    def _fine_h(self, pd: _PlantData) -> float:
+        return pd.tau / 20.0
+
+    def _fine_delay_dense(self, pd: _PlantData, num, den, h: float | None = None) -> tuple[np.ndarray, ...]:
+        """The fine sampled model of a continuous loop with delay at step ``h`` (default tau/20, for the poles):
+        plant ZOH with the delay on a shifted grid, controller Tustin. States [plant, register of the plant's
+        past inputs (m+1), controller]; returns (A, Bm, Cy, Cu)."""
+        h = self._fine_h(pd) if h is None else h
+        Phi, G_old, G_new, mreg, f = zoh_delayed(_SS(pd.Phi, pd.Gam, pd.C, pd.D), h, pd.tau)
+        Ac, Bc, Cc, Dc = _tustin_batch(*_canonical(num, den), h)
+        Bn, m = Bc.shape
+        n, nr = Phi.shape[0], mreg + 1
+        nz = n + nr + m
+        ic = slice(n + nr, nz)
+        a_y = np.zeros(nz)
+        a_y[n + mreg - 1 if f == 0.0 else n + mreg] = 1.0
+        Cy = np.broadcast_to(np.concatenate([pd.C, np.zeros(nr + m)]) + pd.D * a_y, (Bn, nz)).copy()
+        Cu = -Dc[:, None] * Cy
+        Cu[:, ic] += Cc
+        Du = np.stack([Dc, np.zeros(Bn)], axis=1)  # u = Cu z + Dc r
+        v_in = Du + np.array([0.0, 1.0])  # the register takes u + w
+        A = np.zeros((Bn, nz, nz))
+        Bm = np.zeros((Bn, nz, 2))
+        A[:, :n, :n] = Phi
+        A[:, :n, n + mreg] += G_old
+        if mreg >= 1:
+            A[:, :n, n + mreg - 1] += G_new
+        else:
+            A[:, :n, :] += G_new[None, :, None] * Cu[:, None, :]
+            Bm[:, :n, :] += G_new[None, :, None] * v_in[:, None, :]
+        A[:, n, :] += Cu
+        Bm[:, n, :] += v_in
+        for j in range(1, nr):
+            A[:, n + j, n + j - 1] = 1.0
+        A[:, ic, :] += Bc[:, :, None] * (-Cy)[:, None, :]
+        A[:, ic, ic] += Ac
+        Bm[:, ic, 0] += Bc
+        return A, Bm, Cy, Cu, Du
+
+    # -- time responses -------------------------------------------------------------------------
+
+    def _row_horizons(self, smin: np.ndarray, pd: _PlantData) -> np.ndarray:
+        """Each candidate's own horizon: ten time constants of its slowest closed-loop pole (at least
+        ``MIN_HORIZON_W0 / w0``), plus twice the delay."""
+        with np.errstate(all="ignore"):
+            T = np.where(np.isfinite(smin) & (smin > 0), 10.0 / smin, self.horizon_floor)
+        T = np.maximum(T, self.horizon_floor) + 2 * (pd.tau + pd.d * (self.dt or 0))
+        inc = getattr(self, "_incumbent", None)
+        if inc is not None and math.isfinite(inc):
+            T = np.minimum(T, max(3.0 * inc, self.horizon_floor))
+        return T
+
+    def _classes(self, T: np.ndarray, step: float) -> list[tuple[int, np.ndarray]]:
+        """Rows grouped by the number of steps they need (powers of two, at least 32, at most MAX_SAMPLES):
+        every row is simulated over at least its own horizon; a longer one costs at most twice."""
+        K = np.minimum(np.ceil(T / step).astype(np.int64) + 1, MAX_SAMPLES)
+        Kc = np.maximum(32, 2 ** np.ceil(np.log2(np.maximum(K, 1))).astype(np.int64))
+        Kc = np.minimum(Kc, MAX_SAMPLES)
+        return [(int(k), np.flatnonzero(Kc == k)) for k in np.unique(Kc)]
+
+    def _time_metrics(self, pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n, stable, smin, num, den
+                      ) -> dict[str, np.ndarray]:
+        spec = self.spec
+        Bn = A.shape[0]
+        need_load = spec.objective == "iae"
+        res = {k: np.full(Bn, np.nan) for k in ("overshoot_pct", "steady_state_error", "control_peak", "iae",
+                                                   "itae")}
+        res["settling_time_s"] = np.full(Bn, np.inf)
+        idx = np.flatnonzero(stable)
+        if idx.size == 0:
+            res["horizon_s"] = np.full(Bn, np.nan)
+            return res
+        T = self._row_horizons(smin[idx], pd)
+        res["horizon_s"] = np.full(Bn, np.nan)
+        res["horizon_s"][idx] = T
+        band = spec.settling_band_pct / 100.0 * GUARD["band"]
+        if self.dt is None and not pd.tau:
+            groups = [(CONTINUOUS_STEPS + 1, np.arange(idx.size))]  # a step per row: T/CONTINUOUS_STEPS
+        else:
+            step = self.dt if self.dt is not None else None
+            if step is None:  # continuous with delay: one fine step per class
+                groups = [(CONTINUOUS_STEPS + 1, r) for _, r in self._classes(T, T.min() / CONTINUOUS_STEPS)]
+            else:
+                groups = self._classes(T, step)
+        for K, rows in groups:
+            sel = idx[rows]
+            Tr = T[rows]
+            if self.dt is None and pd.tau:
+                sim, args = self._simulate_fine_delay, (pd, num[sel], den[sel], float(Tr.max()))
+            else:
+                sim, args = self._simulate, (pd, A[sel], Bm[sel], Cy[sel], Dy[sel], Cu[sel], Du[sel], Ca[sel],
+                                             Da[sel], n, Tr, K)
+            y, u, t, yf = sim(*args, 0)
+            with np.errstate(all="ignore"):
+                yn = y / yf[:, None]
+                ts = _settling(t, yn, band)
+                res["settling_time_s"][sel] = np.where(np.isfinite(yf) & (yf != 0), ts, np.inf)
+                res["overshoot_pct"][sel] = np.maximum(0.0, (np.max(yn, axis=1) - 1.0) * 100.0)
+                res["steady_state_error"][sel] = 1.0 - yf
+                res["control_peak"][sel] = np.max(np.abs(u), axis=1)
+                res["itae"][sel] = np.trapezoid(t * np.abs(1.0 - y), t, axis=1)
+                if need_load:
+                    yl, _, tl, _ = sim(*args, 1)
+                    res["iae"][sel] = np.trapezoid(np.abs(yl), tl, axis=1)
+        return res
+
+    def _simulate(self, pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n, T, K, inp):
+        """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points)."""
+        Bn, nz, _ = A.shape
+        if self.dt is None:  # continuous, no delay: exact discretisation at each row's own fine step
+            h = T / CONTINUOUS_STEPS
+            M = np.zeros((Bn, nz + 1, nz + 1))
+            M[:, :nz, :nz] = A * h[:, None, None]
+            M[:, :nz, nz] = Bm[:, :, inp] * h[:, None]
+            with np.errstate(all="ignore"):
+                E = linalg.expm(M)
+            Z = _run(E[:, :nz, :nz], E[:, :nz, nz], K)
+            y = np.einsum("bkz,bz->bk", Z, Cy) + Dy[:, inp, None]
+            u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
+            t = np.arange(K)[None, :] * h[:, None]
+        else:
+            Z = _run(A, Bm[:, :, inp], K)
+            ys = np.einsum("bkz,bz->bk", Z, Cy) + Dy[:, inp, None]
+            u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
+            if pd.Cf is not None:
+                ua = np.einsum("bkz,bz->bk", Z, Ca) + Da[:, inp, None]
+                y = (np.einsum("bkn,jn->bkj", Z[:, :, :n], pd.Cf) + ua[:, :, None] * pd.Df[None, None, :])
+                y = y.reshape(Bn, K * self.N)
+                u = np.repeat(u, self.N, axis=1)
+                t = np.broadcast_to(np.arange(K * self.N) * (self.dt / self.N), y.shape)
+            else:
+                y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
+        Mdc = (np.eye(nz)[None] - A) if self.dt is not None else -A
+        with np.errstate(all="ignore"):
+            zf = np.linalg.solve(Mdc, Bm[:, :, inp:inp + 1])[:, :, 0]
+        yf = np.einsum("bz,bz->b", zf, Cy) + Dy[:, inp]
+        return y, u, t, yf
+
+    def _simulate_fine_delay(self, pd, num, den, T, inp):
+        """Continuous loop with delay at the fine step T/CONTINUOUS_STEPS (plant exact, controller Tustin)."""
+        h = T / CONTINUOUS_STEPS
+        K = CONTINUOUS_STEPS + 1
+        A, Bm, Cy, Cu, Du = self._fine_delay_dense(pd, num, den, h)
+        Z = _run(A, Bm[:, :, inp], K)
+        y = np.einsum("bkz,bz->bk", Z, Cy)
+        u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
+        # steady state of the delay-free continuous loop (e^{-s tau} = 1 at s = 0)
+        A0, B0, Cy0, Dy0, *_ = self._closed_loop(pd, num, den)
+        with np.errstate(all="ignore"):
+            zf = np.linalg.solve(-A0, B0[:, :, inp:inp + 1])[:, :, 0]
+        yf = np.einsum("bz,bz->b", zf, Cy0) + Dy0[:, inp]
+        return y, u, np.broadcast_to(np.arange(K) * h, y.shape), yf
+
+    # -- scoring --------------------------------------------------------------------------------
+
+    def _combine(self, per_plant: list[dict[str, np.ndarray]], X: np.ndarray) -> BatchResult:
+        spec = self.spec
+        Bn = X.shape[0]
+        viol = np.zeros(Bn)
+        unstable = np.zeros(Bn, bool)
+        outside = np.zeros(Bn)
+        obj = np.full(Bn, -np.inf)
+        g = GUARD
+        for m in per_plant:
+            unstable |= ~m["stable"]
+            outside = np.maximum(outside, m["outside"])
+            v = np.zeros(Bn)
+            v += _viol_ge(m["pm"], spec.phase_margin_min_deg + g["margin_deg"] * (spec.phase_margin_min_deg > 0),
+                          max(spec.phase_margin_min_deg, 1.0))
+            v += _viol_ge(m["gm"], spec.gain_margin_min_db + g["margin_db"] * (spec.gain_margin_min_db > 0),
+                          max(spec.gain_margin_min_db, 1.0))
+            v += _viol_le(m["gml"], -spec.gain_margin_min_db - g["margin_db"] * (spec.gain_margin_min_db > 0),
+                          max(spec.gain_margin_min_db, 1.0))
+            v += _viol_le(m["overshoot_pct"], spec.overshoot_max_pct * g["overshoot"], max(spec.overshoot_max_pct, 1.0))
+            if spec.zero_steady_state_error:
+                v += _viol_le(np.abs(m["steady_state_error"]), SSE_TOL * 0.5, 1.0)
+            for key, lim in (("control_peak", spec.control_peak_max), ("ms", spec.ms_max), ("mt", spec.mt_max),
+                             ("mks", spec.mks_max)):
+                if lim is not None:
+                    v += _viol_le(m[key], lim * g["peak"], lim)
+            if spec.disk_margin_min is not None:
+                v += _viol_ge(m["dm"], spec.disk_margin_min / g["peak"], spec.disk_margin_min)
+            if spec.bandwidth_min_rad_s is not None:
+                v += _viol_ge(m["bw"], spec.bandwidth_min_rad_s / g["peak"], spec.bandwidth_min_rad_s)
+            v += np.where(np.isfinite(m["settling_time_s"]), 0.0, 10.0)
+            viol += v
+            obj = np.maximum(obj, self._objective(m, X))
+        score = np.where(viol > 0, INFEASIBLE * (1.0 + viol), obj)
+        score = np.where(np.isfinite(score), score, INFEASIBLE * 20)
+        score = np.where(unstable, UNSTABLE * (1.0 + np.minimum(outside, 1e3)), score)
+        feasible = (~unstable) & (viol == 0) & np.isfinite(obj)
+        metrics = {k: np.max(np.stack([m[k] for m in per_plant]), axis=0) for k in
+                   ("settling_time_s", "overshoot_pct", "control_peak")}
+        return BatchResult(score=score, feasible=feasible, violation=viol, metrics=metrics, per_plant=per_plant)
+
+    def _objective(self, m: dict[str, np.ndarray], X: np.ndarray) -> np.ndarray:
+        o = self.spec.objective
+        if o == "settling_time":
+            return m["settling_time_s"]
+        if o == "iae":
+            return m["iae"]
+        if o == "itae":
+            return m["itae"]
+        if o == "ie":
+            ki = self.integral_gain(X)
+            return np.where(ki > 0, 1.0 / np.where(ki > 0, ki, 1.0), np.inf)
+        return -m["bw"]  # bandwidth
+
+    def integral_gain(self, X: np.ndarray) -> np.ndarray:
+        """``lim s C(s)`` (continuous) or ``lim (z - 1) C(z) / dt`` (discrete): the controller's integral gain,
+        ``1/IE`` after a unit load step; 0 without integral action."""
+        num, den = self.controllers(np.atleast_2d(X))
+        x = 0.0 if self.dt is None else 1.0
+        # den has a root at x: divide it out (synthetic division), then evaluate at x
+        q = den.copy()
+        for k in range(1, q.shape[1]):
+            q[:, k] = q[:, k] + q[:, k - 1] * x
+        rem = q[:, -1]
+        quot = q[:, :-1]
+        with np.errstate(all="ignore"):
+            val = np.polyval(num.T, x) / np.polyval(quot.T, x) if quot.shape[1] else np.zeros(num.shape[0])
+        ki = np.where(np.abs(rem) < 1e-12 * np.max(np.abs(den), axis=1), val, 0.0)
+        return ki / (self.dt or 1.0)
+
+
+@dataclass(frozen=True)
+class _SS:  # the plant's (A, B, C, D) for zoh_delayed
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: float
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+
+def _tustin_batch(A, B, C, D, h):
+    """Tustin of stacked continuous controllers (B, m, m)."""
+    Bn, m = B.shape
+    if m == 0:
+        return A, B, C, D
+    eye = np.eye(m)[None]
+    ima = eye - A * (h / 2)
+    inv = np.linalg.inv(ima)
+    Ad = inv @ (eye + A * (h / 2))
+    Bd = np.einsum("bij,bj->bi", inv, B * h)
+    Cd = np.einsum("bj,bji->bi", C, inv)
+    Dd = D + 0.5 * np.einsum("bi,bi->b", C, Bd)
+    return Ad, Bd, Cd, Dd
+
+
+def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
+    """States (B, K, nz) of z_{k+1} = A z_k + b from z_0 = 0, by doubling: z_{k+m} = A^m z_k + z_m, so K
+    states cost log2(K) batched matrix products instead of K small ones."""
+    Bn, nz, _ = A.shape
+    Z = np.zeros((Bn, K, nz))
+    if K <= 1:
+        return Z
+    with np.errstate(all="ignore"):
+        Z[:, 1] = b
+        m, Am = 1, A.copy()  # Z[:, :m+1] known, Am = A^m
+        while m + 1 < K:
+            k = min(m, K - 1 - m)  # states m+1 .. m+k from states 1 .. k
+            Z[:, m + 1:m + 1 + k] = np.matmul(Z[:, 1:1 + k], np.swapaxes(Am, 1, 2)) + Z[:, m:m + 1]
+            Am = Am @ Am
+            m *= 2
+    return Z
+
+
+def _settling(t: np.ndarray, yn: np.ndarray, band: float) -> np.ndarray:
+    """Last time |yn - 1| > band (linear interpolation), inf if still outside at the end; per row (t per row)."""
+    out = np.abs(yn - 1.0) > band
+    B, K = yn.shape
+    last = np.where(out.any(axis=1), K - 1 - np.argmax(out[:, ::-1], axis=1), -1)
+    ts = np.zeros(B)
+    still = last == K - 1
+    mid = (last >= 0) & ~still
+    j = last[mid]
+    rows = np.flatnonzero(mid)
+    y0, y1 = yn[rows, j], yn[rows, j + 1]
+    level = np.where(y0 > 1.0, 1.0 + band, 1.0 - band)
+    with np.errstate(all="ignore"):
+        frac = np.where(y1 != y0, (level - y0) / (y1 - y0), 1.0)
+    ts[rows] = t[rows, j] + frac * (t[rows, j + 1] - t[rows, j])
+    ts[still] = np.inf
+    ts[~np.all(np.isfinite(yn), axis=1)] = np.inf
+    return ts
+
+
+def _viol_ge(v: np.ndarray, req: float, scale: float) -> np.ndarray:
+    with np.errstate(all="ignore"):
+        d = np.where(np.isnan(v), 10.0, np.where(v >= req, 0.0, np.minimum((req - v) / scale, 10.0)))
+    return np.where(np.isfinite(d), d, 10.0)
+
+
+def _viol_le(v: np.ndarray, req: float, scale: float) -> np.ndarray:
+    with np.errstate(all="ignore"):
+        d = np.where(np.isnan(v), 10.0, np.where(v <= req, 0.0, np.minimum((v - req) / scale, 10.0)))
+    return np.where(np.isfinite(d), d, 10.0)
+
+
+def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantData, num, den, dt,
+                       needs: frozenset[str] = frozenset({"ms", "mt", "mks", "dm", "bw"})) -> dict[str, Any]:
+    """Phase margin, upper/lower gain margins and the crossover frequencies on the grid; Ms, Mt, Mks, disk
+    margin and bandwidth where ``needs`` asks for them (nan otherwise). Crossings are found on the whole
+    grid at once and interpolated only where they are (a few per candidate)."""
+    Bn = L.shape[0]
+    rows = np.arange(Bn)
+    nan = np.full(Bn, np.nan)
+    lw = np.log(w)
+    with np.errstate(all="ignore"):
+        absL = np.abs(L)
+        lm = np.log(absL)
+        # gain crossings |L| = 1: linear interpolation of L between the grid points
+        r, c = np.nonzero((lm[:, :-1] * lm[:, 1:] < 0) & np.isfinite(lm[:, :-1]) & np.isfinite(lm[:, 1:]))
+        f = lm[r, c] / (lm[r, c] - lm[r, c + 1])
+        Lc = L[r, c] + f * (L[r, c + 1] - L[r, c])
+        pmv = 180.0 - np.abs(np.degrees(np.angle(Lc)))
+        pm = np.full(Bn, np.inf)
+        np.minimum.at(pm, r, pmv)
+        wc = nan.copy()
+        hit = pmv == pm[r]  # the crossing that sets each row's margin
+        wc[r[hit]] = np.exp(lw[c[hit]] + f[hit] * (lw[c[hit] + 1] - lw[c[hit]]))
+        # real-axis crossings: Im L sign changes (finite), the -1/Re as gain factors
+        im = L.imag
+        fin = np.isfinite(L) & (absL < 1e9)
+        r2, c2 = np.nonzero((im[:, :-1] * im[:, 1:] < 0) & fin[:, :-1] & fin[:, 1:])
+        g = im[r2, c2] / (im[r2, c2] - im[r2, c2 + 1])
+        re = L.real[r2, c2] + g * (L.real[r2, c2 + 1] - L.real[r2, c2])
+        wpv = np.exp(lw[c2] + g * (lw[c2 + 1] - lw[c2]))
+        ends = []
+        x_dc = 0.0 if dt is None else 1.0
+        if pd.G_dc is not None and np.isfinite(pd.G_dc):
+            c_dc = np.polyval(num.T, x_dc) / np.polyval(den.T, x_dc)
+            ends.append((c_dc * pd.G_dc).real)
+        if dt is not None and pd.G_nyq is not None and np.isfinite(pd.G_nyq):
+            c_ny = np.polyval(num.T, -1.0) / np.polyval(den.T, -1.0)
+            ends.append((c_ny * pd.G_nyq).real)
+        rr = np.concatenate([r2] + [rows for _ in ends])
+        res = np.concatenate([re] + ends)
+        wps = np.concatenate([wpv] + [nan for _ in ends])  # the ends have no phase-crossover frequency
+        k = np.where(res < 0, -1.0 / res, np.nan)
+        kup = np.where(k > 1.0, k, np.inf)
+        up = np.full(Bn, np.inf)
+        np.minimum.at(up, rr, kup)
+        wp = nan.copy()
+        hit = np.isfinite(kup) & (kup == up[rr])
+        wp[rr[hit]] = wps[hit]
+        lo = np.zeros(Bn)
+        np.maximum.at(lo, rr, np.where(k <= 1.0, k, 0.0))
+        gm = 20 * np.log10(up)
+        gml = np.where(lo > 0, 20 * np.log10(lo), -np.inf)
+        out = {"pm": pm, "gm": gm, "gml": gml, "wc": wc, "wp": wp, "ms": nan, "mt": nan, "mks": nan, "dm": nan,
+               "bw": nan}
+        if needs & {"ms", "mt", "mks", "dm", "bw"}:
+            finL = np.isfinite(L)
+            S = 1.0 / (1.0 + L)
+            if "ms" in needs:
+                out["ms"] = np.max(np.where(finL, np.abs(S), 0.0), axis=1)
+            if "mt" in needs or "bw" in needs:
+                absT = np.abs(L * S)
+                out["mt"] = np.max(np.where(finL, absT, 0.0), axis=1)
+                if "bw" in needs:
+                    below = absT[:, :1] / math.sqrt(2) > absT
+                    out["bw"] = np.where(below.any(axis=1), w[np.argmax(below, axis=1)], np.inf)
+            if "mks" in needs:
+                CS = np.abs(C * S)
+                mks = np.max(np.where(np.isfinite(CS), CS, 0.0), axis=1)
+                if dt is None:  # w -> inf: C(inf)/(1 + C(inf) G(inf))
+                    c_inf = num[:, 0] / den[:, 0]
+                    mks = np.maximum(mks, np.abs(c_inf / (1 + c_inf * pd.G_inf)))
+                out["mks"] = mks
+            if "dm" in needs:
+                out["dm"] = np.min(np.where(finL, 2 * np.abs(1 + L) / np.abs(1 - L), np.inf), axis=1)
+    return out
