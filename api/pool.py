@@ -37,6 +37,7 @@ import logging
 import math
 import multiprocessing
 import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import BrokenExecutor
@@ -100,12 +101,19 @@ class _Waiter:
 def start_forkserver() -> None:
     """Start the forkserver from this thread (the service's main thread), told to die with this process.
 
-    Its death signal is tied to the thread that starts it, so it is started here, not from a pool
-    thread that may end; a forkserver already running is left as it is.
+    Its death signal is tied to the thread that starts it (the kernel sends it when that *thread*
+    ends), so it is asked for only from the main thread, as under uvicorn. From any other thread
+    (an embedding application's, a test client's portal) the forkserver would be killed when that
+    thread ends, under the pools still using it; there it simply ends with the process (the
+    forkserver exits when its parent's end of the alive pipe closes). A forkserver already running
+    is left as it is.
     """
     from multiprocessing import forkserver
 
-    os.environ[SERVICE_PID_VAR] = str(os.getpid())  # read by api._preload in the forkserver
+    if threading.current_thread() is threading.main_thread():
+        os.environ[SERVICE_PID_VAR] = str(os.getpid())  # read by api._preload in the forkserver
+    else:
+        os.environ.pop(SERVICE_PID_VAR, None)
     forkserver.ensure_running()
 
 

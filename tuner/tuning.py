@@ -152,7 +152,7 @@ def tune(
     st = problem.structure
     wall = time.perf_counter() - t0
     info: dict[str, Any] = {
-        "method": f"optuna+casadi-{nlp_solver}" if local else "optuna", "seed": int(seed),
+        "method": f"optuna+casadi-{nlp_solver}" if eng.local else "optuna", "seed": int(seed),
         "stop": run.stop, "converged": run.stop == "converged", "rounds": run.rounds,
         "budget_exhausted": time.perf_counter() > deadline - _RESERVE * float(time_budget_s),
         "wall_time_s": wall, "global_evaluations": run.batch_evaluations, "starts_tried": run.starts_refined,

@@ -60,3 +60,14 @@ def test_robust_score_is_worst_case():
     each = [Evaluator([p], st, 0.04, Spec()).score(x).score for p in plants]
     assert both == pytest.approx(max(each))
     assert not math.isclose(each[0], each[1])
+
+
+def test_an_objective_the_nlp_does_not_state_is_searched_without_it():
+    """bandwidth has no exact NLP form: the global search alone optimises it (it was an IndexError in the
+    transcription, found by schemathesis), and the result says so."""
+    from tuner import tune
+
+    res = tune(plant_from_expr("1/(s+1)^3"), structure="pi", spec=Spec(objective="bandwidth"), seed=0,
+               time_budget_s=2)
+    assert res.solver["method"] == "optuna" and res.solver["nlp_solves"] == 0
+    assert res.meets_spec and res.analyses[0].metrics.bandwidth_rad_s > 0

@@ -35,7 +35,11 @@ from .scoring import Evaluator, Scored
 from .search import SeededSearch
 from .space import Space, make_space
 
-__all__ = ["Engine", "designed_starts", "PATIENCE"]
+__all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES"]
+
+#: the objectives the local NLP states exactly (``nlp.transcribe._objective``); the others (bandwidth) are
+#: optimised by the global search alone
+NLP_OBJECTIVES = ("settling_time", "itae", "iae", "ie")
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +118,9 @@ class Engine:
         self.space = make_space(problem.structure, problem.nominal, problem.dt, scale=problem.scale)
         self.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=self.space.w0)
         self.batch = BatchEvaluator(problem, self.space)
-        self.seed, self.deadline, self.solver, self.local = seed, deadline, solver, local
+        # the local stage states the objectives it optimises exactly (the others: the global search alone)
+        self.seed, self.deadline, self.solver = seed, deadline, solver
+        self.local = local and problem.spec.objective in NLP_OBJECTIVES
         self.n_starts, self.n_trials = n_starts, n_trials
         self.sampler, self.storage = sampler, storage
         self.reserve_s = reserve_s
