@@ -30,12 +30,12 @@ ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
 from tuner import Spec, get_structure, make_plant  # noqa: E402
+from tuner.optimize.engine import designed_starts  # noqa: E402
 from tuner.optimize.scoring import Evaluator  # noqa: E402
 from tuner.optimize.space import make_space  # noqa: E402
 from tuner.plant import Plant  # noqa: E402
 from tuner.studies.evaluate import check_gains_file, evaluate_thesis, loop_plants  # noqa: E402
 from tuner.studies.schema import load_study  # noqa: E402
-from tuner.optimize.engine import designed_starts  # noqa: E402
 from tuner.tuning import tune  # noqa: E402
 
 REFERENCE_CACHE = HERE / "reference.json"

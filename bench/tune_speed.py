@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from tuner import Spec, get_structure, plant_from_expr
+from tuner.optimize.engine import designed_starts
 from tuner.optimize.scoring import Evaluator
 from tuner.optimize.space import make_space
-from tuner.optimize.engine import designed_starts
 from tuner.tuning import tune
 
 ROLL = "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"
