@@ -186,6 +186,18 @@ class AnalyzeResponse(AnalysisOut):
     controller: ControllerOut
 
 
+class ObjectiveOut(_Out):
+    name: str
+    value: Number = Field(description="the spec's objective as the verifier computes it (worst over the plants; "
+                          "bandwidth: minus the bandwidth)")
+
+
+class ReasonOut(_Out):
+    constraints: list[str]
+    message: str
+    suggest: dict[str, Any] = Field(description="spec fields and values that the search found feasible")
+
+
 class TuneResponse(_Out):
     id: str
     created_at: _dt.datetime
@@ -196,6 +208,9 @@ class TuneResponse(_Out):
     checks: list[CheckOut]
     meets_spec: bool
     failing: list[str]
+    objective: ObjectiveOut | None = None
+    reasons: list[ReasonOut] = Field(default_factory=list, description="why the spec is not met and what would "
+                                     "make it feasible (empty when it is met)")
     solver: dict[str, Any]
     spec: dict[str, Any]
     plants: list[AnalysisOut] | None = None

@@ -46,9 +46,14 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--overshoot", type=float, default=None, metavar="PCT", help="maximum overshoot %% (10)")
     g.add_argument("--band", type=float, default=None, metavar="PCT", help="settling band %% (2)")
     g.add_argument("--control-peak", type=float, default=None, help="maximum |u| after a unit step")
-    g.add_argument("--ms", type=float, default=None, help="maximum sensitivity peak Ms")
+    g.add_argument("--ms", type=float, default=None, help="maximum sensitivity peak Ms = max |1/(1+L)|")
+    g.add_argument("--mt", type=float, default=None, help="maximum complementary sensitivity peak Mt = max |L/(1+L)|")
+    g.add_argument("--mks", type=float, default=None, help="maximum noise sensitivity Mks = max |C/(1+L)|: how much "
+                   "sensor noise reaches the actuator")
+    g.add_argument("--disk-margin", type=float, default=None, metavar="ALPHA",
+                   help="minimum balanced disk margin alpha, 0 < alpha < 2")
     g.add_argument("--bandwidth", type=float, default=None, metavar="RAD_S", help="minimum closed-loop bandwidth")
-    g.add_argument("--objective", default=None, choices=["settling_time", "itae", "iae", "bandwidth"])
+    g.add_argument("--objective", default=None, choices=["settling_time", "itae", "iae", "ie", "bandwidth"])
 
 
 def _spec_from_args(a: argparse.Namespace):
@@ -59,7 +64,8 @@ def _spec_from_args(a: argparse.Namespace):
     fields = {
         "phase_margin_min_deg": a.pm, "gain_margin_min_db": a.gm, "overshoot_max_pct": a.overshoot,
         "settling_band_pct": a.band, "control_peak_max": a.control_peak, "ms_max": a.ms,
-        "bandwidth_min_rad_s": a.bandwidth, "objective": a.objective,
+        "mt_max": a.mt, "mks_max": a.mks, "disk_margin_min": a.disk_margin, "bandwidth_min_rad_s": a.bandwidth,
+        "objective": a.objective,
     }
     try:
         return Spec(**{k: v for k, v in fields.items() if v is not None})
@@ -230,10 +236,15 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     s = res.solver
     print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
+    print(f"objective {res.spec.objective} = {fmt(out['objective']['value'])}"
+          + (" (worst over the plants)" if len(plants) > 1 else ""))
     if res.meets_spec:
         print("meets the spec on every plant" if len(plants) > 1 else "meets the spec")
     else:
         print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
+        for r in out["reasons"]:
+            hint = ", ".join(f"{k} = {v}" for k, v in r["suggest"].items())
+            print(f"  why: {r['message']}" + (f" [try {hint}]" if hint else ""))
     return code
 
 

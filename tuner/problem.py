@@ -56,6 +56,10 @@ class TuningProblem:
             spec = Spec()
         elif not isinstance(spec, Spec):
             raise InvalidSpecError(f"spec must be a tuner.Spec, got {type(spec).__name__}", field="spec")
+        if spec.mt_max is not None and spec.mt_max < 1 and spec.zero_steady_state_error:
+            raise InvalidSpecError(f"mt_max = {spec.mt_max:g} < 1 is impossible with zero steady-state error "
+                                   "(T(0) = 1, so Mt >= 1): give mt_max >= 1 or set zero_steady_state_error = false",
+                                   field=("spec", "mt_max"))
         try:
             scale = plant_scale(plants[0], dt)
         except TunerError as e:

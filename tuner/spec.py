@@ -35,8 +35,8 @@ class Spec(BaseModel):
         "input), ie (integral of e after that load step = 1/Ki: maximise Ki, MIGO), bandwidth (maximise it)")
     control_peak_max: float | None = Field(None, gt=0, description="maximum |u| after a unit reference step")
     ms_max: float | None = Field(None, ge=1, description="maximum sensitivity peak Ms = max |1/(1+L)| (>= 1)")
-    mt_max: float | None = Field(None, ge=1, description="maximum complementary sensitivity peak Mt = max |L/(1+L)| "
-                                 "(>= 1 for a loop with integral action)")
+    mt_max: float | None = Field(None, gt=0, description="maximum complementary sensitivity peak Mt = max |L/(1+L)| "
+                                 "(>= 1 with zero steady-state error, since T(0) = 1; a tune refuses less)")
     mks_max: float | None = Field(None, gt=0, description="maximum noise sensitivity Mks = max |C/(1+L)|: how much "
                                   "sensor noise reaches the actuator")
     disk_margin_min: float | None = Field(None, gt=0, lt=2, description="minimum balanced disk margin alpha (0..2)")

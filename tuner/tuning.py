@@ -15,7 +15,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,7 @@ class TuneResult:
     analyses: tuple[Analysis, ...]  # the verifier's, one per plant (nominal first)
     solver: dict[str, Any]
     spec: Spec
+    reasons: tuple[Any, ...] = ()  # tuner.diagnose.Reason: why the spec is not met, what would make it feasible
 
     @property
     def meets_spec(self) -> bool:
@@ -52,6 +53,14 @@ class TuneResult:
         if failing:
             return failing[0]
         return max(self.analyses, key=lambda a: a.metrics.settling_time_s)
+
+    @property
+    def objective(self) -> float:
+        """The spec's objective, worst case over the plants, as the verifier computes it (see
+        :class:`~tuner.spec.Spec`, ``objective``; for ``bandwidth`` it is minus the bandwidth)."""
+        from .optimize.scoring import objective_value
+
+        return max(objective_value(a, self.spec) for a in self.analyses)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (after :func:`~tuner.analysis.jsonable`): the analyze fields + gains, controller, solver.
@@ -68,6 +77,8 @@ class TuneResult:
             "metrics": nominal["metrics"],
             "checks": nominal["checks"],
             "meets_spec": self.meets_spec,
+            "objective": {"name": self.spec.objective, "value": self.objective},
+            "reasons": [r.to_dict() for r in self.reasons],
             "failing": sorted({c.name for a in self.analyses for c in a.failing}),
             "solver": dict(self.solver),
             "spec": self.spec.model_dump(),
@@ -94,6 +105,7 @@ def tune(
     storage: Any = None,
     local: bool = True,
     nlp_solver: str = "sqp",
+    diagnose: bool = True,
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
@@ -124,6 +136,10 @@ def tune(
         Run the CasADi local stage (``False`` = global search only, for comparison).
     nlp_solver : str
         ``"sqp"`` (default: CasADi SQP, limited-memory Hessian, DAQP) or ``"ipopt"``; same problem.
+    diagnose : bool
+        When the spec is not met, say why in ``reasons`` (:mod:`tuner.diagnose`: limits that are
+        impossible by definition, and for each failing limit the tightest value a short re-tune with it
+        relaxed found feasible), within what is left of the budget.
     """
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
@@ -148,7 +164,9 @@ def tune(
     eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
                  n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s))
     run = eng.run()
+    t_verify = time.perf_counter()
     best_x, best = eng.verify_best()
+    t_verify = time.perf_counter() - t_verify
     st = problem.structure
     wall = time.perf_counter() - t0
     info: dict[str, Any] = {
@@ -160,8 +178,22 @@ def tune(
         "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
         "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
     }
-    return TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
-                      analyses=best.analyses, solver=info, spec=problem.spec)
+    res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
+                     analyses=best.analyses, solver=info, spec=problem.spec)
+    if not res.meets_spec and diagnose:
+        from .diagnose import diagnose as _diagnose
+
+        failing = [c.name for a in res.analyses for c in a.failing]
+        left = min(DIAGNOSIS_SHARE * float(time_budget_s), deadline - time.perf_counter())  # within the budget
+        reasons = _diagnose(problem, failing, seed=int(seed), budget_s=left, min_tune_s=3 * t_verify + 0.02,
+                            tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
+                                                            nlp_solver=nlp_solver, local=local, diagnose=False))
+        res = replace(res, reasons=tuple(reasons))
+        res.solver["wall_time_s"] = time.perf_counter() - t0
+    return res
 
 
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
+# the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
+# budget, at most this share of it (the reasons by definition need no time)
+DIAGNOSIS_SHARE = 0.25

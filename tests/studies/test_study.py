@@ -29,7 +29,8 @@ def _study(**loops_over):
 
 def test_committed_studies_load():
     q = load_study(QUAD)
-    assert [lp.name for lp in q.loop] == ["roll", "pitch", "yaw", "x", "y", "altitude"]
+    assert [lp.name for lp in q.loop] == ["roll", "pitch", "yaw", "x", "y", "altitude", "roll_limited", "pitch_limited",
+                                       "yaw_limited"]
     assert {lp.name: lp.inner for lp in q.loop if lp.inner} == {"x": "pitch", "y": "roll"}
     alt = q.get("altitude")
     assert (alt.plant, alt.plant_dt, alt.structure, alt.thesis_controller) == ("0.04/(z-1)", 0.04, "pi", "5+2/(z-1)")
@@ -109,7 +110,8 @@ def test_quadrotor_study_end_to_end(tmp_path, capsys):
     out = tmp_path / "q"
     assert main(["study", "run", str(QUAD), "--out", str(out), "--check"]) == 0
     doc = json.loads((out / "results.json").read_text())
-    assert set(doc["loops"]) == {"roll", "pitch", "yaw", "x", "y", "altitude"}
+    assert set(doc["loops"]) == {"roll", "pitch", "yaw", "x", "y", "altitude", "roll_limited", "pitch_limited",
+                                 "yaw_limited"}
     assert doc["meets_spec"] is True
     for name, r in doc["loops"].items():
         assert r["meets_spec"] is True, (name, r.get("failing"), r.get("error"))

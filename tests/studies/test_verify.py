@@ -28,7 +28,7 @@ def _write(tmp_path, data) -> str:
 def test_committed_gains_verify(capsys):
     assert main(["verify", str(QUAD), "--gains", str(GAINS)]) == 0
     out = capsys.readouterr().out
-    assert "all 6 loops of study 'quadrotor' meet their spec" in out
+    assert "all 9 loops of study 'quadrotor' meet their spec" in out
     for name in ("roll", "pitch", "yaw", "x", "y", "altitude"):
         assert name in out
 
@@ -36,7 +36,7 @@ def test_committed_gains_verify(capsys):
 def test_committed_gains_json_figures(capsys):
     assert main(["verify", str(QUAD), "--gains", str(GAINS), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
-    assert set(d) == {"roll", "pitch", "yaw", "x", "y", "altitude"}
+    assert set(d) == {"roll", "pitch", "yaw", "x", "y", "altitude", "roll_limited", "pitch_limited", "yaw_limited"}
     for name, e in d.items():
         assert e["meets_spec"] is True, name
         assert e["metrics"]["phase_margin_deg"] >= 60.0 and e["metrics"]["gain_margin_db"] >= 6.0

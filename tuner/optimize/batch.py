@@ -40,7 +40,7 @@ __all__ = ["BatchEvaluator", "BatchResult", "GUARD", "Start"]
 
 # how much the search tightens each limit (the batch's grid is coarser than the verifier's); the frequency-domain
 # peaks are not tightened: optima sit on those limits, and the final verification judges them on its dense grid
-GUARD = {"band": 0.97, "margin_deg": 0.01, "margin_db": 0.002, "peak": 1.0, "overshoot": 0.99}
+GUARD = {"band": 1.0, "margin_deg": 0.01, "margin_db": 0.002, "peak": 1.0, "overshoot": 0.99}
 GRID_POINTS = 500
 SAMPLES_PER_DT = 6
 CONTINUOUS_STEPS = 600

@@ -78,11 +78,30 @@ def render_report(
         m = tuned[lp.name].nominal.metrics
         rows.append([lp.name, f"{lp.structure} @ {num(lp.dt)} s" if lp.dt else lp.structure, _gains(r["gains"]),
                      num(m.phase_margin_deg), f"{num(m.gain_margin_db)} / {num(m.gain_margin_lower_db)}",
-                     num(m.disk_margin), num(m.ms), num(m.bandwidth_rad_s), num(m.overshoot_pct),
+                     num(m.disk_margin), num(m.ms), num(m.mt), num(m.mks), num(m.control_peak),
+                     num(m.bandwidth_rad_s), num(m.overshoot_pct),
                      num(m.settling_time_s), num(tuned[lp.name].meets_spec),
                      f"{num(r.get('wall_time_s'), 2)} s, {r.get('worker', '?')}, epoch {r.get('epoch', '?')}"])
-    L += _table(["loop", "structure", "gains", "PM [°]", "GM upper / lower [dB]", "disk margin", "Ms",
-                 "bandwidth [rad/s]", "overshoot [%]", "settling [s]", "meets spec", "tuned in, by"], rows)
+    L += _table(["loop", "structure", "gains", "PM [°]", "GM upper / lower [dB]", "disk margin", "Ms", "Mt", "Mks",
+                 "control peak", "bandwidth [rad/s]", "overshoot [%]", "settling [s]", "meets spec", "tuned in, by"],
+                rows)
+    L += ["Mt = max |T|, Mks = max |C S| (how much sensor noise reaches the actuator), control peak = max |u| "
+          "after a unit reference step.", ""]
+    variants = [lp for lp in study.order() if lp.variant_of and lp.name in tuned and lp.variant_of in tuned]
+    if variants:
+        L += ["## What a spec change costs", "", "Each variant is its base loop (same plant and structure) with "
+              "another spec; the ratio is the variant's settling time over the base loop's.", ""]
+        rows = []
+        for lp in variants:
+            a, b = tuned[lp.variant_of].nominal.metrics, tuned[lp.name].nominal.metrics
+            changed = ", ".join(f"{k} = {v}" for k, v in lp.spec.model_dump().items()
+                                if v != study.get(lp.variant_of).spec.model_dump()[k])
+            rows.append([lp.name, lp.variant_of, changed or "—", num(a.control_peak), num(b.control_peak),
+                         num(a.mks), num(b.mks), num(a.ms), num(b.ms), num(a.settling_time_s),
+                         num(b.settling_time_s), _ratio(b.settling_time_s, a.settling_time_s),
+                         num(tuned[lp.name].meets_spec)])
+        L += _table(["variant", "of", "spec change", "control peak (base)", "control peak", "Mks (base)", "Mks",
+                     "Ms (base)", "Ms", "settling (base) [s]", "settling [s]", "settling ratio", "meets spec"], rows)
     fails = [(lp.name, tuned[lp.name].failing) for lp in study.order() if lp.name in tuned and tuned[lp.name].failing]
     if fails:
         L += ["Failing constraints: " + "; ".join(f"**{n}**: {', '.join(f)}" for n, f in fails) + ".", ""]
@@ -103,12 +122,14 @@ def render_report(
             a, b = thesis[lp.name].nominal.metrics, tuned[lp.name].nominal.metrics
             rows.append([lp.name, f"`{lp.thesis_controller}`", num(lp.thesis_settling_s),
                          num(a.phase_margin_deg), num(a.gain_margin_db), num(a.overshoot_pct), num(a.settling_time_s),
-                         num(thesis[lp.name].meets_spec),
+                         f"{num(a.mt)} / {num(a.mks)} / {num(a.control_peak)}", num(thesis[lp.name].meets_spec),
                          num(b.phase_margin_deg), num(b.gain_margin_db), num(b.overshoot_pct), num(b.settling_time_s),
+                         f"{num(b.mt)} / {num(b.mks)} / {num(b.control_peak)}",
                          _ratio(a.settling_time_s, b.settling_time_s)])
         L += _table(["loop", "printed controller", "claimed settling [s]", "printed PM [°]", "printed GM [dB]",
-                     "printed overshoot [%]", "printed settling [s]", "printed meets spec", "tuned PM [°]",
-                     "tuned GM [dB]", "tuned overshoot [%]", "tuned settling [s]", "settling ratio"], rows)
+                     "printed overshoot [%]", "printed settling [s]", "printed Mt / Mks / control peak",
+                     "printed meets spec", "tuned PM [°]", "tuned GM [dB]", "tuned overshoot [%]", "tuned settling [s]",
+                     "tuned Mt / Mks / control peak", "settling ratio"], rows)
         unstable = [n for n, e in thesis.items() if not e.nominal.metrics.stable]
         if unstable:
             L += ["Unstable as printed: " + ", ".join(unstable) + " (step metrics not defined).", ""]

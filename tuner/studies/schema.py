@@ -130,6 +130,8 @@ class LoopDef(BaseModel):
     n_trials: int | None = Field(None, ge=1, le=100_000)
     n_starts: int | None = Field(None, ge=1, le=20)
     note: str | None = Field(None, description="shown in the report (e.g. why a spec is relaxed)")
+    variant_of: str | None = Field(None, description="name of the loop this one varies (another spec on the same "
+                                   "plant): the report says what the change costs")
 
     @field_validator("structure")
     @classmethod
@@ -177,6 +179,8 @@ class StudyDef(BaseModel):
             raise ValueError(f"loop names must be unique; repeated: {dup}")
         by = {lp.name: lp for lp in self.loop}
         for lp in self.loop:
+            if lp.variant_of is not None and (lp.variant_of not in by or lp.variant_of == lp.name):
+                raise ValueError(f"loop {lp.name!r}: variant_of: no other loop named {lp.variant_of!r}")
             if lp.inner is None:
                 continue
             if lp.inner not in by:

@@ -30,7 +30,7 @@ from ...loop import build_loop
 from ..batch import GUARD, BatchEvaluator, Start
 from ..space import Space
 from .plantdata import LiftedPlant, lift
-from .transcribe import GRID_EXTRA, MS_GRID, Problem, ProblemKey, get_problem
+from .transcribe import GRID_EXTRA, MS_GRID, Problem, ProblemKey, estimated_build_s, get_problem, is_built
 
 __all__ = ["RefineResult", "refine", "POINTS_PER_SAMPLE", "MAX_NLP_STEPS"]
 
@@ -318,6 +318,10 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
                      objective=spec.objective, solver=solver, pm=spec.phase_margin_min_deg > 0,
                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
                      mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None)
+    if deadline is not None and not is_built(key) and \
+            time.perf_counter() + estimated_build_s(key, len(space.structure.params)) > deadline:
+        res.status = "no time left to build this NLP"  # its cost is known before it starts
+        return res
     prob = get_problem(key, space.structure, space)
     values = _values(ev, space, grid, data, key)
     xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0))

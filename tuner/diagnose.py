@@ -1,0 +1,183 @@
+"""Why a spec was not met, and what would make it feasible.
+
+Two kinds of reason, each with the spec change that would help (``suggest``: Spec field -> value):
+
+* **By definition** (no search needed): a control-peak limit below the steady-state input that zero
+  steady-state error requires (a unit step needs ``u(inf) = 1/G(0)``, so ``max |u| >= |1/G(0)|``); an
+  Mks limit below ``|C S|(0) = 1/|G(0)|``, which integral action implies; a
+  structure without integral action asked for zero steady-state error on a plant without an integrator;
+  an ``mt_max`` below 1 with zero steady-state error (``T(0) = 1``) is refused earlier, by the problem.
+* **By search**: for each failing limit, the same tune is repeated with that limit relaxed. If the
+  relaxed problem is feasible, the limit conflicts with the others and a bisection between the asked
+  value and the relaxed design's value gives the tightest value the search found feasible (every
+  other constraint held): "phase_margin_deg >= 89 is not reachable with pid on this plant: the
+  tightest found feasible is 74.2". If no single relaxation helps, every failing limit is relaxed at
+  once; if that does not help either, the structure is the limit (try one with more freedom).
+
+"Tightest found feasible" is what a seeded search found within a small budget, a bound from
+below on what is reachable, never a claim of optimality; the wording says so.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .problem import TuningProblem
+from .spec import Spec
+
+__all__ = ["Reason", "diagnose", "definitional_reasons"]
+
+# failing check -> (Spec field, direction: +1 = lower bound on the metric (>=), -1 = upper bound, loosest value)
+_LIMITS: dict[str, tuple[str, int, Any]] = {
+    "phase_margin_deg": ("phase_margin_min_deg", +1, 0.0),
+    "gain_margin_db": ("gain_margin_min_db", +1, 0.0),
+    "gain_margin_lower_db": ("gain_margin_min_db", +1, 0.0),
+    "overshoot_pct": ("overshoot_max_pct", -1, 100.0),
+    "control_peak": ("control_peak_max", -1, None),
+    "ms": ("ms_max", -1, None),
+    "mt": ("mt_max", -1, None),
+    "mks": ("mks_max", -1, None),
+    "disk_margin": ("disk_margin_min", +1, None),
+    "bandwidth_rad_s": ("bandwidth_min_rad_s", +1, None),
+}
+_METRIC = {"gain_margin_lower_db": "gain_margin_db"}  # the field's value is read off this metric (|lower| too)
+BISECTIONS = 4
+
+
+@dataclass(frozen=True)
+class Reason:
+    """One reason a spec is not met; ``suggest`` is a spec change that the search found feasible."""
+
+    constraints: tuple[str, ...]
+    message: str
+    suggest: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"constraints": list(self.constraints), "message": self.message, "suggest": dict(self.suggest)}
+
+
+def _dc_gain(plant: Any) -> float:
+    """|G(0)| of the plant (continuous) or |G(1)| (discrete); inf with an integrator, 0 with a zero there."""
+    zk = plant.zpk
+    at = 1.0 if plant.is_discrete else 0.0
+    if np.any(np.isclose(zk.poles, at, atol=1e-12)):
+        return math.inf
+    return float(abs(complex(zk(np.array([at]))[0])))
+
+
+def definitional_reasons(problem: TuningProblem) -> list[Reason]:
+    """Reasons that hold whatever the gains (see the module docstring)."""
+    sp, st = problem.spec, problem.structure
+    out: list[Reason] = []
+    if not sp.zero_steady_state_error:
+        return out
+    for i, p in enumerate(problem.plants):
+        where = "" if len(problem.plants) == 1 else f" (plant #{i + 1})"
+        g0 = _dc_gain(p)
+        if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - 1e-9):
+            out.append(Reason(("control_peak",), f"control_peak <= {sp.control_peak_max:g} is below the steady-state "
+                              f"input 1/G(0) = {1.0 / g0:.4g} that zero steady-state error to a unit step needs"
+                              f"{where}: allow at least that, or drop zero_steady_state_error",
+                              {"control_peak_max": float(f"{1.0 / g0 * 1.001:.4g}")}))
+        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
+            out.append(Reason(("mks",), f"mks <= {sp.mks_max:g} is below |C S| at zero frequency, 1/G(0) = "
+                              f"{1.0 / g0:.4g}, which every controller with integral action has{where}: "
+                              "allow at least that", {"mks_max": float(f"{1.0 / g0 * 1.001:.4g}")}))
+        if g0 < math.inf and not st.integrating:
+            out.append(Reason(("steady_state_error",), f"{st.name} has no integral action and the plant{where} no "
+                              "integrator: zero steady-state error is out of reach; use a structure with an integrator "
+                              "(pi, pid, pid_z, pidf2) or set zero_steady_state_error = false",
+                              {"zero_steady_state_error": False}))
+        if g0 == 0.0:
+            out.append(Reason(("steady_state_error",), f"the plant{where} has a zero at s = 0 (G(0) = 0): no "
+                              "controller gives zero steady-state error to a step; set zero_steady_state_error = false",
+                              {"zero_steady_state_error": False}))
+    return out
+
+
+def _relaxed(spec: Spec, changes: dict[str, Any]) -> Spec:
+    return spec.model_copy(update=changes)
+
+
+def _achieved(res: Any, check: str) -> float:
+    """The worst value over the plants of the metric behind ``check``."""
+    name = _METRIC.get(check, check)
+    vals = [getattr(a.metrics, name) for a in res.analyses]
+    fld, sign, _ = _LIMITS[check]
+    return min(vals) if sign > 0 else max(vals)
+
+
+def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: int, budget_s: float,
+             min_tune_s: float = 0.05) -> list[Reason]:
+    """Reasons for ``failing`` (check names of the best design); ``tune_fn(problem, seed, budget)`` re-tunes.
+
+    ``min_tune_s``: what one re-tune needs at least (its final verification included); a re-tune that
+    would not fit in what is left of ``budget_s`` is not started, so the diagnosis ends within it."""
+    reasons = definitional_reasons(problem)
+    explained = {c for r in reasons for c in r.constraints}
+    todo = [c for c in dict.fromkeys(failing) if c in _LIMITS and c not in explained]
+    if "gain_margin_db" in todo and "gain_margin_lower_db" in todo:
+        todo.remove("gain_margin_lower_db")
+    if not todo:
+        if "stable" in failing and not explained:
+            reasons.append(Reason(("stable",), f"no stabilising {problem.structure.name} was found for this plant: "
+                                  "try a structure with more freedom (pid, pidf2, leadlag) or a shorter dt"))
+        return reasons
+    if budget_s <= 0:
+        return reasons
+    end = time.perf_counter() + budget_s
+    each = max(min_tune_s, budget_s / (len(todo) * (BISECTIONS + 1) + 1))
+    sp, name = problem.spec, problem.structure.name
+
+    def attempt(changes: dict[str, Any]) -> Any:
+        if time.perf_counter() + each > end:
+            return None
+        prob = TuningProblem.build(list(problem.plants), structure=problem.structure, spec=_relaxed(sp, changes),
+                                   dt=problem.dt)
+        return tune_fn(prob, seed, each)
+
+    single_ok = False
+    for check in todo:
+        fld, sign, loosest = _LIMITS[check]
+        res = attempt({fld: loosest})
+        if res is None or not res.meets_spec:
+            continue
+        single_ok = True
+        asked = float(getattr(sp, fld))
+        got = _achieved(res, check)
+        if check == "gain_margin_lower_db":
+            got = -got
+        best = got  # feasible with the limit at `got` (the relaxed design meets every other constraint)
+        lo, hi = (best, asked) if sign > 0 else (asked, best)  # for >=: feasible at lo, not at hi
+        for _ in range(BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            r = attempt({fld: mid})
+            if r is None:
+                break
+            if r.meets_spec:
+                best = mid
+                lo, hi = (mid, hi) if sign > 0 else (lo, mid)
+            else:
+                lo, hi = (lo, mid) if sign > 0 else (mid, hi)
+        op = ">=" if sign > 0 else "<="
+        reasons.append(Reason((check,), f"{check} {op} {asked:g} is not reachable with {name} on this plant "
+                              f"together with the other constraints: the tightest the search found feasible is "
+                              f"{best:.4g}", {fld: float(f"{best:.4g}")}))
+    if not single_ok:
+        changes = {_LIMITS[c][0]: _LIMITS[c][2] for c in todo}
+        res = attempt(changes)
+        if res is not None and res.meets_spec:
+            achieved = ", ".join(f"{c} = {_achieved(res, c):.4g}" for c in todo)
+            reasons.append(Reason(tuple(todo), f"{', '.join(todo)} conflict with each other with {name} on this "
+                                  "plant: no single one relaxed makes the spec feasible, all of them relaxed does (the "
+                                  f"relaxed design achieves {achieved}; None = no limit)", changes))
+        elif res is not None:
+            reasons.append(Reason(tuple(todo), f"even with {', '.join(todo)} relaxed, no {name} meeting the rest of "
+                                  "the spec was found: try a structure with more freedom (pid, pidf2, leadlag) or "
+                                  "relax the remaining limits"))
+    return reasons
