@@ -298,7 +298,7 @@ def _draw_nyquist(fig: Figure | SubFigure, m: _Members, title: str) -> None:
         ax.plot(L.real, L.imag, **st, label=f"{label + ': ' if m.robust else ''}L(jω), ω > 0")
         ax.plot(L.real, -L.imag, **{**st, "lw": st["lw"] * 0.6, "alpha": 0.5}, ls="--",
                 label="ω < 0" if i == 0 else None)
-        pts.append(L[np.abs(L) < 4.0])
+        pts.append(L[np.abs(L + 1.0) < 2.5])  # within 2.5 of -1
     ax.plot(np.cos(th), np.sin(th), color="0.5", lw=0.8, label="unit circle")
     ms = m.analyses[0].metrics.ms
     if math.isfinite(ms) and ms >= 1:
@@ -307,12 +307,12 @@ def _draw_nyquist(fig: Figure | SubFigure, m: _Members, title: str) -> None:
         r = 1.0 / m.spec.ms_max
         ax.plot(-1 + r * np.cos(th), r * np.sin(th), color="C3", lw=0.9, ls=":", label=f"1/ms_max = {r:.3g}")
     ax.plot([-1], [0], "x", color="C3", ms=9, mew=2, label="−1")
-    p = np.concatenate(pts)
+    p = np.concatenate(pts)  # a square window around what is near the critical point
     x0, x1 = float(np.min(p.real)), float(np.max(p.real))
-    y1 = max(float(np.max(np.abs(p.imag))), 1.0)
-    pad = 0.08 * max(x1 - x0, 2 * y1)
-    ax.set_xlim(x0 - pad, x1 + pad)
-    ax.set_ylim(-y1 - pad, y1 + pad)
+    span = 1.1 * max(x1 - x0, 2.0 * float(np.max(np.abs(p.imag))), 2.5)
+    xc = 0.5 * (x0 + x1)
+    ax.set_xlim(xc - span / 2, xc + span / 2)
+    ax.set_ylim(-span / 2, span / 2)
     ax.set_aspect("equal", adjustable="box")
     ax.axhline(0, color="0.5", lw=0.5)
     ax.axvline(0, color="0.5", lw=0.5)
