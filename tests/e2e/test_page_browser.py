@@ -19,7 +19,7 @@ from urllib.parse import parse_qs, urlencode, urlparse
 import httpx
 import pytest
 from quadrotor import DT, ROLL, YAW
-from uvicorn_server import serving
+from uvicorn_server import ROOT, serving
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -140,6 +140,33 @@ def test_a_bad_expression_is_shown_at_its_field(page, server, sync_api):
     page.fill("#den", "1, x")
     page.click("#run-btn")
     expect(page.locator("[data-loc='plant.den'] .err")).to_have_text("coefficient 2 is not a number: x")
+
+
+def test_a_csv_log_is_identified_into_the_plant(page, server, sync_api):
+    expect = sync_api.expect
+    log = ROOT / "studies" / "data" / "pitch_sweep.csv"
+    page.goto(f"{server.url}/?" + urlencode({"dt": DT, "structure": "pid_z"}))
+    page.check("input[name=pmode][value=csv]")
+    page.set_input_files("#csv-file", str(log))
+    expect(page.locator("#csv-info")).to_have_text("3001 rows, 3 columns")
+    picked = [page.locator(f"#col-{c} option:checked").inner_text() for c in ("time", "input", "output")]
+    assert picked == ["t", "pitch_cmd", "pitch"]  # guessed from the header
+    page.click("#identify-btn")
+    expect(page.locator("#ident-result")).to_contain_text("identified (", timeout=90_000)
+    expect(page.locator("#ident-result img")).to_have_count(1)  # the fit plot
+    assert page.is_checked("input[name=pmode][value=coeffs]")  # the fitted model is now the plant
+
+    rows = [line.split(",") for line in log.read_text().splitlines()[2:]]
+    t, u, y = ([float(r[i]) for r in rows] for i in range(3))
+    api = httpx.post(f"{server.url}/identify", timeout=120, json={
+        "time": t, "input": u, "output": y, "poles": 2, "zeros": 0, "delay": "auto", "delay_step": DT})
+    assert api.status_code == 200, api.text
+    model = api.json()["model"]  # the same record and options through the API: the model the page shows
+    for name in ("num", "den"):
+        shown = [float(x) for x in page.input_value(f"#{name}").split(",")]
+        assert shown == pytest.approx(model[name], rel=1e-7)
+    assert float(page.input_value("#delay") or 0) == pytest.approx(model["delay"], rel=1e-5, abs=1e-12)
+    assert "num" in query(page) and "den" in query(page)
 
 
 def test_history_pages_and_links_to_stored_results(page, server, sync_api):
