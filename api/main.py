@@ -35,6 +35,8 @@ Optimisation-based controller tuning with an independent verifier, as a service.
   specification in, verified gains and margins out; every result is stored.
 * `POST /analyze`: verify a given controller on a plant.
 * `GET /tunes`, `GET /tunes/{id}`, `GET /tunes/{id}/plot.png` / `.svg`: stored results.
+* `GET /tunes/{id}/export?format=c|python|text`: the stored controller as C99, a Python class or its
+  difference equation (direct form II transposed; optional output limits with anti-windup).
 * `POST /identify`: a logged input/output record in, a fitted transfer function out (frequency
   response with coherence, CIFER's cost J, Cramér–Rao bounds, a check on held-out data); stored,
   and listed by `GET /identifications`, `GET /identifications/{id}` (`/plot.png`, `/plot.svg`, `/data`).

@@ -125,7 +125,7 @@ def _nested(add_subparsers: Any) -> Any:
 
 
 # modules with add_parser(sub) registering more sub-commands
-_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli"]
+_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli", "export.cli"]
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
