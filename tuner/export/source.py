@@ -43,8 +43,12 @@ def _parts(controller: Any) -> tuple[ControllerTF, str | None, dict[str, float] 
         return controller.controller, controller.structure, dict(controller.gains)
     if isinstance(controller, Mapping):
         return from_result(controller)
-    raise InvalidControllerError("export takes a ControllerTF, a TuneResult or a result dict, got "
-                                 f"{type(controller).__name__}", field="controller")
+    from ..interop import controller_from_control, is_control_lti
+
+    if is_control_lti(controller):
+        return controller_from_control(controller), None, None
+    raise InvalidControllerError("export takes a ControllerTF, a TuneResult, a result dict or a python-control "
+                                 f"TransferFunction/StateSpace, got {type(controller).__name__}", field="controller")
 
 
 def equation_of(controller: Any, *, dt: float | None = None, method: str = "tustin", u_min: float | None = None,
