@@ -63,10 +63,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        from .jobs import PLOT_MODULES
         from .plotcache import PlotCache
         from .pool import WorkerPool
         from .store import Store
-        from .worker import PLOT_MODULES
 
         store = Store(settings.database_url)
         pool = WorkerPool(

@@ -51,6 +51,39 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--objective", default=None, choices=["settling_time", "itae", "iae", "bandwidth"])
 
 
+def _add_plot_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plot", metavar="OUT.png", help="write the plot of the loop (every plant), png or svg by the "
+                   "suffix: the step response with u(t), Bode with the margins, Nyquist with 1/Ms")
+    p.add_argument("--plot-kind", default="all", choices=["all", "step", "bode", "nyquist"],
+                   help="which plot --plot writes (all: the three side by side)")
+
+
+def _plot_format(a: argparse.Namespace) -> str | None:
+    """The format of ``--plot`` (checked before any work), or None without it."""
+    if not a.plot:
+        return None
+    suffix = a.plot.rsplit(".", 1)[-1].lower() if "." in a.plot else ""
+    if suffix not in ("png", "svg"):
+        raise TunerError(f"--plot {a.plot}: the file name must end in .png or .svg")
+    return suffix
+
+
+def _write_plot(obj: Any, a: argparse.Namespace, fmt: str | None, spec: Any) -> None:
+    if fmt is None:
+        return
+    from pathlib import Path
+
+    from .analysis.plots import render
+
+    data = render(obj, a.plot_kind, fmt, spec=spec)
+    try:
+        Path(a.plot).write_bytes(data)
+    except OSError as e:
+        raise TunerError(f"--plot {a.plot}: cannot write: {e.strerror or e}") from None
+    if not a.json:
+        print(f"wrote {a.plot}")
+
+
 def _spec_from_args(a: argparse.Namespace):
     from pydantic import ValidationError
 
@@ -84,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--json", action="store_true", help="print JSON instead of a table")
     a.add_argument("--check", action="store_true",
                    help="kept for compatibility: the exit code is 1 whenever the spec is not met")
+    _add_plot_args(a)
     _add_spec_args(a)
 
     t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec")
@@ -95,6 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
     t.add_argument("--json", action="store_true")
+    _add_plot_args(t)
     _add_spec_args(t)
 
     for mod in _EXTRA_COMMANDS:
@@ -177,6 +212,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     from .plant import check_dt, plant_from_expr
 
     spec = _spec_from_args(a)
+    plot_fmt = _plot_format(a)
     with field("--dt"):  # name the right argument (an s-plant ignores dt, so it would surface at --controller)
         check_dt(a.dt)
     with field("--plant"):
@@ -193,6 +229,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
             f"{c.name} = {fmt(c.achieved)} (required {c.op} {fmt(c.required)})" for c in res.failing
         )
         print(f"controller {verdict}")
+    _write_plot(res, a, plot_fmt, spec)
     return EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
 
 
@@ -201,6 +238,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     from .tuning import tune
 
     spec = _spec_from_args(a)
+    plot_fmt = _plot_format(a)
     plants = []
     for i, text in enumerate(a.plant):
         with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
@@ -216,6 +254,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
         print(json.dumps(out, indent=2))
+        _write_plot(res, a, plot_fmt, res.spec)
         return code
     gains = ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items())
     c = res.controller
@@ -234,6 +273,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         print("meets the spec on every plant" if len(plants) > 1 else "meets the spec")
     else:
         print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
+    _write_plot(res, a, plot_fmt, res.spec)
     return code
 
 
