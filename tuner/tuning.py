@@ -52,6 +52,25 @@ class TuneResult:
             return failing[0]
         return max(self.analyses, key=lambda a: a.metrics.settling_time_s)
 
+    def __repr__(self) -> str:
+        from .display import tune_repr
+
+        return tune_repr(self)
+
+    def _repr_html_(self) -> str:
+        from .display import tune_html
+
+        return tune_html(self)
+
+    def plot(self, kind: str = "all", **kw: Any) -> Any:
+        """Every plant's loop as a :class:`matplotlib.figure.Figure` (no pyplot state, no backend chosen; save it
+        with ``fig.savefig``): ``kind`` is ``all``, ``step``, ``bode`` or ``nyquist``; ``kw`` go to
+        :func:`tuner.analysis.plots.figure` (``title``, ``labels``)."""
+        from .analysis.plots import figure
+
+        kw.setdefault("title", f"{self.structure}: " + ", ".join(f"{k} = {v:.4g}" for k, v in self.gains.items()))
+        return figure(self, kind, **kw)
+
     def to_control(self) -> Any:
         """The controller as a ``control.TransferFunction`` with its ``dt`` (0 = continuous)."""
         from .interop import controller_to_control

@@ -64,6 +64,24 @@ class Analysis:
     def failing(self) -> list[Check]:
         return [c for c in self.checks if not c.ok]
 
+    def __repr__(self) -> str:
+        from ..display import analysis_repr
+
+        return analysis_repr(self)
+
+    def _repr_html_(self) -> str:
+        from ..display import analysis_html
+
+        return analysis_html(self)
+
+    def plot(self, kind: str = "all", **kw: Any) -> Any:
+        """The loop's plots as a :class:`matplotlib.figure.Figure` (no pyplot state, no backend chosen; save it
+        with ``fig.savefig``): ``kind`` is ``all``, ``step``, ``bode`` or ``nyquist``; ``kw`` go to
+        :func:`tuner.analysis.plots.figure` (``spec``, ``title``)."""
+        from .plots import figure
+
+        return figure(self, kind, **kw)
+
     def to_control(self) -> Any:
         """The controller as a ``control.TransferFunction`` (its ``dt``; 0 = continuous)."""
         from ..interop import controller_to_control
