@@ -55,6 +55,8 @@ with `Retry-After`. Plots are drawn in processes of their own and cached.
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app. ``settings`` default to the environment (``TUNER_*``)."""
+    from fastapi_offline import FastAPIOffline
+
     from .errors import install_error_handlers
     from .limits import BodySizeLimit, HeadAsGet
     from .routes import api_router, public_router
@@ -96,8 +98,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.gather(pool.close(), plot_pool.close())
             store.dispose()
 
-    app = FastAPI(
+    # /docs and /redoc from the Swagger UI and ReDoc files shipped in fastapi-offline (no CDN: they work without
+    # internet); the assets are served under /static-offline-docs, open like /docs. No online spec validator.
+    app = FastAPIOffline(
         title="tuner", version=_version(), description=DESCRIPTION, lifespan=lifespan,
+        swagger_ui_parameters={"validatorUrl": None},
         openapi_tags=[{"name": "tuning"}, {"name": "analysis"}, {"name": "identification"}, {"name": "results"},
                       {"name": "service"}],
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 from fastapi import APIRouter, Depends, Query
-from fastapi.responses import PlainTextResponse
+from fastapi.responses import PlainTextResponse, Response
 
 from tuner.errors import TunerError
 
@@ -30,9 +30,8 @@ _SUFFIX = {"c": "c", "python": "py", "text": "txt"}
 _QUERY = {"name", "dt", "method", "u_min", "u_max", "format"}
 
 
-@router.get("/{tune_id}/export", response_class=PlainTextResponse, summary="A stored controller as code",
-            description=_DOC, responses={**NOT_FOUND, 422: {"description": "bad format, name, dt, method or limits"},
-                                         200: {"content": {"text/plain": {}}}})
+@router.get("/{tune_id}/export", response_class=Response, summary="A stored controller as code", description=_DOC,
+            responses={**NOT_FOUND, 200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
 async def export_tune(
     tune_id: str = TuneId,
     format: Literal["c", "python", "text"] = Query(..., description="c, python or text"),
