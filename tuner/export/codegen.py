@@ -139,20 +139,15 @@ def _limits_text(de: DifferenceEquation) -> str:
     return " and ".join(parts)
 
 
+_IF = {"c": "if ({cond}) {u} = {x};", "python": "if {cond}:\n            {u} = {x}"}
+
+
 def _clamp(de: DifferenceEquation, v: str, u: str, lang: str) -> list[str]:
     """Statements setting ``u`` to ``v`` clamped to the limits (the same in C and Python, but the syntax)."""
-    if lang == "c":
-        out = [f"double {u} = {v};"] if u != v else []
-        if de.u_max is not None:
-            out.append(f"if ({u} > {_num(de.u_max)}) {u} = {_num(de.u_max)};")
-        if de.u_min is not None:
-            out.append(f"if ({u} < {_num(de.u_min)}) {u} = {_num(de.u_min)};")
-        return out
-    out = [f"{u} = {v}"] if u != v else []
-    if de.u_max is not None:
-        out.append(f"if {u} > {_num(de.u_max)}:\n            {u} = {_num(de.u_max)}")
-    if de.u_min is not None:
-        out.append(f"if {u} < {_num(de.u_min)}:\n            {u} = {_num(de.u_min)}")
+    out = [f"double {u} = {v};" if lang == "c" else f"{u} = {v}"]
+    for op, lim in ((">", de.u_max), ("<", de.u_min)):
+        if lim is not None:
+            out.append(_IF[lang].format(cond=f"{u} {op} {_num(lim)}", u=u, x=_num(lim)))
     return out
 
 
