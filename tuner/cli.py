@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from .errors import TunerError
+from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
 __all__ = ["main", "EXIT_OK", "EXIT_SPEC_NOT_MET", "EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_CODES"]
 
@@ -48,7 +49,8 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--control-peak", type=float, default=None, help="maximum |u| after a unit step")
     g.add_argument("--ms", type=float, default=None, help="maximum sensitivity peak Ms")
     g.add_argument("--bandwidth", type=float, default=None, metavar="RAD_S", help="minimum closed-loop bandwidth")
-    g.add_argument("--objective", default=None, choices=["settling_time", "itae", "iae", "bandwidth"])
+    g.add_argument("--objective", default=None, choices=list(OBJECTIVE_DEFINITIONS),
+                   help="what tune optimises (default settling_time; each defined in 'tuner tune --help')")
 
 
 def _add_plot_args(p: argparse.ArgumentParser) -> None:
@@ -106,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
                 epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress; print the traceback of an "
                    "internal error")
+    p.add_argument("--version", action="version", version=f"tuner {_version()}",
+                   help="print the installed version (package metadata) and exit")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
     sub.add_parser = _with_exit_codes(sub.add_parser)
 
@@ -120,7 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_plot_args(a)
     _add_spec_args(a)
 
-    t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec")
+    t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec",
+                       epilog=_objectives_help() + "\n\n" + EXIT_CODES)
     t.add_argument("--plant", required=True, action="append",
                    help="plant expression; repeat for robust tuning over a plant set (nominal first)")
     t.add_argument("--dt", type=float, default=None, help="controller sample time (and of z plants)")
@@ -135,6 +140,22 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _EXTRA_COMMANDS:
         __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
     return p
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("tuner")
+    except metadata.PackageNotFoundError:  # pragma: no cover - a source tree without metadata
+        return "0+unknown"
+
+
+def _objectives_help() -> str:
+    """The objectives' definitions (tuner.objectives), one line each (the terminal wraps them)."""
+    lines = ["objectives (--objective):"]
+    lines += [f"  {k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()]
+    return "\n".join(lines + [f"  {ROBUST_NOTE}"])
 
 
 def _with_exit_codes(add_parser: Any) -> Any:
@@ -160,7 +181,7 @@ def _nested(add_subparsers: Any) -> Any:
 
 
 # modules with add_parser(sub) registering more sub-commands
-_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli"]
+_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli", "export.cli"]
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
