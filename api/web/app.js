@@ -348,6 +348,7 @@ function showResult(d) {
   $("#solver").textContent = `${s.method || "solver"}: ${fmt(s.wall_time_s)} s, seed ${fmt(s.seed)}` +
     (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "");
   showPlots(d.id);
+  $("#export-ct").hidden = Boolean(c.dt);
   loadExport();
 }
 
@@ -369,18 +370,42 @@ async function showPlots(id) {
   }));
 }
 
+const SUFFIX = { c: "c", python: "py", text: "txt" };
+
 async function loadExport() {
   if (!state.id) return;
-  const fmtName = state.exportFormat;
-  for (const b of $$("#export .tabs button[data-format]")) b.classList.toggle("on", b.dataset.format === fmtName);
-  const name = $("#export-name").value.trim() || "ctrl";
+  const f = state.exportFormat;
+  const root = $("#export");
+  clearErrors(root);
+  for (const b of $$(".tabs button[data-format]", root)) b.classList.toggle("on", b.dataset.format === f);
+  const name = $("#export-name").value.trim() || "controller";
+  const q = new URLSearchParams({ format: f, name });
+  const continuous = !$("#export-ct").hidden;
+  if (continuous) {
+    if ($("#export-dt").value) q.set("dt", $("#export-dt").value);
+    q.set("method", $("#export-method").value);
+  }
+  if ($("#export-umin").value) q.set("u_min", $("#export-umin").value);
+  if ($("#export-umax").value) q.set("u_max", $("#export-umax").value);
   const pre = $("#export-code");
-  pre.textContent = "…";
-  const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?format=${fmtName}&name=${encodeURIComponent(name)}`);
-  if (r.ok) { pre.textContent = await r.text(); pre.classList.remove("err"); return; }
+  const link = $("#export-download");
+  pre.textContent = continuous && !q.has("dt") ? "a continuous controller: give the sample time dt to export it" : "…";
+  link.removeAttribute("href");
+  if (continuous && !q.has("dt")) return;
+  const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
+  if (r.ok) {
+    const text = await r.text();
+    pre.textContent = text;
+    if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
+    state.exportUrl = URL.createObjectURL(new Blob([text], { type: "text/plain" }));
+    link.href = state.exportUrl;
+    link.download = `${name}.${SUFFIX[f]}`;
+    return;
+  }
   const d = await answer(r);
-  pre.classList.add("err");
-  pre.textContent = Array.isArray(d.detail) ? d.detail.map((x) => `${x.loc.at(-1)}: ${x.msg}`).join("\n") : detailText(d);
+  pre.textContent = "";
+  if (r.status === 422 && Array.isArray(d.detail)) showErrors(root, d.detail, $("#export-error"));
+  else showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
 }
 
 async function loadStored(id) {
@@ -558,7 +583,7 @@ function init() {
   $("#csv-file").addEventListener("change", (e) => { if (e.target.files[0]) loadCSV(e.target.files[0]); });
   $("#identify-btn").addEventListener("click", identify);
   for (const b of $$("#export .tabs button[data-format]")) b.addEventListener("click", () => { state.exportFormat = b.dataset.format; loadExport(); });
-  $("#export-name").addEventListener("change", loadExport);
+  for (const id of ["#export-name", "#export-dt", "#export-method", "#export-umin", "#export-umax"]) $(id).addEventListener("change", loadExport);
   $("#export-copy").addEventListener("click", () => navigator.clipboard?.writeText($("#export-code").textContent));
   $("#hist-prev").addEventListener("click", () => loadHistory(Math.max(0, state.histOffset - HIST)));
   $("#hist-next").addEventListener("click", () => loadHistory(state.histOffset + HIST));

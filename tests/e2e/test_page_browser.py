@@ -114,6 +114,33 @@ def test_a_run_link_tunes_the_roll_loop_and_shows_gains_verdict_checks_and_plots
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_the_exported_controller_in_c_and_as_a_difference_equation(page, server, sync_api):
+    expect = sync_api.expect
+    tuned = httpx.post(f"{server.url}/tune", timeout=120, json={
+        "plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z", "options": {"time_budget_s": 1}}).json()
+
+    def exported(fmt: str, name: str) -> str:  # the route's own text, for comparison
+        r = httpx.get(f"{server.url}/tunes/{tuned['id']}/export", params={"format": fmt, "name": name})
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+        return r.text
+
+    page.goto(f"{server.url}/?id={tuned['id']}")  # a stored result opens with its export
+    code = page.locator("#export-code")
+    expect(code).to_contain_text("double controller_update(controller_state *s, double e)", timeout=30_000)
+    assert code.inner_text().strip() == exported("c", "controller").strip()
+    page.click("#export button[data-format=text]")
+    expect(code).to_contain_text("u[k] = ")
+    assert code.inner_text().strip() == exported("text", "controller").strip()
+    page.fill("#export-name", "roll")
+    page.press("#export-name", "Enter")
+    page.click("#export button[data-format=c]")
+    expect(code).to_contain_text("double roll_update(roll_state *s, double e)")
+    page.fill("#export-name", "1roll")  # not a C identifier: the route's 422, at the name field
+    page.press("#export-name", "Tab")
+    expect(page.locator("#export [data-loc='query.name'] .err")).not_to_be_empty()
+    expect(code).to_have_text("")
+
+
 def test_a_bad_expression_is_shown_at_its_field(page, server, sync_api):
     expect = sync_api.expect
     page.goto(f"{server.url}/?" + urlencode({"plant": "1/(s+", "dt": DT, "structure": "pid_z"}))
