@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import os
 
-from .worker import PLOT_MODULES, SERVICE_PID_VAR, THREAD_VARS, set_parent_death_signal, warm_up  # cheap
+from .jobs import PLOT_MODULES  # cheap: the jobs import their libraries when run
+from .worker import SERVICE_PID_VAR, THREAD_VARS, set_parent_death_signal, warm_up  # cheap
 
 for _var in THREAD_VARS:  # before numpy is imported (set_parent_death_signal imports it)
     os.environ.setdefault(_var, "1")

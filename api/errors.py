@@ -6,6 +6,8 @@
 * 413, 429, 503, 504: ``{"detail": "..."}`` saying what happened and what to do; 429 and 503
   carry ``Retry-After`` (429: this client has as many requests waiting as it may; 503: every
   solver busy and the queue full, or the database unreachable).
+* 499: the client closed the connection while its solve ran; the solve was cancelled
+  (:mod:`api.disconnect`). Nobody receives it; the access log shows it.
 * 500: ``{"detail": "internal error ..."}``; the traceback goes to the log only.
 """
 
@@ -21,6 +23,7 @@ from fastapi.responses import JSONResponse
 from tuner.jsonio import jsonable
 
 from .convert import FieldError
+from .disconnect import CLIENT_CLOSED_REQUEST, ClientDisconnected
 from .pool import ClientBusy, JobTimeout, PoolBusy, PoolClosed, WorkerCrashed
 from .store import StoreError
 
@@ -52,6 +55,11 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(FieldError)
     async def _field(request: Request, exc: FieldError) -> JSONResponse:
         return JSONResponse({"detail": exc.detail()}, status_code=422)
+
+    @app.exception_handler(ClientDisconnected)
+    async def _gone(request: Request, exc: ClientDisconnected) -> JSONResponse:
+        return JSONResponse({"detail": "the client closed the connection; the work was cancelled"},
+                            status_code=CLIENT_CLOSED_REQUEST)
 
     @app.exception_handler(ClientBusy)  # before PoolBusy: handlers are looked up along the class's MRO
     async def _client_busy(request: Request, exc: ClientBusy) -> JSONResponse:

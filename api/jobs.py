@@ -9,7 +9,12 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["tune_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job"]
+__all__ = ["tune_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job", "PLOT_MODULES"]
+
+# what a plot process imports before its first job (this list replaces api.worker.PLOT_MODULES, which
+# still names the removed api.plots)
+PLOT_MODULES = ("tuner.analysis.verify", "tuner.analysis.plots", "tuner.identify.plot", "matplotlib.figure",
+                "matplotlib.backends.backend_agg", "matplotlib.backends.backend_svg")
 
 
 def build_plant(d: dict[str, Any]):
@@ -42,16 +47,16 @@ def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
 
 
 def plot_job(payload: dict[str, Any]) -> bytes:
-    """``payload``: plants, controller, spec, fmt (``png``/``svg``), title. Returns the image."""
+    """``payload``: plants, controller, spec, ``kind`` (``all``/``step``/``bode``/``nyquist``), ``fmt``
+    (``png``/``svg``), title. Returns the image (:func:`tuner.analysis.plots.render`)."""
+    from tuner.analysis.plots import render
     from tuner.analysis.verify import analyze
     from tuner.spec import Spec
-
-    from .plots import draw
 
     ctrl = _controller(payload["controller"])
     spec = Spec(**payload["spec"])
     analyses = [analyze(build_plant(p), ctrl, spec) for p in payload["plants"]]
-    return draw(analyses, fmt=payload["fmt"], title=payload.get("title", ""), band_pct=spec.settling_band_pct)
+    return render(analyses, payload.get("kind", "all"), payload["fmt"], spec=spec, title=payload.get("title", ""))
 
 
 def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
@@ -66,8 +71,7 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
 
 def identify_plot_job(payload: dict[str, Any]) -> bytes:
     """``payload``: ``result`` (a stored identification), ``fmt``. Returns the image."""
+    from tuner.analysis.plots import figure_bytes
     from tuner.identify.result import IdentifyResult
-
-    from .plots import figure_bytes
 
     return figure_bytes(IdentifyResult.from_dict(payload["result"]).plot(), fmt=payload["fmt"])

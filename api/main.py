@@ -35,6 +35,8 @@ Optimisation-based controller tuning with an independent verifier, as a service.
   specification in, verified gains and margins out; every result is stored.
 * `POST /analyze`: verify a given controller on a plant.
 * `GET /tunes`, `GET /tunes/{id}`, `GET /tunes/{id}/plot.png` / `.svg`: stored results.
+* `GET /tunes/{id}/export?format=c|python|text`: the stored controller as C99, a Python class or its
+  difference equation (direct form II transposed; optional output limits with anti-windup).
 * `POST /identify`: a logged input/output record in, a fitted transfer function out (frequency
   response with coherence, CIFER's cost J, Cramér–Rao bounds, a check on held-out data); stored,
   and listed by `GET /identifications`, `GET /identifications/{id}` (`/plot.png`, `/plot.svg`, `/data`).
@@ -53,6 +55,8 @@ with `Retry-After`. Plots are drawn in processes of their own and cached.
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app. ``settings`` default to the environment (``TUNER_*``)."""
+    from fastapi_offline import FastAPIOffline
+
     from .errors import install_error_handlers
     from .limits import BodySizeLimit, HeadAsGet
     from .routes import api_router, public_router
@@ -61,10 +65,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        from .jobs import PLOT_MODULES
         from .plotcache import PlotCache
         from .pool import WorkerPool
         from .store import Store
-        from .worker import PLOT_MODULES
 
         store = Store(settings.database_url)
         pool = WorkerPool(
@@ -94,8 +98,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.gather(pool.close(), plot_pool.close())
             store.dispose()
 
-    app = FastAPI(
+    # /docs and /redoc from the Swagger UI and ReDoc files shipped in fastapi-offline (no CDN: they work without
+    # internet); the assets are served under /static-offline-docs, open like /docs. No online spec validator.
+    app = FastAPIOffline(
         title="tuner", version=_version(), description=DESCRIPTION, lifespan=lifespan,
+        swagger_ui_parameters={"validatorUrl": None},
         openapi_tags=[{"name": "tuning"}, {"name": "analysis"}, {"name": "identification"}, {"name": "results"},
                       {"name": "service"}],
     )

@@ -1,4 +1,4 @@
-"""Drawn plots, kept per result id and format (a stored result never changes, nor does its plot).
+"""Drawn plots, kept per key (result id, kind and format) (a stored result never changes, nor does its plot).
 
 Concurrent requests for a plot that is being drawn wait for that one drawing instead of
 starting their own; the cache is bounded in bytes (least recently used plots go first).
@@ -18,19 +18,19 @@ class PlotCache:
 
     def __init__(self, max_bytes: int) -> None:
         self.max_bytes = max(0, int(max_bytes))
-        self._items: collections.OrderedDict[tuple[str, str], bytes] = collections.OrderedDict()
+        self._items: collections.OrderedDict[tuple[str, ...], bytes] = collections.OrderedDict()
         self._bytes = 0
-        self._drawing: dict[tuple[str, str], asyncio.Future[bytes]] = {}  # drawings in progress
+        self._drawing: dict[tuple[str, ...], asyncio.Future[bytes]] = {}  # drawings in progress
         self.hits = 0
         self.misses = 0
 
-    def get(self, key: tuple[str, str]) -> bytes | None:
+    def get(self, key: tuple[str, ...]) -> bytes | None:
         data = self._items.get(key)
         if data is not None:
             self._items.move_to_end(key)
         return data
 
-    def _put(self, key: tuple[str, str], data: bytes) -> None:
+    def _put(self, key: tuple[str, ...], data: bytes) -> None:
         if len(data) > self.max_bytes:
             return
         self._items[key] = data
@@ -39,7 +39,7 @@ class PlotCache:
             _, old = self._items.popitem(last=False)
             self._bytes -= len(old)
 
-    async def get_or_draw(self, key: tuple[str, str], draw: Callable[[], Awaitable[bytes]]) -> bytes:
+    async def get_or_draw(self, key: tuple[str, ...], draw: Callable[[], Awaitable[bytes]]) -> bytes:
         """The cached image, else the drawing in progress, else a new drawing (whose errors propagate).
 
         The drawing is a task of its own: a requester that goes away does not stop it for the others."""
@@ -56,7 +56,7 @@ class PlotCache:
             self.hits += 1
         return await asyncio.shield(task)
 
-    async def _draw_and_keep(self, key: tuple[str, str], draw: Callable[[], Awaitable[bytes]]) -> bytes:
+    async def _draw_and_keep(self, key: tuple[str, ...], draw: Callable[[], Awaitable[bytes]]) -> bytes:
         try:
             data = await draw()
         finally:

@@ -26,8 +26,8 @@ variable                       default                     meaning
 ``TUNER_PLOT_WORKERS``         ``1``                       plot processes (apart from the solvers; run at
                                                            a lower CPU priority than the solvers)
 ``TUNER_PLOT_QUEUE_SIZE``      ``32``                      plot requests that may wait; beyond: 503
-``TUNER_PLOT_CACHE_MB``        ``64``                      drawn plots kept in memory, per result id and
-                                                           format (results never change)
+``TUNER_PLOT_CACHE_MB``        ``64``                      drawn plots kept in memory, per result id, kind
+                                                           and format (results never change)
 ``TUNER_DB_RETRY_S``           ``5``                       while the database is unreachable at start-up,
                                                            the longest pause between two attempts
 ``TUNER_MAX_BODY_BYTES``       ``1000000``                 larger request bodies: 413

@@ -3,7 +3,9 @@
 The public surface is ``__all__``: build a plant (:func:`make_plant`, :func:`plant_from_expr`),
 state what "good" means (:class:`Spec`), then :func:`tune` a structure or :func:`analyze` a given
 controller; from flight data, :func:`identify` the plant first. Everything returned has been checked
-by the verifier (:mod:`tuner.analysis`).
+by the verifier (:mod:`tuner.analysis`). python-control models go in and come out (:mod:`tuner.interop`:
+``tune(control.tf(...))``, ``result.to_control()``, ``result.loop_tfs()``); :func:`export_controller` writes
+the controller as C99, Python or its difference equation (:mod:`tuner.export`).
 """
 
 from __future__ import annotations
@@ -20,9 +22,11 @@ _EXPORTS = {
     "analysis": ("Analysis", "Metrics", "analyze"),
     "controllers": ("STRUCTURES", "ControllerTF", "controller_from_coeffs", "controller_from_expr", "controller_tf",
                     "get_structure"),
+    "export": ("export_controller",),  # the package tuner.export (lazy); the name is the function
     "errors": ("IdentificationError", "InvalidControllerError", "InvalidDataError", "InvalidExpressionError",
                "InvalidPlantError", "InvalidSpecError", "TunerError"),
     "identify": ("IdentifyResult", "identify"),  # the package tuner.identify; the name is the function
+    "interop": ("LoopTFs", "controller_from_control", "plant_from_control"),
     "jsonio": ("jsonable",),
     "plant": ("Plant", "make_plant", "plant_from_expr"),
     "problem": ("TuningProblem",),
@@ -50,7 +54,9 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the eager form
         InvalidSpecError,
         TunerError,
     )
+    from .export import export_controller
     from .identify import IdentifyResult, identify
+    from .interop import LoopTFs, controller_from_control, plant_from_control
     from .jsonio import jsonable
     from .plant import Plant, make_plant, plant_from_expr
     from .problem import TuningProblem
@@ -61,7 +67,7 @@ __all__ = [
     "tune", "TuneResult", "TuningProblem", "analyze", "Analysis", "Metrics", "Spec", "Check",
     "Plant", "make_plant", "plant_from_expr", "ControllerTF", "controller_tf", "controller_from_expr",
     "controller_from_coeffs", "get_structure", "STRUCTURES", "jsonable",
-    "identify", "IdentifyResult",
+    "identify", "IdentifyResult", "export_controller", "plant_from_control", "controller_from_control", "LoopTFs",
     "TunerError", "InvalidControllerError", "InvalidDataError", "InvalidExpressionError", "InvalidPlantError",
     "InvalidSpecError", "IdentificationError", "__version__",
 ]

@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from .errors import TunerError
+from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
 __all__ = ["main", "EXIT_OK", "EXIT_SPEC_NOT_MET", "EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_CODES"]
 
@@ -53,7 +54,41 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--disk-margin", type=float, default=None, metavar="ALPHA",
                    help="minimum balanced disk margin alpha, 0 < alpha < 2")
     g.add_argument("--bandwidth", type=float, default=None, metavar="RAD_S", help="minimum closed-loop bandwidth")
-    g.add_argument("--objective", default=None, choices=["settling_time", "itae", "iae", "ie", "bandwidth"])
+    g.add_argument("--objective", default=None, choices=list(OBJECTIVE_DEFINITIONS),
+                   help="what tune optimises (default settling_time; each defined in 'tuner tune --help')")
+
+
+def _add_plot_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plot", metavar="OUT.png", help="write the plot of the loop (every plant), png or svg by the "
+                   "suffix: the step response with u(t), Bode with the margins, Nyquist with 1/Ms")
+    p.add_argument("--plot-kind", default="all", choices=["all", "step", "bode", "nyquist"],
+                   help="which plot --plot writes (all: the three side by side)")
+
+
+def _plot_format(a: argparse.Namespace) -> str | None:
+    """The format of ``--plot`` (checked before any work), or None without it."""
+    if not a.plot:
+        return None
+    suffix = a.plot.rsplit(".", 1)[-1].lower() if "." in a.plot else ""
+    if suffix not in ("png", "svg"):
+        raise TunerError(f"--plot {a.plot}: the file name must end in .png or .svg")
+    return suffix
+
+
+def _write_plot(obj: Any, a: argparse.Namespace, fmt: str | None, spec: Any) -> None:
+    if fmt is None:
+        return
+    from pathlib import Path
+
+    from .analysis.plots import render
+
+    data = render(obj, a.plot_kind, fmt, spec=spec)
+    try:
+        Path(a.plot).write_bytes(data)
+    except OSError as e:
+        raise TunerError(f"--plot {a.plot}: cannot write: {e.strerror or e}") from None
+    if not a.json:
+        print(f"wrote {a.plot}")
 
 
 def _spec_from_args(a: argparse.Namespace):
@@ -79,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
                 epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress; print the traceback of an "
                    "internal error")
+    p.add_argument("--version", action="version", version=f"tuner {_version()}",
+                   help="print the installed version (package metadata) and exit")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
     sub.add_parser = _with_exit_codes(sub.add_parser)
 
@@ -90,9 +127,11 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--json", action="store_true", help="print JSON instead of a table")
     a.add_argument("--check", action="store_true",
                    help="kept for compatibility: the exit code is 1 whenever the spec is not met")
+    _add_plot_args(a)
     _add_spec_args(a)
 
-    t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec")
+    t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec",
+                       epilog=_objectives_help() + "\n\n" + EXIT_CODES)
     t.add_argument("--plant", required=True, action="append",
                    help="plant expression; repeat for robust tuning over a plant set (nominal first)")
     t.add_argument("--dt", type=float, default=None, help="controller sample time (and of z plants)")
@@ -101,11 +140,28 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
     t.add_argument("--json", action="store_true")
+    _add_plot_args(t)
     _add_spec_args(t)
 
     for mod in _EXTRA_COMMANDS:
         __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
     return p
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("tuner")
+    except metadata.PackageNotFoundError:  # pragma: no cover - a source tree without metadata
+        return "0+unknown"
+
+
+def _objectives_help() -> str:
+    """The objectives' definitions (tuner.objectives), one line each (the terminal wraps them)."""
+    lines = ["objectives (--objective):"]
+    lines += [f"  {k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()]
+    return "\n".join(lines + [f"  {ROBUST_NOTE}"])
 
 
 def _with_exit_codes(add_parser: Any) -> Any:
@@ -131,7 +187,7 @@ def _nested(add_subparsers: Any) -> Any:
 
 
 # modules with add_parser(sub) registering more sub-commands
-_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli"]
+_EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli", "export.cli"]
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
@@ -183,6 +239,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     from .plant import check_dt, plant_from_expr
 
     spec = _spec_from_args(a)
+    plot_fmt = _plot_format(a)
     with field("--dt"):  # name the right argument (an s-plant ignores dt, so it would surface at --controller)
         check_dt(a.dt)
     with field("--plant"):
@@ -199,6 +256,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
             f"{c.name} = {fmt(c.achieved)} (required {c.op} {fmt(c.required)})" for c in res.failing
         )
         print(f"controller {verdict}")
+    _write_plot(res, a, plot_fmt, spec)
     return EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
 
 
@@ -207,6 +265,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     from .tuning import tune
 
     spec = _spec_from_args(a)
+    plot_fmt = _plot_format(a)
     plants = []
     for i, text in enumerate(a.plant):
         with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
@@ -222,6 +281,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
         print(json.dumps(out, indent=2))
+        _write_plot(res, a, plot_fmt, res.spec)
         return code
     gains = ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items())
     c = res.controller
@@ -245,6 +305,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         for r in out["reasons"]:
             hint = ", ".join(f"{k} = {v}" for k, v in r["suggest"].items())
             print(f"  why: {r['message']}" + (f" [try {hint}]" if hint else ""))
+    _write_plot(res, a, plot_fmt, res.spec)
     return code
 
 

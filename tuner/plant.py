@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy import linalg
@@ -266,15 +267,18 @@ def _poly_str(p: np.ndarray, var: str) -> str:
 
 
 def make_plant(
-    num: Sequence[float],
-    den: Sequence[float],
+    num: Any,
+    den: Sequence[float] | None = None,
     *,
     dt: float | None = None,
     delay: float = 0.0,
     max_order: int = MAX_ORDER,
     zpk: Zpk | None = None,
 ) -> Plant:
-    """Build and validate a plant from coefficients (highest power first).
+    """Build and validate a plant from coefficients (highest power first), or from a python-control model.
+
+    ``make_plant(num, den, dt=..., delay=...)``; or ``make_plant(sys, delay=...)`` with ``sys`` a
+    ``control.TransferFunction`` or ``control.StateSpace`` (its own ``dt``, see :mod:`tuner.interop`).
 
     ``zpk``: the same transfer function in factored form when it is known more accurately than the
     roots of the coefficients would give it (e.g. from an expression's factors, or a state-space
@@ -286,6 +290,17 @@ def make_plant(
     not a whole number of samples of a discrete plant. Open-loop unstable plants
     are accepted.
     """
+    if den is None:
+        from .interop import is_control_lti, plant_from_control
+
+        if not is_control_lti(num):
+            raise InvalidPlantError("give the denominator den (or a python-control TransferFunction/StateSpace)",
+                                    field="den")
+        p = plant_from_control(num, delay=delay, max_order=max_order)
+        if dt is not None and (p.dt is None or abs(check_dt(dt) - p.dt) > _SAMPLE_TOL * p.dt):
+            raise InvalidPlantError(f"the python-control model has its own time base (dt={num.dt}); dt={dt} was "
+                                    "given: leave dt out", field="dt")
+        return p
     n = _coeffs(num, "num")
     d = _coeffs(den, "den")
     dt = check_dt(dt)

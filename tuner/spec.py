@@ -13,6 +13,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
+
 __all__ = ["Spec", "Check", "check_spec", "OBJECTIVES"]
 
 OBJECTIVES = ("settling_time", "itae", "iae", "ie", "bandwidth")
@@ -30,9 +32,8 @@ class Spec(BaseModel):
     zero_steady_state_error: bool = Field(True, description="require zero steady-state error to a step")
     settling_band_pct: float = Field(2.0, gt=0, le=20, description="settling band, % of the final value")
     objective: Literal["settling_time", "itae", "iae", "ie", "bandwidth"] = Field(
-        "settling_time", description="what is minimised: settling_time (of the unit reference step), itae "
-        "(integral of t|e| of the reference step), iae (integral of |y| after a unit load step at the plant "
-        "input), ie (integral of e after that load step = 1/Ki: maximise Ki, MIGO), bandwidth (maximise it)")
+        "settling_time", description="what is optimised (tuner.objectives): " + "; ".join(
+            f"{k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()) + ". " + ROBUST_NOTE)
     control_peak_max: float | None = Field(None, gt=0, description="maximum |u| after a unit reference step")
     ms_max: float | None = Field(None, ge=1, description="maximum sensitivity peak Ms = max |1/(1+L)| (>= 1)")
     mt_max: float | None = Field(None, gt=0, description="maximum complementary sensitivity peak Mt = max |L/(1+L)| "

@@ -24,7 +24,6 @@ from .analysis.verify import Analysis
 from .controllers import ControllerTF
 from .errors import TunerError
 from .jsonio import jsonable
-from .plant import Plant
 from .problem import MAX_PLANTS, TuningProblem
 from .spec import Spec
 
@@ -62,6 +61,46 @@ class TuneResult:
 
         return max(objective_value(a, self.spec) for a in self.analyses)
 
+    def __repr__(self) -> str:
+        from .display import tune_repr
+
+        return tune_repr(self)
+
+    def _repr_html_(self) -> str:
+        from .display import tune_html
+
+        return tune_html(self)
+
+    def plot(self, kind: str = "all", **kw: Any) -> Any:
+        """Every plant's loop as a :class:`matplotlib.figure.Figure` (no pyplot state, no backend chosen; save it
+        with ``fig.savefig``): ``kind`` is ``all``, ``step``, ``bode`` or ``nyquist``; ``kw`` go to
+        :func:`tuner.analysis.plots.figure` (``title``, ``labels``)."""
+        from .analysis.plots import figure
+
+        kw.setdefault("title", f"{self.structure}: " + ", ".join(f"{k} = {v:.4g}" for k, v in self.gains.items()))
+        return figure(self, kind, **kw)
+
+    def to_control(self) -> Any:
+        """The controller as a ``control.TransferFunction`` with its ``dt`` (0 = continuous)."""
+        from .interop import controller_to_control
+
+        return controller_to_control(self.controller)
+
+    def loop_tfs(self, plant: int = 0, *, pade_order: int | None = 6) -> Any:
+        """``L``, ``S``, ``T`` of the loop with plant ``plant`` (0 = nominal) as python-control objects; see
+        :meth:`tuner.analysis.Analysis.loop_tfs`."""
+        if not (isinstance(plant, int) and 0 <= plant < len(self.analyses)):
+            raise TunerError(f"plant must be an index from 0 to {len(self.analyses) - 1}, got {plant!r}",
+                             field="plant")
+        return self.analyses[plant].loop_tfs(pade_order=pade_order)
+
+    def export(self, format: str = "c", *, name: str = "controller", dt: float | None = None,
+               method: str = "tustin", u_min: float | None = None, u_max: float | None = None) -> str:
+        """The controller as C99, a Python class or text: :func:`tuner.export.export_controller`."""
+        from .export import export_controller
+
+        return export_controller(self, format=format, name=name, dt=dt, method=method, u_min=u_min, u_max=u_max)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (after :func:`~tuner.analysis.jsonable`): the analyze fields + gains, controller, solver.
 
@@ -92,11 +131,12 @@ class TuneResult:
 
 
 def tune(
-    plant_or_plants: Plant | Sequence[Plant] | TuningProblem,
+    plant_or_plants: Any,
     *,
     structure: str | None = None,
     spec: Spec | None = None,
     dt: float | None = None,
+    delay: float | Sequence[float] | None = None,
     seed: int = 0,
     time_budget_s: float = 10.0,
     n_trials: int | None = None,
@@ -111,16 +151,22 @@ def tune(
 
     Parameters
     ----------
-    plant_or_plants : Plant, sequence of Plant, or TuningProblem
-        The nominal plant first; for robust tuning, the whole set. A :class:`~tuner.problem.TuningProblem`
-        already holds the structure, spec and dt.
+    plant_or_plants : Plant, control.TransferFunction, control.StateSpace, a sequence of them, or TuningProblem
+        The plant; for robust tuning the whole set, nominal first (one controller, every constraint on every
+        plant). A python-control model may be continuous or discrete (its ``dt``; ``dt=True`` is refused: give
+        the number), see :mod:`tuner.interop`. A :class:`~tuner.problem.TuningProblem` already holds the
+        structure, spec and dt.
     structure : str
-        One of :data:`tuner.controllers.STRUCTURES`.
+        One of :data:`tuner.controllers.STRUCTURES`: ``p``, ``pi``, ``pd``, ``pid``, ``pid_z`` (discrete only),
+        ``pidf2``, ``lead``, ``lag``, ``leadlag``.
     spec : Spec, optional
         Defaults to the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
-        error, minimum 2 % settling time).
+        error, minimum 2 % settling time). ``Spec.objective`` says what is minimised.
     dt : float, optional
-        Controller sample time; ``None`` = continuous (or the plants' dt if discrete).
+        Controller sample time, s; ``None`` = continuous (or the plants' dt if discrete).
+    delay : float or sequence of float, optional
+        Input delay of python-control plants, s (one for all, or one per plant; whole samples of a discrete
+        plant). A :class:`~tuner.plant.Plant` carries its own delay.
     seed : int
         Seeds the global search beyond the deterministic first round: same seed, same gains.
     time_budget_s : float
@@ -140,6 +186,25 @@ def tune(
         When the spec is not met, say why in ``reasons`` (:mod:`tuner.diagnose`: limits that are
         impossible by definition, and for each failing limit the tightest value a short re-tune with it
         relaxed found feasible), within what is left of the budget.
+
+    Returns
+    -------
+    TuneResult
+        The gains, the controller, the verifier's analysis of every plant (``meets_spec``, ``failing``),
+        the solver's record; ``.to_control()``, ``.loop_tfs()``, ``.plot()``, ``.export(...)``.
+
+    Raises
+    ------
+    TunerError
+        Bad input, with ``field`` naming it (e.g. ``("plants", 1, "delay")``, ``("dt",)``, ``("structure",)``).
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import tune
+    >>> res = tune(control.tf([4.0], [1.0, 2.0, 4.0]), structure="pi", dt=0.05, time_budget_s=2)  # doctest: +SKIP
+    >>> res.meets_spec  # doctest: +SKIP
+    True
     """
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
@@ -150,14 +215,17 @@ def tune(
     t0 = time.perf_counter()
     deadline = t0 + float(time_budget_s)
     if isinstance(plant_or_plants, TuningProblem):
-        if structure is not None or spec is not None or dt is not None:
-            raise TunerError("a TuningProblem already holds the structure, spec and dt: do not pass them again",
-                             field="structure")
+        if structure is not None or spec is not None or dt is not None or delay is not None:
+            raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
+                             "again", field="structure")
         problem = plant_or_plants
     else:
         if structure is None:
             raise TunerError("give the controller structure, e.g. structure='pid'", field="structure")
-        problem = TuningProblem.build(plant_or_plants, structure=structure, spec=spec, dt=dt)
+        from .interop import as_plants
+
+        problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec,
+                                      dt=dt)
     from .optimize.engine import Engine
 
     # keep a share of the budget for the final verification at full resolution

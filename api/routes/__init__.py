@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 
 from ..deps import require_api_key
-from . import analyze, health, identify, tune, tunes
+from . import analyze, export, health, identify, page, tune, tunes
 
 __all__ = ["api_router", "public_router"]
 
@@ -13,7 +13,9 @@ api_router = APIRouter(dependencies=[Depends(require_api_key)])
 api_router.include_router(tune.router)
 api_router.include_router(analyze.router)
 api_router.include_router(tunes.router)
+api_router.include_router(export.router)
 api_router.include_router(identify.router)
 
 public_router = APIRouter()
 public_router.include_router(health.router)
+public_router.include_router(page.router)  # the browser page: the key is entered in it

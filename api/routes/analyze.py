@@ -5,13 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Depends, HTTPException
+from fastapi import APIRouter, Body, Depends, HTTPException, Request
 from fastapi.responses import JSONResponse
 
 from tuner.jsonio import jsonable
 
 from ..convert import FieldError, analysis_inputs, body_loc
 from ..deps import client_id, get_analyze_job, get_pool
+from ..disconnect import unless_disconnected
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_ANALYZE_EXAMPLE, AnalyzeRequest, AnalyzeResponse
@@ -36,6 +37,7 @@ _EXAMPLES = {
              summary="Verify a controller on a plant: margins, step metrics, spec checks")
 async def post_analyze(
     body: Annotated[AnalyzeRequest, Body(openapi_examples=_EXAMPLES)],
+    request: Request,
     settings: Settings = Depends(get_settings),
     pool: WorkerPool = Depends(get_pool),
     job: Callable[[dict[str, Any]], Any] = Depends(get_analyze_job),
@@ -44,7 +46,8 @@ async def post_analyze(
     plant, ctrl, spec = analysis_inputs(body)
     payload = {"plant": plant, "controller": ctrl, "spec": spec}
     try:
-        out = await pool.run(job, payload, timeout_s=settings.analyze_timeout_s, client=client)
+        out = await unless_disconnected(
+            request, pool.run(job, payload, timeout_s=settings.analyze_timeout_s, client=client))
     except JobTimeout:
         raise HTTPException(504, f"the analysis took longer than {settings.analyze_timeout_s:g} s and was "
                                  "stopped") from None

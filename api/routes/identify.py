@@ -7,7 +7,7 @@ from collections.abc import Callable
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query
+from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
@@ -15,6 +15,7 @@ from tuner.jsonio import jsonable
 
 from ..convert import FieldError, error_type
 from ..deps import client_id, get_identify_job, get_identify_plot_job, get_plot_pool, get_pool, get_store
+from ..disconnect import unless_disconnected
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas_identify import (
@@ -69,6 +70,7 @@ async def post_identify(
     body: Annotated[IdentifyRequest, Body(openapi_examples={
         "first-order lag": {"summary": "a sweep through 10/(s+10) with a 40 ms delay, 30 s at 50 Hz",
                             "value": IDENTIFY_EXAMPLE}})],
+    request: Request,
     settings: Settings = Depends(get_settings),
     store: Store = Depends(get_store),
     pool: WorkerPool = Depends(get_pool),
@@ -81,7 +83,8 @@ async def post_identify(
                "time": None if body.time is None else np.asarray(body.time, dtype=float),
                "rate_hz": body.rate_hz, **options}
     try:
-        result = await pool.run(job, payload, timeout_s=settings.identify_timeout_s, client=client)
+        result = await unless_disconnected(
+            request, pool.run(job, payload, timeout_s=settings.identify_timeout_s, client=client))
     except JobTimeout:
         raise HTTPException(504, f"the identification took longer than {settings.identify_timeout_s:g} s and was "
                                  "stopped; decimate the record or fit fewer poles") from None

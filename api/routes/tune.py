@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Depends, HTTPException
+from fastapi import APIRouter, Body, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
@@ -14,6 +14,7 @@ from tuner.problem import MAX_PLANTS
 
 from ..convert import FieldError, body_loc, plant_dict, tuning_problem
 from ..deps import client_id, get_pool, get_store, get_tune_job
+from ..disconnect import unless_disconnected
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_EXAMPLE, ErrorOut, TuneRequest, TuneResponse, ValidationErrorOut
@@ -60,6 +61,7 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 )
 async def post_tune(
     body: Annotated[TuneRequest, Body(openapi_examples=_EXAMPLES)],
+    request: Request,
     settings: Settings = Depends(get_settings),
     store: Store = Depends(get_store),
     pool: WorkerPool = Depends(get_pool),
@@ -79,7 +81,8 @@ async def post_tune(
     payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
     await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)
     try:
-        result = await pool.run(job, payload, timeout_s=settings.solve_limit_s(budget), client=client)
+        result = await unless_disconnected(
+            request, pool.run(job, payload, timeout_s=settings.solve_limit_s(budget), client=client))
     except JobTimeout as e:
         raise HTTPException(504, f"the solve did not finish within its time budget of {budget:g} s "
                                  f"(stopped at {e.limit_s:.3g} s, grace included); no verified result to "

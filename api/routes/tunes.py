@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
@@ -75,22 +75,28 @@ async def draw_in_pool(pool: WorkerPool, job: Callable[[dict[str, Any]], Any], p
         raise HTTPException(500, f"the plot could not be drawn ({e.info.get('error')}); it has been logged") from None
 
 
-async def _draw(rec: TuneRecord, fmt: str, pool: WorkerPool, job: Callable[[dict[str, Any]], Any],
+async def _draw(rec: TuneRecord, kind: str, fmt: str, pool: WorkerPool, job: Callable[[dict[str, Any]], Any],
                 settings: Settings, client: str) -> bytes:
     gains = ", ".join(f"{k}={v:.4g}" for k, v in rec.result.get("gains", {}).items())
     payload = {"plants": rec.plants, "controller": rec.result["controller"], "spec": rec.result["spec"],
-               "fmt": fmt, "title": f"{rec.structure}: {gains}" + ("" if rec.meets_spec else " (spec NOT met)")}
+               "kind": kind, "fmt": fmt,
+               "title": f"{rec.structure}: {gains}" + ("" if rec.meets_spec else " (spec NOT met)")}
     return await draw_in_pool(pool, job, payload, settings, client)
 
 
-_PLOT_DOC = ("Step response (continuous output, and the samples as markers) and Bode plot of the open loop with "
-             "the phase and gain margins marked; all plants of a robust tune, the nominal one solid. Drawn in a "
-             "process apart from the solvers and cached (a stored result never changes): `ETag` and "
-             "`If-None-Match` are honoured; `Cache-Control` is `private` when the server needs an API key.")
+_PLOT_DOC = ("`kind=step`: the step response (the output between samples as a line, at the samples as markers) "
+             "with the settling band, the overshoot limit and the control signal u(t) below; `kind=bode`: the "
+             "open loop with the phase and gain margins marked; `kind=nyquist`: with the unit circle and the "
+             "1/Ms circle around -1; `kind=all` (default): the three side by side. Every plant of a robust tune "
+             "is drawn and labelled, the nominal one bold. Drawn (`tuner.analysis.plots`) in a process apart "
+             "from the solvers and cached per result, kind and format (a stored result never changes): `ETag` "
+             "and `If-None-Match` are honoured; `Cache-Control` is `private` when the server needs an API key.")
 _MEDIA = {"png": "image/png", "svg": "image/svg+xml"}
+PlotKind = Query("all", description="which plot: step (with u(t)), bode, nyquist, or all three")
+Kind = Literal["all", "step", "bode", "nyquist"]
 
 
-async def _plot_response(request: Request, tune_id: str, fmt: str, store: Store, pool: WorkerPool,
+async def _plot_response(request: Request, tune_id: str, kind: str, fmt: str, store: Store, pool: WorkerPool,
                          cache: PlotCache, job: Callable[[dict[str, Any]], Any], settings: Settings,
                          client: str) -> Response:
     from importlib import metadata
@@ -100,28 +106,28 @@ async def _plot_response(request: Request, tune_id: str, fmt: str, store: Store,
         version = metadata.version("tuner")
     except metadata.PackageNotFoundError:  # pragma: no cover
         version = "0"
-    etag = f'"{rec.id}.{fmt}.{version}"'
+    etag = f'"{rec.id}.{kind}.{fmt}.{version}"'
     scope = "private" if settings.api_key is not None else "public"
     headers = {"Cache-Control": f"{scope}, max-age=86400, immutable", "ETag": etag}
     if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
         return Response(status_code=304, headers=headers)
-    data = await cache.get_or_draw((rec.id, fmt), lambda: _draw(rec, fmt, pool, job, settings, client))
+    data = await cache.get_or_draw((rec.id, kind, fmt), lambda: _draw(rec, kind, fmt, pool, job, settings, client))
     return Response(data, media_type=_MEDIA[fmt], headers=headers)
 
 
 @router.get("/{tune_id}/plot.png", response_class=Response, summary="Plot of a stored result (PNG)",
             description=_PLOT_DOC, responses={**PLOT_ERRORS, 200: {"content": {"image/png": {}}}})
-async def plot_png(request: Request, tune_id: str = TuneId, store: Store = Depends(get_store),
+async def plot_png(request: Request, tune_id: str = TuneId, kind: Kind = PlotKind, store: Store = Depends(get_store),
                    pool: WorkerPool = Depends(get_plot_pool), cache: PlotCache = Depends(get_plot_cache),
                    job: Callable[[dict[str, Any]], Any] = Depends(get_plot_job),
                    settings: Settings = Depends(get_settings), client: str = Depends(client_id)) -> Response:
-    return await _plot_response(request, tune_id, "png", store, pool, cache, job, settings, client)
+    return await _plot_response(request, tune_id, kind, "png", store, pool, cache, job, settings, client)
 
 
 @router.get("/{tune_id}/plot.svg", response_class=Response, summary="Plot of a stored result (SVG)",
             description=_PLOT_DOC, responses={**PLOT_ERRORS, 200: {"content": {"image/svg+xml": {}}}})
-async def plot_svg(request: Request, tune_id: str = TuneId, store: Store = Depends(get_store),
+async def plot_svg(request: Request, tune_id: str = TuneId, kind: Kind = PlotKind, store: Store = Depends(get_store),
                    pool: WorkerPool = Depends(get_plot_pool), cache: PlotCache = Depends(get_plot_cache),
                    job: Callable[[dict[str, Any]], Any] = Depends(get_plot_job),
                    settings: Settings = Depends(get_settings), client: str = Depends(client_id)) -> Response:
-    return await _plot_response(request, tune_id, "svg", store, pool, cache, job, settings, client)
+    return await _plot_response(request, tune_id, kind, "svg", store, pool, cache, job, settings, client)

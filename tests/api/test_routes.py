@@ -142,23 +142,65 @@ def test_list_tunes_newest_first_with_paging(client, roll):
     assert beyond["items"] == [] and beyond["total"] == page["total"]
 
 
-def test_plot_png(client, roll):
-    r = client.get(f"/tunes/{roll['id']}/plot.png")
+PLOT_SIZE = {"all": (1900, 620), "step": (750, 540), "bode": (750, 560), "nyquist": (620, 580)}  # figsize x 100 dpi
+
+
+@pytest.mark.parametrize("kind", [None, "all", "step", "bode", "nyquist"])
+def test_plot_png_of_each_kind(client, roll, kind):
+    r = client.get(f"/tunes/{roll['id']}/plot.png", params={} if kind is None else {"kind": kind})
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert r.content[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = int.from_bytes(r.content[16:20], "big"), int.from_bytes(r.content[20:24], "big")
-    assert (width, height) == (800, 900)
+    assert (width, height) == PLOT_SIZE[kind or "all"]
 
 
-def test_plot_svg_marks_the_margins_and_the_samples(client, roll):
-    r = client.get(f"/tunes/{roll['id']}/plot.svg")
-    assert r.status_code == 200 and r.headers["content-type"].startswith("image/svg+xml")
-    svg = r.text
-    assert svg.lstrip().startswith("<?xml") and "<svg" in svg
+def _svg_text(svg: str) -> str:
+    """The text of an SVG (text kept as text: svg.fonttype none), for looking up labels."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.fromstring(svg)
+    assert root.tag.endswith("svg")
+    return " ".join("".join(el.itertext()) for el in root.iter() if el.tag.endswith("text"))
+
+
+def test_plot_svg_of_each_kind_shows_what_it_should(client, roll):
     m = roll["metrics"]
-    assert f"PM {m['phase_margin_deg']:.1f}°" in svg and f"at {m['crossover_rad_s']:.3g} rad/s" in svg
-    assert f"GM {m['gain_margin_db']:.1f} dB" in svg
-    assert "at samples" in svg and "output y(t)" in svg  # the two traces: between samples and at samples
+    pm = f"PM {m['phase_margin_deg']:.1f}° at {m['crossover_rad_s']:.3g} rad/s"
+    expected = {
+        "step": ["output y(t) between samples", "at the samples", "settling band ±2 %", "overshoot limit 10 %",
+                 f"settled at {m['settling_time_s']:.3g} s", f"peak |u| {m['control_peak']:.3g}", "control u"],
+        "bode": [pm, f"GM {m['gain_margin_db']:.1f} dB", "phase of L"],
+        "nyquist": [f"1/Ms = {1 / m['ms']:.3g}", "unit circle", "Im L"],
+    }
+    texts = {}
+    for kind in ("step", "bode", "nyquist", "all"):
+        r = client.get(f"/tunes/{roll['id']}/plot.svg", params={"kind": kind})
+        assert r.status_code == 200 and r.headers["content-type"].startswith("image/svg+xml")
+        texts[kind] = _svg_text(r.text)
+    for kind, labels in expected.items():
+        for label in labels:
+            assert label in texts[kind], (kind, label)
+            assert label in texts["all"], ("all", label)
+    assert "phase of L" not in texts["step"] and "control u" not in texts["bode"]
+
+
+def test_bad_plot_kind_is_422_with_loc(client, roll):
+    r = client.get(f"/tunes/{roll['id']}/plot.svg", params={"kind": "polar"})
+    assert r.status_code == 422
+    (item,) = r.json()["detail"]
+    assert item["loc"] == ["query", "kind"] and "step" in item["msg"]
+
+
+def test_plot_of_a_robust_tune_labels_every_plant(client):
+    lighter, heavier = (f"0.2655*{k}*14.8528^2/(s^2+14.195*s+14.8528^2)" for k in (0.8, 1.2))
+    r = client.post("/tune", json={**ROLL_BODY, "plants": [{"expr": lighter}, {"expr": heavier}]})
+    assert r.status_code == 200, r.text
+    for kind in ("step", "bode", "nyquist"):
+        svg = client.get(f"/tunes/{r.json()['id']}/plot.svg", params={"kind": kind})
+        assert svg.status_code == 200
+        text = _svg_text(svg.text)
+        assert all(name in text for name in ("nominal", "plant 2", "plant 3")), kind
+        assert "plant 4" not in text
 
 
 @pytest.mark.parametrize("path", ["/tunes/{}", "/tunes/{}/plot.png", "/tunes/{}/plot.svg"])

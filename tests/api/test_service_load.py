@@ -125,6 +125,28 @@ def test_plot_cache_headers_and_etag(client, roll):
     assert r.headers["Cache-Control"].startswith("public")
     again = client.get(f"/tunes/{roll['id']}/plot.svg", headers={"If-None-Match": r.headers["ETag"]})
     assert again.status_code == 304 and again.content == b""
+    other = client.get(f"/tunes/{roll['id']}/plot.svg", params={"kind": "bode"},
+                       headers={"If-None-Match": r.headers["ETag"]})
+    assert other.status_code == 200 and other.headers["ETag"] != r.headers["ETag"]  # another kind, another tag
+
+
+def test_plot_cache_keeps_each_kind_apart(app, client, roll):
+    """Each kind is drawn once and cached under its own key: a second request for a kind is a hit and
+    answers that kind's image, not another kind's."""
+    cache = app.state.plot_cache
+    first = {}
+    for kind in ("step", "bode", "nyquist", "all"):
+        before = cache.stats()
+        first[kind] = client.get(f"/tunes/{roll['id']}/plot.png", params={"kind": kind}).content
+        after = cache.stats()
+        assert (after["misses"], after["hits"]) in {(before["misses"] + 1, before["hits"]),  # drawn now
+                                                    (before["misses"], before["hits"] + 1)}  # by an earlier test
+        assert cache.get((roll["id"], kind, "png")) == first[kind]
+    assert len(set(first.values())) == 4
+    for kind in ("nyquist", "step"):
+        hits = cache.stats()["hits"]
+        assert client.get(f"/tunes/{roll['id']}/plot.png", params={"kind": kind}).content == first[kind]
+        assert cache.stats()["hits"] == hits + 1
 
 
 def test_plots_behind_a_key_are_private(app, client, roll):

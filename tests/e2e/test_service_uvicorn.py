@@ -9,11 +9,6 @@ of the service is left running.
 
 from __future__ import annotations
 
-import os
-import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -23,76 +18,11 @@ import httpx
 import pytest
 from numpy.testing import assert_allclose
 from quadrotor import DT, ROLL, YAW
+from uvicorn_server import Server
 
 pytestmark = pytest.mark.slow
 
-ROOT = Path(__file__).resolve().parents[2]
 N = 16
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Server:
-    """``uvicorn api.main:create_app --factory`` in its own process group, settings by environment."""
-
-    def __init__(self, tmp: Path, env: dict[str, str]) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        self.log_path = tmp / f"server-{self.port}.log"
-        full_env = {k: v for k, v in os.environ.items() if not k.startswith("TUNER_")}
-        full_env.update(env)
-        self.log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "api.main:create_app", "--factory", "--host", "127.0.0.1",
-             "--port", str(self.port)],
-            cwd=ROOT, env=full_env, stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
-
-    def wait_ready(self, timeout_s: float = 120.0, *, workers: bool = True) -> None:
-        """Until /health answers (and, with ``workers``, every solver process is up)."""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            assert self.proc.poll() is None, self.output()
-            try:
-                w = httpx.get(f"{self.url}/health", timeout=2).json()["workers"]
-                if not workers or w["ready"] == w["size"]:
-                    return
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.1)
-        raise TimeoutError(self.output())
-
-    def stop(self) -> bool:
-        """SIGTERM to the server (what a process manager sends); True if it and its solvers all exited."""
-        clean = True
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                clean = False
-        self.proc.wait(10)
-        end = time.monotonic() + 10
-        while True:  # anything left in the group (solver processes) after 10 s is a leak
-            try:
-                os.killpg(self.proc.pid, 0)
-            except ProcessLookupError:
-                break
-            if time.monotonic() > end:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                clean = False
-                break
-            time.sleep(0.1)
-        self.log.close()
-        return clean
-
-    def output(self) -> str:
-        if not self.log.closed:
-            self.log.flush()
-        return self.log_path.read_text(errors="replace")
 
 
 def body(i: int) -> dict:

@@ -246,3 +246,24 @@ def test_nan_in_json_is_never_a_bare_token(capsys):
     assert "NaN" in text
     assert ": NaN" not in text and ": Infinity" not in text and ": -Infinity" not in text
     assert math.isnan(float(_strict_json(text)["metrics"]["overshoot_pct"]))
+
+
+# -- --plot --------------------------------------------------------------------------------
+
+def test_plot_writes_the_kind_asked_for(tmp_path, capsys):
+    out_svg, out_png = tmp_path / "roll_bode.svg", tmp_path / "roll.png"
+    assert main([*ROLL_X1, "--json", "--plot", str(out_svg), "--plot-kind", "bode"]) == 0
+    m = _strict_json(capsys.readouterr().out)["metrics"]  # stdout stays JSON
+    svg = out_svg.read_text()
+    assert f"PM {m['phase_margin_deg']:.1f}°" in svg and "control u" not in svg  # Bode only
+    assert main([*ROLL_X1, "--plot", str(out_png)]) == 0
+    assert f"wrote {out_png}" in capsys.readouterr().out
+    assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("name", ["roll.pdf", "roll"])
+def test_plot_with_an_unknown_suffix_is_bad_input(tmp_path, capsys, name):
+    assert main([*ROLL_X1, "--plot", str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err
+    assert "--plot" in err and ".png or .svg" in err and "Traceback" not in err
+    assert not (tmp_path / name).exists()

@@ -54,3 +54,19 @@ def test_errors_carry_their_field_and_survive_pickling():
     assert type(e) is InvalidExpressionError and e.field == ("expr",) and e.position == ei.value.position
     assert str(e) == str(ei.value)
     assert TunerError("x", field=("plants", 2, "delay")).at("body").field == ("body", "plants", 2, "delay")
+
+
+def test_python_control_and_export_names():
+    assert {"export_controller", "plant_from_control", "controller_from_control", "LoopTFs"} <= set(tuner.__all__)
+    assert inspect.isfunction(tuner.export_controller) and tuner.export_controller.__module__ == "tuner.export.source"
+    assert tuner.plant_from_control.__module__ == "tuner.interop"
+    assert tuner.LoopTFs._fields == ("L", "S", "T")
+
+
+def test_help_stays_light():
+    """``tuner --help`` builds every sub-command's parser (export included) without numpy, control or the rest."""
+    code = ("import sys, tuner.cli\ntuner.cli.build_parser()\n"
+            "heavy = [m for m in ('numpy', 'scipy', 'control', 'matplotlib', 'casadi', 'optuna', 'pydantic') "
+            "if m in sys.modules]\nprint(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", (out.stdout, out.stderr)

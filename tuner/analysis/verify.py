@@ -19,10 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from ..controllers import ControllerTF
-from ..errors import InvalidControllerError
+from ..errors import InvalidControllerError, TunerError
 from ..loop import Loop, build_loop
-from ..plant import Plant
 from ..spec import Check, Spec, check_spec
 from .margins import Margins, margins
 from .response import StepResponse, closed_loop_poles, is_stable, stability, step_metrics, step_response
@@ -66,6 +64,39 @@ class Analysis:
     def failing(self) -> list[Check]:
         return [c for c in self.checks if not c.ok]
 
+    def __repr__(self) -> str:
+        from ..display import analysis_repr
+
+        return analysis_repr(self)
+
+    def _repr_html_(self) -> str:
+        from ..display import analysis_html
+
+        return analysis_html(self)
+
+    def plot(self, kind: str = "all", **kw: Any) -> Any:
+        """The loop's plots as a :class:`matplotlib.figure.Figure` (no pyplot state, no backend chosen; save it
+        with ``fig.savefig``): ``kind`` is ``all``, ``step``, ``bode`` or ``nyquist``; ``kw`` go to
+        :func:`tuner.analysis.plots.figure` (``spec``, ``title``)."""
+        from .plots import figure
+
+        return figure(self, kind, **kw)
+
+    def to_control(self) -> Any:
+        """The controller as a ``control.TransferFunction`` (its ``dt``; 0 = continuous)."""
+        from ..interop import controller_to_control
+
+        return controller_to_control(self.loop.controller)
+
+    def loop_tfs(self, *, pade_order: int | None = 6) -> Any:
+        """``L``, ``S``, ``T`` as ``control.TransferFunction`` (a named tuple), uncancelled: in ``z`` at ``dt``
+        for a sampled-data loop (the plant's zero-order-hold equivalent, its delay as ``z^-d``: exact at the
+        samples); in ``s`` for a continuous loop, a delay as a Padé approximation of ``pade_order`` (``None``:
+        left out). See :mod:`tuner.interop`."""
+        from ..interop import loop_tfs
+
+        return loop_tfs(self.loop, pade_order=pade_order)
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "metrics": asdict(self.metrics),
@@ -99,9 +130,50 @@ def analyze_loop(
 
 
 def analyze(
-    plant: Plant, controller: ControllerTF, spec: Spec | None = None, *, horizon_s: float | None = None,
+    plant: Any, controller: Any, spec: Spec | None = None, *, delay: float | None = None,
+    horizon_s: float | None = None,
 ) -> Analysis:
-    """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks."""
+    """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks.
+
+    Parameters
+    ----------
+    plant : Plant, control.TransferFunction or control.StateSpace
+        The plant, continuous or discrete (a python-control model's ``dt``; ``dt=True`` is refused), see
+        :mod:`tuner.interop`.
+    controller : ControllerTF, control.TransferFunction or control.StateSpace
+        Continuous (a continuous loop) or at a sample time ``dt`` (a sampled-data loop: the controller drives
+        a continuous plant through a zero-order hold, or a discrete plant at the same ``dt``).
+    spec : Spec, optional
+        What is checked; defaults to the thesis spec (see :class:`~tuner.spec.Spec`).
+    delay : float, optional
+        Input delay of a python-control plant, s (whole samples in a sampled-data loop). A
+        :class:`~tuner.plant.Plant` carries its own delay.
+    horizon_s : float, optional
+        Length of the simulated step response, s; default: 10 time constants of the slowest closed-loop
+        pole (bounded), see :func:`tuner.analysis.response.default_horizon`.
+
+    Returns
+    -------
+    Analysis
+        ``metrics`` (margins, Ms, bandwidth, step metrics), ``checks`` against ``spec``, ``meets_spec``,
+        closed-loop ``poles``, the step ``response``; ``.to_control()``, ``.loop_tfs()``, ``.plot()``.
+
+    Raises
+    ------
+    TunerError
+        Bad input, with ``field`` (``("plant", ...)``, ``("controller", ...)``, ``("dt",)``); also a loop
+        whose stability double precision cannot decide (``field == ("controller",)``).
+    """
+    from ..interop import as_controller, as_plant
+
+    try:
+        plant = as_plant(plant, delay=delay)
+    except TunerError as e:
+        raise (e if e.field == ("delay",) else e.at("plant")) from None
+    try:
+        controller = as_controller(controller)
+    except TunerError as e:
+        raise e.at("controller") from None
     loop = build_loop(plant, controller)
     poles = closed_loop_poles(loop)
     if stability(loop, poles) is None:

@@ -139,7 +139,9 @@ def identify(
     Returns
     -------
     IdentifyResult
-        Model, cost, band, frequency response, uncertainty, validation, warnings.
+        Model, cost, band, frequency response, uncertainty, validation, warnings; ``.plant()`` for
+        :func:`tuner.tune`, ``.to_control()`` (the rational part as a ``control.TransferFunction``) and
+        ``.delay_s``, ``.plot()``.
 
     Raises
     ------

@@ -90,6 +90,19 @@ class IdentifyResult:
         num, den = self.model.tf()
         return make_plant(num, den, delay=self.model.delay_s)
 
+    @property
+    def delay_s(self) -> float:
+        """The fitted equivalent delay, s (0 without one)."""
+        return float(self.model.delay_s or 0.0)
+
+    def to_control(self):
+        """The fitted model's rational part as a continuous ``control.TransferFunction``; python-control has no
+        input delay, so the delay is :attr:`delay_s`: ``tune(res.to_control(), delay=res.delay_s, ...)``."""
+        import control
+
+        num, den = self.model.tf()
+        return control.tf(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
+
     def describe(self) -> str:
         return self.plant().describe()
 

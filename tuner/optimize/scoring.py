@@ -55,10 +55,10 @@ def objective_value(a: Analysis, spec: Spec) -> float:
     if spec.objective == "itae":  # of the reference step
         return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
     # iae: integral of |y| after a unit step load disturbance at the plant input, on the same horizon;
-    # ie: the signed integral (= 1/Ki for a loop with integral action once settled: MIGO maximises Ki)
+    # ie: |the signed integral| (= 1/Ki for a loop with integral action once settled: MIGO maximises Ki)
     d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
     if spec.objective == "ie":
-        return float(np.trapezoid(d.y, d.t))
+        return abs(float(np.trapezoid(d.y, d.t)))
     return float(np.trapezoid(np.abs(d.y), d.t))
 
 

@@ -235,8 +235,7 @@ def _evaluate_and_plot(study: Any, lp: Any, ctrls: dict[str, Any], inner_bw: flo
     if plots_dir is not None:
         from ..analysis.plots import loop_plots
 
-        figs = loop_plots(e.nominal, plots_dir, lp.name, band_pct=e.loop.spec.settling_band_pct,
-                          overshoot_max_pct=e.loop.spec.overshoot_max_pct, cascade=e.cascade)
+        figs = loop_plots(e, plots_dir, lp.name)  # every plant of the loop, the cascade's between samples
     return e, figs
 
 

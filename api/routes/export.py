@@ -1,0 +1,62 @@
+"""``GET /tunes/{id}/export``: a stored result's controller as C99, a Python class or its difference equation."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import APIRouter, Depends, Query
+from fastapi.responses import PlainTextResponse, Response
+
+from tuner.errors import TunerError
+
+from ..convert import FieldError, error_type
+from ..deps import get_store
+from ..store import Store
+from .tunes import NOT_FOUND, TuneId, _record
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/tunes", tags=["results"])
+
+_DOC = ("The stored controller as it runs on the target, in direct form II transposed, double precision: `c` is "
+        "C99 (`N_state`, `void N_init(N_state *s)`, `double N_update(N_state *s, double e)` returning u), "
+        "`python` a standalone class `N` with `update(e)`, `text` the difference equation. e = r - y. A result "
+        "tuned at a sample time is exported as it is; a continuous one needs `dt` and is discretised by `method` "
+        "(`tustin`, `zoh`, or `structure`: the structure's own discretisation). `u_min`/`u_max` clamp the output; "
+        "a controller with integral action then gets anti-windup by conditional integration (the integrator, "
+        "split off by partial fractions, is held while integrating would drive the saturated output further). "
+        "The header of the text says all of this. 422 (with `loc`) for a bad format, name, dt, method or limits.")
+_SUFFIX = {"c": "c", "python": "py", "text": "txt"}
+_QUERY = {"name", "dt", "method", "u_min", "u_max", "format"}
+
+
+@router.get("/{tune_id}/export", response_class=Response, summary="A stored controller as code", description=_DOC,
+            responses={**NOT_FOUND, 200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
+async def export_tune(
+    tune_id: str = TuneId,
+    format: Literal["c", "python", "text"] = Query(..., description="c, python or text"),
+    name: str = Query("controller", min_length=1, max_length=56, description="a C identifier: N_state, N_init, "
+                      "N_update, and the Python class"),
+    dt: float | None = Query(None, description="sample time, s: needed for a continuous result"),
+    method: Literal["tustin", "zoh", "structure"] = Query("tustin", description="discretisation of a continuous "
+                                                                                 "result"),
+    u_min: float | None = Query(None, description="lower output limit"),
+    u_max: float | None = Query(None, description="upper output limit"),
+    store: Store = Depends(get_store),
+) -> PlainTextResponse:
+    from tuner.export import check_name, equation_of, render
+
+    try:
+        check_name(name)
+    except TunerError as e:
+        raise FieldError(("query", "name"), str(e), type=error_type(e)) from None
+    rec = await _record(store, tune_id)
+    try:
+        de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max)
+        text = render(de, format, name)
+    except TunerError as e:
+        f = str(e.field[0]) if e.field else ""
+        if f not in _QUERY:  # the stored controller with these limits (the only choice left to the caller)
+            f = "u_min" if u_min is not None else "u_max" if u_max is not None else "dt"
+        raise FieldError(("query", f), str(e), type=error_type(e)) from None
+    return PlainTextResponse(text, headers={"Content-Disposition": f'inline; filename="{name}.{_SUFFIX[format]}"'})

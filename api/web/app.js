@@ -1,0 +1,605 @@
+// tuner's page. Plain JavaScript, no library. The form's state lives in the URL (?plant=...&dt=...&structure=...;
+// run=1 runs the tune on open, id=ID shows a stored result); the API's 422 details are shown at the field their
+// loc names; the API key is kept in sessionStorage and sent as X-API-Key.
+"use strict";
+
+const CONFIG = JSON.parse(document.getElementById("config").textContent);
+const $ = (sel, root = document) => root.querySelector(sel);
+const $$ = (sel, root = document) => Array.from(root.querySelectorAll(sel));
+const form = $("#tune-form");
+const SPEC = Object.keys(CONFIG.spec_defaults);
+const ROLL = { plant: "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", dt: "0.04", structure: "pid_z" };
+const HIST = 10;
+const KEY = "tuner.apiKey";
+const state = { id: null, running: null, urls: [], histOffset: 0, exportFormat: "c" };
+
+// -- talking to the service ----------------------------------------------------------------------
+
+async function api(path, { method = "GET", json, signal } = {}) {
+  const headers = {};
+  const key = sessionStorage.getItem(KEY);
+  if (key) headers["X-API-Key"] = key;
+  let body;
+  if (json !== undefined) { headers["Content-Type"] = "application/json"; body = JSON.stringify(json); }
+  const r = await fetch(path, { method, headers, body, signal });
+  if (r.status === 401) keyState("the service needs an API key (missing or wrong): enter it above", true);
+  return r;
+}
+
+async function answer(r) {
+  const type = r.headers.get("content-type") || "";
+  if (type.includes("json")) return r.json();
+  return { detail: `${r.status} ${r.statusText}: ${(await r.text()).slice(0, 300)}` };
+}
+
+function detailText(d) {
+  if (typeof d.detail === "string") return d.detail;
+  return JSON.stringify(d.detail ?? d);
+}
+
+function keyState(text, bad = false) {
+  const el = $("#key-state");
+  el.textContent = text;
+  el.className = bad ? "err" : "hint";
+  if (bad) $("#api-key").focus();
+}
+
+// -- numbers -------------------------------------------------------------------------------------
+
+function fmt(v) {
+  if (v === "Infinity" || v === Infinity) return "∞";
+  if (v === "-Infinity" || v === -Infinity) return "−∞";
+  if (v === "NaN" || v === null || v === undefined || Number.isNaN(v)) return "—";
+  if (typeof v === "boolean") return v ? "yes" : "no";
+  if (typeof v === "number") return Number.isInteger(v) && Math.abs(v) < 1e6 ? String(v) : String(Number(v.toPrecision(4)));
+  return String(v);
+}
+
+function label(name) {
+  const units = [["_rad_s", " [rad/s]"], ["_deg", " [deg]"], ["_db", " [dB]"], ["_pct", " [%]"], ["_s", " [s]"]];
+  let unit = "";
+  for (const [suffix, u] of units) {
+    if (name.endsWith(suffix)) { name = name.slice(0, -suffix.length); unit = u; break; }
+  }
+  const short = { ms: "Ms", mt: "Mt", mks: "Mks" };
+  return (short[name] || name.replaceAll("_", " ")) + unit;
+}
+
+const OPS = { ">=": "≥", "<=": "≤", "==": "=", "<": "<", ">": ">" };
+
+// -- the form and the URL ------------------------------------------------------------------------
+
+function field(name) { return form.elements.namedItem(name); }
+
+function mode() { return form.elements.pmode.value; }
+
+function setMode(m) {
+  form.elements.pmode.value = m;
+  for (const el of $$(".mode", form)) el.hidden = el.dataset.mode !== m;
+}
+
+function defaults() {
+  const d = { var: "s", budget: String(CONFIG.default_budget_s), seed: "0" };
+  for (const k of SPEC) {
+    const v = CONFIG.spec_defaults[k];
+    d[k] = v === null ? "" : typeof v === "boolean" ? (v ? "1" : "0") : String(v);
+  }
+  return d;
+}
+
+const NAMES = ["plant", "num", "den", "var", "delay", "dt", "structure", ...SPEC, "budget", "seed"];
+
+function readForm() {
+  const out = {};
+  for (const n of NAMES) {
+    const el = field(n);
+    out[n] = el.type === "checkbox" ? (el.checked ? "1" : "0") : el.value.trim();
+  }
+  out.plants = field("plants").value.split("\n").map((s) => s.trim()).filter(Boolean);
+  return out;
+}
+
+function writeForm(values) {
+  const d = defaults();
+  for (const n of NAMES) {
+    const el = field(n);
+    const v = values[n] ?? d[n] ?? "";
+    if (el.type === "checkbox") el.checked = v === "1" || v === "true" || v === true;
+    else el.value = v;
+  }
+  field("plants").value = (values.plants || []).join("\n");
+  $("#robust").open = (values.plants || []).length > 0;
+  setMode(values.num || values.den ? "coeffs" : "expr");
+  syncSliders();
+  structureHint();
+}
+
+function formParams(extra = {}) {
+  const f = readForm();
+  const d = defaults();
+  const p = new URLSearchParams();
+  const m = mode();
+  for (const n of NAMES) {
+    if ((n === "plant" && m !== "expr") || ((n === "num" || n === "den" || n === "var") && m !== "coeffs")) continue;
+    if (f[n] !== "" && f[n] !== d[n]) p.set(n, f[n]);
+  }
+  for (const x of f.plants) p.append("plants", x);
+  for (const [k, v] of Object.entries(extra)) if (v !== null && v !== undefined) p.set(k, v);
+  return p;
+}
+
+function fromParams(p) {
+  const v = {};
+  for (const n of NAMES) if (p.has(n)) v[n] = p.get(n);
+  v.plants = p.getAll("plants");
+  return v;
+}
+
+function syncURL(extra = {}) {
+  const q = formParams(extra).toString();
+  history.replaceState(null, "", q ? `/?${q}` : "/");
+}
+
+function syncSliders() {
+  for (const r of $$("input[type=range][data-sync]", form)) {
+    const v = Number(field(r.dataset.sync).value);
+    if (field(r.dataset.sync).value !== "" && Number.isFinite(v)) r.value = v;
+  }
+}
+
+function structureHint() {
+  const s = CONFIG.structures.find((x) => x.name === field("structure").value);
+  $("#structure-params").textContent = s ? `gains: ${s.params.join(", ")}${s.discrete_only ? " (needs dt)" : ""}` : "";
+}
+
+// -- errors at their fields ----------------------------------------------------------------------
+
+function clearErrors(root) {
+  for (const el of $$(".invalid", root)) el.classList.remove("invalid");
+  for (const el of $$(".err", root)) el.textContent = "";
+  for (const el of $$(".err-general", root)) { el.textContent = ""; el.hidden = true; }
+}
+
+function errorSlot(el) {
+  let slot = el.querySelector(":scope > .err");
+  if (!slot) { slot = document.createElement("div"); slot.className = "err"; el.append(slot); }
+  return slot;
+}
+
+// Each item {loc, msg}: shown at the element whose data-loc is the longest prefix of loc (without "body").
+function showErrors(root, items, general) {
+  const targets = $$("[data-loc]", root);
+  const left = [];
+  for (const it of items) {
+    const key = (it.loc || []).filter((x, i) => !(i === 0 && x === "body")).join(".");
+    let best = null, bestLen = -1;
+    for (const el of targets) {
+      for (const t of el.dataset.loc.split(" ")) {
+        if ((key === t || key.startsWith(t + ".")) && t.length > bestLen && !el.closest("[hidden]")) { best = el; bestLen = t.length; }
+      }
+    }
+    if (best) {
+      best.classList.add("invalid");
+      const slot = errorSlot(best);
+      slot.textContent = (slot.textContent ? slot.textContent + "; " : "") + it.msg;
+    } else left.push(`${key || "request"}: ${it.msg}`);
+  }
+  if (left.length) { general.textContent = left.join("\n"); general.hidden = false; }
+  const first = $(".invalid input, .invalid select, .invalid textarea", root) || $(".invalid", root);
+  if (first && first.focus) first.focus();
+}
+
+function showGeneral(el, text) { el.textContent = text; el.hidden = false; }
+
+// -- building the request ------------------------------------------------------------------------
+
+function number(text, loc, errs, { int = false } = {}) {
+  if (text === "") return undefined;
+  const v = Number(text);
+  if (!Number.isFinite(v) || (int && !Number.isInteger(v))) { errs.push({ loc, msg: `not ${int ? "an integer" : "a number"}: ${text}` }); return undefined; }
+  return v;
+}
+
+function numbers(text, loc, errs) {
+  const parts = text.split(/[\s,;]+/).filter(Boolean);
+  if (!parts.length) { errs.push({ loc, msg: "give the coefficients, highest power first" }); return undefined; }
+  const out = [];
+  parts.forEach((t, i) => {
+    const v = Number(t);
+    if (Number.isFinite(v)) out.push(v); else errs.push({ loc: [...loc, i], msg: `coefficient ${i + 1} is not a number: ${t}` });
+  });
+  return out;
+}
+
+function tuneBody() {
+  const f = readForm();
+  const errs = [];
+  const dt = number(f.dt, ["body", "dt"], errs);
+  const delay = number(f.delay, ["body", "plant", "delay"], errs);
+  const plant = {};
+  if (mode() === "csv") errs.push({ loc: ["body", "input"], msg: "identify the log first (or enter the plant)" });
+  if (mode() === "coeffs") {
+    plant.num = numbers(f.num, ["body", "plant", "num"], errs);
+    plant.den = numbers(f.den, ["body", "plant", "den"], errs);
+    if (f.var === "z") plant.dt = dt ?? null;
+  } else if (f.plant) {
+    plant.expr = f.plant;
+    if (/z/.test(f.plant)) plant.dt = dt ?? null;
+  }
+  if (delay !== undefined) plant.delay = delay;
+  const spec = {};
+  for (const k of SPEC) {
+    const el = field(k);
+    if (el.type === "checkbox") spec[k] = el.checked;
+    else if (el.tagName === "SELECT") spec[k] = f[k];
+    else { const v = number(f[k], ["body", "spec", k], errs); if (v !== undefined) spec[k] = v; }
+  }
+  const body = { plant, dt: dt ?? null, structure: f.structure, spec,
+                 options: { seed: number(f.seed, ["body", "options", "seed"], errs, { int: true }) ?? 0 } };
+  const budget = number(f.budget, ["body", "options", "time_budget_s"], errs);
+  if (budget !== undefined) body.options.time_budget_s = budget;
+  if (f.plants.length) {
+    body.plants = f.plants.map((e) => {
+      const p = { expr: e };
+      if (/z/.test(e)) p.dt = dt ?? null;
+      if (delay !== undefined) p.delay = delay;
+      return p;
+    });
+  }
+  return { body, errs, budget: budget ?? CONFIG.default_budget_s };
+}
+
+// -- running a tune ------------------------------------------------------------------------------
+
+function busy(on, budget = 0) {
+  $("#run-btn").disabled = on;
+  $("#cancel-btn").hidden = !on;
+  const el = $("#progress");
+  clearInterval(state.ticker);
+  if (!on) return;
+  const t0 = performance.now();
+  el.innerHTML = '<span class="spinner"></span><span id="elapsed">tuning… 0.0 s</span> <progress></progress>';
+  const bar = $("progress", el);
+  bar.max = budget;
+  state.ticker = setInterval(() => {
+    const s = (performance.now() - t0) / 1000;
+    $("#elapsed").textContent = `tuning… ${s.toFixed(1)} s of a ${fmt(budget)} s budget`;
+    bar.value = Math.min(s, budget);
+  }, 100);
+}
+
+async function runTune() {
+  clearErrors(form);
+  const { body, errs, budget } = tuneBody();
+  if (errs.length) { showErrors(form, errs, $("#form-error")); return; }
+  syncURL();
+  const ctl = new AbortController();
+  state.running = ctl;
+  busy(true, budget);
+  try {
+    const r = await api("/tune", { method: "POST", json: body, signal: ctl.signal });
+    const d = await answer(r);
+    busy(false);
+    if (r.status === 422 && Array.isArray(d.detail)) {
+      $("#progress").textContent = "the input needs a change (see the marked fields)";
+      showErrors(form, d.detail, $("#form-error"));
+      return;
+    }
+    if (!r.ok) { $("#progress").textContent = ""; showGeneral($("#form-error"), `${r.status}: ${detailText(d)}`); return; }
+    $("#progress").textContent = `done in ${fmt(d.solver?.wall_time_s)} s`;
+    showResult(d);
+    syncURL({ id: d.id });
+    loadHistory(0);
+  } catch (e) {
+    busy(false);
+    if (e.name === "AbortError") $("#progress").textContent = "cancelled: the server stops the solve";
+    else showGeneral($("#form-error"), `could not reach the service: ${e.message}`);
+  } finally {
+    state.running = null;
+  }
+}
+
+// -- showing a result ----------------------------------------------------------------------------
+
+function cell(tr, text, cls) { const td = tr.insertCell(); td.textContent = text; if (cls) td.className = cls; return td; }
+
+function table(el, rows) {
+  el.replaceChildren();
+  for (const [k, v] of rows) { const tr = el.insertRow(); cell(tr, k); cell(tr, v, "num"); }
+}
+
+function polynomial(c) { return `[${c.map((x) => fmt(x)).join(", ")}]`; }
+
+function showResult(d) {
+  state.id = d.id;
+  $("#result").hidden = false;
+  $("#result-link").href = `/?id=${encodeURIComponent(d.id)}`;
+  const v = $("#verdict");
+  const several = (d.plants || []).length > 1;
+  v.textContent = d.meets_spec ? (several ? `meets spec on all ${d.plants.length} plants` : "meets spec")
+    : `does NOT meet spec: failing ${d.failing.map(label).join(", ")}`;
+  v.className = d.meets_spec ? "ok" : "bad";
+  table($("#gains"), Object.entries(d.gains).map(([k, x]) => [k, fmt(x)]));
+  const c = d.controller;
+  $("#controller-tf").textContent = `C(${c.dt ? "z" : "s"}) = ${polynomial(c.num)} / ${polynomial(c.den)}` + (c.dt ? `, dt = ${c.dt} s` : "");
+  const body = $("#checks tbody");
+  body.replaceChildren();
+  for (const ch of d.checks) {
+    const tr = body.insertRow();
+    cell(tr, label(ch.name));
+    cell(tr, `${OPS[ch.op] || ch.op} ${fmt(ch.required)}`, "num");
+    cell(tr, fmt(ch.achieved), "num");
+    cell(tr, ch.ok ? "✓ met" : "✗ not met", ch.ok ? "met" : "unmet");
+  }
+  const members = $("#members");
+  members.replaceChildren();
+  if (several) {
+    const t = document.createElement("table");
+    d.plants.forEach((p, i) => {
+      const tr = t.insertRow();
+      cell(tr, i === 0 ? "nominal" : `plant ${i + 1}`);
+      const bad = p.checks.filter((x) => !x.ok).map((x) => label(x.name));
+      cell(tr, p.meets_spec ? "✓ meets spec" : `✗ ${bad.join(", ")}`, p.meets_spec ? "met" : "unmet");
+    });
+    members.append(t);
+  }
+  table($("#metrics"), Object.entries(d.metrics).map(([k, x]) => [label(k), fmt(x)]));
+  const s = d.solver || {};
+  $("#solver").textContent = `${s.method || "solver"}: ${fmt(s.wall_time_s)} s, seed ${fmt(s.seed)}` +
+    (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "");
+  showPlots(d.id);
+  $("#export-ct").hidden = Boolean(c.dt);
+  loadExport();
+}
+
+async function showPlots(id) {
+  for (const u of state.urls) URL.revokeObjectURL(u);
+  state.urls = [];
+  await Promise.all($$("#plots figure").map(async (fig) => {
+    const img = $("img", fig);
+    img.removeAttribute("src");
+    fig.classList.remove("ready");
+    const r = await api(`/tunes/${encodeURIComponent(id)}/plot.svg?kind=${fig.dataset.kind}`);
+    if (!r.ok) { img.alt = `plot unavailable (${r.status})`; return; }
+    const url = URL.createObjectURL(await r.blob());
+    state.urls.push(url);
+    img.src = url;
+    $("a", fig).href = url;
+    await img.decode().catch(() => {});
+    fig.classList.add("ready");
+  }));
+}
+
+const SUFFIX = { c: "c", python: "py", text: "txt" };
+
+async function loadExport() {
+  if (!state.id) return;
+  const f = state.exportFormat;
+  const root = $("#export");
+  clearErrors(root);
+  for (const b of $$(".tabs button[data-format]", root)) b.classList.toggle("on", b.dataset.format === f);
+  const name = $("#export-name").value.trim() || "controller";
+  const q = new URLSearchParams({ format: f, name });
+  const continuous = !$("#export-ct").hidden;
+  if (continuous) {
+    if ($("#export-dt").value) q.set("dt", $("#export-dt").value);
+    q.set("method", $("#export-method").value);
+  }
+  if ($("#export-umin").value) q.set("u_min", $("#export-umin").value);
+  if ($("#export-umax").value) q.set("u_max", $("#export-umax").value);
+  const pre = $("#export-code");
+  const link = $("#export-download");
+  pre.textContent = continuous && !q.has("dt") ? "a continuous controller: give the sample time dt to export it" : "…";
+  link.removeAttribute("href");
+  if (continuous && !q.has("dt")) return;
+  const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
+  if (r.ok) {
+    const text = await r.text();
+    pre.textContent = text;
+    if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
+    state.exportUrl = URL.createObjectURL(new Blob([text], { type: "text/plain" }));
+    link.href = state.exportUrl;
+    link.download = `${name}.${SUFFIX[f]}`;
+    return;
+  }
+  const d = await answer(r);
+  pre.textContent = "";
+  if (r.status === 422 && Array.isArray(d.detail)) showErrors(root, d.detail, $("#export-error"));
+  else showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
+}
+
+async function loadStored(id) {
+  const r = await api(`/tunes/${encodeURIComponent(id)}`);
+  const d = await answer(r);
+  if (!r.ok) { showGeneral($("#form-error"), `stored result ${id}: ${r.status}: ${detailText(d)}`); return; }
+  writeForm(fromRequest(d.request || {}));
+  showResult(d);
+  syncURL({ id: d.id });
+}
+
+function fromRequest(q) {
+  const v = {};
+  const p = q.plant || {};
+  if (p.expr) v.plant = p.expr;
+  else if (p.num) { v.num = p.num.join(", "); v.den = p.den.join(", "); v.var = p.dt ? "z" : "s"; }
+  if (p.delay) v.delay = String(p.delay);
+  if (q.dt) v.dt = String(q.dt);
+  v.structure = q.structure;
+  for (const [k, x] of Object.entries(q.spec || {})) v[k] = x === null ? "" : typeof x === "boolean" ? (x ? "1" : "0") : String(x);
+  if (q.options) { v.seed = String(q.options.seed ?? 0); if (q.options.time_budget_s) v.budget = String(q.options.time_budget_s); }
+  v.plants = (q.plants || []).filter((x) => x.expr).map((x) => x.expr);
+  return v;
+}
+
+// -- history -------------------------------------------------------------------------------------
+
+async function loadHistory(offset) {
+  const body = $("#history-table tbody");
+  const r = await api(`/tunes?limit=${HIST}&offset=${offset}`);
+  const d = await answer(r);
+  if (!r.ok) { body.replaceChildren(); const tr = body.insertRow(); cell(tr, `${r.status}: ${detailText(d)}`); return; }
+  state.histOffset = d.offset;
+  body.replaceChildren();
+  for (const it of d.items) {
+    const tr = body.insertRow();
+    cell(tr, new Date(it.created_at).toLocaleString());
+    cell(tr, it.structure);
+    cell(tr, it.meets_spec ? "✓ meets spec" : "✗ not met", it.meets_spec ? "met" : "unmet");
+    const a = document.createElement("a");
+    a.href = `/?id=${encodeURIComponent(it.id)}`;
+    a.textContent = it.id.slice(0, 10);
+    a.title = it.id;
+    tr.insertCell().append(a);
+  }
+  const last = d.offset + d.items.length;
+  $("#hist-range").textContent = d.total ? `${d.offset + 1}–${last} of ${d.total}` : "none yet";
+  $("#hist-prev").disabled = d.offset === 0;
+  $("#hist-next").disabled = last >= d.total;
+}
+
+// -- identification from a CSV log ---------------------------------------------------------------
+
+const csv = { names: [], rows: [] };
+
+function parseCSV(text) {
+  const lines = text.split(/\r?\n/).filter((l) => l.trim() && !l.startsWith("#"));
+  const sep = [",", ";", "\t"].find((s) => lines[0].includes(s)) || /\s+/;
+  const split = (l) => l.split(sep).map((x) => x.trim());
+  const first = split(lines[0]);
+  const header = first.some((x) => x !== "" && !Number.isFinite(Number(x)));
+  const names = header ? first : first.map((_, i) => `column ${i + 1}`);
+  return { names, rows: (header ? lines.slice(1) : lines).map(split) };
+}
+
+function options(sel, names, pick, none) {
+  sel.replaceChildren();
+  if (none) sel.append(new Option(none, ""));
+  names.forEach((n, i) => sel.append(new Option(n, String(i))));
+  sel.value = pick < 0 ? "" : String(pick);
+}
+
+async function loadCSV(file) {
+  clearErrors($("#ident"));
+  const parsed = parseCSV(await file.text());
+  Object.assign(csv, parsed);
+  const find = (re) => parsed.names.findIndex((n) => re.test(n));
+  const t = find(/^(t|time)\b/i);
+  const rest = parsed.names.map((_, i) => i).filter((i) => i !== t);
+  const inp = find(/(cmd|input|^u$)/i) >= 0 ? find(/(cmd|input|^u$)/i) : rest[0] ?? 0;
+  const out = rest.find((i) => i !== inp) ?? 0;
+  options($("#col-time"), parsed.names, t, "none (rate = 1/dt)");
+  options($("#col-input"), parsed.names, inp);
+  options($("#col-output"), parsed.names, out);
+  $("#csv-columns").hidden = false;
+  $("#csv-info").textContent = `${parsed.rows.length} rows, ${parsed.names.length} columns`;
+}
+
+function column(sel, errs) {
+  const i = Number(sel.value);
+  const out = [];
+  csv.rows.forEach((r, k) => {
+    const v = Number(r[i]);
+    if (!Number.isFinite(v) && errs.length < 3) errs.push({ loc: ["body", "input"], msg: `row ${k + 1}, ${csv.names[i]}: not a number: ${r[i]}` });
+    out.push(v);
+  });
+  return out;
+}
+
+async function identify() {
+  const root = $("#ident");
+  clearErrors(root);
+  $("#ident-result").hidden = true;
+  const errs = [];
+  const body = { input: column($("#col-input"), errs), output: column($("#col-output"), errs),
+                 poles: number($("#id-poles").value, ["body", "poles"], errs, { int: true }) ?? 2,
+                 zeros: number($("#id-zeros").value, ["body", "zeros"], errs, { int: true }) ?? 0 };
+  const dt = Number(field("dt").value) || null;
+  body.delay = $("#id-delay").checked ? "auto" : null;
+  if ($("#id-delay").checked && dt) body.delay_step = dt;
+  if ($("#col-time").value !== "") body.time = column($("#col-time"), errs);
+  else if (dt) body.rate_hz = 1 / dt;
+  else errs.push({ loc: ["body", "rate_hz"], msg: "choose the time column, or give dt (the log's sample time)" });
+  if (errs.length) { showErrors(root, errs, $("#ident-out")); return; }
+  const btn = $("#identify-btn");
+  btn.disabled = true;
+  $("#csv-info").innerHTML = '<span class="spinner"></span> identifying…';
+  try {
+    const r = await api("/identify", { method: "POST", json: body });
+    const d = await answer(r);
+    $("#csv-info").textContent = "";
+    if (r.status === 422 && Array.isArray(d.detail)) { showErrors(root, d.detail, $("#ident-out")); return; }
+    if (!r.ok) { showGeneral($("#ident-out"), `${r.status}: ${detailText(d)}`); return; }
+    const m = d.model;
+    writeForm({ ...readForm(), plant: "", num: m.num.map((x) => String(Number(x.toPrecision(8)))).join(", "),
+                den: m.den.map((x) => String(Number(x.toPrecision(8)))).join(", "), var: "s",
+                delay: m.delay ? String(Number(m.delay.toPrecision(6))) : "", plants: readForm().plants });
+    const res = $("#ident-result");
+    res.hidden = false;
+    res.replaceChildren();
+    const p = document.createElement("p");
+    p.textContent = `identified (${d.quality}, J = ${fmt(d.cost)}): ${d.verdict}` + (d.warnings.length ? ` — ${d.warnings.join("; ")}` : "") +
+      ". The plant below is the fitted model.";
+    res.append(p);
+    const pr = await api(`/identifications/${encodeURIComponent(d.id)}/plot.svg`);
+    if (pr.ok) { const img = document.createElement("img"); img.alt = "identification fit"; img.src = URL.createObjectURL(await pr.blob()); img.className = "fit"; res.append(img); }
+    syncURL();
+  } finally {
+    btn.disabled = false;
+  }
+}
+
+// -- wiring --------------------------------------------------------------------------------------
+
+function init() {
+  const sel = field("structure");
+  for (const s of CONFIG.structures) sel.append(new Option(`${s.name} (${s.params.join(", ")})`, s.name));
+  const obj = field("objective");
+  for (const o of CONFIG.objectives) obj.append(new Option(o.replaceAll("_", " "), o));
+  for (const k of SPEC) { const el = field(k); if (el && CONFIG.spec_help[k]) el.closest(".field").title = CONFIG.spec_help[k]; }
+  const range = $("input[type=range][data-sync=budget]");
+  range.max = CONFIG.max_budget_s;
+  field("budget").max = CONFIG.max_budget_s;
+
+  const params = new URLSearchParams(location.search);
+  const given = fromParams(params);
+  const empty = !NAMES.some((n) => params.has(n)) && !params.has("id");
+  writeForm(empty ? { ...ROLL } : given);
+
+  form.addEventListener("input", (e) => {
+    const t = e.target;
+    if (t.dataset.sync) { field(t.dataset.sync).value = t.value; }
+    else syncSliders();
+    if (t.name === "structure") structureHint();
+    if (t.name !== "pmode" && t.type !== "file") syncURL();
+  });
+  for (const r of $$("input[name=pmode]")) r.addEventListener("change", () => { setMode(mode()); syncURL(); });
+  form.addEventListener("submit", (e) => { e.preventDefault(); runTune(); });
+  $("#cancel-btn").addEventListener("click", () => state.running?.abort());
+  $("#share-btn").addEventListener("click", async () => {
+    const url = `${location.origin}/?${formParams({ run: "1" })}`;
+    try { await navigator.clipboard.writeText(url); $("#progress").textContent = "link copied (it runs the tune when opened)"; }
+    catch { $("#progress").textContent = url; }
+  });
+  $("#csv-file").addEventListener("change", (e) => { if (e.target.files[0]) loadCSV(e.target.files[0]); });
+  $("#identify-btn").addEventListener("click", identify);
+  for (const b of $$("#export .tabs button[data-format]")) b.addEventListener("click", () => { state.exportFormat = b.dataset.format; loadExport(); });
+  for (const id of ["#export-name", "#export-dt", "#export-method", "#export-umin", "#export-umax"]) $(id).addEventListener("change", loadExport);
+  $("#export-copy").addEventListener("click", () => navigator.clipboard?.writeText($("#export-code").textContent));
+  $("#hist-prev").addEventListener("click", () => loadHistory(Math.max(0, state.histOffset - HIST)));
+  $("#hist-next").addEventListener("click", () => loadHistory(state.histOffset + HIST));
+  $("#key-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    const v = $("#api-key").value.trim();
+    if (v) sessionStorage.setItem(KEY, v); else sessionStorage.removeItem(KEY);
+    keyState(v ? "key set for this tab" : "no key");
+    loadHistory(state.histOffset);
+  });
+  if (sessionStorage.getItem(KEY)) keyState("key set for this tab");
+  else if (CONFIG.api_key_required) keyState("this service needs an API key", true);
+
+  loadHistory(0);
+  if (params.get("run") === "1") runTune();
+  else if (params.get("id")) loadStored(params.get("id"));
+}
+
+init();

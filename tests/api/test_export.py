@@ -1,0 +1,112 @@
+"""``GET /tunes/{id}/export``: a stored result's controller as C, Python or text (issue 14).
+
+Results are put in the store directly (the route reads what ``POST /tune`` stores: the tune result's
+``structure``, ``gains`` and ``controller``); one real ``POST /tune`` checks the whole way.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from quadrotor import DT, ROLL
+from scipy import signal
+
+from api.settings import Settings
+from tuner.controllers import controller_tf
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory):
+    db = tmp_path_factory.mktemp("export") / "tuner.db"
+    return Settings(database_url=f"sqlite:///{db}", workers=1, queue_size=4, default_budget_s=1.0, solve_grace_s=5.0)
+
+
+GAINS = {"Kp": 1.2, "Ki": 3.0, "Kd": 0.08, "Tf": 0.02}
+
+
+def stored(client, dt: float | None) -> str:
+    c = controller_tf("pid", GAINS, dt=dt)
+    result = {"structure": "pid", "gains": GAINS, "controller": c.to_dict(), "meets_spec": True}
+    return client.app.state.store.add(request={}, plants=[], result=result).id
+
+
+@pytest.fixture(scope="module")
+def discrete_id(client):
+    return stored(client, 0.01)
+
+
+@pytest.fixture(scope="module")
+def continuous_id(client):
+    return stored(client, None)
+
+
+def test_python_export_of_a_stored_result_runs_as_the_controller(client, discrete_id, tmp_path):
+    r = client.get(f"/tunes/{discrete_id}/export", params={"format": "python", "name": "Pid"})
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"].startswith("text/plain")
+    assert 'filename="Pid.py"' in r.headers["content-disposition"]
+    path = tmp_path / "pid_mod.py"
+    path.write_text(r.text)
+    spec = importlib.util.spec_from_file_location("pid_mod", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    e = np.random.default_rng(1).normal(size=300)
+    c = controller_tf("pid", GAINS, dt=0.01)
+    b = np.concatenate([np.zeros(c.den.size - c.num.size), c.num])
+    inst = mod.Pid()
+    assert_allclose([inst.update(x) for x in e], signal.lfilter(b, c.den, e), rtol=1e-12, atol=1e-12)
+
+
+def test_c_and_text_exports(client, discrete_id):
+    r = client.get(f"/tunes/{discrete_id}/export", params={"format": "c", "name": "roll", "u_min": -1, "u_max": 1})
+    assert r.status_code == 200, r.text
+    assert "double roll_update(roll_state *s, double e)" in r.text and "conditional integration" in r.text
+    r = client.get(f"/tunes/{discrete_id}/export", params={"format": "text"})
+    assert r.status_code == 200 and "u[k] = " in r.text
+
+
+def test_a_continuous_result_needs_dt_then_is_discretised_as_stated(client, continuous_id):
+    r = client.get(f"/tunes/{continuous_id}/export", params={"format": "text"})
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["loc"] == ["query", "dt"]
+    r = client.get(f"/tunes/{continuous_id}/export", params={"format": "text", "dt": 0.01, "method": "structure"})
+    assert r.status_code == 200 and "backward Euler" in r.text
+    # the structure's own discretisation: the same coefficients as the pid at dt
+    c = controller_tf("pid", GAINS, dt=0.01)
+    assert repr(float(c.num[0])) in r.text
+
+
+@pytest.mark.parametrize("params, loc", [
+    ({"format": "fortran"}, ["query", "format"]),
+    ({}, ["query", "format"]),
+    ({"format": "c", "name": "9lives"}, ["query", "name"]),
+    ({"format": "c", "name": "int"}, ["query", "name"]),
+    ({"format": "c", "u_min": 2, "u_max": 1}, ["query", "u_min"]),
+    ({"format": "c", "dt": 0.02}, ["query", "dt"]),
+    ({"format": "c", "method": "euler"}, ["query", "method"]),
+])
+def test_bad_query_is_422_with_loc(client, discrete_id, params, loc):
+    r = client.get(f"/tunes/{discrete_id}/export", params=params)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == loc
+    assert "Traceback" not in r.text
+
+
+def test_unknown_id_is_404(client):
+    r = client.get("/tunes/0123456789abcdef0123456789abcdef/export", params={"format": "c"})
+    assert r.status_code == 404
+
+
+def test_export_of_a_real_tune(client):
+    r = client.post("/tune", json={"plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z",
+                                   "options": {"seed": 0, "time_budget_s": 1.0}})
+    assert r.status_code == 200, r.text
+    res = r.json()
+    t = client.get(f"/tunes/{res['id']}/export", params={"format": "text", "name": "roll"})
+    assert t.status_code == 200
+    k = res["gains"]["K"]
+    assert f"u[k] = {float(k)!r} * e[k]" in t.text  # b0 = K of K (z^2 + a1 z + a2)/(z (z - 1))
+    assert "/tunes/{tune_id}/export" in client.get("/openapi.json").json()["paths"]

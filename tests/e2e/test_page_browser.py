@@ -1,0 +1,276 @@
+"""The browser page (``GET /``) in real headless Chromium against a real uvicorn server.
+
+Chromium is Debian's ``chromium`` package (``/usr/bin/chromium``; ``.ci/run`` installs it), driven by
+Playwright's Python bindings pointed at that executable: no browser is downloaded. Every request the
+page makes must go to the service itself (or be a ``blob:`` of a plot it fetched): no outside assets.
+
+A screenshot of the roll loop's result is written to ``$TUNER_PAGE_SCREENSHOT`` (default: the test's
+temporary directory).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+from urllib.parse import parse_qs, urlencode, urlparse
+
+import httpx
+import pytest
+from quadrotor import DT, ROLL, YAW
+from uvicorn_server import ROOT, serving
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+CHROMIUM = "/usr/bin/chromium"
+SLOW_PLANTS = [f"{k}/(s+1)^6" for k in (0.7, 0.8, 0.9, 1.1, 1.2, 1.3, 1.4, 1.5)]  # a robust lead-lag: a long solve
+
+
+@pytest.fixture(scope="module")
+def sync_api():
+    if not Path(CHROMIUM).exists():
+        message = f"{CHROMIUM} is missing: apt-get install -y chromium"
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+    return pytest.importorskip("playwright.sync_api")
+
+
+@pytest.fixture(scope="module")
+def browser(sync_api):
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("page")
+    env = {"TUNER_DATABASE_URL": f"sqlite:///{tmp / 'tuner.db'}", "TUNER_WORKERS": "2", "TUNER_DEFAULT_BUDGET_S": "3",
+           "TUNER_SOLVE_GRACE_S": "5"}
+    with serving(tmp, env) as s:
+        yield s
+
+
+def open_page(browser, base: str):
+    """A fresh tab; it records page errors and any request that leaves the service."""
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1000})
+    page = ctx.new_page()
+    page.errors, page.outside = [], []
+    page.on("pageerror", lambda e: page.errors.append(str(e)))
+    page.on("request", lambda r: None if r.url.startswith((base, "blob:", "data:")) else page.outside.append(r.url))
+    return ctx, page
+
+
+@pytest.fixture
+def page(browser, server):
+    ctx, pg = open_page(browser, server.url)
+    yield pg
+    ctx.close()
+    assert pg.errors == [] and pg.outside == []
+
+
+def query(page) -> dict[str, list[str]]:
+    return parse_qs(urlparse(page.url).query)
+
+
+def table_rows(locator) -> list[list[str]]:
+    return [[c.strip() for c in row.split("\t")] for row in locator.inner_text().strip().split("\n") if row.strip()]
+
+
+def test_a_run_link_tunes_the_roll_loop_and_shows_gains_verdict_checks_and_plots(page, server, tmp_path, sync_api):
+    expect = sync_api.expect
+    plots = []
+    page.on("response", lambda r: "/plot.svg" in r.url and plots.append(
+        (parse_qs(urlparse(r.url).query)["kind"][0], r.status, r.headers.get("content-type", ""))))
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid_z", "run": 1}))
+    expect(page.locator("#verdict")).to_have_text("meets spec", timeout=90_000)
+    expect(page.locator("#plots figure.ready")).to_have_count(3, timeout=60_000)
+
+    q = query(page)  # the URL now names the stored result (and no longer runs the tune on reload)
+    assert "run" not in q and q["plant"] == [ROLL] and q["structure"] == ["pid_z"]
+    stored = httpx.get(f"{server.url}/tunes/{q['id'][0]}").json()
+    assert stored["meets_spec"] is True and stored["request"]["plant"]["expr"] == ROLL
+    assert stored["request"]["dt"] == DT and stored["request"]["options"]["time_budget_s"] == 3  # the server default
+    gains = {k: float(v) for k, v in table_rows(page.locator("#gains"))}
+    assert set(gains) == {"K", "a1", "a2"}
+    for k, v in stored["gains"].items():
+        assert gains[k] == pytest.approx(v, rel=1e-3, abs=1e-9)  # shown to 4 significant digits
+    checks = table_rows(page.locator("#checks tbody"))
+    assert len(checks) == len(stored["checks"]) and all(row[-1] == "✓ met" for row in checks)
+    assert [r[0] for r in checks][:2] == ["stable", "phase margin [deg]"]
+    assert float(table_rows(page.locator("#metrics"))[1][1]) == pytest.approx(
+        stored["metrics"]["phase_margin_deg"], rel=1e-3)  # phase margin, second metric
+
+    # the plots are the service's SVGs, one per kind, drawn and shown
+    assert sorted(plots) == [(k, 200, "image/svg+xml") for k in ("bode", "nyquist", "step")]
+    for kind in ("step", "bode", "nyquist"):
+        width = page.locator(f"#plots figure[data-kind={kind}] img").evaluate("img => img.naturalWidth")
+        assert width > 300, kind
+    shot = Path(os.environ.get("TUNER_PAGE_SCREENSHOT") or tmp_path / "page.png")
+    page.screenshot(path=str(shot), full_page=True)
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_exported_controller_in_c_and_as_a_difference_equation(page, server, sync_api):
+    expect = sync_api.expect
+    tuned = httpx.post(f"{server.url}/tune", timeout=120, json={
+        "plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z", "options": {"time_budget_s": 1}}).json()
+
+    def exported(fmt: str, name: str) -> str:  # the route's own text, for comparison
+        r = httpx.get(f"{server.url}/tunes/{tuned['id']}/export", params={"format": fmt, "name": name})
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+        return r.text
+
+    page.goto(f"{server.url}/?id={tuned['id']}")  # a stored result opens with its export
+    code = page.locator("#export-code")
+    expect(code).to_contain_text("double controller_update(controller_state *s, double e)", timeout=30_000)
+    assert code.inner_text().strip() == exported("c", "controller").strip()
+    page.click("#export button[data-format=text]")
+    expect(code).to_contain_text("u[k] = ")
+    assert code.inner_text().strip() == exported("text", "controller").strip()
+    page.fill("#export-name", "roll")
+    page.press("#export-name", "Enter")
+    page.click("#export button[data-format=c]")
+    expect(code).to_contain_text("double roll_update(roll_state *s, double e)")
+    page.fill("#export-name", "1roll")  # not a C identifier: the route's 422, at the name field
+    page.press("#export-name", "Tab")
+    expect(page.locator("#export [data-loc='query.name'] .err")).not_to_be_empty()
+    expect(code).to_have_text("")
+
+
+def test_a_bad_expression_is_shown_at_its_field(page, server, sync_api):
+    expect = sync_api.expect
+    page.goto(f"{server.url}/?" + urlencode({"plant": "1/(s+", "dt": DT, "structure": "pid_z"}))
+    page.click("#run-btn")
+    at = page.locator("[data-loc='plant.expr']")
+    expect(at).to_have_class(re.compile(r"\binvalid\b"), timeout=30_000)
+    api = httpx.post(f"{server.url}/tune", json={"plant": {"expr": "1/(s+"}, "dt": DT, "structure": "pid_z"})
+    assert api.status_code == 422
+    (item,) = api.json()["detail"]
+    assert item["loc"] == ["body", "plant", "expr"]
+    expect(at.locator(".err")).to_have_text(item["msg"])  # the API's own message, at the field its loc names
+    expect(page.locator("#form-error")).to_be_hidden()
+    expect(page.locator("#result")).to_be_hidden()
+    assert query(page)["plant"] == ["1/(s+"]  # the URL reproduces the form, error and all
+
+    page.fill("#plant", "1/(s+1)")  # a spec field out of range: the schema's 422, at that field
+    page.fill("#ms_max", "0.5")
+    page.click("#run-btn")
+    expect(page.locator("[data-loc='spec.ms_max'] .err")).to_contain_text("greater than or equal to 1", timeout=30_000)
+    expect(at.locator(".err")).to_be_empty()  # the earlier error is gone
+
+    page.check("input[name=pmode][value=coeffs]")  # coefficients that are not numbers: said at once, at the field
+    page.fill("#num", "1")
+    page.fill("#den", "1, x")
+    page.click("#run-btn")
+    expect(page.locator("[data-loc='plant.den'] .err")).to_have_text("coefficient 2 is not a number: x")
+
+
+def test_a_csv_log_is_identified_into_the_plant(page, server, sync_api):
+    expect = sync_api.expect
+    log = ROOT / "studies" / "data" / "pitch_sweep.csv"
+    page.goto(f"{server.url}/?" + urlencode({"dt": DT, "structure": "pid_z"}))
+    page.check("input[name=pmode][value=csv]")
+    page.set_input_files("#csv-file", str(log))
+    expect(page.locator("#csv-info")).to_have_text("3001 rows, 3 columns")
+    picked = [page.locator(f"#col-{c} option:checked").inner_text() for c in ("time", "input", "output")]
+    assert picked == ["t", "pitch_cmd", "pitch"]  # guessed from the header
+    page.click("#identify-btn")
+    expect(page.locator("#ident-result")).to_contain_text("identified (", timeout=90_000)
+    expect(page.locator("#ident-result img")).to_have_count(1)  # the fit plot
+    assert page.is_checked("input[name=pmode][value=coeffs]")  # the fitted model is now the plant
+
+    rows = [line.split(",") for line in log.read_text().splitlines()[2:]]
+    t, u, y = ([float(r[i]) for r in rows] for i in range(3))
+    api = httpx.post(f"{server.url}/identify", timeout=120, json={
+        "time": t, "input": u, "output": y, "poles": 2, "zeros": 0, "delay": "auto", "delay_step": DT})
+    assert api.status_code == 200, api.text
+    model = api.json()["model"]  # the same record and options through the API: the model the page shows
+    for name in ("num", "den"):
+        shown = [float(x) for x in page.input_value(f"#{name}").split(",")]
+        assert shown == pytest.approx(model[name], rel=1e-7)
+    assert float(page.input_value("#delay") or 0) == pytest.approx(model["delay"], rel=1e-5, abs=1e-12)
+    assert "num" in query(page) and "den" in query(page)
+
+
+def test_history_pages_and_links_to_stored_results(page, server, sync_api):
+    expect = sync_api.expect
+    with httpx.Client(base_url=server.url, timeout=120) as c:
+        for seed in range(12):
+            r = c.post("/tune", json={"plant": {"expr": YAW}, "structure": "pi",
+                                      "options": {"seed": seed, "time_budget_s": 0.5}})
+            assert r.status_code == 200, r.text
+        total = c.get("/tunes", params={"limit": 1}).json()["total"]
+        second = [it["id"] for it in c.get("/tunes", params={"limit": 10, "offset": 10}).json()["items"]]
+    page.goto(server.url + "/")
+    rng, rows = page.locator("#hist-range"), page.locator("#history-table tbody tr")
+    expect(rng).to_have_text(f"1–10 of {total}")
+    expect(rows).to_have_count(10)
+    expect(page.locator("#hist-prev")).to_be_disabled()
+    page.click("#hist-next")
+    expect(rng).to_have_text(f"11–{min(20, total)} of {total}")
+    assert [a.get_attribute("title") for a in page.locator("#history-table tbody a").all()] == second
+    page.click("#hist-prev")
+    expect(rng).to_have_text(f"1–10 of {total}")
+    newest = page.locator("#history-table tbody a").first
+    newest_id = newest.get_attribute("title")
+    newest.click()  # a link to the stored result: it opens with its form and its result
+    expect(page.locator("#verdict")).to_have_text(re.compile("meets spec|does NOT meet spec"), timeout=30_000)
+    assert query(page)["id"] == [newest_id]
+    assert page.input_value("#plant") == YAW and page.input_value("#structure") == "pi"
+    assert page.input_value("#seed") == "11"
+
+
+def test_a_long_tune_shows_progress_and_cancel_stops_its_solver(page, server, sync_api):
+    expect = sync_api.expect
+    q = [("plant", "1/(s+1)^6"), ("delay", "0.5"), *(("plants", p) for p in SLOW_PLANTS),
+         ("structure", "leadlag"), ("budget", "30"), ("run", "1")]
+    before = server.pids()
+    page.goto(f"{server.url}/?{urlencode(q)}")
+    elapsed = page.locator("#elapsed")
+    expect(elapsed).to_contain_text("of a 30 s budget", timeout=10_000)
+    expect(page.locator("#cancel-btn")).to_be_visible()
+    end = time.monotonic() + 20
+    while httpx.get(f"{server.url}/health").json()["workers"]["busy"] == 0:  # a solver has the job
+        assert time.monotonic() < end, "no solver took the job"
+        time.sleep(0.1)
+    first = elapsed.inner_text()
+    expect(elapsed).not_to_have_text(first)  # the elapsed time runs
+    page.click("#cancel-btn")
+    expect(page.locator("#progress")).to_contain_text("cancelled")
+    expect(page.locator("#run-btn")).to_be_enabled()
+    # the server stopped waiting and the solver process was stopped (a process of the service is gone, the
+    # pool replaces it), long before the 30 s budget ended
+    end = time.monotonic() + 15
+    while httpx.get(f"{server.url}/health").json()["workers"]["busy"] or not (before - server.pids()):
+        assert time.monotonic() < end, "the cancelled solve still holds its solver"
+        time.sleep(0.1)
+    assert not page.locator("#result").is_visible()
+
+
+def test_the_api_key_is_entered_once(browser, tmp_path, sync_api):
+    expect = sync_api.expect
+    env = {"TUNER_DATABASE_URL": f"sqlite:///{tmp_path / 'keyed.db'}", "TUNER_WORKERS": "1",
+           "TUNER_API_KEY": "s3cret", "TUNER_DEFAULT_BUDGET_S": "2"}
+    with serving(tmp_path, env) as s:
+        ctx, page = open_page(browser, s.url)
+        try:
+            page.goto(s.url + "/")
+            expect(page.locator("#key-state")).to_contain_text("needs an API key")
+            expect(page.locator("#history-table tbody")).to_contain_text("401")
+            page.fill("#api-key", "s3cret")
+            page.click("#key-form button")
+            expect(page.locator("#hist-range")).to_have_text("none yet")
+            page.click("#run-btn")  # the roll example the page opens with
+            expect(page.locator("#verdict")).to_have_text("meets spec", timeout=90_000)
+            expect(page.locator("#plots figure.ready")).to_have_count(3, timeout=60_000)  # fetched with the key
+            page.reload()  # the same tab: the key is still there, nothing to enter again
+            expect(page.locator("#key-state")).to_have_text("key set for this tab")
+            expect(page.locator("#verdict")).to_have_text("meets spec", timeout=30_000)  # ?id= of the result
+            expect(page.locator("#hist-range")).to_have_text("1–1 of 1")
+            assert page.errors == [] and page.outside == []
+        finally:
+            ctx.close()

@@ -1,0 +1,184 @@
+"""Results that show themselves: a few lines for ``repr``, an HTML summary for Jupyter.
+
+``repr`` of a :class:`~tuner.TuneResult` or an :class:`~tuner.analysis.Analysis`: the structure and
+gains, the verdict (and what fails), the main metrics; a robust tune lists its plants (a few). HTML:
+the same as tables (gains; checks with required / achieved / met, one column per plant) and thumbnails
+of the step response and the Bode plot drawn by :mod:`tuner.analysis.plots` (PNG, base64, no pyplot).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import logging
+import math
+from typing import Any
+
+__all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict"]
+
+log = logging.getLogger(__name__)
+
+_MAX_LISTED = 4  # plants listed in a repr; the rest counted
+
+
+def _g(v: Any, digits: int = 4) -> str:
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, float)):
+        if math.isnan(v):
+            return "n/a"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def metrics_line(a: Any) -> str:
+    """The main metrics of one analysis on one line."""
+    m = a.metrics
+    if not m.stable:
+        return "closed loop UNSTABLE"
+    gm = f"GM {_g(m.gain_margin_db, 3)} dB"
+    if math.isfinite(m.gain_margin_lower_db):
+        gm += f" (lower {_g(m.gain_margin_lower_db, 3)} dB)"
+    return " | ".join([f"PM {_g(m.phase_margin_deg, 3)} deg at {_g(m.crossover_rad_s, 3)} rad/s", gm,
+                       f"overshoot {_g(m.overshoot_pct, 3)} %", f"settling {_g(m.settling_time_s, 3)} s",
+                       f"Ms {_g(m.ms, 3)}", f"peak |u| {_g(m.control_peak, 3)}"])
+
+
+def _failing(analyses: Any) -> list[str]:
+    seen, out = set(), []
+    for a in analyses:
+        for c in a.failing:
+            if c.name not in seen:
+                seen.add(c.name)
+                out.append(f"{c.name} = {_g(c.achieved)} (required {c.op} {_g(c.required)})")
+    return out
+
+
+def verdict(analyses: Any) -> str:
+    fails = _failing(analyses)
+    return "meets the spec" if not fails else "does NOT meet the spec: " + "; ".join(fails)
+
+
+def _loop_kind(a: Any) -> str:
+    lp = a.loop
+    if lp.dt is None:
+        return "continuous loop" + (f", delay {_g(lp.delay_s)} s" if lp.delay_s else "")
+    kind = "discrete plant" if lp.plant.is_discrete else "sampled-data loop (ZOH)"
+    return f"{kind} at dt = {_g(lp.dt)} s" + (f", delay {lp.delay_samples} samples" if lp.delay_samples else "")
+
+
+def _plant_lines(analyses: Any) -> list[str]:
+    n = len(analyses)
+    if n == 1:
+        return [f"  metrics  {metrics_line(analyses[0])}"]
+    lines = []
+    for i, a in enumerate(analyses[:_MAX_LISTED]):
+        mark = "" if a.meets_spec else "  [fails]"
+        lines.append(f"  {'nominal ' if i == 0 else f'plant {i + 1}':8} {metrics_line(a)}{mark}")
+    if n > _MAX_LISTED:
+        rest = analyses[_MAX_LISTED:]
+        bad = sum(not a.meets_spec for a in rest)
+        lines.append(f"  ... and {len(rest)} more plants ({bad} failing)")
+    return lines
+
+
+def tune_repr(r: Any) -> str:
+    gains = ", ".join(f"{k} = {_g(v, 6)}" for k, v in r.gains.items())
+    robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
+    s = r.solver
+    lines = [f"TuneResult({r.structure}, {_loop_kind(r.analyses[0])}{robust}: {verdict(r.analyses)})",
+             f"  gains    {gains}", *_plant_lines(r.analyses)]
+    if s:
+        lines.append(f"  solver   {s.get('method')}, {_g(s.get('wall_time_s', math.nan), 3)} s, {s.get('stop')}, "
+                     f"seed {s.get('seed')}")
+    return "\n".join(lines)
+
+
+def analysis_repr(a: Any) -> str:
+    p = a.poles
+    size = abs(p) if a.loop.dt is not None else p.real
+    where = "max |z|" if a.loop.dt is not None else "max Re s"
+    poles = f"{p.size} closed-loop poles, {where} = {_g(float(size.max()), 4)}" if p.size else "no closed-loop poles"
+    return "\n".join([f"Analysis({_loop_kind(a)}: {verdict([a])})", f"  metrics  {metrics_line(a)}",
+                      f"  poles    {poles}"])
+
+
+# -- HTML -------------------------------------------------------------------------------------------------
+
+_CSS = ("<style>.tuner-r table{border-collapse:collapse;margin:4px 12px 8px 0;font-size:12px}"
+        ".tuner-r td,.tuner-r th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
+        ".tuner-r th{background:#f3f3f3}.tuner-r td.l,.tuner-r th.l{text-align:left}"
+        ".tuner-r .ok{color:#1a7f37}.tuner-r .bad{color:#c62828;font-weight:bold}</style>")
+
+
+def _e(v: Any) -> str:
+    return html.escape(str(v))
+
+
+def _table(head: list[str], rows: list[list[str]], left: int = 1) -> str:
+    """``head`` (plain text) and ``rows`` (HTML cells); the first ``left`` columns aligned left."""
+    def cls(i: int) -> str:
+        return ' class="l"' if i < left else ""
+
+    th = "".join(f"<th{cls(i)}>{_e(h)}</th>" for i, h in enumerate(head))
+    body = "".join("<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def _checks_table(analyses: Any) -> str:
+    names = ["nominal", *(f"plant {i + 1}" for i in range(1, len(analyses)))] if len(analyses) > 1 else ["achieved"]
+    rows = []
+    for j, c in enumerate(analyses[0].checks):
+        cells = [_e(c.name), _e(f"{c.op} {_g(c.required)}")]
+        for a in analyses:
+            ck = a.checks[j]
+            mark = '<span class="ok">&#10003;</span>' if ck.ok else '<span class="bad">&#10007;</span>'
+            cells.append(f"{_e(_g(ck.achieved))} {mark}")
+        rows.append(cells)
+    head = ["constraint", "required", *names] if len(analyses) > 1 else ["constraint", "required", "achieved (met)"]
+    return _table(head, rows)
+
+
+def _thumbnails(obj: Any) -> str:
+    """Step response and Bode plot as small PNG images (drawn by tuner.analysis.plots, no pyplot)."""
+    try:
+        from .analysis.plots import figure, figure_bytes
+
+        imgs = []
+        for kind in ("step", "bode"):
+            fig = figure(obj, kind)
+            fig.set_size_inches(5.0, 3.8)
+            data = base64.b64encode(figure_bytes(fig, fmt="png", dpi=64)).decode()
+            imgs.append(f'<img alt="{kind}" style="max-width:340px;margin-right:6px" '
+                        f'src="data:image/png;base64,{data}"/>')
+        return "<div>" + "".join(imgs) + "</div>"
+    except Exception as e:  # a display must not raise: the tables stand without the pictures
+        log.warning("thumbnails not drawn: %s", e)
+        return f"<p><i>(plots not drawn: {_e(type(e).__name__)})</i></p>"
+
+
+def _verdict_html(analyses: Any) -> str:
+    v = verdict(analyses)
+    cls = "ok" if v == "meets the spec" else "bad"
+    return f'<span class="{cls}">{_e(v)}</span>'
+
+
+def tune_html(r: Any, *, thumbnails: bool = True) -> str:
+    robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
+    head = (f"<b>TuneResult</b> {_e(r.structure)}, {_e(_loop_kind(r.analyses[0]))}{_e(robust)}: "
+            f"{_verdict_html(r.analyses)}")
+    gains = _table(["gain", "value"], [[_e(k), _e(_g(v, 6))] for k, v in r.gains.items()])
+    s = r.solver
+    solver = (f"<p>solver {_e(s.get('method'))}, {_e(_g(s.get('wall_time_s', math.nan), 3))} s, "
+              f"{_e(s.get('stop'))}, seed {_e(s.get('seed'))}</p>") if s else ""
+    pics = _thumbnails(r) if thumbnails else ""
+    return (f'{_CSS}<div class="tuner-r"><p>{head}</p><div style="display:flex;flex-wrap:wrap;align-items:flex-start">'
+            f"{gains}{_checks_table(r.analyses)}</div>{pics}{solver}</div>")
+
+
+def analysis_html(a: Any, *, thumbnails: bool = True) -> str:
+    head = f"<b>Analysis</b> {_e(_loop_kind(a))}: {_verdict_html([a])}"
+    pics = _thumbnails(a) if thumbnails else ""
+    return f'{_CSS}<div class="tuner-r"><p>{head}</p>{_checks_table([a])}{pics}</div>'

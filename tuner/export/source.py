@@ -1,0 +1,91 @@
+"""What is exported: a controller, a tune result, or a stored result (the JSON of ``tuner tune --json`` or of
+``GET /tunes/{id}``), with the sample time and method for a continuous one."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from ..controllers import ControllerTF, controller_from_coeffs
+from ..errors import InvalidControllerError
+from .codegen import check_name, render
+from .discrete import DifferenceEquation, difference_equation
+
+__all__ = ["export_controller", "from_result", "equation_of"]
+
+
+def from_result(result: Mapping[str, Any]) -> tuple[ControllerTF, str | None, dict[str, float] | None]:
+    """The controller of a result dict (``controller: {num, den, dt}``, and ``structure``, ``gains`` if there)."""
+    if not isinstance(result, Mapping):
+        raise InvalidControllerError("a result must be a JSON object with a 'controller' {num, den, dt}",
+                                     field="result")
+    c = result.get("controller")
+    if not isinstance(c, Mapping) or "num" not in c or "den" not in c:
+        raise InvalidControllerError("the result has no 'controller' with 'num' and 'den' (give the JSON of "
+                                     "'tuner tune --json' or of GET /tunes/{id})", field=("result", "controller"))
+    try:
+        ctrl = controller_from_coeffs(c["num"], c["den"], dt=c.get("dt"))
+    except InvalidControllerError as e:
+        raise e.at("result", "controller") from None
+    gains = result.get("gains")
+    structure = result.get("structure")
+    if not (isinstance(structure, str) and isinstance(gains, Mapping)):
+        return ctrl, None, None
+    return ctrl, structure, {str(k): v for k, v in gains.items()}
+
+
+def _parts(controller: Any) -> tuple[ControllerTF, str | None, dict[str, float] | None]:
+    from ..tuning import TuneResult
+
+    if isinstance(controller, ControllerTF):
+        return controller, None, None
+    if isinstance(controller, TuneResult):
+        return controller.controller, controller.structure, dict(controller.gains)
+    if isinstance(controller, Mapping):
+        return from_result(controller)
+    from ..interop import controller_from_control, is_control_lti
+
+    if is_control_lti(controller):
+        return controller_from_control(controller), None, None
+    raise InvalidControllerError("export takes a ControllerTF, a TuneResult, a result dict or a python-control "
+                                 f"TransferFunction/StateSpace, got {type(controller).__name__}", field="controller")
+
+
+def equation_of(controller: Any, *, dt: float | None = None, method: str = "tustin", u_min: float | None = None,
+                u_max: float | None = None) -> DifferenceEquation:
+    """The :class:`DifferenceEquation` of anything :func:`export_controller` takes."""
+    ctrl, structure, gains = _parts(controller)
+    return difference_equation(ctrl, dt=dt, method=method, structure=structure, gains=gains, u_min=u_min,
+                               u_max=u_max)
+
+
+def export_controller(controller: Any, *, format: str = "c", name: str = "controller", dt: float | None = None,
+                      method: str = "tustin", u_min: float | None = None, u_max: float | None = None) -> str:
+    """The controller as code for the target.
+
+    Parameters
+    ----------
+    controller : ControllerTF, TuneResult, dict or control.TransferFunction/StateSpace
+        A discrete controller is exported as it is; a continuous one is discretised at ``dt`` by ``method``.
+        A dict is a result as JSON (``tuner tune --json``, ``GET /tunes/{id}``).
+    format : {"c", "python", "text"}
+        C99 (``name_state``, ``name_init``, ``name_update``), a Python class ``name`` with ``update(e)``, or the
+        difference equation as text.
+    name : str
+        A C identifier (also the Python class name).
+    dt : float, optional
+        Sample time, seconds: required for a continuous controller; for a discrete one it must be its own.
+    method : {"tustin", "zoh", "structure"}
+        How a continuous controller is discretised (:data:`tuner.export.METHODS`); ``"structure"`` uses the
+        structure's own discretisation (:mod:`tuner.controllers`) and needs a tune result.
+    u_min, u_max : float, optional
+        Output limits; a controller with integral action gets anti-windup by conditional integration.
+
+    Returns
+    -------
+    str
+        The source (or text); its header says where the equation came from and how it is realised.
+    """
+    check_name(name)
+    de = equation_of(controller, dt=dt, method=method, u_min=u_min, u_max=u_max)
+    return render(de, format, name)
