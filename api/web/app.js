@@ -319,6 +319,14 @@ function showResult(d) {
   v.textContent = d.meets_spec ? (several ? `meets spec on all ${d.plants.length} plants` : "meets spec")
     : `does NOT meet spec: failing ${d.failing.map(label).join(", ")}`;
   v.className = d.meets_spec ? "ok" : "bad";
+  const why = $("#reasons");  // why an unmet spec is not met, and a spec change the search found feasible
+  why.replaceChildren();
+  for (const r of d.reasons || []) {
+    const li = document.createElement("li");
+    const hint = Object.entries(r.suggest || {}).map(([k, x]) => `${k} = ${x === null ? "none" : fmt(x)}`).join(", ");
+    li.textContent = r.message + (hint ? ` (try ${hint})` : "");
+    why.append(li);
+  }
   table($("#gains"), Object.entries(d.gains).map(([k, x]) => [k, fmt(x)]));
   const c = d.controller;
   $("#controller-tf").textContent = `C(${c.dt ? "z" : "s"}) = ${polynomial(c.num)} / ${polynomial(c.den)}` + (c.dt ? `, dt = ${c.dt} s` : "");

@@ -141,6 +141,17 @@ def test_the_exported_controller_in_c_and_as_a_difference_equation(page, server,
     expect(code).to_have_text("")
 
 
+def test_an_unmet_spec_shows_why_and_what_would_do(page, server, sync_api):
+    """control_peak <= 2 on the roll loop with zero steady-state error: below 1/G(0) = 3.77 by definition."""
+    expect = sync_api.expect
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pi", "control_peak_max": 2,
+                                              "run": 1}))
+    expect(page.locator("#verdict")).to_contain_text("does NOT meet spec", timeout=90_000)
+    reason = page.locator("#reasons li").first
+    expect(reason).to_contain_text("1/G(0) = 3.766")
+    expect(reason).to_contain_text("control_peak_max = 3.77")
+
+
 def test_a_bad_expression_is_shown_at_its_field(page, server, sync_api):
     expect = sync_api.expect
     page.goto(f"{server.url}/?" + urlencode({"plant": "1/(s+", "dt": DT, "structure": "pid_z"}))

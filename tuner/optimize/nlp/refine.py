@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 
 POINTS_PER_SAMPLE = 4
 CONTINUOUS_STEPS = 400
+H_WC = 0.1  # continuous loops: the NLP's fine step is at most 0.1 / (the start's fastest gain crossover)
 MIN_SAMPLES = 16
 MAX_NLP_STEPS = 2048  # the NLP's horizon in samples (cost limit of one local solve); documented in the README
 _ABS_EPS = 1e-9
@@ -115,7 +116,14 @@ def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None =
     if ev.dt is not None:
         return _Grid(K=_bucket(int(math.ceil(T / ev.dt))), N=_points_per_sample(ev, start, incumbent),
                      step=ev.dt, h=None)
+    # the fine step resolves the loop (H_WC rad of the fastest crossover per step) as well as the horizon: a
+    # slow closed-loop pole of small residue (a PI zero next to a plant pole) must not stretch the step over
+    # the loop's own dynamics (1/(4s+1) with pidf2: T = 204 s would give h = 0.5 s against wc = 2.7 rad/s);
+    # the horizon is then what MAX_NLP_STEPS such steps cover
     h = T / CONTINUOUS_STEPS
+    wc = [w for w in np.atleast_1d(start.wc) if np.isfinite(w) and w > 0]
+    if wc:
+        h = min(h, H_WC / max(wc))
     taus = [p.delay_s for p in ev.problem.plants if p.delay_s]
     if taus:
         h = min(taus) / max(1, math.ceil(min(taus) / h))
