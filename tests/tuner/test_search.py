@@ -248,3 +248,23 @@ def test_box_stays_ordered_at_a_large_dt(name, dt):
     for i, (kind, j) in enumerate(zip(st.kinds, space._ratio_of)):
         if kind == "freq" and j is None:
             assert 10 ** space.hi[i] <= np.pi / dt * (1 + 1e-12)
+
+
+@pytest.mark.slow
+def test_same_seed_same_answer_in_one_process_and_across_processes():
+    """Issue 12's reproduction: 1/(s+1)^3, pid, seed 0, three calls in a row gave 2.0004, 6.53, 6.53 s with the
+    old SQP (hot-started QP on an indefinite Hessian). Now three calls in one process and one in a fresh
+    interpreter give the same gains, bit for bit (when the search converged rather than ran out of time)."""
+    import json
+    import subprocess
+    import sys
+
+    plant = plant_from_expr("1/(s+1)^3")
+    runs = [tune(plant, structure="pid", dt=0.1, seed=0, time_budget_s=30) for _ in range(3)]
+    assert all(r.solver["stop"] == "converged" for r in runs)
+    assert runs[0].gains == runs[1].gains == runs[2].gains
+    code = ("import json; from tuner import tune, plant_from_expr; "
+            "r = tune(plant_from_expr('1/(s+1)^3'), structure='pid', dt=0.1, seed=0, time_budget_s=30); "
+            "print(json.dumps(r.gains))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == runs[0].gains
