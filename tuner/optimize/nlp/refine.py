@@ -40,7 +40,7 @@ POINTS_PER_SAMPLE = 4
 CONTINUOUS_STEPS = 400
 H_WC = 0.1  # continuous loops: the NLP's fine step is at most 0.1 / (the start's fastest gain crossover)
 MIN_SAMPLES = 16
-MAX_NLP_STEPS = 2048  # the NLP's horizon in samples (cost limit of one local solve); documented in the README
+MAX_NLP_STEPS = 4096  # the NLP's horizon in samples (cost limit of one local solve); documented in the README
 _ABS_EPS = 1e-9
 _TIGHT = 1 - 2e-4  # the NLP keeps its peak limits this much inside the spec: optima sit on the limits, and the
                    # verifier's dense grid must still find them inside (margins: twice the search's guard)

@@ -60,8 +60,9 @@ BUILDS = {"count": 0}
 MS_GRID = 60
 GRID_EXTRA = 8  # spare grid slots for the exchange method
 SOLVERS = ("sqp", "ipopt")
-MAX_SQP_ITER = 40  # per solve: a feasible bisection step takes 3-25; a start too far to reach the target takes
-                   # 50-100 to say so (its point is still scored); the next start is a better use of the time
+MAX_SQP_ITER = 150  # per solve: a feasible bisection step takes 3-25; a long move across the settling time's
+                    # valleys takes 50-150 (PI on 1/(20s+1)^2 at dt 0.1: from the 5.9 tau basin to the 2.69 tau
+                    # valley; at 40 such solves stopped early and the bisection took them for infeasible)
 _CACHE: dict[ProblemKey, Problem] = {}
 
 
@@ -345,7 +346,9 @@ def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str,
     mask = P["mask"]
     c.add(y - 1 - (1 - mask) * P["os"] - mask * (P["band"] - slack), -cs.inf, 0.0)
     if key.objective == "settling_time":
-        c.add(mask * (1 - y + slack - P["band"]), -cs.inf, 0.0)
+        # before Ts (mask 0) the row is -1 <= 0, never active: a row 0 <= 0 there would be an active constraint
+        # with a zero gradient, which makes the QP's active set degenerate (SQP: Non_Regular_Sensitivities)
+        c.add(mask * (1 - y + slack - P["band"]) - (1 - mask), -cs.inf, 0.0)
 
 
 def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
