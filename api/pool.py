@@ -114,7 +114,10 @@ def start_forkserver() -> None:
         os.environ[SERVICE_PID_VAR] = str(os.getpid())  # read by api._preload in the forkserver
     else:
         os.environ.pop(SERVICE_PID_VAR, None)
-    forkserver.ensure_running()
+    try:
+        forkserver.ensure_running()
+    finally:  # a forkserver relaunched later (from pebble's thread, after a crash) must not tie itself to that thread
+        os.environ.pop(SERVICE_PID_VAR, None)
 
 
 class WorkerPool:

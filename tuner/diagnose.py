@@ -45,13 +45,13 @@ _LIMITS: dict[str, tuple[str, int, Any]] = {
     "disk_margin": ("disk_margin_min", +1, None),
     "bandwidth_rad_s": ("bandwidth_min_rad_s", +1, None),
 }
-_METRIC = {"gain_margin_lower_db": "gain_margin_db"}  # the field's value is read off this metric (|lower| too)
 BISECTIONS = 4
 
 
 @dataclass(frozen=True)
 class Reason:
-    """One reason a spec is not met; ``suggest`` is a spec change that the search found feasible."""
+    """One reason a spec is not met; ``suggest``: a spec change that would make it feasible (by definition) or
+    that a re-tune found feasible."""
 
     constraints: tuple[str, ...]
     message: str
@@ -74,20 +74,20 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
     """Reasons that hold whatever the gains (see the module docstring)."""
     sp, st = problem.spec, problem.structure
     out: list[Reason] = []
-    if not sp.zero_steady_state_error:
-        return out
     for i, p in enumerate(problem.plants):
         where = "" if len(problem.plants) == 1 else f" (plant #{i + 1})"
         g0 = _dc_gain(p)
+        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
+            out.append(Reason(("mks",), f"mks <= {sp.mks_max:g} is below |C S| at zero frequency, 1/G(0) = "
+                              f"{1.0 / g0:.4g}, which every controller with integral action has{where}: "
+                              "allow at least that", {"mks_max": _outward(1.0 / g0 * 1.001, -1)}))
+        if not sp.zero_steady_state_error:
+            continue
         if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - 1e-9):
             out.append(Reason(("control_peak",), f"control_peak <= {sp.control_peak_max:g} is below the steady-state "
                               f"input 1/G(0) = {1.0 / g0:.4g} that zero steady-state error to a unit step needs"
                               f"{where}: allow at least that, or drop zero_steady_state_error",
-                              {"control_peak_max": float(f"{1.0 / g0 * 1.001:.4g}")}))
-        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
-            out.append(Reason(("mks",), f"mks <= {sp.mks_max:g} is below |C S| at zero frequency, 1/G(0) = "
-                              f"{1.0 / g0:.4g}, which every controller with integral action has{where}: "
-                              "allow at least that", {"mks_max": float(f"{1.0 / g0 * 1.001:.4g}")}))
+                              {"control_peak_max": _outward(1.0 / g0 * 1.001, -1)}))
         if g0 < math.inf and not st.integrating:
             out.append(Reason(("steady_state_error",), f"{st.name} has no integral action and the plant{where} no "
                               "integrator: zero steady-state error is out of reach; use a structure with an integrator "
@@ -101,23 +101,35 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
 
 
 def _relaxed(spec: Spec, changes: dict[str, Any]) -> Spec:
-    return spec.model_copy(update=changes)
+    return Spec.model_validate({**spec.model_dump(), **changes})  # validated: a suggestion is always a valid spec
 
 
-def _achieved(res: Any, check: str) -> float:
-    """The worst value over the plants of the metric behind ``check``."""
-    name = _METRIC.get(check, check)
-    vals = [getattr(a.metrics, name) for a in res.analyses]
+def _field_value(res: Any, check: str) -> float:
+    """The value of the limit's spec field that the re-tuned design ``res`` just meets, worst over the plants:
+    the metric itself, except for the lower gain margin (``gain_margin_lower_db <= -gm``: gm = -value)."""
     fld, sign, _ = _LIMITS[check]
+    if check == "gain_margin_lower_db":
+        return min(-a.metrics.gain_margin_lower_db for a in res.analyses)
+    vals = [getattr(a.metrics, check) for a in res.analyses]
     return min(vals) if sign > 0 else max(vals)
+
+
+def _outward(x: float, sign: int) -> float:
+    """Four significant digits, rounded to the feasible side (down for a lower bound, up for an upper one)."""
+    if not math.isfinite(x) or x == 0:
+        return x
+    e = math.floor(math.log10(abs(x))) - 3
+    q = x / 10.0 ** e
+    return float((math.floor(q) if sign > 0 else math.ceil(q)) * 10.0 ** e)
 
 
 def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: int, budget_s: float,
              min_tune_s: float = 0.05) -> list[Reason]:
     """Reasons for ``failing`` (check names of the best design); ``tune_fn(problem, seed, budget)`` re-tunes.
 
-    ``min_tune_s``: what one re-tune needs at least (its final verification included); a re-tune that
-    would not fit in what is left of ``budget_s`` is not started, so the diagnosis ends within it."""
+    ``min_tune_s``: what one re-tune needs at least (its final verification included); a re-tune is started
+    only if the longest one so far (or ``min_tune_s`` before the first) still fits in what is left of
+    ``budget_s``, so the diagnosis ends within it."""
     reasons = definitional_reasons(problem)
     explained = {c for r in reasons for c in r.constraints}
     todo = [c for c in dict.fromkeys(failing) if c in _LIMITS and c not in explained]
@@ -132,14 +144,18 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
         return reasons
     end = time.perf_counter() + budget_s
     each = max(min_tune_s, budget_s / (len(todo) * (BISECTIONS + 1) + 1))
+    longest = [min_tune_s]
     sp, name = problem.spec, problem.structure.name
 
     def attempt(changes: dict[str, Any]) -> Any:
-        if time.perf_counter() + each > end:
+        if time.perf_counter() + max(longest[0], each) > end:
             return None
         prob = TuningProblem.build(list(problem.plants), structure=problem.structure, spec=_relaxed(sp, changes),
                                    dt=problem.dt)
-        return tune_fn(prob, seed, each)
+        t0 = time.perf_counter()
+        out = tune_fn(prob, seed, each)
+        longest[0] = max(longest[0], time.perf_counter() - t0)
+        return out
 
     single_ok = False
     for check in todo:
@@ -149,35 +165,43 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
             continue
         single_ok = True
         asked = float(getattr(sp, fld))
-        got = _achieved(res, check)
-        if check == "gain_margin_lower_db":
-            got = -got
-        best = got  # feasible with the limit at `got` (the relaxed design meets every other constraint)
-        lo, hi = (best, asked) if sign > 0 else (asked, best)  # for >=: feasible at lo, not at hi
+        got = _field_value(res, check)  # the relaxed design meets every other constraint, and this limit at `got`
+        op = ">=" if sign > 0 else "<="
+        if not math.isfinite(got) or (got >= asked if sign > 0 else got <= asked):
+            reasons.append(Reason((check,), f"{check}: a re-tune with this limit relaxed met {fld} {op} {asked:g} "
+                                  "as well: the first search did not find that design (budget or a missed basin); "
+                                  "retry with a larger time_budget_s or another seed"))
+            continue
+        best = got
+        lo, hi = (best, asked) if sign > 0 else (asked, best)  # for >=: feasible at lo, not found at hi
         for _ in range(BISECTIONS):
             mid = 0.5 * (lo + hi)
             r = attempt({fld: mid})
             if r is None:
                 break
             if r.meets_spec:
-                best = mid
-                lo, hi = (mid, hi) if sign > 0 else (lo, mid)
+                best = max(mid, _field_value(r, check)) if sign > 0 else min(mid, _field_value(r, check))
+                lo, hi = (best, hi) if sign > 0 else (lo, best)
             else:
                 lo, hi = (lo, mid) if sign > 0 else (mid, hi)
-        op = ">=" if sign > 0 else "<="
-        reasons.append(Reason((check,), f"{check} {op} {asked:g} is not reachable with {name} on this plant "
-                              f"together with the other constraints: the tightest the search found feasible is "
-                              f"{best:.4g}", {fld: float(f"{best:.4g}")}))
+        shown = _outward(best, sign)
+        reasons.append(Reason((check,), f"{check} {op} {asked:g} was not met with {name} on this plant together "
+                              f"with the other constraints; the tightest a search found feasible is {fld} = {shown:g}",
+                              {fld: shown}))
     if not single_ok:
         changes = {_LIMITS[c][0]: _LIMITS[c][2] for c in todo}
         res = attempt(changes)
         if res is not None and res.meets_spec:
-            achieved = ", ".join(f"{c} = {_achieved(res, c):.4g}" for c in todo)
-            reasons.append(Reason(tuple(todo), f"{', '.join(todo)} conflict with each other with {name} on this "
-                                  "plant: no single one relaxed makes the spec feasible, all of them relaxed does (the "
-                                  f"relaxed design achieves {achieved}; None = no limit)", changes))
+            achieved = ", ".join(f"{_LIMITS[c][0]} = {_field_value(res, c):.4g}" for c in todo)
+            reasons.append(Reason(tuple(todo), f"{', '.join(todo)} were not met together with {name} on this plant: "
+                                  "no re-tune with a single one relaxed was found feasible, one with all of them "
+                                  f"relaxed was (it achieves {achieved}; None = no limit)", changes))
         elif res is not None:
             reasons.append(Reason(tuple(todo), f"even with {', '.join(todo)} relaxed, no {name} meeting the rest of "
                                   "the spec was found: try a structure with more freedom (pid, pidf2, leadlag) or "
                                   "relax the remaining limits"))
+    if not any(set(r.constraints) & set(todo) for r in reasons):
+        reasons.append(Reason(tuple(todo), f"{', '.join(todo)}: not explained within the time the diagnosis had "
+                              f"({budget_s:.2g} s of the budget): a larger time_budget_s gives it more; no re-tune "
+                              "with these limits relaxed was found feasible in that time"))
     return reasons

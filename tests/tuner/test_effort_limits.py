@@ -3,6 +3,7 @@ honest infeasibility with reasons. Reference values are computed here, independe
 
 from __future__ import annotations
 
+import functools
 import math
 
 import control
@@ -124,25 +125,41 @@ def test_ie_objective_reaches_the_brute_force_migo_design():
     assert res.gains["Ki"] >= 0.99 * best, (res.gains, best)
 
 
+@functools.lru_cache(maxsize=1)
+def _brute_force_pi_double_lag() -> float:
+    """Minimum 2 % settling time of PI on 1/(s+1)^2 under PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, by a
+    grid over (Kp, Ki) judged here: margins by python-control, the step response in closed form from the
+    residues of T(s)/s, T = (Kp s + Ki)/(s^3 + 2 s^2 + (1 + Kp) s + Ki), on 60k points."""
+    G = control.tf([1.0], [1.0, 2.0, 1.0])
+    t = np.linspace(0.0, 30.0, 60001)
+    best = math.inf
+    for kp in np.linspace(1.0, 1.6, 25):
+        for ki in np.linspace(0.6, 0.9, 25):
+            gm, pm, *_ = control.stability_margins(control.tf([kp, ki], [1.0, 0.0]) * G)
+            if pm < 60 or (np.isfinite(gm) and 20 * np.log10(gm) < 6):
+                continue
+            r, p, k = signal.residue([kp, ki], [1.0, 2.0, 1.0 + kp, ki, 0.0])  # T(s)/s
+            y = np.real(np.exp(np.outer(t, p)) @ r)
+            if np.max(y) > 1.10:
+                continue
+            out = np.flatnonzero(np.abs(y - 1.0) > 0.02)
+            best = min(best, float(t[out[-1] + 1]) if out.size else 0.0)
+    return best
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("tau", [10.0, 20.0])
 def test_a_loop_that_settles_after_50_s_at_dt_01_is_found(tau):
     """1/(tau s+1)^2 with PI at dt = 0.1: the best design settles after about 2.7 tau (27 s = 270 samples and
-    54 s = 540 samples; the old caps were 250 samples in the search and 80 in the NLP). The reference, 2.727 tau
-    at Kp 1.3, Ki tau 0.75, is a brute-force grid over (Kp, Ki tau) of the continuous loop, run here on the
-    normalised plant 1/(s+1)^2 with the verifier (the sampled loop at dt = tau/100 or finer is within a few per
-    cent of the continuous one)."""
-    from tuner import get_structure
-    from tuner.optimize.scoring import Evaluator
-
-    ev = Evaluator([plant_from_expr("1/(s+1)^2")], get_structure("pi"), None, Spec())
-    ref = min(s.score for kp in np.linspace(1.0, 1.6, 13) for kit in np.linspace(0.6, 0.9, 13)
-              if (s := ev.score(np.array([kp, kit]), full=True)).feasible)
-    assert 2.6 < ref < 2.8  # the normalised optimum is about 2.73
-    res = tune(plant_from_expr(f"1/({tau:g}s+1)^2"), structure="pi", dt=0.1, seed=0, time_budget_s=20)
+    54 s = 540 samples; the old caps were 250 samples in the search and 80 in the NLP). The reference is the
+    continuous loop's optimum on the normalised plant (brute force above: about 2.72 tau); the sampled loop at
+    dt = tau/100 or finer is within a few per cent of it."""
+    ref = _brute_force_pi_double_lag()
+    assert 2.5 < ref < 2.9
+    res = tune(plant_from_expr(f"1/({tau:g}s+1)^2"), structure="pi", dt=0.1, seed=0, time_budget_s=30)
     assert res.meets_spec
     ts = res.analyses[0].metrics.settling_time_s
-    assert ts > 2.5 * tau and ts < 1.03 * ref * tau, (ts, ref * tau)
+    assert 2.4 * tau < ts < 1.04 * ref * tau, (ts, ref * tau)
     if tau == 20.0:
         assert ts > 50
 

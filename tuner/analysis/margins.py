@@ -332,6 +332,12 @@ def sensitivity_peaks(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, 
         l_inf = 0.0 if loop.delay_s and g_inf == 0 else c_inf * g_inf
         if not loop.delay_s or g_inf == 0:
             mks = max(mks, abs(c_inf / (1.0 + l_inf)) if l_inf != -1 else math.inf)
+    w_low = float(w[0]) * 1e-6 if w.size and w[0] > 0 else 0.0  # the grid stops short of w = 0: |C S| there
+    if w_low > 0:
+        with np.errstate(all="ignore"):
+            low = f_cs(np.array([w_low]))[0]  # -> 1/|G(0)| with integral action (and no plant integrator)
+        if np.isfinite(low):
+            mks = max(mks, float(low))
     if loop.integrating:
         mt = max(mt, 1.0)  # T(0) = 1
     return ms, mt, mks

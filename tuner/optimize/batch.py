@@ -492,8 +492,8 @@ class BatchEvaluator:
             return m["iae"]
         if o == "itae":
             return m["itae"]
-        if o == "ie":
-            ki = self.integral_gain(X)
+        if o == "ie":  # |1/Ki|: a stabilising Ki has the sign of the plant's static gain (negative for G(0) < 0)
+            ki = np.abs(self.integral_gain(X))
             return np.where(ki > 0, 1.0 / np.where(ki > 0, ki, 1.0), np.inf)
         return -m["bw"]  # bandwidth
 

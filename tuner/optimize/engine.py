@@ -201,7 +201,8 @@ class Engine:
             i.nlp_evaluations += res.evaluations
             i.nlp_solves_ok += int(res.success)
             scores = self._score(np.array(res.candidates), source="nlp", refined=True) if res.candidates else []
-            out.append(float(np.min(scores)) if len(scores) else math.inf)
+            # nan: no solve ran (e.g. no time to build its NLP): no evidence either way for the convergence test
+            out.append(float(np.min(scores)) if len(scores) else (math.inf if res.solves else math.nan))
         return out
 
     # -- rounds -----------------------------------------------------------------------------------
@@ -229,12 +230,16 @@ class Engine:
         converged, stale = False, 0
         for v in self._distinct(self.n_starts):  # one at a time: stop as soon as the evidence is in
             before = self.best.score
-            reached += self._refine([v])
+            new = self._refine([v])
+            reached += new
+            if not new or math.isnan(new[-1]):
+                continue  # not refined (no time, or no NLP solve): says nothing about convergence
             good = sorted(r for r in reached if math.isfinite(r) and r < 1e3)
             # converged: two refinements from distinct starts agree on the best value, or every refinement
             # after the best one (at least STALE_REFINES of them) failed to improve on it
             agree = len(good) >= 2 and good[1] - good[0] <= self._tol() and good[0] <= self.best.score + self._tol()
-            stale = stale + 1 if len(reached) > 1 and self.best.score >= before - self._tol() else 0
+            tried = [r for r in reached if not math.isnan(r)]
+            stale = stale + 1 if len(tried) > 1 and self.best.score >= before - self._tol() else 0
             converged = agree or stale >= STALE_REFINES
             if converged:
                 break
@@ -309,7 +314,8 @@ class Engine:
             self.info.rounds += 1
             self.info.history.append(self.best.score)
             stale = 0 if self.best.score < before - self._tol() else stale + 1
-            converged = stale >= PATIENCE
+            # a local stage that never ran (no time to build its NLP) has not converged: search on to the budget
+            converged = stale >= PATIENCE and (not self.local or self.info.nlp_solves > 0)
         self.info.stop = "converged" if converged else "budget"
         if self.storage is not None:
             self._record()

@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 
 POINTS_PER_SAMPLE = 4
 CONTINUOUS_STEPS = 400
+MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
 H_WC = 0.1  # continuous loops: the NLP's fine step is at most 0.1 / (the start's fastest gain crossover)
 MIN_SAMPLES = 16
 MAX_NLP_STEPS = 4096  # the NLP's horizon in samples (cost limit of one local solve); documented in the README
@@ -127,7 +128,7 @@ def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None =
     taus = [p.delay_s for p in ev.problem.plants if p.delay_s]
     if taus:
         h = min(taus) / max(1, math.ceil(min(taus) / h))
-    return _Grid(K=_bucket(int(math.ceil(T / h))), N=1, step=h, h=h)
+    return _Grid(K=min(_bucket(int(math.ceil(T / h))), MAX_CONTINUOUS_STEPS), N=1, step=h, h=h)
 
 
 @dataclass
