@@ -82,10 +82,10 @@ def _num(x: Any) -> float:
 class SpeedWorker:
     """A warm tuning process on one tree (bench/speed_worker.py), spoken to in JSON lines."""
 
-    def __init__(self, name: str, tree: Path, logdir: Path) -> None:
+    def __init__(self, name: str, tree: Path, logdir: Path, env: dict[str, str] | None = None) -> None:
         self.name, self.tree = name, tree
         self.stderr_path = logdir / f"{name}.stderr"
-        env = {**os.environ, "PYTHONPATH": str(tree)}
+        env = {**os.environ, **(env or {}), "PYTHONPATH": str(tree)}
         self.proc = subprocess.Popen([sys.executable, str(HERE / "speed_worker.py")], cwd=tree, env=env,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                                      stderr=open(self.stderr_path, "w"))
@@ -145,12 +145,19 @@ def _summary(runs: list[dict]) -> dict[str, Any]:
             "all_meet_spec": all(r["meets_spec"] for r in runs)}
 
 
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+ONE_THREAD = "after_1thread"  # diagnostic: this tree with one BLAS thread (as the service's solver processes run)
+
+
 def before_after(a: argparse.Namespace) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="tune_speed_"))
     before_tree = tmp / "before"
     before_tree.mkdir()
     sha = extract(a.before_rev, before_tree)
     workers = {"before": SpeedWorker("before", before_tree, tmp), "after": SpeedWorker("after", ROOT, tmp)}
+    if a.one_thread:
+        workers[ONE_THREAD] = SpeedWorker(ONE_THREAD, ROOT, tmp, env=dict.fromkeys(THREAD_VARS, "1"))
+    names = list(workers)
     try:
         defs: dict[str, dict] = {}
         for name, w in workers.items():
@@ -163,36 +170,41 @@ def before_after(a: argparse.Namespace) -> dict[str, Any]:
         labels = [k for k in defs["after"] if k in defs["before"] and _selected(a, k)]
         out: list[dict[str, Any]] = []
         for label in labels:
-            b, af = defs["before"][label], defs["after"][label]
             load0 = load_average()
-            for name, d in (("before", b), ("after", af)):  # warm-up: imports, NLP builds, caches
-                workers[name].call(cmd="tune", id=d["id"], seed=WARM_SEED, time_budget_s=a.budget_s)
-            runs: dict[str, list[dict]] = {"before": [], "after": []}
-            for i, seed in enumerate(range(a.seeds)):
-                for name in (("before", "after") if i % 2 == 0 else ("after", "before")):
-                    d = b if name == "before" else af
-                    runs[name].append({"seed": seed, **workers[name].call(cmd="tune", id=d["id"], seed=seed,
-                                                                          time_budget_s=a.budget_s)})
-            sb, sa = _summary(runs["before"]), _summary(runs["after"])
-            quality = (within(sa["worst_settling_s"], sb["worst_settling_s"], af["dt"])
-                       and within(sa["median_settling_s"], sb["median_settling_s"], af["dt"])
-                       and (sa["all_meet_spec"] or not sb["all_meet_spec"]))
-            row = {"loop": label, "study": af["study"], "name": af["name"], "structure": af["structure"],
-                   "dt": af["dt"], "order": af["order"], "definition_differs": _same_loop(b, af),
-                   "before": {**sb, "runs": runs["before"]}, "after": {**sa, "runs": runs["after"]},
-                   "speedup_wall": sb["median_wall_ms"] / sa["median_wall_ms"],
-                   "speedup_cpu": sb["median_cpu_ms"] / sa["median_cpu_ms"], "quality_ok": quality,
-                   "in_target": in_target(af["study"], af["name"], af["order"]), "load_average": load0}
-            out.append(row)
-            log(f"{label}: before {sb['median_wall_ms']:.0f} ms ({fmt(sb['worst_settling_s'], 4)} s), after "
-                f"{sa['median_wall_ms']:.0f} ms ({fmt(sa['worst_settling_s'], 4)} s); quality "
-                f"{'ok' if quality else 'WORSE'}; load {load0[0]}")
+            for name in names:  # warm-up: imports, NLP builds, caches
+                workers[name].call(cmd="tune", id=defs[name][label]["id"], seed=WARM_SEED, time_budget_s=a.budget_s)
+            runs: dict[str, list[dict]] = {n: [] for n in names}
+            for seed in range(a.seeds):  # the workers take turns: the order rotates seed by seed
+                for name in names[seed % len(names):] + names[:seed % len(names)]:
+                    runs[name].append({"seed": seed, **workers[name].call(
+                        cmd="tune", id=defs[name][label]["id"], seed=seed, time_budget_s=a.budget_s)})
+            out.append(_row(label, defs["before"][label], defs["after"][label], runs, load0))
+            r = out[-1]
+            log(f"{label}: before {r['before']['median_wall_ms']:.0f} ms ({fmt(r['before']['worst_settling_s'], 4)} "
+                f"s), after {r['after']['median_wall_ms']:.0f} ms ({fmt(r['after']['worst_settling_s'], 4)} s); "
+                f"quality {'ok' if r['quality_ok'] else 'WORSE'}; load {load0[0]}")
     finally:
         for w in workers.values():
             w.close()
         shutil.rmtree(tmp, ignore_errors=True)
     return {"before_rev": a.before_rev, "before_commit": sha, "seeds": a.seeds, "warm_seed": WARM_SEED,
-            "budget_s": a.budget_s, "loops": out}
+            "budget_s": a.budget_s, "workers": names, "loops": out}
+
+
+def _row(label: str, b: dict, af: dict, runs: dict[str, list[dict]], load0: list[float]) -> dict[str, Any]:
+    sb, sa = _summary(runs["before"]), _summary(runs["after"])
+    quality = (within(sa["worst_settling_s"], sb["worst_settling_s"], af["dt"])
+               and within(sa["median_settling_s"], sb["median_settling_s"], af["dt"])
+               and (sa["all_meet_spec"] or not sb["all_meet_spec"]))
+    row = {"loop": label, "study": af["study"], "name": af["name"], "structure": af["structure"], "dt": af["dt"],
+           "order": af["order"], "definition_differs": _same_loop(b, af),
+           "before": {**sb, "runs": runs["before"]}, "after": {**sa, "runs": runs["after"]},
+           "speedup_wall": sb["median_wall_ms"] / sa["median_wall_ms"],
+           "speedup_cpu": sb["median_cpu_ms"] / sa["median_cpu_ms"], "quality_ok": quality,
+           "in_target": in_target(af["study"], af["name"], af["order"]), "load_average": load0}
+    if ONE_THREAD in runs:
+        row[ONE_THREAD] = {**_summary(runs[ONE_THREAD]), "runs": runs[ONE_THREAD]}
+    return row
 
 
 def _selected(a: argparse.Namespace, label: str) -> bool:
@@ -354,8 +366,9 @@ def service(a: argparse.Namespace) -> dict[str, Any]:
 def studies(a: argparse.Namespace) -> dict[str, Any]:
     import study_workers
 
-    r = study_workers.compare("studies/process.toml", a.study_repeat, log=log)
-    return {k: ({str(w): x for w, x in v.items()} if isinstance(v, dict) else v) for k, v in r.items()}
+    r = study_workers.compare("studies/process.toml", a.study_repeat, log=log,
+                              variant_env=dict.fromkeys(THREAD_VARS, "1") if a.one_thread else None)
+    return json.loads(json.dumps(r))  # worker counts as strings, as in the JSON file
 
 
 # ---------------------------------------------------------------------------------------------- the run
@@ -371,6 +384,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--budget-s", type=float, default=10.0, help="time_budget_s of each tune (the studies' 10)")
     ap.add_argument("--no-attitude-pid", dest="attitude_pid", action="store_false",
                     help="do not add roll, pitch and yaw with pid")
+    ap.add_argument("--no-one-thread", dest="one_thread", action="store_false",
+                    help="do not add the diagnostic worker: this tree with one BLAS/OpenMP thread")
     ap.add_argument("--cap-s", type=float, default=None, help="cap of Optuna and DE per loop (30; quick 5)")
     ap.add_argument("--cold-runs", type=int, default=None, help="interleaved runs per command (9; quick 3)")
     ap.add_argument("--no-hyperfine", action="store_true")

@@ -15,6 +15,7 @@ TARGET_RATIO = 100.0  # against Optuna alone and differential evolution
 TARGET_COLD = 3.0  # tuner analyze against python -c "import numpy, scipy.linalg"
 TARGET_WORKERS = 1.6  # study run --workers 2 against --workers 1
 TARGET_P50_MS = 250.0  # the service's single-client POST /tune
+ONE_THREAD = "after_1thread"  # tune_speed's diagnostic worker
 
 
 def _yn(ok: bool) -> str:
@@ -26,6 +27,7 @@ def _st(s: dict[str, Any]) -> str:
 
 
 def before_after_md(r: dict[str, Any]) -> list[str]:
+    one = ONE_THREAD in r.get("workers", ())
     L = [f"## Before / after, per loop (warm process, {r['seeds']} seeds)", "",
          f"before = `{r['before_rev']}` ({r['before_commit'][:10]}), after = this tree. Two warm worker processes "
          f"(one warm-up tune per loop, seed {r['warm_seed']}), then seeds 0..{r['seeds'] - 1}, the workers taking "
@@ -35,14 +37,20 @@ def before_after_md(r: dict[str, Any]) -> list[str]:
          "within 2 % or one sample of before's (or better), every check passing wherever before's did. "
          f"Target: median ≤ {TARGET_MS:.0f} ms on the attitude loops and the process plants of order ≤ 4.", "",
          "| loop | structure | before ms | after ms | ratio | before CPU ms | after CPU ms | before settling s "
-         "| after settling s | quality | ≤ 100 ms | load |",
-         "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+         "| after settling s | quality | ≤ 100 ms | load |" + (" after, 1 thread: ms (CPU ms) |" if one else ""),
+         "|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if one else "")]
     for x in r["loops"]:
         b, a = x["before"], x["after"]
         tgt = _yn(a["median_wall_ms"] <= TARGET_MS) if x["in_target"] else "—"
         L.append(f"| {x['loop']} | {x['structure']} | {b['median_wall_ms']:.0f} | {a['median_wall_ms']:.0f} | "
                  f"{x['speedup_wall']:.1f}× | {b['median_cpu_ms']:.0f} | {a['median_cpu_ms']:.0f} | {_st(b)} | "
-                 f"{_st(a)} | {_yn(x['quality_ok'])} | {tgt} | {x['load_average'][0]:.1f} |")
+                 f"{_st(a)} | {_yn(x['quality_ok'])} | {tgt} | {x['load_average'][0]:.1f} |"
+                 + (_one(x[ONE_THREAD], a) if one else ""))
+    if one:
+        L += ["", "The last column is a diagnostic, not a target: this tree again in a third worker (taking its turn "
+              "with the other two) with `OMP_NUM_THREADS`, `OPENBLAS_NUM_THREADS`, `MKL_NUM_THREADS` and "
+              "`NUMEXPR_NUM_THREADS` set to 1, as the service's solver processes run (`api/worker.py`); "
+              "(≠: its settling times differ from after's)."]
     diffs = [f"{x['loop']}: {', '.join(x['definition_differs'])}" for x in r["loops"] if x["definition_differs"]]
     if diffs:
         L += ["", "Loop definitions that differ between the trees: " + "; ".join(diffs) + "."]
@@ -51,6 +59,11 @@ def before_after_md(r: dict[str, Any]) -> list[str]:
 
 def _times(x: float) -> str:
     return f"{x:.1f}" if x < 10 else f"{x:.0f}"
+
+
+def _one(o: dict[str, Any], a: dict[str, Any]) -> str:
+    same = [r["settling_s"] for r in o["runs"]] == [r["settling_s"] for r in a["runs"]]
+    return f" {o['median_wall_ms']:.0f} ({o['median_cpu_ms']:.0f}){'' if same else ' ≠'} |"
 
 
 def ratio_cells(v: dict[str, Any] | None) -> tuple[str, str]:
@@ -122,13 +135,21 @@ def service_md(r: dict[str, Any]) -> list[str]:
 
 def studies_md(r: dict[str, Any]) -> list[str]:
     L = [f"## Study workers (`tuner study run {r['study']}`, fresh storage, plots on, process start included)", "",
-         f"{r['repeat']} interleaved pairs (workers 1, then workers 2).", "",
+         f"{r['repeat']} interleaved repeats (workers 1, then workers 2).", "",
          "| workers | median wall s | median CPU s | runs (wall s) |", "|---|---|---|---|"]
-    for w in ("1", "2"):
-        L.append(f"| {w} | {r['median_wall_s'][w]:.2f} | {r['median_cpu_s'][w]:.2f} | "
-                 + ", ".join(f"{x:.2f}" for x in r["wall_s"][w]) + " |")
-    return L + ["", f"Speed-up of 2 workers: {r['speedup']:.2f}× (per pair: "
-                + ", ".join(f"{p:.2f}" for p in r["pairs"]) + ").", ""]
+    v = r.get("variant")
+    for tag, x in (("", r), (", 1 thread", v)) if v else (("", r),):
+        for w in ("1", "2"):
+            L.append(f"| {w}{tag} | {x['median_wall_s'][w]:.2f} | {x['median_cpu_s'][w]:.2f} | "
+                     + ", ".join(f"{t:.2f}" for t in x["wall_s"][w]) + " |")
+    L += ["", f"Speed-up of 2 workers: {r['speedup']:.2f}× (per pair: " + ", ".join(f"{p:.2f}" for p in r["pairs"])
+          + ")."]
+    if v:
+        L += ["", f"Diagnostic (not the target): with {', '.join(f'`{k}=1`' for k in v['env'])} in the command's "
+              f"environment (each repeat runs these pairs too), 2 workers: {v['speedup']:.2f}× (per pair: "
+              + ", ".join(f"{p:.2f}" for p in v["pairs"]) + "); 2 workers with one thread against 1 worker as it "
+              f"runs by default: {r['median_wall_s']['1'] / v['median_wall_s']['2']:.2f}×."]
+    return L + [""]
 
 
 def targets(res: dict[str, Any]) -> list[tuple[str, bool | None, str]]:
