@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_once(study: str, workers: int, plots: bool) -> tuple[float, float]:
+def run_once(study: str, workers: int, plots: bool, env: dict[str, str] | None = None) -> tuple[float, float]:
     """(wall s, CPU s of the command and its children)."""
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "tuner.cli", "study", "run", study, "--workers", str(workers), "--out", out]
@@ -31,13 +31,45 @@ def run_once(study: str, workers: int, plots: bool) -> tuple[float, float]:
             cmd.append("--no-plots")
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, **env} if env else None)
         wall = time.perf_counter() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        if proc.returncode != 0:
+        if proc.returncode not in (0, 1):  # 1: a loop misses its spec (still a full run)
             raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return wall, cpu
+
+
+def _stats(walls: dict[int, list[float]], cpus: dict[int, list[float]]) -> dict:
+    m1, m2 = statistics.median(walls[1]), statistics.median(walls[2])
+    return {"wall_s": walls, "cpu_s": cpus, "median_wall_s": {1: m1, 2: m2},
+            "median_cpu_s": {w: statistics.median(cpus[w]) for w in (1, 2)}, "speedup": m1 / m2,
+            "pairs": [x / y for x, y in zip(walls[1], walls[2])]}
+
+
+def compare(study: str, repeat: int, *, plots: bool = True, log=print, variant_env: dict[str, str] | None = None
+            ) -> dict:
+    """``repeat`` interleaved pairs of runs (workers 1, then workers 2): wall and CPU per run, medians, ratio.
+    ``variant_env``: each repeat also runs the pair with these environment variables (under ``"variant"``)."""
+    variants = [None, variant_env] if variant_env else [None]
+    walls = [{1: [], 2: []} for _ in variants]
+    cpus = [{1: [], 2: []} for _ in variants]
+    loads: list[float] = []
+    for i in range(repeat):
+        for k, env in enumerate(variants):
+            for w in (1, 2):
+                load0 = os.getloadavg()[0]
+                wall, cpu = run_once(study, w, plots, env)
+                walls[k][w].append(wall)
+                cpus[k][w].append(cpu)
+                loads.append(load0)
+                log(f"  run {i + 1} workers {w}{' ' + str(env) if env else ''}: {wall:6.2f} s wall, {cpu:6.2f} s CPU "
+                    f"(load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after)")
+    out = {"study": study, "repeat": repeat, "plots": plots, **_stats(walls[0], cpus[0]), "load_before_runs": loads}
+    if variant_env:
+        out["variant"] = {"env": variant_env, **_stats(walls[1], cpus[1])}
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,27 +78,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-plots", action="store_true")
     a = ap.parse_args(argv)
-    walls: dict[int, list[float]] = {1: [], 2: []}
-    cpus: dict[int, list[float]] = {1: [], 2: []}
     print(f"{a.study}, {a.repeat} x (workers 1, workers 2), interleaved; {os.cpu_count()} CPUs")
-    for i in range(a.repeat):
-        for w in (1, 2):
-            load0 = os.getloadavg()[0]
-            wall, cpu = run_once(a.study, w, not a.no_plots)
-            walls[w].append(wall)
-            cpus[w].append(cpu)
-            print(f"  run {i + 1} workers {w}: {wall:6.2f} s wall, {cpu:6.2f} s CPU "
-                  f"(load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after)", flush=True)
-    m1, m2 = statistics.median(walls[1]), statistics.median(walls[2])
+    r = compare(a.study, a.repeat, plots=not a.no_plots, log=lambda m: print(m, flush=True))
     print()
     print("| workers | median wall [s] | median CPU [s] | runs (wall) |")
     print("|---|---|---|---|")
     for w in (1, 2):
-        print(f"| {w} | {statistics.median(walls[w]):.2f} | {statistics.median(cpus[w]):.2f} | "
-              + ", ".join(f"{x:.2f}" for x in walls[w]) + " |")
-    pairs = [x / y for x, y in zip(walls[1], walls[2])]
-    print(f"\nspeed-up of 2 workers (ratio of the medians): {m1 / m2:.2f}x; per interleaved pair: "
-          + ", ".join(f"{p:.2f}" for p in pairs))
+        print(f"| {w} | {r['median_wall_s'][w]:.2f} | {r['median_cpu_s'][w]:.2f} | "
+              + ", ".join(f"{x:.2f}" for x in r["wall_s"][w]) + " |")
+    print(f"\nspeed-up of 2 workers (ratio of the medians): {r['speedup']:.2f}x; per interleaved pair: "
+          + ", ".join(f"{p:.2f}" for p in r["pairs"]))
     return 0
 
 
