@@ -220,10 +220,13 @@ class Engine:
                   if not len(S) or np.min(np.max(np.abs(S - v) / span, axis=1)) >= 1e-3]
         n0 = max(1, len(starts) // len(GAIN_DECADES))  # the nominal-gain starts: an incumbent, cheaply
         self._score(np.array(starts[:n0]), source="design")
-        self._score(np.array(starts[n0:] + seeded), source="design")
+        # the later batches are cut to what the time left affords (their cost per point is known by now: a slow
+        # plant at a fine dt simulates tens of thousands of samples per candidate)
+        self._score(np.array(self._affordable(starts[n0:] + seeded)), source="design")
         rng = np.random.default_rng(DESIGN_SEED)
         lo, hi = self.space.lo, self.space.hi
-        self._score(np.array([lo + rng.random(lo.size) * (hi - lo) for _ in range(DESIGN_POINTS)]), source="design")
+        fixed = [lo + rng.random(lo.size) * (hi - lo) for _ in range(DESIGN_POINTS)]
+        self._score(np.array(self._affordable(fixed)), source="design")
         if not self.local:
             return False
         reached: list[float] = []
@@ -267,6 +270,12 @@ class Engine:
         if self.local:
             self._refine([self.best.v])
         return True
+
+    def _affordable(self, V: list[np.ndarray]) -> list[np.ndarray]:
+        """The first of ``V`` that the time left can score, at the last batch's cost per point."""
+        if self._per_point <= 0:
+            return V
+        return V[:max(0, int(self._time_left() / self._per_point))]
 
     def _seeded_starts(self) -> list[np.ndarray]:
         """The contained structure's own designed starts, mapped into this structure's coordinates (a ``pid``
