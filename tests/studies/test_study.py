@@ -152,3 +152,19 @@ def test_quadrotor_study_end_to_end(tmp_path, capsys):
     for lp in coord.study.loop:
         claims = coord.claim_studies(lp)
         assert len(claims) == 1  # one claim (epoch 0) per loop, across both runs
+
+
+def test_a_variant_changes_the_spec_only(tmp_path):
+    """variant_of names another loop with the same plant, dt and structure; anything else is refused."""
+    from tuner.studies.schema import InvalidStudyError, load_study
+
+    base = ('name = "v"\n[[loop]]\nname = "a"\nplant = "1/(s+1)"\ndt = 0.1\nstructure = "pi"\n'
+            '[[loop]]\nname = "b"\nvariant_of = "a"\nplant = "1/(s+1)"\ndt = 0.1\nstructure = "{st}"\n'
+            'spec = {{ms_max = 1.4}}\n')
+    ok = tmp_path / "ok.toml"
+    ok.write_text(base.format(st="pi"))
+    assert [lp.name for lp in load_study(ok).loop] == ["a", "b"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text(base.format(st="pid"))
+    with pytest.raises(InvalidStudyError, match="differs in structure"):
+        load_study(bad)

@@ -179,8 +179,15 @@ class StudyDef(BaseModel):
             raise ValueError(f"loop names must be unique; repeated: {dup}")
         by = {lp.name: lp for lp in self.loop}
         for lp in self.loop:
-            if lp.variant_of is not None and (lp.variant_of not in by or lp.variant_of == lp.name):
-                raise ValueError(f"loop {lp.name!r}: variant_of: no other loop named {lp.variant_of!r}")
+            if lp.variant_of is not None:
+                if lp.variant_of not in by or lp.variant_of == lp.name:
+                    raise ValueError(f"loop {lp.name!r}: variant_of: no other loop named {lp.variant_of!r}")
+                base = by[lp.variant_of]
+                same = ("plant", "plants", "data", "plant_dt", "delay", "dt", "structure", "inner")
+                differ = [k for k in same if getattr(lp, k) != getattr(base, k)]
+                if differ:
+                    raise ValueError(f"loop {lp.name!r}: variant_of {base.name!r}: a variant changes the spec only; "
+                                     f"it differs in {', '.join(differ)}")
             if lp.inner is None:
                 continue
             if lp.inner not in by:
