@@ -13,7 +13,9 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +54,11 @@ class Loop:
     thesis_settling: float | None = None
     tune_kw: dict[str, Any] = field(default_factory=dict)  # the loop's own n_trials / n_starts
     results: dict[str, Any] = field(default_factory=dict)
+    # builds the plants again (new objects, none of their per-object caches): a timed tune gets fresh ones
+    fresh: Callable[[], list[Plant]] | None = field(default=None, repr=False)
+
+    def new_plants(self) -> list[Plant]:
+        return self.fresh() if self.fresh is not None else self.plants
 
     @property
     def label(self) -> str:
@@ -110,7 +117,8 @@ def load_loops(*, attitude_pid: bool = False) -> list[Loop]:
             key = canonical_key(json.dumps([fname, lp.name, lp.structure, lp.dt, [p.describe() for p in plants],
                                             lp.spec.model_dump()], default=str))
             kw = {k: v for k, v in (("n_trials", lp.n_trials), ("n_starts", lp.n_starts)) if v is not None}
-            loops.append(Loop(study.name, name, plants, lp.structure, lp.dt, lp.spec, key, ts, kw))
+            loops.append(Loop(study.name, name, plants, lp.structure, lp.dt, lp.spec, key, ts, kw,
+                              fresh=partial(loop_plants, study, lp, ctrls)))
     return loops
 
 

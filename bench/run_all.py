@@ -32,9 +32,9 @@ from tune_speed_report import QUALITY_TOL, sections  # noqa: E402
 REFERENCE_CACHE = HERE / "reference.json"
 
 
-def reference(lp: Loop, cache: dict[str, Any], evals: int) -> float:
-    """Brute-force reference: a long differential evolution (cached: computed once)."""
-    if lp.key in cache:
+def reference(lp: Loop, cache: dict[str, Any], evals: int, *, refresh: bool = False) -> float:
+    """Brute-force reference: a long differential evolution (cached: computed once, or again on ``refresh``)."""
+    if lp.key in cache and not refresh:
         return float(cache[lp.key]["settling_s"])
     t0 = time.perf_counter()
     best = min(run_de(lp, seed=s, target=None, cap_s=1e9, max_evals=evals // 2).best_verified for s in (0, 1))
@@ -51,7 +51,7 @@ def quality(loops: list[Loop], ours: dict[str, float], a: argparse.Namespace) ->
         if lp.label not in ours:
             continue
         print(f"[bench] quality {lp.label}", file=sys.stderr, flush=True)
-        ref = reference(lp, cache, a.reference_evals)
+        ref = reference(lp, cache, a.reference_evals, refresh=lp.label in a.refresh_reference.split(","))
         fixed_o = run_optuna(lp, seed=0, target=None, cap_s=1e9, max_evals=a.fixed_evals)
         fixed_d = run_de(lp, seed=0, target=None, cap_s=1e9, max_evals=a.fixed_evals)
         lp.results = {"ours_settling_s": ours[lp.label], "ref_settling_s": ref,
@@ -90,6 +90,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reference-evals", type=int, default=20000)
     ap.add_argument("--fixed-evals", type=int, default=500)
+    ap.add_argument("--refresh-reference", default="", metavar="LOOPS",
+                    help="comma-separated study/name whose cached reference is computed again")
     ap.add_argument("--speed-args", default="", help="options for bench/tune_speed.py, in one string")
     ap.add_argument("--reuse-speed", default=None, metavar="JSON",
                     help="take the speed results from an earlier tune_speed run instead of measuring")

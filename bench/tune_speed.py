@@ -218,12 +218,14 @@ def _selected(a: argparse.Namespace, label: str) -> bool:
 
 
 def ours_in_process(lp: Loop, seeds: int, budget_s: float) -> dict[str, Any]:
-    """Our tune of ``lp`` in this (warm) process: one warm-up, then seeds 0..seeds-1."""
+    """Our tune of ``lp`` in this (warm) process: one warm-up, then seeds 0..seeds-1, each on freshly built
+    plants (as in the worker processes)."""
     from tuner.tuning import tune
 
     def once(seed: int) -> dict[str, Any]:
+        plants = lp.new_plants()
         c0, t0 = time.process_time(), time.perf_counter()
-        r = tune(lp.plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed, time_budget_s=budget_s,
+        r = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed, time_budget_s=budget_s,
                  **lp.tune_kw)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         return {"seed": seed, "wall_s": wall, "cpu_s": cpu, "meets_spec": r.meets_spec,
@@ -330,8 +332,11 @@ def scaling(seeds: int = 3, budget_s: float = 120.0, orders=range(1, 11),
     pid, dt 0.1 for n <= 4 else 0.2) and horizon (1/(tau s+1)^2, pid, dt 0.05)."""
     from tuner import make_plant
 
-    def row(plant, dt: float) -> dict[str, Any]:
-        lp = Loop("scaling", "", [plant], "pid", dt, common.Spec(), "")
+    def row(num: list[float], den: np.ndarray, dt: float) -> dict[str, Any]:
+        def fresh() -> list:
+            return [make_plant(num, den)]
+
+        lp = Loop("scaling", "", fresh(), "pid", dt, common.Spec(), "", fresh=fresh)
         s = ours_in_process(lp, seeds, budget_s)
         return {"dt": dt, "median_wall_ms": s["median_wall_ms"], "median_cpu_ms": s["median_cpu_ms"],
                 "median_settling_s": s["median_settling_s"], "worst_settling_s": s["worst_settling_s"],
@@ -339,10 +344,10 @@ def scaling(seeds: int = 3, budget_s: float = 120.0, orders=range(1, 11),
 
     out: dict[str, list[dict[str, Any]]] = {"orders": [], "horizons": []}
     for n in orders:
-        out["orders"].append({"order": n, **row(make_plant([1.0], np.poly(-np.ones(n))), 0.1 if n <= 4 else 0.2)})
+        out["orders"].append({"order": n, **row([1.0], np.poly(-np.ones(n)), 0.1 if n <= 4 else 0.2)})
         log(f"scaling order {n}: {out['orders'][-1]['median_wall_ms']:.0f} ms")
     for tau in taus:
-        out["horizons"].append({"tau_s": tau, **row(make_plant([1.0], np.polymul([tau, 1.0], [tau, 1.0])), 0.05)})
+        out["horizons"].append({"tau_s": tau, **row([1.0], np.polymul([tau, 1.0], [tau, 1.0]), 0.05)})
         log(f"scaling tau {tau}: {out['horizons'][-1]['median_wall_ms']:.0f} ms")
     return out
 
@@ -395,6 +400,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--clients", type=int, default=8)
     ap.add_argument("--requests", type=int, default=None, help="load-test requests (100; quick 16)")
     ap.add_argument("--study-repeat", type=int, default=None, help="interleaved pairs of study runs (3; quick 1)")
+    ap.add_argument("--profile", default=None, metavar="LOOP",
+                    help="instead of measuring: cProfile of --seeds warm tunes of one loop (study/name), in-process")
     ap.add_argument("--out", default=None, help="output path without suffix (bench/results/tune_speed[_quick])")
     a = ap.parse_args(argv)
     q = a.quick
@@ -442,8 +449,38 @@ def save(res: dict[str, Any], out: str) -> str:
     return md
 
 
+def profile(a: argparse.Namespace) -> None:
+    """cProfile of ``a.seeds`` warm tunes of one loop (two warm-ups first, fresh plants each), sorted by own time
+    and by cumulative time. Run it with ``OPENBLAS_NUM_THREADS=1`` to see what the BLAS threads cost."""
+    import cProfile
+    import pstats
+
+    from tuner.tuning import tune
+
+    (lp,) = [x for x in common.load_loops(attitude_pid=True) if x.label == a.profile] or [None]
+    if lp is None:
+        raise SystemExit(f"--profile: no loop {a.profile!r}; give study/name, e.g. process/lag4")
+
+    def once(seed: int) -> None:
+        tune(lp.new_plants(), structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed, time_budget_s=a.budget_s,
+             **lp.tune_kw)
+
+    for s in (WARM_SEED, WARM_SEED + 1):
+        once(s)
+    prof = cProfile.Profile()
+    c0, t0 = time.process_time(), time.perf_counter()
+    prof.runcall(lambda: [once(s) for s in range(a.seeds)])
+    print(f"{lp.label}: {a.seeds} tunes under cProfile, per tune {1000 * (time.perf_counter() - t0) / a.seeds:.0f} ms "
+          f"wall, {1000 * (time.process_time() - c0) / a.seeds:.0f} ms CPU")
+    for key in ("tottime", "cumulative"):
+        pstats.Stats(prof).sort_stats(key).print_stats(25)
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
+    if a.profile:
+        profile(a)
+        return 0
     print(save(measure(a), a.out))
     return 0
 
