@@ -226,38 +226,47 @@ def tune(
 
         problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec,
                                       dt=dt)
+    from threadpoolctl import threadpool_limits
+
+    if local:
+        import casadi  # noqa: F401 - loaded before the limit, so that its OpenMP runtime is limited too
+
     from .optimize.engine import Engine
 
-    # keep a share of the budget for the final verification at full resolution
-    eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
-                 n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s))
-    run = eng.run()
-    t_verify = time.perf_counter()
-    best_x, best = eng.verify_best()
-    t_verify = time.perf_counter() - t_verify
-    st = problem.structure
-    wall = time.perf_counter() - t0
-    info: dict[str, Any] = {
-        "method": f"optuna+casadi-{nlp_solver}" if eng.local else "optuna", "seed": int(seed),
-        "stop": run.stop, "converged": run.stop == "converged", "rounds": run.rounds,
-        "budget_exhausted": time.perf_counter() > deadline - _RESERVE * float(time_budget_s),
-        "wall_time_s": wall, "global_evaluations": run.batch_evaluations, "starts_tried": run.starts_refined,
-        "nlp_solves": run.nlp_solves, "nlp_iterations": run.nlp_iterations, "nlp_evaluations": run.nlp_evaluations,
-        "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
-        "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
-    }
-    res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
-                     analyses=best.analyses, solver=info, spec=problem.spec)
-    if not res.meets_spec and diagnose:
-        from .diagnose import diagnose as _diagnose
+    # one BLAS/OpenMP thread for the solve (its matrices are tiny: a 3x3 expm costs 16 us on one thread and
+    # milliseconds with the default pool); scoped, so the caller's own threading is left as it was
+    with threadpool_limits(limits=1):
+        # keep a share of the budget for the final verification at full resolution
+        eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
+                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s))
+        run = eng.run()
+        t_verify = time.perf_counter()
+        best_x, best = eng.verify_best()
+        t_verify = time.perf_counter() - t_verify
+        st = problem.structure
+        wall = time.perf_counter() - t0
+        info: dict[str, Any] = {
+            "method": f"optuna+casadi-{nlp_solver}" if eng.local else "optuna", "seed": int(seed),
+            "stop": run.stop, "converged": run.stop == "converged", "rounds": run.rounds,
+            "budget_exhausted": time.perf_counter() > deadline - _RESERVE * float(time_budget_s),
+            "wall_time_s": wall, "global_evaluations": run.batch_evaluations, "starts_tried": run.starts_refined,
+            "nlp_solves": run.nlp_solves, "nlp_iterations": run.nlp_iterations, "nlp_evaluations": run.nlp_evaluations,
+            "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
+            "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
+        }
+        res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
+                         analyses=best.analyses, solver=info, spec=problem.spec)
+        if not res.meets_spec and diagnose:
+            from .diagnose import diagnose as _diagnose
 
-        failing = [c.name for a in res.analyses for c in a.failing]
-        left = min(DIAGNOSIS_SHARE * float(time_budget_s), deadline - time.perf_counter())  # within the budget
-        reasons = _diagnose(problem, failing, seed=int(seed), budget_s=left, min_tune_s=3 * t_verify + 0.02,
-                            tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
-                                                            nlp_solver=nlp_solver, local=local, diagnose=False))
-        res = replace(res, reasons=tuple(reasons))
-        res.solver["wall_time_s"] = time.perf_counter() - t0
+            failing = [c.name for a in res.analyses for c in a.failing]
+            left = min(DIAGNOSIS_SHARE * float(time_budget_s), deadline - time.perf_counter())  # within the budget
+            reasons = _diagnose(problem, failing, seed=int(seed), budget_s=left, min_tune_s=3 * t_verify + 0.02,
+                                tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
+                                                                nlp_solver=nlp_solver, local=local, diagnose=False))
+            res = replace(res, reasons=tuple(reasons))
+            res.solver["wall_time_s"] = time.perf_counter() - t0
+            res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
     return res
 
 
