@@ -16,6 +16,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -53,7 +54,7 @@ class TuneResult:
             return failing[0]
         return max(self.analyses, key=lambda a: a.metrics.settling_time_s)
 
-    @property
+    @cached_property
     def objective(self) -> float:
         """The spec's objective, worst case over the plants, as the verifier computes it (see
         :class:`~tuner.spec.Spec`, ``objective``; for ``bandwidth`` it is minus the bandwidth)."""

@@ -20,8 +20,9 @@ matplotlib when they are used.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_getattr
 
 if TYPE_CHECKING:
     from .core import MAX_POLES, identify
@@ -31,9 +32,4 @@ __all__ = ["MAX_POLES", "IdentifyResult", "identify"]
 _WHERE = {"MAX_POLES": "core", "identify": "core", "IdentifyResult": "result"}
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'tuner.identify' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _WHERE)

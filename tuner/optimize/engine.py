@@ -299,11 +299,7 @@ class Engine:
 
     def _round(self) -> float:
         """One Optuna round: tell what is new, ask a batch, score it, refine the best new ones."""
-        if self._search is None:
-            self._search = SeededSearch(self.space, seed=self.seed, sampler=self.sampler, storage=self.storage)
-            self._told = 0
-        new = self.pool[self._told:]
-        self._search.tell([v for _, v, _ in new], [s for s, _, _ in new])
+        self._tell_new()
         n = self.n_trials or ROUND_TRIALS
         trials, V = self._search.ask(n)
         scores = self._score(V, source="optuna")
@@ -327,11 +323,11 @@ class Engine:
             converged = stale >= PATIENCE and (not self.local or self.info.nlp_solves > 0)
         self.info.stop = "converged" if converged else "budget"
         if self.storage is not None:
-            self._record()
+            self._tell_new()  # with a storage, every point this tune scored lands in the study
         return self.info
 
-    def _record(self) -> None:
-        """With a storage, every point this tune scored lands in the study (one bulk call)."""
+    def _tell_new(self) -> None:
+        """Tell the seeded search every point scored since it was last told (one bulk call)."""
         if self._search is None:
             self._search = SeededSearch(self.space, seed=self.seed, sampler=self.sampler, storage=self.storage)
             self._told = 0

@@ -56,12 +56,10 @@ def objective_value(a: Analysis, spec: Spec) -> float:
         return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
     # iae: integral of |y| after a unit step load disturbance at the plant input, on the same horizon;
     # ie: |the signed integral| (= 1/Ki for a loop with integral action once settled: MIGO maximises Ki)
+    if spec.objective == "ie" and not np.any(np.abs(a.loop.controller.zpk.poles - (1.0 if a.loop.dt else 0.0)) < 1e-9):
+        return math.inf  # without integral action the load step is never rejected
     d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
-    if spec.objective == "ie":  # without integral action the load step is never rejected: infinite
-        poles = a.loop.controller.zpk.poles
-        at = 1.0 if a.loop.dt else 0.0
-        if not np.any(np.abs(np.asarray(poles) - at) < 1e-9):
-            return math.inf
+    if spec.objective == "ie":
         return abs(float(np.trapezoid(d.y, d.t)))
     return float(np.trapezoid(np.abs(d.y), d.t))
 
