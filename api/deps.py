@@ -68,6 +68,12 @@ def get_tune_job() -> Callable[[dict[str, Any]], Any]:
     return tune_job
 
 
+def get_tradeoff_job() -> Callable[[dict[str, Any]], Any]:
+    from .jobs import tradeoff_job
+
+    return tradeoff_job
+
+
 def get_analyze_job() -> Callable[[dict[str, Any]], Any]:
     from .jobs import analyze_job
 

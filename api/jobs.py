@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["tune_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job", "PLOT_MODULES"]
+__all__ = ["tune_job", "tradeoff_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job", "PLOT_MODULES"]
 
 # what a plot process imports before its first job (this list replaces api.worker.PLOT_MODULES, which
 # still names the removed api.plots)
@@ -36,6 +36,14 @@ def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
     from tuner.tuning import tune
 
     return tune(payload["problem"], seed=payload["seed"], time_budget_s=payload["time_budget_s"]).to_json()
+
+
+def tradeoff_job(payload: dict[str, Any]) -> dict[str, Any]:
+    """``payload``: ``problem`` (validated), ``y``, ``points``, ``seed``, ``time_budget_s``."""
+    from tuner.tradeoff import tradeoff
+
+    return tradeoff(payload["problem"], y=payload["y"], points=payload["points"], seed=payload["seed"],
+                    time_budget_s=payload["time_budget_s"]).to_json()
 
 
 def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from tuner.spec import Spec
 __all__ = [
     "PlantIn", "ControllerIn", "TuneOptions", "TuneRequest", "AnalyzeRequest", "TuneResponse", "TuneRecordOut",
     "TuneList", "TuneSummaryOut", "AnalyzeResponse", "HealthOut", "ErrorOut", "ValidationErrorOut",
+    "TradeoffRequest", "TradeoffResponse", "AtBoundOut", "LimitOut",
     "ROLL_EXAMPLE", "ROLL_ANALYZE_EXAMPLE", "MAX_EXPR_CHARS", "MAX_COEFF",
 ]
 
@@ -125,6 +126,16 @@ class TuneRequest(_In):
     options: TuneOptions = Field(default_factory=TuneOptions)
 
 
+class TradeoffRequest(TuneRequest):
+    model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [
+        {"plant": {"expr": "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"}, "dt": 0.04, "structure": "pid",
+         "y": "mks", "points": 8}]})
+
+    x: Literal["settling_time"] = Field("settling_time", description="the speed axis")
+    y: Literal["mks", "control_peak"] = Field("mks", description="the robustness axis")
+    points: int = Field(8, ge=2, le=20, description="how many verified points, fastest first")
+
+
 class AnalyzeRequest(_In):
     model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [ROLL_ANALYZE_EXAMPLE]})
 
@@ -198,6 +209,22 @@ class ReasonOut(_Out):
     suggest: dict[str, Any] = Field(description="spec fields and values that the search found feasible")
 
 
+class AtBoundOut(_Out):
+    param: str | None = Field(description="the parameter on a bound (null: a limit on the loop, e.g. the noise "
+                              "budget)")
+    value: Number
+    bound: Literal["lower", "upper"]
+    limit: Number
+    rule: str = Field(description="what sets the bound, in words")
+    text: str = Field(description="one sentence for people: 'Tf is at its lower bound 0.0127: ... decides'")
+
+
+class LimitOut(_Out):
+    field: str = Field(description="the spec field of a default design limit in force")
+    value: Number
+    rule: str
+
+
 class TuneResponse(_Out):
     id: str
     created_at: _dt.datetime
@@ -211,9 +238,24 @@ class TuneResponse(_Out):
     objective: ObjectiveOut | None = None
     reasons: list[ReasonOut] = Field(default_factory=list, description="why the spec is not met and what would "
                                      "make it feasible (empty when it is met)")
+    at_bounds: list[AtBoundOut] = Field(default_factory=list, description="parameters that sit on a search bound "
+                                        "or a default limit, with the rule that decides them")
+    limits: list[LimitOut] = Field(default_factory=list, description="the default design limits in force "
+                                   "(derivative filter, Nyquist filter rule, noise budget); spec.filter_n_max = "
+                                   "null, filter_nyquist = false, noise_gain_max = null lift them")
     solver: dict[str, Any]
     spec: dict[str, Any]
     plants: list[AnalysisOut] | None = None
+
+
+class TradeoffResponse(_Out):
+    structure: str
+    x: str
+    y: str
+    wall_time_s: float
+    points: list[dict[str, Any]] = Field(description="fastest first: settling_time_s, the y value, the limit it was "
+                                         "tuned with, gains, and the whole verified result")
+    skipped: list[dict[str, Any]]
 
 
 class TuneRecordOut(TuneResponse):

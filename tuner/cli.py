@@ -54,8 +54,24 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--disk-margin", type=float, default=None, metavar="ALPHA",
                    help="minimum balanced disk margin alpha, 0 < alpha < 2")
     g.add_argument("--bandwidth", type=float, default=None, metavar="RAD_S", help="minimum closed-loop bandwidth")
+    g.add_argument("--settling-max", type=float, default=None, metavar="S",
+                   help="maximum settling time, s (the response-time knob; with --objective mks or disk_margin: the "
+                   "most robust design at that speed)")
+    g.add_argument("--wc", type=float, default=None, metavar="RAD_S",
+                   help="target gain-crossover frequency, rad/s, met within +-1 %% (as pidtune(G, type, wc))")
     g.add_argument("--objective", default=None, choices=list(OBJECTIVE_DEFINITIONS),
                    help="what tune optimises (default settling_time; each defined in 'tuner tune --help')")
+    d = p.add_argument_group(
+        "default design limits (tune; on unless lifted)",
+        "A derivative filter N = Td/Tf <= 20 (Astrom & Hagglund, Advanced PID Control, 2006: N in 2..20) for pd, "
+        "pid, pid2, pid_mf2; at --dt a filter corner at most the Nyquist frequency (Tf >= dt/pi); a noise budget "
+        "Mks <= 10 K0 (K0: the plant's ultimate gain, or 1/|G(0)| if larger; 10 K0 is the noise gain of a "
+        "Ziegler-Nichols PID with N of 10-20). The thesis's pid_z keeps its own form (only the noise budget).")
+    d.add_argument("--filter-n", type=float, default=None, metavar="N", help="derivative filter rule N_max (20)")
+    d.add_argument("--no-filter-nyquist", action="store_true", help="lift the filter's Nyquist rule (Tf >= 1e-3 dt)")
+    d.add_argument("--noise-gain", type=float, default=None, metavar="X", help="noise budget: Mks <= X K0 (10)")
+    d.add_argument("--no-default-limits", action="store_true",
+                   help="the pure thesis spec: lift the three default limits (flags above still apply)")
 
 
 def _add_plot_args(p: argparse.ArgumentParser) -> None:
@@ -100,13 +116,62 @@ def _spec_from_args(a: argparse.Namespace):
         "phase_margin_min_deg": a.pm, "gain_margin_min_db": a.gm, "overshoot_max_pct": a.overshoot,
         "settling_band_pct": a.band, "control_peak_max": a.control_peak, "ms_max": a.ms,
         "mt_max": a.mt, "mks_max": a.mks, "disk_margin_min": a.disk_margin, "bandwidth_min_rad_s": a.bandwidth,
-        "objective": a.objective,
+        "objective": a.objective, "settling_time_max": a.settling_max, "crossover_rad_s": a.wc,
+        "filter_n_max": a.filter_n, "noise_gain_max": a.noise_gain,
     }
+    given = {k: v for k, v in fields.items() if v is not None}
+    if a.no_default_limits:
+        given = {"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, **given}
+    if a.no_filter_nyquist:
+        given["filter_nyquist"] = False
     try:
-        return Spec(**{k: v for k, v in fields.items() if v is not None})
+        return Spec(**given)
     except ValidationError as e:
         err = e.errors()[0]
-        raise TunerError(f"spec: {err['loc'][0]}: {err['msg']}") from None
+        name = str(err["loc"][0]) if err.get("loc") else "spec"
+        raise TunerError(f"{SPEC_FLAGS.get(name, name)}: {err['msg']}") from None
+
+
+#: Spec field -> the command-line flag that sets it (errors and suggestions speak the caller's vocabulary)
+SPEC_FLAGS = {
+    "phase_margin_min_deg": "--pm", "gain_margin_min_db": "--gm", "overshoot_max_pct": "--overshoot",
+    "settling_band_pct": "--band", "control_peak_max": "--control-peak", "ms_max": "--ms", "mt_max": "--mt",
+    "mks_max": "--mks", "disk_margin_min": "--disk-margin", "bandwidth_min_rad_s": "--bandwidth",
+    "objective": "--objective", "settling_time_max": "--settling-max", "crossover_rad_s": "--wc",
+    "filter_n_max": "--filter-n", "noise_gain_max": "--noise-gain", "filter_nyquist": "--no-filter-nyquist",
+    "zero_steady_state_error": "zero_steady_state_error",
+}
+
+
+def in_flags(message: str) -> str:
+    """A library message with its Spec field names written as the flags that set them (``ms_max = 1.5`` ->
+    ``--ms 1.5``)."""
+    import re
+
+    for k in sorted(SPEC_FLAGS, key=len, reverse=True):
+        flag = SPEC_FLAGS[k]
+        if flag == k or k == "objective":
+            continue
+        message = re.sub(rf"\b{k} = ", f"{flag} ", message)
+        message = re.sub(rf"\b{k}\b", flag, message)
+    return message
+
+
+def suggestion_flags(suggest: dict[str, Any]) -> str:
+    """A suggestion (Spec field -> value) as command-line flags: ``--pm 62.5 --ms 1.5``; a lifted limit (None)
+    as the flag that lifts it."""
+    out = []
+    for k, v in suggest.items():
+        flag = SPEC_FLAGS.get(k, k)
+        if k == "filter_nyquist":
+            out.append("--no-filter-nyquist") if v is False else None
+        elif k == "zero_steady_state_error":
+            out.append("zero_steady_state_error = false (Python/HTTP spec field; no flag)") if v is False else None
+        elif v is None:
+            out.append(f"no {flag}" if k not in ("noise_gain_max", "filter_n_max") else "--no-default-limits")
+        else:
+            out.append(f"{flag} {fmt(v) if isinstance(v, float) else v}")
+    return " ".join(x for x in out if x)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -142,6 +207,21 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--json", action="store_true")
     _add_plot_args(t)
     _add_spec_args(t)
+
+    o = sub.add_parser("tradeoff", help="the speed/robustness trade-off curve: verified optima from the fastest "
+                       "design to the most robust (every point meets the rest of the spec)")
+    o.add_argument("--plant", required=True, action="append", help="plant expression; repeat for a plant set")
+    o.add_argument("--dt", type=float, default=None, help="controller sample time (and of z plants)")
+    o.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds (all plants)")
+    o.add_argument("--structure", required=True, help="the controller structure (as for tune)")
+    o.add_argument("--x", default="settling_time", choices=["settling_time"], help="the speed axis")
+    o.add_argument("--y", default="mks", choices=["mks", "control_peak"],
+                   help="the robustness axis: noise sensitivity Mks, or the control peak of a unit step")
+    o.add_argument("--points", type=int, default=8, metavar="N", help="how many points (8; 2..20)")
+    o.add_argument("--seed", type=int, default=0)
+    o.add_argument("--budget", type=float, default=30.0, metavar="S", help="time budget of the whole curve (30)")
+    o.add_argument("--json", action="store_true")
+    _add_spec_args(o)
 
     for mod in _EXTRA_COMMANDS:
         __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
@@ -298,22 +378,65 @@ def _cmd_tune(a: argparse.Namespace) -> int:
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
     print(f"objective {res.spec.objective} = {fmt(out['objective']['value'])}"
           + (" (worst over the plants)" if len(plants) > 1 else ""))
+    for lim in res.limits:
+        print(f"default limit: {lim['rule']}" + (" (--no-default-limits lifts it)" if lim["field"] else ""))
+    for e in out["at_bounds"]:
+        print(f"at a bound: {e['text']}")
     if res.meets_spec:
         print("meets the spec on every plant" if len(plants) > 1 else "meets the spec")
     else:
         print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
         for r in out["reasons"]:
-            hint = ", ".join(f"{k} = {v}" for k, v in r["suggest"].items())
-            print(f"  why: {r['message']}" + (f" [try {hint}]" if hint else ""))
+            hint = suggestion_flags(r["suggest"])
+            print(f"  why: {in_flags(r['message'])}" + (f" [try {hint}]" if hint else ""))
     _write_plot(res, a, plot_fmt, res.spec)
     return code
 
 
-_COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune}
+def _cmd_tradeoff(a: argparse.Namespace) -> int:
+    from .plant import check_dt, plant_from_expr
+    from .tradeoff import tradeoff
+
+    spec = _spec_from_args(a)
+    with field("--dt"):
+        check_dt(a.dt)
+    plants = []
+    for i, text in enumerate(a.plant):
+        with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
+            plants.append(plant_from_expr(text, dt=a.dt, delay=a.delay))
+    if not (0 < a.budget <= 3600):
+        raise TunerError("--budget: must be > 0 and <= 3600 seconds")
+    if not 2 <= a.points <= 20:
+        raise TunerError("--points: must be from 2 to 20")
+    if spec.objective != "settling_time":
+        raise TunerError("--objective: the trade-off's speed axis is the settling time; leave --objective out")
+    res = tradeoff(plants, structure=a.structure, spec=spec, dt=a.dt, x=a.x, y=a.y, points=a.points, seed=a.seed,
+                   time_budget_s=a.budget)
+    if a.json:
+        print(json.dumps(res.to_json(), indent=2))
+        return EXIT_OK
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"{res.structure}: settling time vs {res.y}, fastest first (every point verified)")
+    for col in ("#", "settling_time_s", res.y, f"{res.y} limit", "gains"):
+        t.add_column(col)
+    for k, ((ts, y), lim, r) in enumerate(zip(res.values(), res.limits, res.points)):
+        t.add_row(str(k), fmt(ts), fmt(y), "spec" if k == 0 else fmt(lim),
+                  ", ".join(f"{n} = {v:.4g}" for n, v in r.gains.items()))
+    Console(highlight=False).print(t)
+    for sk in res.skipped:
+        print(f"left out: {res.y} <= {fmt(sk['limit'])}: {sk['why']}")
+    print(f"{len(res.points)} points in {res.wall_time_s:.2f} s")
+    return EXIT_OK
+
+
+_COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune, "tradeoff": _cmd_tradeoff}
 
 
 _ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
-              "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec"}
+              "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec",
+              "points": "--points", "x": "--x", "y": "--y"}
 
 
 def _argument_of(f: tuple[str | int, ...]) -> str | None:

@@ -30,7 +30,7 @@ import numpy as np
 from .problem import TuningProblem
 from .spec import Spec
 
-__all__ = ["Reason", "diagnose", "definitional_reasons"]
+__all__ = ["Reason", "diagnose", "definitional_reasons", "dc_gain"]
 
 # failing check -> (Spec field, direction: +1 = lower bound on the metric (>=), -1 = upper bound, loosest value)
 _LIMITS: dict[str, tuple[str, int, Any]] = {
@@ -44,6 +44,8 @@ _LIMITS: dict[str, tuple[str, int, Any]] = {
     "mks": ("mks_max", -1, None),
     "disk_margin": ("disk_margin_min", +1, None),
     "bandwidth_rad_s": ("bandwidth_min_rad_s", +1, None),
+    "settling_time_s": ("settling_time_max", -1, None),
+    "filter_n": ("filter_n_max", -1, None),
 }
 BISECTIONS = 4
 
@@ -61,7 +63,7 @@ class Reason:
         return {"constraints": list(self.constraints), "message": self.message, "suggest": dict(self.suggest)}
 
 
-def _dc_gain(plant: Any) -> float:
+def dc_gain(plant: Any) -> float:
     """|G(0)| of the plant (continuous) or |G(1)| (discrete); inf with an integrator, 0 with a zero there."""
     zk = plant.zpk
     at = 1.0 if plant.is_discrete else 0.0
@@ -76,7 +78,7 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
     out: list[Reason] = []
     for i, p in enumerate(problem.plants):
         where = "" if len(problem.plants) == 1 else f" (plant #{i + 1})"
-        g0 = _dc_gain(p)
+        g0 = dc_gain(p)
         if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
             out.append(Reason(("mks",), f"mks <= {sp.mks_max:g} is below |C S| at zero frequency, 1/G(0) = "
                               f"{1.0 / g0:.4g}, which every controller with integral action has{where}: "
@@ -115,16 +117,18 @@ def _field_value(res: Any, check: str) -> float:
 
 
 def _outward(x: float, sign: int) -> float:
-    """Four significant digits, rounded to the feasible side (down for a lower bound, up for an upper one)."""
+    """Four significant digits, rounded to the feasible side (down for a lower bound, up for an upper one), as the
+    shortest float of those digits (1.001, never 1.0010000000000001)."""
     if not math.isfinite(x) or x == 0:
         return x
     e = math.floor(math.log10(abs(x))) - 3
     q = x / 10.0 ** e
-    return float((math.floor(q) if sign > 0 else math.ceil(q)) * 10.0 ** e)
+    k = math.floor(q + 1e-9) if sign > 0 else math.ceil(q - 1e-9)
+    return float(f"{k}e{e}")
 
 
 def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: int, budget_s: float,
-             min_tune_s: float = 0.05) -> list[Reason]:
+             min_tune_s: float = 0.05, found: list | None = None) -> list[Reason]:
     """Reasons for ``failing`` (check names of the best design); ``tune_fn(problem, seed, budget)`` re-tunes.
 
     ``min_tune_s``: what one re-tune needs at least (its final verification included); a re-tune is started
@@ -145,7 +149,7 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
     end = time.perf_counter() + budget_s
     each = max(min_tune_s, budget_s / (len(todo) * (BISECTIONS + 1) + 1))
     longest = [min_tune_s]
-    sp, name = problem.spec, problem.structure.name
+    sp, name = problem.asked_spec, problem.structure.name
 
     def attempt(changes: dict[str, Any]) -> Any:
         if time.perf_counter() + max(longest[0], each) > end:
@@ -155,6 +159,8 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
         t0 = time.perf_counter()
         out = tune_fn(prob, seed, each)
         longest[0] = max(longest[0], time.perf_counter() - t0)
+        if found is not None and out is not None:
+            found.append(out)  # the caller re-verifies it against the asked spec: a re-tune may meet it
         return out
 
     single_ok = False
@@ -185,6 +191,11 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
             else:
                 lo, hi = (lo, mid) if sign > 0 else (mid, hi)
         shown = _outward(best, sign)
+        if (shown >= asked) if sign > 0 else (shown <= asked):  # never tighter than the limit that failed
+            reasons.append(Reason((check,), f"{check}: a re-tune met {fld} {op} {asked:g} as well: the first search "
+                                  "did not find that design (budget or a missed basin); retry with a larger "
+                                  "time_budget_s or another seed"))
+            continue
         reasons.append(Reason((check,), f"{check} {op} {asked:g} was not met with {name} on this plant together "
                               f"with the other constraints; the tightest a search found feasible is {fld} = {shown:g}",
                               {fld: shown}))
@@ -192,10 +203,13 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
         changes = {_LIMITS[c][0]: _LIMITS[c][2] for c in todo}
         res = attempt(changes)
         if res is not None and res.meets_spec:
-            achieved = ", ".join(f"{_LIMITS[c][0]} = {_field_value(res, c):.4g}" for c in todo)
+            # suggest what the relaxed design achieves (rounded to the feasible side), never the lifted limits
+            got = {_LIMITS[c][0]: _outward(_field_value(res, c), _LIMITS[c][1]) for c in todo}
+            got = {k: v for k, v in got.items() if math.isfinite(v)}
+            achieved = ", ".join(f"{k} = {v:g}" for k, v in got.items())
             reasons.append(Reason(tuple(todo), f"{', '.join(todo)} were not met together with {name} on this plant: "
                                   "no re-tune with a single one relaxed was found feasible, one with all of them "
-                                  f"relaxed was (it achieves {achieved}; None = no limit)", changes))
+                                  f"relaxed was: it achieves {achieved}", got))
         elif res is not None:
             reasons.append(Reason(tuple(todo), f"even with {', '.join(todo)} relaxed, no {name} meeting the rest of "
                                   "the spec was found: try a structure with more freedom (pid, pidf2, leadlag) or "

@@ -27,7 +27,13 @@ OBJECTIVE_DEFINITIONS: dict[str, str] = {
     "bandwidth": "maximise the closed-loop bandwidth: the lowest frequency where |T(jw)| falls below |T(0)|/sqrt(2) "
                  "(T = L/(1 + L); T(0) = 1 with integral action), found on the verifier's frequency grid (up to the "
                  "Nyquist frequency pi/dt at dt) and refined by root finding",
+    "mks": "minimise the noise sensitivity Mks = max over w of |C/(1 + L)| (how much sensor noise reaches the "
+           "actuator), on the verifier's frequency grid and w -> inf: with --settling-max or --wc, the most "
+           "noise-robust design at that speed",
+    "disk_margin": "maximise the balanced disk margin alpha = min over w of 2|1 + L|/|1 - L| (the largest "
+                   "simultaneous gain and phase variation the loop tolerates): with --settling-max or --wc, the "
+                   "most robust design at that speed",
 }
 
 ROBUST_NOTE = ("Every objective is optimised subject to every constraint of the spec. With several plants the worst "
-               "case counts: the largest value over the plants (for bandwidth, the smallest bandwidth).")
+               "case counts: the largest value over the plants (for bandwidth and disk_margin, the smallest).")

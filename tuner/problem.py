@@ -18,6 +18,7 @@ from .controllers import Structure, get_structure
 from .errors import InvalidPlantError, InvalidSpecError, TunerError
 from .loop import build_loop
 from .optimize.design import PlantScale, initial_guess, plant_scale
+from .optimize.rules import has_filter_rule
 from .plant import Plant, check_dt
 from .spec import Spec
 
@@ -36,8 +37,14 @@ class TuningProblem:
     plants: tuple[Plant, ...]
     structure: Structure
     dt: float | None
-    spec: Spec
+    spec: Spec  # the spec in force: the asked one with the default limits resolved (the noise budget as mks_max)
     scale: PlantScale
+    asked: Spec | None = None  # the spec as given (None: the same as ``spec``)
+    limits: tuple[dict, ...] = ()  # the default limits in force: {"field", "value", "rule"} (see resolve_limits)
+
+    @property
+    def asked_spec(self) -> Spec:
+        return self.asked if self.asked is not None else self.spec
 
     @property
     def nominal(self) -> Plant:
@@ -67,13 +74,46 @@ class TuningProblem:
         if not all(math.isfinite(v) and v > 0 for v in scale):
             raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
                                     "(coefficients spanning hundreds of decades)", field=("plants", 0))
-        guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale).values()), dt)
+        asked = spec
+        spec, limits = resolve_limits(spec, st, plants, dt, scale)
+        guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale, spec=spec).values()), dt)
         for i, p in enumerate(plants):  # a plant that cannot form a loop fails here, with its own message
             try:
                 build_loop(p, guess)
             except TunerError as e:
                 raise _at_plant(e, i) from None
-        return cls(plants=tuple(plants), structure=st, dt=dt, spec=spec, scale=scale)
+        return cls(plants=tuple(plants), structure=st, dt=dt, spec=spec, scale=scale, asked=asked, limits=limits)
+
+
+def noise_scale(plants: Sequence[Plant], scale: PlantScale) -> float:
+    """The gain the noise budget is relative to: the larger of the nominal plant's ultimate gain ``K0`` and
+    the largest inverse DC gain ``1/|G(0)|`` of the set (a resonant plant's K0 can fall below 1/|G(0)|, the
+    noise gain every controller with integral action has, Mks >= |C S|(0) = 1/|G(0)|)."""
+    from .diagnose import dc_gain
+
+    inv = [1.0 / g for g in (dc_gain(p) for p in plants) if 0 < g < math.inf]
+    return max([scale[0], *inv])
+
+
+def resolve_limits(spec: Spec, st: Structure, plants: Sequence[Plant], dt: float | None, scale: PlantScale
+                   ) -> tuple[Spec, tuple[dict, ...]]:
+    """The spec in force and the default limits that apply: the noise budget becomes ``mks_max`` (the tighter of
+    the two), the filter rules are described (they act on the structure's parameters: :mod:`tuner.optimize`)."""
+    limits: list[dict] = []
+    if spec.noise_gain_max is not None:
+        k = noise_scale(plants, scale)
+        budget = spec.noise_gain_max * k
+        if spec.mks_max is None or budget < spec.mks_max:
+            limits.append({"field": "mks_max", "value": budget,
+                           "rule": f"noise budget: Mks <= noise_gain_max x K0 = {spec.noise_gain_max:g} x {k:.4g}"})
+            spec = spec.model_copy(update={"mks_max": budget})
+    if spec.filter_n_max is not None and has_filter_rule(st):
+        limits.append({"field": "filter_n_max", "value": spec.filter_n_max,
+                       "rule": f"derivative filter: N = Td/Tf <= {spec.filter_n_max:g} (Astrom-Hagglund)"})
+    if spec.filter_nyquist and dt is not None and "Tf" in st.params:
+        limits.append({"field": "filter_nyquist", "value": dt / math.pi,
+                       "rule": f"filter corner at most the Nyquist frequency: Tf >= dt/pi = {dt / math.pi:.4g} s"})
+    return spec, tuple(limits)
 
 
 def _at_plant(e: TunerError, i: int) -> TunerError:

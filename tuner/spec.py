@@ -17,8 +17,14 @@ from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
 __all__ = ["Spec", "Check", "check_spec", "OBJECTIVES"]
 
-OBJECTIVES = ("settling_time", "itae", "iae", "ie", "bandwidth")
+OBJECTIVES = ("settling_time", "itae", "iae", "ie", "bandwidth", "mks", "disk_margin")
 SSE_TOL = 1e-6
+CROSSOVER_TOL = 0.01  # a target crossover is met within +-1 %
+
+# The default design limits (on unless lifted; ``Spec.thesis()`` or ``--no-default-limits`` lift all three):
+FILTER_N_MAX = 20.0  # derivative filter: N = Td/Tf <= 20 (Astrom & Hagglund, Advanced PID Control, 2006: N in 2..20)
+NOISE_GAIN_MAX = 10.0  # noise budget: Mks <= 10 K0, K0 = the plant's ultimate gain (see Spec.noise_gain_max)
+DEFAULT_LIMITS = ("filter_n_max", "filter_nyquist", "noise_gain_max")
 
 
 class Spec(BaseModel):
@@ -31,7 +37,7 @@ class Spec(BaseModel):
     overshoot_max_pct: float = Field(10.0, ge=0, le=100, description="maximum step overshoot, %")
     zero_steady_state_error: bool = Field(True, description="require zero steady-state error to a step")
     settling_band_pct: float = Field(2.0, gt=0, le=20, description="settling band, % of the final value")
-    objective: Literal["settling_time", "itae", "iae", "ie", "bandwidth"] = Field(
+    objective: Literal["settling_time", "itae", "iae", "ie", "bandwidth", "mks", "disk_margin"] = Field(
         "settling_time", description="what is optimised (tuner.objectives): " + "; ".join(
             f"{k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()) + ". " + ROBUST_NOTE)
     control_peak_max: float | None = Field(None, gt=0, description="maximum |u| after a unit reference step")
@@ -42,6 +48,34 @@ class Spec(BaseModel):
                                   "sensor noise reaches the actuator")
     disk_margin_min: float | None = Field(None, gt=0, lt=2, description="minimum balanced disk margin alpha (0..2)")
     bandwidth_min_rad_s: float | None = Field(None, gt=0, description="minimum closed-loop bandwidth, rad/s")
+    settling_time_max: float | None = Field(None, gt=0, description="maximum 2 % settling time (the settling band) "
+                                            "of the unit reference step, s: the response-time knob")
+    crossover_rad_s: float | None = Field(None, gt=0, description="target gain-crossover frequency wc, rad/s (as "
+                                          "pidtune(G, type, wc)): the loop must cross over within +-1 % of it")
+    # -- the default design limits (a design an engineer would fly); None / false lifts each ------------------
+    filter_n_max: float | None = Field(
+        FILTER_N_MAX, gt=0, description="derivative filter rule for pd, pid, pid2 and pid_mf2: N = Td/Tf = "
+        "Kd/(Kp Tf) <= this (default 20: Astrom & Hagglund, Advanced PID Control, 2006, give N in 2..20; the "
+        "controller's high-frequency gain is then at most Kp (1 + N)); null lifts it")
+    filter_nyquist: bool = Field(
+        True, description="at a sample time dt, a derivative or measurement filter no faster than the sampling "
+        "supports: its corner 1/Tf at most the Nyquist frequency pi/dt, i.e. Tf >= dt/pi (a faster corner filters "
+        "nothing); false lifts it (Tf >= 1e-3 dt)")
+    noise_gain_max: float | None = Field(
+        NOISE_GAIN_MAX, gt=0, description="noise budget: Mks = max |C/(1+L)| <= this times K0, the nominal plant's "
+        "gain scale 1/|G(j w0)| (w0: where its phase, hold and delay included, reaches -180 deg; its ultimate "
+        "gain). A Ziegler-Nichols PID (Kp = 0.6 Ku) with N = 10..20 has a high-frequency gain of 6.6..12.6 Ku: 10 "
+        "is that classic aggressive design's noise gain; the tighter of this and mks_max applies; null lifts it")
+
+    @classmethod
+    def thesis(cls, **kw: Any) -> Spec:
+        """The pure thesis spec: ``Spec(**kw)`` with the default design limits (derivative filter rule, Nyquist
+        filter rule, noise budget) lifted."""
+        return cls(**{"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, **kw})
+
+    def without_default_limits(self) -> Spec:
+        """This spec with the default design limits lifted (what ``--no-default-limits`` does)."""
+        return self.model_copy(update={"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None})
 
 
 @dataclass(frozen=True)
@@ -95,6 +129,14 @@ def check_spec(metrics: Any, spec: Spec) -> list[Check]:
         checks.append(_ge("disk_margin", m.disk_margin, spec.disk_margin_min))
     if spec.bandwidth_min_rad_s is not None:
         checks.append(_ge("bandwidth_rad_s", m.bandwidth_rad_s, spec.bandwidth_min_rad_s))
-    checks.append(Check("settling_time_s", "<", math.inf, m.settling_time_s,
-                        bool(m.settling_time_s < math.inf), 0.0 if m.settling_time_s < math.inf else math.inf))
+    if spec.crossover_rad_s is not None:
+        wc, want = m.crossover_rad_s, spec.crossover_rad_s
+        err = abs(wc - want) / want if math.isfinite(wc) else math.inf
+        ok = bool(err <= CROSSOVER_TOL)
+        checks.append(Check("crossover_rad_s", "==", want, wc, ok, 0.0 if ok else err - CROSSOVER_TOL))
+    if spec.settling_time_max is not None:
+        checks.append(_le("settling_time_s", m.settling_time_s, spec.settling_time_max))
+    else:
+        checks.append(Check("settling_time_s", "<", math.inf, m.settling_time_s,
+                            bool(m.settling_time_s < math.inf), 0.0 if m.settling_time_s < math.inf else math.inf))
     return checks

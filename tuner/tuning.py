@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from .analysis.verify import Analysis
+from .bounds import describe
 from .controllers import ControllerTF
 from .errors import TunerError
 from .jsonio import jsonable
@@ -41,6 +42,8 @@ class TuneResult:
     solver: dict[str, Any]
     spec: Spec
     reasons: tuple[Any, ...] = ()  # tuner.diagnose.Reason: why the spec is not met, what would make it feasible
+    at_bounds: tuple[dict[str, Any], ...] = ()  # parameters on a search bound or a default limit (tuner.bounds)
+    limits: tuple[dict[str, Any], ...] = ()  # the default design limits in force (field, value, rule)
 
     @property
     def meets_spec(self) -> bool:
@@ -119,6 +122,8 @@ class TuneResult:
             "meets_spec": self.meets_spec,
             "objective": {"name": self.spec.objective, "value": self.objective},
             "reasons": [r.to_dict() for r in self.reasons],
+            "at_bounds": [dict(e, text=describe(e)) for e in self.at_bounds],
+            "limits": [dict(e) for e in self.limits],
             "failing": sorted({c.name for a in self.analyses for c in a.failing}),
             "solver": dict(self.solver),
             "spec": self.spec.model_dump(),
@@ -232,10 +237,15 @@ def tune(
     if local:
         import casadi  # noqa: F401 - loaded before the limit, so that its OpenMP runtime is limited too
 
-    from .optimize.engine import Engine
-
     # one BLAS/OpenMP thread for the solve (its matrices are tiny: a 3x3 expm costs 16 us on one thread and
     # milliseconds with the default pool); scoped, so the caller's own threading is left as it was
+    from .diagnose import definitional_reasons
+    from .optimize.engine import Engine
+
+    decided = definitional_reasons(problem) if diagnose else []
+    if decided:  # a limit that no gains can meet: answer at once, with the best a short search finds
+        time_budget_s = min(float(time_budget_s), SHORT_BUDGET_S)
+        deadline = t0 + time_budget_s
     with threadpool_limits(limits=1):
         # keep a share of the budget for the final verification at full resolution
         eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
@@ -255,22 +265,52 @@ def tune(
             "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
             "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
         }
+        from .bounds import at_bounds
+
         res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
-                         analyses=best.analyses, solver=info, spec=problem.spec)
+                         analyses=best.analyses, solver=info, spec=problem.spec,
+                         at_bounds=tuple(at_bounds(problem, eng.space, best_x, best.analyses)),
+                         limits=problem.limits)
         if not res.meets_spec and diagnose:
             from .diagnose import diagnose as _diagnose
 
             failing = [c.name for a in res.analyses for c in a.failing]
             left = min(DIAGNOSIS_SHARE * float(time_budget_s), deadline - time.perf_counter())  # within the budget
-            reasons = _diagnose(problem, failing, seed=int(seed), budget_s=left, min_tune_s=3 * t_verify + 0.02,
+            found: list[TuneResult] = []
+            reasons = _diagnose(problem, failing, seed=int(seed), budget_s=0.0 if decided else left,
+                                min_tune_s=3 * t_verify + 0.02, found=found,
                                 tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
                                                                 nlp_solver=nlp_solver, local=local, diagnose=False))
             res = replace(res, reasons=tuple(reasons))
+            better = _adopt(eng, problem, found)  # a relaxed re-tune's design that meets the asked spec after all
+            if better is not None:
+                x, scored = better
+                res = TuneResult(structure=st.name, gains=st.named(x), controller=eng.ev.controller(x),
+                                 analyses=scored.analyses, solver=info, spec=problem.spec,
+                                 at_bounds=tuple(at_bounds(problem, eng.space, x, scored.analyses)),
+                                 limits=problem.limits)
+                info["found_by_diagnosis"] = True
             res.solver["wall_time_s"] = time.perf_counter() - t0
             res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
     return res
 
 
+def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[np.ndarray, Any] | None:
+    """The best of the diagnosis's re-tuned designs that the verifier finds meeting the asked spec (the re-tunes
+    relaxed one limit; their design may meet it anyway: the first search had missed it), or None."""
+    best = None
+    for r in found:
+        try:
+            x = problem.structure.vector(r.gains)
+        except TunerError:
+            continue
+        s = eng.ev.score(x, full=True)
+        if s.feasible and (best is None or s.score < best[1].score):
+            best = (x, s)
+    return best
+
+
+SHORT_BUDGET_S = 0.5  # a spec that no gains can meet (tuner.diagnose.definitional_reasons): the search's budget
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
 # budget, at most this share of it (the reasons by definition need no time)

@@ -5,12 +5,13 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 
 from ..deps import require_api_key
-from . import analyze, export, health, identify, page, tune, tunes
+from . import analyze, export, health, identify, page, tradeoff, tune, tunes
 
 __all__ = ["api_router", "public_router"]
 
 api_router = APIRouter(dependencies=[Depends(require_api_key)])
 api_router.include_router(tune.router)
+api_router.include_router(tradeoff.router)
 api_router.include_router(analyze.router)
 api_router.include_router(tunes.router)
 api_router.include_router(export.router)

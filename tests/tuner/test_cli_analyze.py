@@ -211,8 +211,8 @@ BAD = [
     (["--plant", "1/(s+1)", "--controller", "(s+1"], "missing ')' (at position 4)"),
     (["--plant", "1/(s+1)", "--controller", ""], "empty expression"),
     # spec
-    (["--plant", "1/(s+1)", "--controller", "1", "--pm", "100"], "spec: phase_margin_min_deg"),
-    (["--plant", "1/(s+1)", "--controller", "1", "--band", "0"], "spec: settling_band_pct"),
+    (["--plant", "1/(s+1)", "--controller", "1", "--pm", "100"], "--pm: "),
+    (["--plant", "1/(s+1)", "--controller", "1", "--band", "0"], "--band: "),
 ]
 
 

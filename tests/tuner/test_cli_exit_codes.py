@@ -103,7 +103,7 @@ def test_tune_ok_0(capsys):
     (["--structure", "pi", "--budget", "nan"], ["--budget"]),
     (["--structure", "pi", "--seed", "-1"], ["--seed"]),
     (["--structure", "pid_z"], ["--dt", "discrete"]),
-    (["--structure", "pi", "--pm", "120"], ["spec"]),
+    (["--structure", "pi", "--pm", "120"], ["--pm"]),
 ])
 def test_tune_bad_input_2(capsys, args, words):
     code, out, err = run(capsys, "tune", "--plant", "1/(s+1)", *args)

@@ -29,6 +29,8 @@ from tuner.plant import make_plant, plant_from_expr
 from tuner.spec import Spec
 from tuner.tuning import tune
 
+THESIS = Spec.thesis()  # this module tests the thesis problem (issue 18's default limits: test_flyable.py)
+
 BUDGET = 120.0  # s; a tune takes a few seconds: the budget is never what stops the search
 
 # raw coefficients of the thesis models (quadrotor.md), for the independent reference computations
@@ -123,7 +125,8 @@ def tuned():
     def get(name, structure):
         if (name, structure) not in cache:
             plant = plant_from_expr(EXPR[name])
-            cache[name, structure] = plant, tune(plant, structure=structure, dt=DT, seed=0, time_budget_s=BUDGET)
+            cache[name, structure] = plant, tune(plant, structure=structure, dt=DT, seed=0, time_budget_s=BUDGET,
+                                                 spec=THESIS)
         return cache[name, structure]
 
     return get
@@ -172,7 +175,7 @@ def test_solver_information(tuned, name, structure):
     assert s["global_evaluations"] > 0 and s["wall_time_s"] > 0
     assert s["budget_exhausted"] is False  # the budget did not stop the search
     assert s["stop"] == "converged" and s["converged"] is True and s["rounds"] >= 1
-    assert res.structure == structure and res.spec == Spec()
+    assert res.structure == structure and res.spec == THESIS
 
 
 @pytest.mark.parametrize("name", ["roll", "pitch", "yaw"])
@@ -217,8 +220,8 @@ def test_pid_z_reaches_what_pid_reaches(tuned, name):
 
 def test_same_seed_same_gains():
     plant = plant_from_expr(PITCH)
-    r1 = tune(plant, structure="pid_z", dt=DT, seed=7, time_budget_s=BUDGET)
-    r2 = tune(plant_from_expr(PITCH), structure="pid_z", dt=DT, seed=7, time_budget_s=BUDGET)
+    r1 = tune(plant, structure="pid_z", dt=DT, seed=7, time_budget_s=BUDGET, spec=THESIS)
+    r2 = tune(plant_from_expr(PITCH), structure="pid_z", dt=DT, seed=7, time_budget_s=BUDGET, spec=THESIS)
     assert r1.gains == r2.gains
     assert r1.solver["seed"] == r2.solver["seed"] == 7
     assert r1.solver["global_evaluations"] == r2.solver["global_evaluations"]
@@ -243,8 +246,8 @@ ROBUST_SET = [(1.0, 1.0), (0.8, 1.0), (1.2, 1.0), (1.0, 0.8), (1.0, 1.2)]
 @pytest.fixture(scope="module")
 def robust():
     plants = [roll_variant(*m) for m in ROBUST_SET]
-    rob = tune(plants, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET)
-    nom = tune(plants[0], structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET)
+    rob = tune(plants, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, spec=THESIS)
+    nom = tune(plants[0], structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, spec=THESIS)
     return plants, rob, nom
 
 
@@ -290,7 +293,7 @@ def infeasible_peak():
     # Infeasible by construction: with zero steady-state error (pid_z has an integrator, so every
     # stable loop has it) the control settles at u(inf) = 1/G(0) = 1/0.2655 = 3.766, so
     # max |u| >= 3.766 > 1 for every controller that meets the other constraints.
-    spec = Spec(control_peak_max=1.0)
+    spec = Spec.thesis(control_peak_max=1.0)
     plant = plant_from_expr(ROLL)
     return plant, spec, tune(plant, structure="pid_z", dt=DT, spec=spec, seed=0, time_budget_s=BUDGET)
 
@@ -323,7 +326,7 @@ def infeasible_sse():
     # (first-order loop: no overshoot, PM > 90 deg, no phase crossover), so the error shrinks
     # monotonically with Kp and the least-violating P controller is the largest gain the box allows.
     plant = make_plant([1], [1, 1])
-    return plant, tune(plant, structure="p", seed=0, time_budget_s=BUDGET)
+    return plant, tune(plant, structure="p", seed=0, time_budget_s=BUDGET, spec=THESIS)
 
 
 def test_infeasible_steady_state_error_names_the_constraint(infeasible_sse):
@@ -356,8 +359,8 @@ def test_infeasible_result_is_the_least_violating(infeasible_sse):
 def roll_signs():
     pos = plant_from_expr(ROLL)
     neg = plant_from_expr(f"-({ROLL})")
-    return (pos, tune(pos, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET),
-            neg, tune(neg, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET))
+    return (pos, tune(pos, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, spec=THESIS),
+            neg, tune(neg, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, spec=THESIS))
 
 
 def test_negative_gain_plant(roll_signs):
@@ -386,7 +389,8 @@ def special(request):
     plant = build()
     # the delay loop is slow to verify (fine-step closed-loop poles): a larger budget
     budget = 600.0 if plant.delay_s else BUDGET
-    return request.param, plant, dt, tune(plant, structure=structure, dt=dt, seed=0, time_budget_s=budget)
+    return request.param, plant, dt, tune(plant, structure=structure, dt=dt, seed=0, time_budget_s=budget,
+                                          spec=THESIS)
 
 
 @pytest.mark.slow
@@ -403,7 +407,7 @@ def test_special_plants_are_tuned_and_verified(special):
 def test_open_loop_unstable_plant_is_stabilised_independently():
     """1/(s-1) with a PID at dt = 0.02: closed-loop roots of den + num of C(z) ZOH[G](z) computed here."""
     plant = make_plant([1], [1, -1])
-    res = tune(plant, structure="pid", dt=0.02, seed=0, time_budget_s=BUDGET)
+    res = tune(plant, structure="pid", dt=0.02, seed=0, time_budget_s=BUDGET, spec=THESIS)
     ln, ld = ref.open_loop([1], [1, -1], res.controller.num, res.controller.den, dt=0.02)
     roots = ref.closed_loop_roots(ln, ld)
     assert np.max(np.abs(roots)) < 1.0
@@ -420,15 +424,15 @@ def test_open_loop_unstable_plant_is_stabilised_independently():
 def test_bad_input_raises_tuner_errors():
     plant = plant_from_expr(ROLL)
     with pytest.raises(TunerError):
-        tune(plant, structure="nope", dt=DT)
+        tune(plant, structure="nope", dt=DT, spec=THESIS)
     with pytest.raises(TunerError):
-        tune(plant, structure="pid_z")  # discrete structure without dt
+        tune(plant, structure="pid_z", spec=THESIS)  # discrete structure without dt
     with pytest.raises(TunerError):
-        tune([], structure="pid", dt=DT)
+        tune([], structure="pid", dt=DT, spec=THESIS)
     with pytest.raises(TunerError):
-        tune(plant, structure="pid", dt=-1.0)
+        tune(plant, structure="pid", dt=-1.0, spec=THESIS)
     with pytest.raises(TunerError):
         tune([plant_from_expr("0.04/(z-1)", dt=0.04), plant_from_expr("0.05/(z-1)", dt=0.05)],
              structure="pi")  # discrete plants at different sample times
     with pytest.raises(TunerError):
-        tune(plant, structure="pid", dt=DT, nlp_solver="nope")
+        tune(plant, structure="pid", dt=DT, nlp_solver="nope", spec=THESIS)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from typing import Any
 
 from ..errors import TunerError
@@ -79,12 +80,16 @@ def _source(a: argparse.Namespace) -> Any:
 
 def _cmd_export(a: argparse.Namespace) -> int:
     from .codegen import check_name, render
-    from .source import equation_of
+    from .source import clamp_note, equation_of
 
     try:
         check_name(a.name)
-        de = equation_of(_source(a), dt=a.dt, method=a.method, u_min=a.u_min, u_max=a.u_max)
+        src = _source(a)
+        de = equation_of(src, dt=a.dt, method=a.method, u_min=a.u_min, u_max=a.u_max)
         text = render(de, a.format, a.name)
+        note = clamp_note(src, a.u_min, a.u_max)
+        if note:
+            print(f"tuner: warning: {note}", file=sys.stderr)
     except TunerError as e:
         opt = next((_OPTION[str(f)] for f in e.field if str(f) in _OPTION), None)
         if opt == "--controller" and a.result is not None:

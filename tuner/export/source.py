@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -11,7 +13,7 @@ from ..errors import InvalidControllerError
 from .codegen import check_name, render
 from .discrete import DifferenceEquation, difference_equation
 
-__all__ = ["export_controller", "from_result", "equation_of"]
+__all__ = ["export_controller", "from_result", "equation_of", "clamp_note", "ExportWarning"]
 
 
 def from_result(result: Mapping[str, Any]) -> tuple[ControllerTF, str | None, dict[str, float] | None]:
@@ -88,4 +90,39 @@ def export_controller(controller: Any, *, format: str = "c", name: str = "contro
     """
     check_name(name)
     de = equation_of(controller, dt=dt, method=method, u_min=u_min, u_max=u_max)
-    return render(de, format, name)
+    out = render(de, format, name)
+    note = clamp_note(controller, u_min, u_max)
+    if note:
+        warnings.warn(note, ExportWarning, stacklevel=2)
+        mark = {"c": "// ", "python": "# "}.get(format, "")
+        out = f"{mark}WARNING: {note}\n{out}"
+    return out
+
+
+class ExportWarning(UserWarning):
+    """The exported controller's limits change what was verified (the design's linear control peak exceeds them)."""
+
+
+def clamp_note(controller: Any, u_min: float | None, u_max: float | None) -> str | None:
+    """A warning when the verified linear control peak of a unit reference step exceeds the output limits the
+    export clamps to (the clamp then shapes the response, which the verifier did not see); None otherwise or when
+    the peak is unknown (a bare controller)."""
+    from ..tuning import TuneResult
+
+    if u_min is None and u_max is None:
+        return None
+    peak = None
+    if isinstance(controller, TuneResult):
+        peak = max(a.metrics.control_peak for a in controller.analyses)
+    elif isinstance(controller, Mapping) and isinstance(controller.get("metrics"), Mapping):
+        v = controller["metrics"].get("control_peak")
+        peak = float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+    if peak is None or not math.isfinite(peak):
+        return None
+    room = min(abs(v) for v in (u_min, u_max) if v is not None)
+    if peak <= room:
+        return None
+    return (f"the design's linear control peak for a unit reference step is {peak:.4g}, beyond the output limit "
+            f"{room:g} this export clamps to: steps larger than {room / peak:.3g} saturate the actuator and the "
+            "verified margins and step metrics no longer describe the response; tune with a control-peak limit "
+            f"(--control-peak {room:g}) or scale the reference")

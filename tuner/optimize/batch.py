@@ -33,7 +33,8 @@ from ..controllers import ControllerTF
 from ..loop import build_loop
 from ..lti import zoh_delayed
 from ..problem import TuningProblem
-from ..spec import SSE_TOL
+from ..spec import CROSSOVER_TOL, SSE_TOL
+from . import rules
 from .space import Space
 
 __all__ = ["BatchEvaluator", "BatchResult", "GUARD", "Start"]
@@ -133,7 +134,8 @@ class BatchEvaluator:
         self.n_evals = 0
         self.plants = [self._plant_data(p) for p in problem.plants]
         sp = self.spec
-        wanted = {"ms": sp.ms_max, "mt": sp.mt_max, "mks": sp.mks_max, "dm": sp.disk_margin_min,
+        wanted = {"ms": sp.ms_max, "mt": sp.mt_max, "mks": sp.mks_max if sp.objective != "mks" else 1.0,
+                  "dm": sp.disk_margin_min if sp.objective != "disk_margin" else 1.0,
                   "bw": sp.bandwidth_min_rad_s if sp.objective != "bandwidth" else 1.0}
         self._needs = frozenset(k for k, lim in wanted.items() if lim is not None)  # what the spec checks
 
@@ -473,9 +475,16 @@ class BatchEvaluator:
                 v += _viol_ge(m["dm"], spec.disk_margin_min / g["peak"], spec.disk_margin_min)
             if spec.bandwidth_min_rad_s is not None:
                 v += _viol_ge(m["bw"], spec.bandwidth_min_rad_s / g["peak"], spec.bandwidth_min_rad_s)
+            if spec.settling_time_max is not None:
+                v += _viol_le(m["settling_time_s"], spec.settling_time_max, spec.settling_time_max)
+            if spec.crossover_rad_s is not None:  # within +-1 % (a little inside in the search)
+                err = np.abs(m["wc"] - spec.crossover_rad_s) / spec.crossover_rad_s
+                v += np.where(np.isfinite(err), np.maximum(err - 0.9 * CROSSOVER_TOL, 0.0), 10.0)
             v += np.where(np.isfinite(m["settling_time_s"]), 0.0, 10.0)
             viol += v
             obj = np.maximum(obj, self._objective(m, X))
+        if rules.applies(self.st, spec):  # the derivative-filter rule, on the parameters
+            viol += _viol_le(rules.filter_n_batch(self.st, X), spec.filter_n_max, spec.filter_n_max)
         score = np.where(viol > 0, INFEASIBLE * (1.0 + viol), obj)
         score = np.where(np.isfinite(score), score, INFEASIBLE * 20)
         score = np.where(unstable, UNSTABLE * (1.0 + np.minimum(outside, 1e3)), score)
@@ -495,6 +504,10 @@ class BatchEvaluator:
         if o == "ie":  # |1/Ki|: a stabilising Ki has the sign of the plant's static gain (negative for G(0) < 0)
             ki = np.abs(self.integral_gain(X))
             return np.where(ki > 0, 1.0 / np.where(ki > 0, ki, 1.0), np.inf)
+        if o == "mks":
+            return m["mks"]
+        if o == "disk_margin":
+            return -m["dm"]
         return -m["bw"]  # bandwidth
 
     def integral_gain(self, X: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ feedback it needs), not about a structure's parameters <-> transfer function (th
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -27,14 +28,19 @@ TF_MIN_DT = 1e-3  # sampled loops: Tf >= 1e-3 dt (the filter pole Tf/(Tf+dt) <= 
                   # derivative of pid_z, which pid therefore contains up to that)
 
 
-def tf_min(dt: float | None, w0: float) -> float:
-    """The documented lower bound on a derivative or measurement filter's time constant ``Tf``."""
+def tf_min(dt: float | None, w0: float, *, nyquist: bool = False) -> float:
+    """The documented lower bound on a derivative or measurement filter's time constant ``Tf``: with the
+    default ``Spec.filter_nyquist`` at a sample time, ``dt/pi`` (the filter's corner at most the Nyquist
+    frequency); without it ``1e-3 dt``; continuous loops ``1e-3 / w0``."""
+    if dt and nyquist:
+        return dt / math.pi
     return TF_MIN_DT * dt if dt else TF_MIN_W0 / w0
 
 
-def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Search box from the plant's scale: gains +-GAIN_SPAN times their unit (K0 * w0**unit)."""
+def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None,
+           nyquist: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Search box from the plant's scale: gains +-GAIN_SPAN times their unit (K0 * w0**unit); ``nyquist``:
+    filter time constants from ``dt/pi`` (:func:`tf_min`)."""
     k0, w0 = scale or plant_scale(plant, dt)
     wmax = (math.pi / dt) if dt else 1e3 * w0
     lo, hi = [], []
@@ -44,7 +50,8 @@ def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale |
         elif kind == "freq":
             lo.append(1e-3 * w0), hi.append(min(wmax, 1e2 * w0))
         elif kind == "time":
-            lo.append(tf_min(dt, w0)), hi.append(max(10.0 / w0, 10 * tf_min(dt, w0)))
+            t0 = tf_min(dt, w0, nyquist=nyquist)
+            lo.append(t0), hi.append(max(10.0 / w0, 10 * t0))
         else:  # polynomial coefficient of a monic quadratic with zeros in |z| <= 1.5
             lo.append(-3.0), hi.append(3.0)
     return np.array(lo), np.array(hi)
@@ -75,15 +82,18 @@ def zero_variants(plant: Plant, dt: float | None, w0: float) -> list[np.ndarray]
 
 
 def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None,
-                  zeros: np.ndarray | None = None) -> dict[str, float]:
+                  zeros: np.ndarray | None = None, spec: Any = None) -> dict[str, float]:
     """A pole-cancellation start (IMC / lambda-tuning style), sign from the plant.
 
     The controller's zeros go on the plant's slowest stable poles (two for
     PID/pid_z/lead-lag, one for PI/PD/lead), or where ``zeros`` says (s-plane; ``-inf`` is z = 0 in
     discrete time, see :func:`zero_variants`); the gain puts the loop's crossover at a third of the
-    plant's ultimate frequency ``w0``.
+    plant's ultimate frequency ``w0``. ``spec``: its default filter rules shape the start (the filter at
+    ``Td/N`` and no faster than ``dt/pi``).
     """
     k0, w0 = scale or plant_scale(plant, dt)
+    nyq = bool(getattr(spec, "filter_nyquist", False))
+    n_max = getattr(spec, "filter_n_max", None)
     sgn = plant_sign(plant)
     poles = slow_poles(plant, w0) if zeros is None else np.asarray(zeros, dtype=complex)
     z1 = float(abs(poles[0]))  # one-zero structures: the slowest pole's frequency
@@ -94,14 +104,14 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     if st.name in ("pid", "pd", "pidf2"):
         # Kd s^2 + Kp s + Ki = Kd (s^2 + c1 s + c2)   (pd: Kd s + Kp = Kd (s + z1))
         g.update(Kd=1.0, Kp=z1 if st.name == "pd" else c1, Ki=c2,
-                 Tf=(0.1 / w0) if dt is None else tf_min(dt, w0))
+                 Tf=(0.1 / w0) if dt is None else tf_min(dt, w0, nyquist=nyq))
     if dt is not None and st.name in ("pid", "pi", "pidf2"):
         # in discrete time put the zeros exactly on the ZOH plant's poles: with Tf = 0 the
         # backward-Euler PID numerator is (Kp + Ki dt + Kd/dt) z^2 - (Kp + 2 Kd/dt) z + Kd/dt
         zp = np.exp(poles * dt)
         if st.name in ("pid", "pidf2"):
             _, a1, a2 = np.real(np.poly(zp))
-            g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=tf_min(dt, w0))
+            g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=tf_min(dt, w0, nyquist=nyq))
         else:  # (Kp + Ki dt) z - Kp = z - e^{-z1 dt}
             e1 = float(np.exp(-z1 * dt))
             g.update(Kp=e1, Ki=(1 - e1) / dt)
@@ -112,6 +122,8 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
             raise InvalidControllerError("pid_z is discrete: give dt")
         _, a1, a2 = np.real(np.poly(np.exp(poles * dt)))
         g.update(a1=float(a1), a2=float(a2))
+    if n_max and st.name in ("pd", "pid", "pid2", "pid_mf2", "pidf2") and g["Kp"] != 0:
+        g["Tf"] = max(g["Tf"], 1.001 * abs(g["Kd"] / g["Kp"]) / n_max)  # the filter rule: N = Td/Tf <= n_max
     x = np.array([g[p] for p in st.params], dtype=float)
     c1 = st.tf(x, dt)
     p_eff = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)
@@ -122,7 +134,7 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     g = dict(zip(st.params, x))
     # keep the start inside the search box: in discrete time a lead pole at 3*w0 can lie
     # above the Nyquist frequency pi/dt (roll, yaw at dt = 0.04), the box's upper bound
-    lo, hi = bounds(st, plant, dt, scale=(k0, w0))
+    lo, hi = bounds(st, plant, dt, scale=(k0, w0), nyquist=nyq)
     out = {}
     for p, a, b in zip(st.params, lo, hi):
         v = float(g[p])

@@ -39,7 +39,7 @@ __all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES"]
 
 #: the objectives the local NLP states exactly (``nlp.transcribe._objective``); the others (bandwidth) are
 #: optimised by the global search alone
-NLP_OBJECTIVES = ("settling_time", "itae", "iae", "ie")
+NLP_OBJECTIVES = ("settling_time", "itae", "iae", "ie", "mks", "disk_margin")
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,8 @@ SCAN_SEED = 20261202
 GAIN_DECADES = (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5)  # the designed starts' gains, in decades of the guess
 
 
-def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = False) -> list[np.ndarray]:
+def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = False, spec: Any = None
+                    ) -> list[np.ndarray]:
     """Plant-based starts: the structure's initial guess with all gains scaled by 10^-1.5 ... 10^0.5
     (most loops are stable somewhere on that ray); ``variants``: the same for each placement of the
     controller's zeros of :func:`~tuner.optimize.design.zero_variants` (the first is the classic one)."""
@@ -65,7 +66,7 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
     guesses = []
     for zeros in zs:
         with np.errstate(all="ignore"):
-            g = initial_guess(st, plant, dt, scale=scale, zeros=zeros)
+            g = initial_guess(st, plant, dt, scale=scale, zeros=zeros, spec=spec)
         x0 = np.array([g[p] for p in st.params])
         if np.all(np.isfinite(x0)) and not any(np.allclose(x0, g0, rtol=1e-9, atol=0) for g0 in guesses):
             guesses.append(x0)  # placements a structure cannot tell apart (one zero) only once
@@ -119,7 +120,8 @@ class Engine:
                  n_starts: int = 3, n_trials: int | None = None, sampler: Any = None, storage: Any = None,
                  reserve_s: float = 0.0) -> None:
         self.problem = problem
-        self.space = make_space(problem.structure, problem.nominal, problem.dt, scale=problem.scale)
+        self.space = make_space(problem.structure, problem.nominal, problem.dt, scale=problem.scale,
+                                nyquist=problem.spec.filter_nyquist)
         self.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=self.space.w0)
         self.batch = BatchEvaluator(problem, self.space)
         # the local stage states the objectives it optimises exactly (the others: the global search alone)
@@ -213,7 +215,7 @@ class Engine:
         # the plant-based starts first: their best is the incumbent that bounds the simulated horizon of the
         # space-filling points (a point that has not settled by three times the incumbent's settling time
         # is worse anyway)
-        starts = designed_starts(self.space, p.nominal, p.dt, variants=True)
+        starts = designed_starts(self.space, p.nominal, p.dt, variants=True, spec=p.spec)
         span = np.maximum(self.space.hi - self.space.lo, 1e-12)
         S = np.array(starts).reshape(len(starts), -1)
         seeded = [v for v in self._seeded_starts()  # those the structure's own starts do not already hold
@@ -286,9 +288,9 @@ class Engine:
         name, convert = sub
         p = self.problem
         small = get_structure(name)
-        space = make_space(small, p.nominal, p.dt, scale=p.scale)
+        space = make_space(small, p.nominal, p.dt, scale=p.scale, nyquist=p.spec.filter_nyquist)
         out = []
-        for v in designed_starts(space, p.nominal, p.dt, variants=True):
+        for v in designed_starts(space, p.nominal, p.dt, variants=True, spec=p.spec):
             g = dict(zip(small.params, space.params(v)))
             with np.errstate(all="ignore"):
                 x = np.array([convert(g)[q] for q in p.structure.params])

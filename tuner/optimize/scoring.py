@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from ..errors import TunerError
 from ..loop import build_loop
 from ..plant import Plant
 from ..spec import Spec
+from . import rules
 
 __all__ = ["Evaluator", "Scored", "objective_value", "INFEASIBLE"]
 
@@ -49,6 +50,10 @@ def objective_value(a: Analysis, spec: Spec) -> float:
         return m.settling_time_s
     if spec.objective == "bandwidth":
         return -m.bandwidth_rad_s if math.isfinite(m.bandwidth_rad_s) else math.inf
+    if spec.objective == "mks":
+        return m.mks if math.isfinite(m.mks) else math.inf
+    if spec.objective == "disk_margin":
+        return -m.disk_margin if math.isfinite(m.disk_margin) else math.inf
     r = a.response
     if r is None:
         return math.inf
@@ -107,7 +112,14 @@ class Evaluator:
     def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
         """The verifier's analyses on every plant: at full resolution (``full``), else the search's."""
         loops = self._loops(x)
-        return tuple(self._analyse_loop(lp, None, full=full) for lp in loops)
+        return self._with_rules(tuple(self._analyse_loop(lp, None, full=full) for lp in loops), x)
+
+    def _with_rules(self, an: tuple[Analysis, ...], x: np.ndarray) -> tuple[Analysis, ...]:
+        """The analyses with the checks of the rules on the parameters (the derivative filter's N)."""
+        if not rules.applies(self.structure, self.spec):
+            return an
+        chk = rules.filter_check(self.structure, self.spec, x)
+        return tuple(replace(a, checks=[*a.checks, chk]) for a in an)
 
     def _loops(self, x: np.ndarray) -> list:
         ctrl = self.controller(x)
@@ -150,6 +162,7 @@ class Evaluator:
             an = tuple(self._analyse_loop(lp, p, full=full) for lp, p in zip(loops, poles))
         except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
             return Scored(UNSTABLE * 10, False, ())
+        an = self._with_rules(an, x)
         if any(not a.metrics.stable for a in an):
             return Scored(UNSTABLE, False, an)
         viol = sum(_violation(a) for a in an)

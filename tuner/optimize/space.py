@@ -92,10 +92,12 @@ class Space:
         return np.asarray(self.to_params(np.asarray(v, dtype=float), linear_gains=linear_gains), dtype=float)
 
 
-def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None) -> Space:
-    """The search box of ``structure`` on ``plant`` at ``dt`` (``scale``: the plant's (K0, w0) if known)."""
+def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None,
+               nyquist: bool = False) -> Space:
+    """The search box of ``structure`` on ``plant`` at ``dt`` (``scale``: the plant's (K0, w0) if known;
+    ``nyquist``: filter time constants from ``dt/pi``, the spec's ``filter_nyquist``)."""
     k0, w0 = scale or plant_scale(plant, dt)
-    lo_p, hi_p = bounds(structure, plant, dt, scale=(k0, w0))
+    lo_p, hi_p = bounds(structure, plant, dt, scale=(k0, w0), nyquist=nyquist)
     idx = {p: i for i, p in enumerate(structure.params)}
     ratio_of: list[int | None] = [None] * len(structure.params)
     for a, b in structure.orderings:  # param b (or a) expressed as a ratio over the other

@@ -27,6 +27,7 @@ import numpy as np
 from ...analysis.margins import frequency_grid
 from ...controllers import ControllerTF
 from ...loop import build_loop
+from .. import rules
 from ..batch import GUARD, BatchEvaluator, Start
 from ..space import Space
 from .plantdata import LiftedPlant, lift
@@ -101,6 +102,8 @@ def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | Non
     if ev.spec.objective == "settling_time":
         return 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
     T = np.nanmax(start.horizon) if np.any(np.isfinite(start.horizon)) else 60 * unit
+    if ev.spec.settling_time_max is not None:  # the band is constrained from the limit on: see past it
+        T = max(float(T), 8.0 * ev.spec.settling_time_max)
     return float(T)
 
 
@@ -183,6 +186,7 @@ def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key
         "mt": (spec.mt_max or 1.0) * _TIGHT, "mks": (spec.mks_max or 1.0) * _TIGHT,
         "alpha": (spec.disk_margin_min or 0.0) / _TIGHT,
         "eps": _ABS_EPS, "kiu": abs(float(kiu)) or 1.0, "units": np.asarray(space.units, float),
+        "nmax": (spec.filter_n_max or 1.0) * _TIGHT, "kscale": space.k0,
         "tw": _time_weights(grid, spec.objective)}
     for i, (p, lf) in enumerate(zip(ev.problem.plants, data.lifted)):
         values.update(lf.blocks(i, delay_s=p.delay_s if grid.h is not None else 0.0))
@@ -204,17 +208,22 @@ def _grid_response(ev: BatchEvaluator, values: dict[str, Any]) -> None:
         values[f"Gre{i}"], values[f"Gim{i}"] = G.real, G.imag
 
 
-def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: float, wmax: float
-         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Start, lower and upper bounds of the decision vector."""
+def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: float, wmax: float,
+         wc_target: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start, lower and upper bounds of the decision vector (``wc_target``: the crossovers pinned there)."""
     vlo, vhi = space.bounds(linear_gains=True)
     key = prob.key
     wc = data.wc if key.pm else []
+    if wc_target is not None and wc:
+        wc = [wc_target] * len(wc)
     wp = data.wp if key.gm else []
     lay = prob.variables
     xs = lay.pack({"v": space.from_params(x0, linear_gains=True), "slack": 0.0, "wc": wc, "wp": wp})
     lbx = lay.pack({"v": vlo, "slack": -1.0, "wc": [1e-6 * space.w0] * len(wc), "wp": [w / 3 for w in wp]})
     ubx = lay.pack({"v": vhi, "slack": band, "wc": [wmax] * len(wc), "wp": [min(3 * w, wmax) for w in wp]})
+    if wc_target is not None and len(wc):
+        sl = lay.slice("wc")
+        lbx[sl], ubx[sl] = wc_target * (1 - 0.005), wc_target * (1 + 0.005)
     return np.clip(xs, lbx, ubx), lbx, ubx
 
 
@@ -267,9 +276,31 @@ class _Solves:
         return (float(sol["f"]) if ok else math.inf), x
 
 
-def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray) -> float | None:
-    """The frequency where the verifier's dense grid finds a frequency-domain limit violated, or None."""
+def _peaks(ev: BatchEvaluator, ctrl: ControllerTF) -> tuple[float, float]:
+    """Mks and the disk margin of ``ctrl`` on the verifier's dense grids, worst over the plants."""
+    mks, dm = 0.0, math.inf
+    for p in ev.problem.plants:
+        lp = build_loop(p, ctrl)
+        w = frequency_grid(lp)
+        with np.errstate(all="ignore"):
+            L = lp.freqresp(w)
+            S = 1 / (1 + L)
+            cs_ = np.abs(ctrl.freqresp(w) * S)
+            d = 2 * np.abs(1 + L) / np.abs(1 - L)
+        mks = max(mks, float(np.max(np.where(np.isfinite(cs_), cs_, 0.0))))
+        dm = min(dm, float(np.min(np.where(np.isfinite(d), d, np.inf))))
+    return mks, dm
+
+
+def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float | None = None) -> float | None:
+    """The frequency where the verifier's dense grid finds a frequency-domain limit violated, or None
+    (``level``: the mks / disk_margin objective's level at the solution, a limit too)."""
     spec = ev.spec
+    if level is not None:
+        field_ = "mks_max" if spec.objective == "mks" else "disk_margin_min"
+        cur = getattr(spec, field_)
+        tighter = level if cur is None else (min(cur, level) if spec.objective == "mks" else max(cur, level))
+        spec = spec.model_copy(update={field_: tighter})
     ctrl = ev.st.tf(space.params(v), ev.dt)
     worst, w_worst = _TIGHT + 1e-6, None  # the NLP keeps the peaks at most _TIGHT times the limits
     for p in ev.problem.plants:
@@ -326,14 +357,16 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
                      phase_cross=tuple(data.has_pc), control_peak=spec.control_peak_max is not None,
                      objective=spec.objective, solver=solver, pm=spec.phase_margin_min_deg > 0,
                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
-                     mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None)
+                     mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
+                     filter_n=rules.applies(space.structure, spec),
+                     settling_max=spec.settling_time_max is not None and spec.objective != "settling_time")
     if deadline is not None and not is_built(key) and \
             time.perf_counter() + estimated_build_s(key, len(space.structure.params)) > deadline:
         res.status = "no time left to build this NLP"  # its cost is known before it starts
         return res
     prob = get_problem(key, space.structure, space)
     values = _values(ev, space, grid, data, key)
-    xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0))
+    xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0), spec.crossover_rad_s)
     solve = _Solves(prob, values, grid, lbx, ubx, res, solver)
 
     def out_of_time() -> bool:
@@ -345,7 +378,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     def exchange(x: np.ndarray, ts: float) -> np.ndarray:
         """Add the frequencies where the limits are violated between the grid's points, and solve again."""
         for slot in range(GRID_EXTRA if key.grid else 0):
-            w_miss = _missed_peak(ev, space, to_search(x))
+            level = float(x[solve.slack]) if spec.objective in ("mks", "disk_margin") else None
+            w_miss = _missed_peak(ev, space, to_search(x), level)
             if w_miss is None or out_of_time():
                 break
             values["wgrid"][MS_GRID + slot] = w_miss
@@ -356,13 +390,23 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
             x = r[1]
         return x
 
+    if spec.objective in ("mks", "disk_margin"):  # the slack is the level of the peak (the objective)
+        mks0, dm0 = _peaks(ev, ctrl0)
+        lvl0 = mks0 * 1.01 if spec.objective == "mks" else max(min(dm0, 1.99) * 0.99, 1e-3)
+        solve.lbx[solve.slack], solve.ubx[solve.slack] = (0.0, max(1e3 * lvl0, 1e-300)) \
+            if spec.objective == "mks" else (0.0, 2.0)
+        xs[solve.slack] = lvl0 if math.isfinite(lvl0) else 1.0
+    elif spec.objective != "settling_time":
+        solve.lbx[solve.slack] = solve.ubx[solve.slack] = 0.0  # the slack is the settling objective's alone
+
     if out_of_time():
         res.status = "no time left"
         return res
     if spec.objective != "settling_time":
-        r = solve(math.inf, xs)
+        ts = spec.settling_time_max * 0.98 if key.settling_max else math.inf  # the band from the limit on
+        r = solve(ts, xs)
         if r is not None:
-            res.candidates.append(to_search(exchange(r[1], math.inf)))
+            res.candidates.append(to_search(exchange(r[1], ts)))
         return res
     target = _target(start, incumbent)
     near = incumbent is not None and target == incumbent and float(np.max(start.settle)) > incumbent

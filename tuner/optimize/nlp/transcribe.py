@@ -33,7 +33,9 @@ Objectives, each the verifier's own definition on the same grid (exact, not a pr
 * ``iae``: the trapezoid integral of ``|y|`` after a unit load step at the plant input (``|.|`` as
   ``sqrt(y^2 + eps^2)`` with ``eps`` far below the verifier's resolution, so its derivative exists);
 * ``itae``: the same of ``t |1 - y|`` for the reference step;
-* ``ie``: ``-Ki`` (the integral gain ``lim s C(s)``: IE = 1/Ki after a load step), the MIGO criterion.
+* ``ie``: ``-Ki`` (the integral gain ``lim s C(s)``: IE = 1/Ki after a load step), the MIGO criterion;
+* ``mks`` / ``disk_margin``: a level (the decision variable ``slack``) bounds ``|C S|`` from above (or ``2|1 + L|/|1 -
+  L|`` from below) on the grid, and the level is minimised (maximised), with the same exchange of missed peaks.
 
 Solvers: ``"sqp"`` (default; CasADi's SQP with a limited-memory Hessian and the DAQP active-set QP
 solver: deterministic, no state kept between calls) or ``"ipopt"``.
@@ -87,10 +89,12 @@ class ProblemKey:
     mt: bool = False
     mks: bool = False
     dm: bool = False
+    filter_n: bool = False  # the derivative-filter rule N = Td/Tf <= nmax (Spec.filter_n_max)
+    settling_max: bool = False  # a settling-time limit with another objective: the band from the mask on
 
     @property
     def grid(self) -> bool:
-        return self.ms or self.mt or self.mks or self.dm
+        return self.ms or self.mt or self.mks or self.dm or self.objective in ("mks", "disk_margin")
 
     @property
     def n_grid(self) -> int:
@@ -110,7 +114,7 @@ class Problem:
 
 
 # the spec's numbers and the steps, in the parameter vector (see refine for their values)
-GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu")
+GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu", "nmax", "kscale")
 
 
 def parameter_layout(key: ProblemKey, nv: int) -> Layout:
@@ -287,7 +291,8 @@ def _margin_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cd
             c.add((re + P["g"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
 
 
-def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any]) -> None:
+def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any],
+                      level: Any = None) -> None:
     """Ms, Mt, Mks and disk-margin limits on the frequency grid: with L = Cn G / Cd (G a parameter there),
     each is a ratio of squared magnitudes, multiplied through by the (positive) denominators."""
     for j in range(key.n_grid):
@@ -306,6 +311,12 @@ def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden
         if key.dm:
             one_minus = _abs2((cd[0] - cng[0], cd[1] - cng[1]))
             c.add((4 * one_plus - P["alpha"] ** 2 * one_minus) / scale, 0.0, cs.inf)
+        # the objectives mks and disk_margin: the level (the decision variable "slack") bounds the peak
+        if key.objective == "mks":
+            c.add((level ** 2 * one_plus - _abs2(cn)) / (scale + _abs2(cn)), 0.0, cs.inf)
+        elif key.objective == "disk_margin":
+            one_minus = _abs2((cd[0] - cng[0], cd[1] - cng[1]))
+            c.add((4 * one_plus - level ** 2 * one_minus) / scale, 0.0, cs.inf)
 
 
 def _responses(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[str, Any], r: float, w: float
@@ -346,7 +357,7 @@ def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str,
     only (their mask is 0)."""
     mask = P["mask"]
     c.add(y - 1 - (1 - mask) * P["os"] - mask * (P["band"] - slack), -cs.inf, 0.0)
-    if key.objective == "settling_time":
+    if key.objective == "settling_time" or key.settling_max:
         # before Ts (mask 0) the row is -1 <= 0, never active: a row 0 <= 0 there would be an active constraint
         # with a zero gradient, which makes the QP's active set degenerate (SQP: Non_Regular_Sensitivities)
         c.add(mask * (1 - y + slack - P["band"]) - (1 - mask), -cs.inf, 0.0)
@@ -374,6 +385,10 @@ def _objective(key: ProblemKey, terms: list[Any], cnum: list, cden: list, P: dic
         return -X["slack"]
     if key.objective == "ie":
         return -integral_gain(cnum, cden, P["dt"], key.continuous) / P["kiu"]
+    if key.objective == "mks":  # the level bounding |C S| on the grid (see _grid_constraints), relative to the unit
+        return X["slack"] / P["kscale"]
+    if key.objective == "disk_margin":
+        return -X["slack"]
     return cs.mmax(cs.vertcat(*terms)) if len(terms) > 1 else terms[0]
 
 
@@ -389,6 +404,12 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
     snum, sden = _tustin(cnum, cden, P["h"]) if key.continuous else (cnum, cden)
     ctrl = _canonical(snum, sden)
     c = _Constraints()
+    if key.filter_n:  # (N Kp Tf)^2 >= Kd^2, scaled to O(1)
+        xp = space.to_params([X["v"][i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=P["units"],
+                             linear_gains=True)
+        kp, kd, tf = (xp[st.params.index(n)] for n in ("Kp", "Kd", "Tf"))
+        lhs, rhs = (P["nmax"] * kp * tf) ** 2, kd ** 2
+        c.add((lhs - rhs) / (lhs + rhs + 1e-300), 0.0, cs.inf)
     terms = []
     outputs = []
     ipc = 0
@@ -398,10 +419,11 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
             wp, ipc = X["wp"][ipc], ipc + 1
         _margin_constraints(c, key, i, cnum, cden, P, X["wc"][i] if key.pm else None, wp)
         if key.grid:
-            _grid_constraints(c, key, i, cnum, cden, P)
+            _grid_constraints(c, key, i, cnum, cden, P, X["slack"])
         y, us = _responses(key, i, ctrl, P, 1.0, 0.0)
         outputs.append(y)
-        _envelope(c, key, y, X["slack"], P)
+        # a settling limit with another objective: the band kept 3 % inside (optima ride its edge)
+        _envelope(c, key, y, X["slack"] if key.objective == "settling_time" else 0.03 * P["band"], P)
         if key.control_peak:
             c.add(cs.vertcat(*us) / P["cpk"], -1.0, 1.0)
         if key.objective == "itae":

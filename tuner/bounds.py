@@ -1,0 +1,82 @@
+"""Which of a design's parameters sit on a search bound or a default limit, said in words.
+
+A design whose filter time constant is on its floor, or whose gain is at the edge of the search box, is decided
+by that bound, not by the spec's trade-offs: an engineer must know. :func:`at_bounds` lists them for a tuned
+result (``TuneResult.at_bounds``); :func:`describe` is the sentence the CLI, the repr, the page and HTTP show.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["at_bounds", "describe", "REL_TOL"]
+
+REL_TOL = 1e-3  # a coordinate within this share of its box's width from an edge is on the bound
+LIMIT_TOL = 0.01  # a default limit within 1 % of its value is active
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.4g}"
+
+
+def at_bounds(problem: Any, space: Any, x: np.ndarray, analyses: Any) -> list[dict[str, Any]]:
+    """Parameters of ``x`` on a bound of ``space`` (the search box), and the default limits that decide the
+    design: ``{"param", "value", "bound" ("lower"/"upper"), "limit", "rule"}`` (``param`` None for a limit on
+    the loop, e.g. the noise budget)."""
+    from .optimize import rules
+    from .optimize.space import _V_SPAN
+
+    st, spec = problem.structure, problem.spec
+    out: list[dict[str, Any]] = []
+    v = space.from_params(np.asarray(x, float))
+    lo, hi = space.lo, space.hi
+    width = np.maximum(hi - lo, 1e-12)
+    for i, (p, kind) in enumerate(zip(st.params, st.kinds)):
+        if space._ratio_of[i] is not None:
+            continue  # an ordering's ratio (a lead's pole over its zero): its box edge is the ordering itself
+        val = float(x[i])
+        for side, edge in (("lower", lo[i]), ("upper", hi[i])):
+            if abs(v[i] - edge) > REL_TOL * width[i]:
+                continue
+            if kind == "gain":
+                if abs(edge) < _V_SPAN * 0.999:
+                    continue
+                lim = float(space.params(np.where(np.arange(v.size) == i, edge, v))[i])
+                rule = "the search box (100 times the plant-based unit of this gain): the plant's scale decides"
+            else:
+                lim = float(space.params(np.where(np.arange(v.size) == i, edge, v))[i])
+                if kind == "time" and side == "lower":
+                    if problem.dt is not None and spec.filter_nyquist:
+                        rule = "the sampling rule (filter corner at most the Nyquist frequency, Tf >= dt/pi) decides"
+                    else:
+                        rule = "the filter floor (1e-3 dt, or 1e-3/w0 continuous) decides"
+                else:
+                    rule = "the search box decides"
+            out.append({"param": p, "value": val, "bound": side, "limit": lim, "rule": rule})
+    if rules.applies(st, spec):
+        n = rules.filter_n(st, x)
+        if math.isfinite(n) and n >= spec.filter_n_max * (1 - LIMIT_TOL):
+            kp, kd = x[st.params.index("Kp")], x[st.params.index("Kd")]
+            lim = abs(kd / kp) / spec.filter_n_max
+            if not any(e["param"] == "Tf" for e in out):
+                out.append({"param": "Tf", "value": float(x[st.params.index("Tf")]), "bound": "lower",
+                            "limit": float(lim), "rule": f"the derivative-filter rule N = Td/Tf <= "
+                            f"{spec.filter_n_max:g} (N = {n:.4g}) decides"})
+    for lim in problem.limits:
+        if lim["field"] != "mks_max":
+            continue
+        mks = max(a.metrics.mks for a in analyses)
+        if math.isfinite(mks) and mks >= lim["value"] * (1 - LIMIT_TOL):
+            out.append({"param": None, "value": float(mks), "bound": "upper", "limit": float(lim["value"]),
+                        "rule": f"the noise budget ({lim['rule']}) decides: Mks = {mks:.4g}"})
+    return out
+
+
+def describe(entry: dict[str, Any]) -> str:
+    """One sentence: "Tf is at its lower bound 0.0127: the sampling rule ... decides"."""
+    if entry.get("param") is None:
+        return f"Mks is at its limit {_fmt(entry['limit'])}: {entry['rule']}"
+    return f"{entry['param']} is at its {entry['bound']} bound {_fmt(entry['limit'])}: {entry['rule']}"
