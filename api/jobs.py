@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["tune_job", "tradeoff_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job", "PLOT_MODULES"]
+__all__ = ["tune_job", "tradeoff_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job",
+           "PLOT_MODULES"]
 
 # what a plot process imports before its first job (this list replaces api.worker.PLOT_MODULES, which
 # still names the removed api.plots)
