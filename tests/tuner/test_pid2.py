@@ -233,3 +233,22 @@ def test_two_dof_controller_dict_round_trip_keeps_the_reference_path():
     r1 = step_response(build_loop(plant, c), horizon_s=2.0)
     r2 = step_response(build_loop(plant, c2), horizon_s=2.0)
     assert np.max(np.abs(r1.y - r2.y)) < 1e-9
+
+
+@pytest.mark.parametrize("dt", [None, 0.04])
+def test_reference_tfs_are_the_2dof_responses(dt):
+    """Analysis.reference_tfs: r -> y and r -> u of the 2-DOF loop (python-control objects), their step
+    responses those of the verifier; loop_tfs stays the feedback loop L = C G."""
+    g = dict(GAINS, b=0.4, c=0.0)
+    a = analyze(make_plant(*PITCH), controller_tf("pid2", g, dt=dt), Spec())
+    Tr, Ur = a.reference_tfs()
+    r = step_response(a.loop, horizon_s=2.0, samples_per_dt=1)
+    _, y = control.step_response(Tr, r.t)
+    _, u = control.step_response(Ur, r.t)
+    assert np.max(np.abs(y - r.y)) < 1e-7 and np.max(np.abs(u - r.u)) < 1e-6
+    L = a.loop_tfs().L
+    C, _ = _formula_tfs(g, dt)
+    w = np.array([0.5, 3.0])
+    Gp = control.tf(*PITCH) if dt is None else control.c2d(control.tf(*PITCH), dt, "zoh")
+    np.testing.assert_allclose(np.squeeze(L(np.exp(1j * w * dt) if dt else 1j * w)),
+                               np.squeeze((C * Gp)(np.exp(1j * w * dt) if dt else 1j * w)), rtol=1e-9)
