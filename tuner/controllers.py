@@ -354,8 +354,14 @@ class Structure:
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))) or den[0] == 0:
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid transfer function",
                                          field="gains")
+        with np.errstate(all="ignore"):
+            nn, dn = num / den[0], den / den[0]
+        if not (np.all(np.isfinite(nn)) and np.all(np.isfinite(dn))):  # finite, but not once made monic
+            raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give coefficients beyond double "
+                                         "precision once the denominator is made monic: rescale them",
+                                         field="gains")
         if self.ref_coeffs is None:
-            return ControllerTF(num=num / den[0], den=den / den[0], dt=dt)
+            return ControllerTF(num=nn, den=dn, dt=dt)
         num_r, den_r = self.ref_coeffs(x, dt, np.exp)
         num_r, den_r = np.asarray(num_r, dtype=float), np.asarray(den_r, dtype=float)
         if not np.all(np.isfinite(num_r)) or not np.allclose(den_r, den, rtol=1e-12, atol=0):
