@@ -252,3 +252,16 @@ def test_reference_tfs_are_the_2dof_responses(dt):
     Gp = control.tf(*PITCH) if dt is None else control.c2d(control.tf(*PITCH), dt, "zoh")
     np.testing.assert_allclose(np.squeeze(L(np.exp(1j * w * dt) if dt else 1j * w)),
                                np.squeeze((C * Gp)(np.exp(1j * w * dt) if dt else 1j * w)), rtol=1e-9)
+
+
+def test_cli_tune_pid2_shows_the_weights_and_pidf2_is_noted(capsys):
+    from tuner.cli import main
+
+    code = main(["tune", "--plant", "4.674/(s^2+3.523*s+12.38)", "--dt", "0.04", "--structure", "pid2",
+                 "--budget", "3"])
+    out = capsys.readouterr().out
+    assert code in (0, 1)
+    assert "b = " in out and "c = " in out and "C_r(z) = " in out and "feed-forward" in out
+    code = main(["tune", "--plant", "1/(s+1)", "--structure", "pidf2", "--budget", "2"])
+    cap = capsys.readouterr()
+    assert "pid_mf2" in cap.out and "deprecated" in cap.err
