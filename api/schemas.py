@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from tuner.controllers import MAX_CONTROLLER_ORDER, STRUCTURES
+from tuner.controllers import DEPRECATED_STRUCTURES, MAX_CONTROLLER_ORDER, STRUCTURES
 from tuner.plant import MAX_DT_S, MAX_ORDER, MIN_DT_S
 from tuner.problem import MAX_PLANTS
 from tuner.spec import Spec
@@ -31,7 +31,8 @@ MAX_DELAY_S = 1e4
 
 Coeff = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COEFF, le=MAX_COEFF)]
 SampleTime = Annotated[float, Field(allow_inf_nan=False, ge=MIN_DT_S, le=MAX_DT_S)]
-StructureName = Literal[tuple(STRUCTURES)]  # type: ignore[valid-type]
+# the structures, and the deprecated names still accepted for one release (pidf2 = pid_mf2; the result says so)
+StructureName = Literal[tuple(STRUCTURES) + tuple(DEPRECATED_STRUCTURES)]  # type: ignore[valid-type]
 
 ROLL = "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"
 ROLL_EXAMPLE: dict[str, Any] = {
@@ -121,7 +122,8 @@ class TuneRequest(_In):
         None, max_length=MAX_PLANTS - 1,
         description="more plants for robust tuning: every constraint must hold on each of them")
     dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
-    structure: StructureName
+    structure: StructureName = Field(description="controller structure; pid2 is the 2-DOF PID u = Kp(b r - y) + "
+                                     "Ki/s (r - y) + Kd s/(Tf s+1)(c r - y); pidf2 is the deprecated name of pid_mf2")
     spec: Spec | None = Field(None, description="defaults: PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, ...")
     options: TuneOptions = Field(default_factory=TuneOptions)
 

@@ -1,5 +1,5 @@
 """The two DyadControlSystems/Lund targets of issue 10: PID with a second-order measurement filter
-(structure ``pidf2``), continuous, minimising the IAE of a unit load step at the plant input under
+(structure ``pid_mf2``, formerly ``pidf2``), continuous, minimising the IAE of a unit load step at the plant input under
 Ms, Mt and Mks limits (no PM, GM or overshoot limit).
 
     .venv/bin/python bench/lund.py [--quick] [--budget 120] [--seed 0]
@@ -110,7 +110,7 @@ def run_case(case, *, seed: int, budget: float, with_reference: bool) -> dict:
     spec = Spec(phase_margin_min_deg=0, gain_margin_min_db=0, overshoot_max_pct=100, objective="iae",
                 ms_max=ms, mt_max=mt, mks_max=mks)
     tplant = make_plant(num, den, delay=delay)
-    res = tune(tplant, structure="pidf2", spec=spec, seed=seed, time_budget_s=budget)
+    res = tune(tplant, structure="pid_mf2", spec=spec, seed=seed, time_budget_s=budget)
     c = res.controller
     plant = rational(num, den, delay)
     w = dense_grid(c.den, den)
@@ -123,7 +123,7 @@ def run_case(case, *, seed: int, budget: float, with_reference: bool) -> dict:
         x0 = [res.gains[k] for k in ("Kp", "Ki", "Kd", "Tf")]
         for f in (floor, floor / 100) if delay == 0.0 else (floor,):
             ref = reference(plant, (ms, mt, mks), x0, f)
-            va = analyze(tplant, controller_tf("pidf2", ref["x"], dt=None), spec)
+            va = analyze(tplant, controller_tf("pid_mf2", ref["x"], dt=None), spec)
             ref["library_verifier_meets_spec"] = va.meets_spec
             ref["library_verifier_failing"] = {c.name: c.achieved for c in va.failing}
             ref["library_verifier_horizon_s"] = float(va.response.t[-1]) if va.response is not None else None
@@ -144,7 +144,7 @@ def run_case(case, *, seed: int, budget: float, with_reference: bool) -> dict:
 
 def markdown(rows: list[dict], a: argparse.Namespace) -> str:
     L = ["# Lund / DyadControlSystems targets (issue 10)", "",
-         f"`bench/lund.py` (seed {a.seed}, budget {a.budget:.0f} s). Structure pidf2, continuous, objective iae, "
+         f"`bench/lund.py` (seed {a.seed}, budget {a.budget:.0f} s). Structure pid_mf2, continuous, objective iae, "
          "no PM/GM/overshoot limit. IAE of a unit load step at the plant input over 25 s, simulated here on the "
          "returned controller; Ms, Mt, Mks on 200,000 log-spaced points over 1e-4..1e4 rad/s (more points, same "
          "density, up to 100 x the fastest controller or plant pole when that is above 1e4), delay exact.", "",

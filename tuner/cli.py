@@ -201,7 +201,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="plant expression; repeat for robust tuning over a plant set (nominal first)")
     t.add_argument("--dt", type=float, default=None, help="controller sample time (and of z plants)")
     t.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds (all plants)")
-    t.add_argument("--structure", required=True, help="p, pi, pd, pid, pid_z, lead, lag, leadlag")
+    t.add_argument("--structure", required=True,
+                   help="p, pi, pd, pid, pid2 (2-DOF PID: u = Kp(b r - y) + Ki/s (r - y) + Kd s/(Tf s+1)(c r - y), "
+                        "b in [0, 2], c in [0, 1]; c = 0 puts D on the measurement), pid_z (digital, needs --dt), "
+                        "pid_mf2 (PID with a second-order measurement filter; 'pidf2' is its deprecated name), "
+                        "lead, lag, leadlag")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
     t.add_argument("--json", action="store_true")
@@ -340,6 +344,15 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     return EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
 
 
+def _weights_note(gains: dict[str, float]) -> str:
+    """pid2's setpoint weights in words: b (P on b r - y; b > 1 is feed-forward, PX4's FF = Kp (b - 1)) and c."""
+    b, c, kp = gains.get("b"), gains.get("c"), gains.get("Kp")
+    if b is None or c is None:
+        return ""
+    d = "D on the measurement" if c == 0 else f"D on {c:.4g} r - y"
+    return f"; b = {b:.4g} (feed-forward Kp (b - 1) = {kp * (b - 1):.4g}), c = {c:.4g}: {d}"
+
+
 def _cmd_tune(a: argparse.Namespace) -> int:
     from .plant import check_dt, plant_from_expr
     from .tuning import tune
@@ -366,9 +379,14 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     gains = ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items())
     c = res.controller
     var = "z" if c.dt else "s"
+    for note in res.solver.get("notes", ()):
+        print(f"note: {note}", file=sys.stderr)
     print(f"{res.structure}: {gains}")
     print(f"C({var}) = [{', '.join(f'{x:.6g}' for x in c.num)}] / [{', '.join(f'{x:.6g}' for x in c.den)}]"
-          + (f", dt = {c.dt:g}" if c.dt else ""))
+          + (f", dt = {c.dt:g}" if c.dt else "") + (" (feedback part, on -y)" if c.two_dof else ""))
+    if c.two_dof:
+        print(f"C_r({var}) = [{', '.join(f'{x:.6g}' for x in c.num_r)}] / [{', '.join(f'{x:.6g}' for x in c.den)}]"
+              " (reference path, on r)" + _weights_note(res.gains))
     for i, an in enumerate(res.analyses):
         d = an.to_dict()
         title = "nominal plant" if i == 0 else f"plant #{i + 1}"

@@ -14,9 +14,15 @@ pi          Kp + Ki/s                                   Kp + Ki*dt*z/(z-1)      
 pd          Kp + Kd*s/(Tf*s+1)                          Kp + Kd*(z-1)/((Tf+dt)*z-Tf)  (backward Euler)
 pid         Kp + Ki/s + Kd*s/(Tf*s+1)                   sum of the two rows above
 pid_z       --                                          K*(z^2+a1*z+a2)/(z*(z-1))     (the thesis form)
-pidf2       (Kp + Ki/s + Kd*s)/(Tf^2 s^2 + sqrt2 Tf s + 1)  [Kp + Ki*dt*z/(z-1) + Kd*(z-1)/(dt*z)] * F(z),
+pid2        u = Kp(b r - y) + Ki/s (r - y)              the pid's discretisation of each term: C_fb = pid's
+            + Kd s/(Tf s+1) (c r - y)                   C(z); C_r = Kp b + Ki*dt*z/(z-1)
+            (2-DOF: C_fb on -y = pid; C_r on r =        + Kd c (z-1)/((Tf+dt)*z-Tf)  (b in [0, 2], c in [0, 1])
+            Kp b + Ki/s + Kd c s/(Tf s+1))
+pid_mf2     (Kp + Ki/s + Kd*s)/(Tf^2 s^2 + sqrt2 Tf s + 1)  [Kp + Ki*dt*z/(z-1) + Kd*(z-1)/(dt*z)] * F(z),
                                                         F = the filter by Tustin  (DyadControlSystems'
-                                                        form; Tf > 0)
+                                                        form; Tf > 0; a PID with a second-order
+                                                        measurement filter; ``pidf2`` is its deprecated
+                                                        alias)
 lead, lag   K*(s/wz+1)/(s/wp+1)                         K*(1-pd)/(1-zd)*(z-zd)/(z-pd), zd=exp(-wz*dt),
                                                         pd=exp(-wp*dt)                (matched, DC gain K)
 leadlag     lead(K, wz1, wp1) * lag(1, wz2, wp2)        product of the matched forms
@@ -24,6 +30,13 @@ leadlag     lead(K, wz1, wp1) * lag(1, wz2, wp2)        product of the matched f
 
 A lead has ``wp > wz``; a lag has ``wp < wz``; these orderings are part of the
 structure (``orderings``) and are enforced by the search and the NLP.
+
+Two-degree-of-freedom structures (``pid2``) act on the reference and the measurement separately:
+``u = C_r r - C_fb y``. ``C_fb`` (what acts on ``-y``: the feedback, from which margins, Ms, Mt, Mks and the
+load response follow) is ``num/den`` as for every structure; the reference path ``C_r`` has the same
+denominator (the shared integrator and filter) and its own numerator ``num_r`` (:attr:`ControllerTF.num_r`).
+The loop is realised with both inputs on one set of states (:meth:`ControllerTF.ref_ss`), so the steady state
+is exact.
 """
 
 from __future__ import annotations
@@ -48,6 +61,8 @@ __all__ = [
     "Structure",
     "STRUCTURES",
     "get_structure",
+    "DEPRECATED_STRUCTURES",
+    "deprecation_note",
     "controller_tf",
     "controller_from_expr",
     "controller_from_coeffs",
@@ -61,7 +76,15 @@ class ControllerTF:
     num: np.ndarray
     den: np.ndarray
     dt: float | None = None
+    #: 2-DOF controllers: the reference path's numerator over the same ``den`` (``u = C_r r - C y``); None: 1-DOF
+    num_r: np.ndarray | None = None
+    #: 2-DOF: an explicit realisation ``(A, B, C, D, Br, Dr)`` of ``C`` (B, D) and ``C_r`` (Br, Dr) on shared states
+    realization: tuple | None = field(default=None, repr=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def two_dof(self) -> bool:
+        return self.num_r is not None
 
     @property
     def zpk(self) -> Zpk:
@@ -74,16 +97,79 @@ class ControllerTF:
         return self._cache["zpk"]
 
     def ss(self) -> SS:
-        """A balanced cascade realisation (in s, or in z at ``dt``)."""
+        """A balanced cascade realisation (in s, or in z at ``dt``); a 2-DOF controller: the feedback part of its
+        two-input realisation (:meth:`ref_ss`)."""
         if "ss" not in self._cache:
-            self._cache["ss"] = realize(self.zpk, discrete=self.dt is not None)
+            if self.two_dof:
+                A, B, C, D, _, _ = self._two_input()
+                self._cache["ss"] = SS(A, B, C, D)
+            else:
+                self._cache["ss"] = realize(self.zpk, discrete=self.dt is not None)
         return self._cache["ss"]
+
+    def ref_ss(self) -> SS:
+        """The reference path on the same states as :meth:`ss` (same ``A``, ``C``; its own ``B``, ``D``): the
+        controller's state is driven by ``B e`` (1-DOF, ``e = r - y``) or ``Br r - B y`` (2-DOF)."""
+        if not self.two_dof:
+            return self.ss()
+        if "ref_ss" not in self._cache:
+            A, _, C, _, Br, Dr = self._two_input()
+            self._cache["ref_ss"] = SS(A, Br, C, Dr)
+        return self._cache["ref_ss"]
+
+    def reference(self) -> ControllerTF:
+        """``C_r`` as a 1-DOF transfer function (``self`` for a 1-DOF controller)."""
+        if not self.two_dof:
+            return self
+        return ControllerTF(num=np.asarray(self.num_r, float), den=self.den, dt=self.dt)
+
+    def _two_input(self) -> tuple:
+        if self.realization is not None:
+            return self.realization
+        if "two_input" not in self._cache:
+            self._cache["two_input"] = _observable_pair(self.num, self.num_r, self.den)
+        return self._cache["two_input"]
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
         return tf_freqresp(self.num, self.den, w, dt=self.dt)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"num": [float(c) for c in self.num], "den": [float(c) for c in self.den], "dt": self.dt}
+        out = {"num": [float(c) for c in self.num], "den": [float(c) for c in self.den], "dt": self.dt}
+        if self.two_dof:
+            out["num_r"] = [float(c) for c in self.num_r]
+        return out
+
+
+def _observable_pair(num: np.ndarray, num_r: np.ndarray, den: np.ndarray) -> tuple:
+    """A balanced observable-canonical realisation of ``num/den`` and ``num_r/den`` on shared states (a 2-DOF
+    controller given by its coefficients only; the structures give their own parallel form)."""
+    den = np.trim_zeros(np.asarray(den, float), "f")
+    m = den.size - 1
+    a = den[1:] / den[0]
+
+    def cols(n):
+        n = np.asarray(n, float)
+        if n.size > den.size:
+            raise InvalidControllerError("the reference path is improper: its numerator is longer than den",
+                                         field="num_r")
+        b = np.concatenate([np.zeros(den.size - n.size), n]) / den[0]
+        return b[1:] - b[0] * a, float(b[0])
+
+    B, D = cols(num)
+    Br, Dr = cols(num_r)
+    A = np.zeros((m, m))
+    if m:
+        A[:, 0] = -a
+        A[:-1, 1:] = np.eye(m - 1)
+    C = np.zeros(m)
+    if m:
+        C[0] = 1.0
+        from scipy import linalg
+
+        _, (sc, _) = linalg.matrix_balance(A, permute=False, separate=True)
+        A = A / sc[:, None] * sc[None, :]
+        B, Br, C = B / sc, Br / sc, C * sc
+    return A, B, C, D, Br, Dr
 
 
 # -- polynomial helpers that work on numbers and on CasADi symbols -------------------------
@@ -143,10 +229,39 @@ def _pid(x, dt, exp):
     return _sum_fractions(_pi_terms(x[0], x[1], dt) + [_d_term(x[2], x[3], dt)])
 
 
+def _pid2(x, dt, exp):
+    """The feedback part of pid2 (what acts on -y): exactly pid's controller."""
+    return _pid(x[:4], dt, exp)
+
+
+def _pid2_ref(x, dt, exp):
+    """pid2's reference path over pid's denominator: Kp b + Ki/s + Kd c s/(Tf s + 1) (at dt: pid's forms)."""
+    kp, ki, kd, tf, b, c = x
+    num, den = _sum_fractions(_pi_terms(kp * b, ki, dt) + [_d_term(kd * c, tf, dt)])
+    return num, den
+
+
+def _pid2_realization(x, dt):
+    """Parallel form of pid2 on two states, the integrator and the derivative filter's low-passed input, both
+    paths on them: ``(A, B, C, D, Br, Dr)`` (``B, D``: the feedback C acting on -y; ``Br, Dr``: C_r on r)."""
+    kp, ki, kd, tf, b, c = (float(v) for v in x)
+    if dt is None:  # xi' = e_i; xf' = (v - xf)/Tf, D = Kd/Tf (v - xf)
+        A = np.diag([0.0, -1.0 / tf])
+        B, Br = np.array([1.0, 1.0 / tf]), np.array([1.0, c / tf])
+        C = np.array([ki, -kd / tf])
+        return A, B, C, kp + kd / tf, Br, kp * b + kd * c / tf
+    # backward Euler: I = Ki dt (s_i + e), s_i+ = s_i + e; D = g (v - q), q+ = a q + (1 - a) v, a = Tf/(Tf+dt)
+    a, g = tf / (tf + dt), kd / (tf + dt)
+    A = np.diag([1.0, a])
+    B, Br = np.array([1.0, 1.0 - a]), np.array([1.0, c * (1.0 - a)])
+    C = np.array([ki * dt, -g])
+    return A, B, C, kp + ki * dt + g, Br, kp * b + ki * dt + g * c
+
+
 _SQRT2 = 2.0 ** 0.5
 
 
-def _pidf2(x, dt, exp):
+def _pid_mf2(x, dt, exp):
     """(Kp + Ki/s + Kd s) / (Tf^2 s^2 + sqrt(2) Tf s + 1); at dt: the backward-Euler PID with a one-sample
     derivative times the filter by Tustin (unit DC gain, no trigonometric function of the parameters)."""
     kp, ki, kd, tf = x
@@ -186,8 +301,9 @@ class Structure:
     """A controller structure.
 
     ``kinds`` gives each parameter's role: ``"gain"`` (any sign, scaled by the
-    plant's gain), ``"freq"`` (rad/s, > 0), ``"time"`` (s, >= 0) or ``"coef"``
-    (dimensionless polynomial coefficient).
+    plant's gain), ``"freq"`` (rad/s, > 0), ``"time"`` (s, >= 0), ``"coef"``
+    (dimensionless polynomial coefficient) or ``"weight"`` (a 2-DOF setpoint weight, searched
+    linearly on ``weight_ranges``).
     """
 
     name: str
@@ -198,7 +314,21 @@ class Structure:
     orderings: tuple[tuple[str, str], ...] = ()  # (a, b): a < b
     integrating: bool = False
     gain_units: tuple[int, ...] = ()  # per parameter: the gain scales as K0 * w0**unit (Ki: +1, Kd: -1)
-    positive_time: bool = False  # time constants must be > 0 in discrete time too (pidf2's filter)
+    positive_time: bool = False  # time constants must be > 0 in discrete time too (pid_mf2's filter)
+    #: 2-DOF: the reference path's coefficients (numerator over the same denominator as ``coeffs``)
+    ref_coeffs: Callable[[Sequence[Any], float | None, Callable[[Any], Any]], Coeffs] | None = field(
+        default=None, repr=False)
+    #: 2-DOF: an explicit two-input realisation from the parameters (numbers), see ControllerTF.realization
+    realize2: Callable[[Sequence[float], float | None], tuple] | None = field(default=None, repr=False)
+    #: per parameter of kind "weight": its range (lo, hi)
+    weight_ranges: tuple[tuple[str, float, float], ...] = ()
+
+    @property
+    def two_dof(self) -> bool:
+        return self.ref_coeffs is not None
+
+    def weight_range(self, p: str) -> tuple[float, float]:
+        return next((lo, hi) for q, lo, hi in self.weight_ranges if q == p)
 
     def gain_scale(self, k0: float, w0: float) -> np.ndarray:
         units = self.gain_units or (0,) * len(self.params)
@@ -224,7 +354,24 @@ class Structure:
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))) or den[0] == 0:
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid transfer function",
                                          field="gains")
-        return ControllerTF(num=num / den[0], den=den / den[0], dt=dt)
+        with np.errstate(all="ignore"):
+            nn, dn = num / den[0], den / den[0]
+        if not (np.all(np.isfinite(nn)) and np.all(np.isfinite(dn))):  # finite, but not once made monic
+            raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give coefficients beyond double "
+                                         "precision once the denominator is made monic: rescale them",
+                                         field="gains")
+        if self.ref_coeffs is None:
+            return ControllerTF(num=nn, den=dn, dt=dt)
+        num_r, den_r = self.ref_coeffs(x, dt, np.exp)
+        num_r, den_r = np.asarray(num_r, dtype=float), np.asarray(den_r, dtype=float)
+        if not np.all(np.isfinite(num_r)) or not np.allclose(den_r, den, rtol=1e-12, atol=0):
+            raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid reference path",
+                                         field="gains")
+        real = None
+        if self.realize2 is not None:
+            A, B, C, D, Br, Dr = self.realize2(x, dt)
+            real = (A, B, C, float(D), Br, float(Dr))
+        return ControllerTF(num=num / den[0], den=den / den[0], dt=dt, num_r=num_r / den[0], realization=real)
 
     def vector(self, values: Mapping[str, float] | Sequence[float]) -> np.ndarray:
         if isinstance(values, Mapping):
@@ -254,6 +401,9 @@ class Structure:
             if kind == "time" and v < 0:
                 raise InvalidControllerError(f"{self.name}: {p} is a time constant and must be >= 0, got {v}",
                                              field=("gains", p))
+            if kind == "weight" and v < 0:
+                raise InvalidControllerError(f"{self.name}: {p} is a setpoint weight and must be >= 0, got {v}",
+                                             field=("gains", p))
         return x
 
     def named(self, x: Sequence[float]) -> dict[str, float]:
@@ -269,7 +419,10 @@ STRUCTURES: dict[str, Structure] = {
         Structure("pid", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid, integrating=True,
                   gain_units=(0, 1, -1, 0)),
         Structure("pid_z", ("K", "a1", "a2"), ("gain", "coef", "coef"), _pid_z, discrete_only=True, integrating=True),
-        Structure("pidf2", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pidf2, integrating=True,
+        Structure("pid2", ("Kp", "Ki", "Kd", "Tf", "b", "c"), ("gain", "gain", "gain", "time", "weight", "weight"),
+                  _pid2, integrating=True, gain_units=(0, 1, -1, 0, 0, 0), ref_coeffs=_pid2_ref,
+                  realize2=_pid2_realization, weight_ranges=(("b", 0.0, 2.0), ("c", 0.0, 1.0))),
+        Structure("pid_mf2", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid_mf2, integrating=True,
                   gain_units=(0, 1, -1, 0), positive_time=True),
         Structure("lead", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wz", "wp"),)),
         Structure("lag", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wp", "wz"),)),
@@ -284,7 +437,25 @@ STRUCTURES: dict[str, Structure] = {
 }
 
 
+#: deprecated structure names (accepted for one release, with a DeprecationWarning): old -> new
+DEPRECATED_STRUCTURES: dict[str, str] = {"pidf2": "pid_mf2"}
+
+
+def deprecation_note(name: str) -> str | None:
+    """The note for a deprecated structure name, or None."""
+    new = DEPRECATED_STRUCTURES.get(name)
+    if new is None:
+        return None
+    return (f"structure {name!r} is deprecated (MATLAB's pidf2 is its 2-DOF PIDF): it is {new!r}, a PID with a "
+            f"second-order measurement filter; {name!r} is accepted for one release")
+
+
 def get_structure(name: str) -> Structure:
+    if name in DEPRECATED_STRUCTURES:
+        import warnings
+
+        warnings.warn(deprecation_note(name), DeprecationWarning, stacklevel=2)
+        return STRUCTURES[DEPRECATED_STRUCTURES[name]]
     try:
         return STRUCTURES[name]
     except KeyError:

@@ -90,6 +90,10 @@ def tune_repr(r: Any) -> str:
     s = r.solver
     lines = [f"TuneResult({r.structure}, {_loop_kind(r.analyses[0])}{robust}: {verdict(r.analyses)})",
              f"  gains    {gains}", *_plant_lines(r.analyses)]
+    for e in getattr(r, "at_bounds", ()):
+        from .bounds import describe
+
+        lines.append(f"  bound    {describe(e)}")
     if s:
         lines.append(f"  solver   {s.get('method')}, {_g(s.get('wall_time_s', math.nan), 3)} s, {s.get('stop')}, "
                      f"seed {s.get('seed')}")
@@ -174,8 +178,11 @@ def tune_html(r: Any, *, thumbnails: bool = True) -> str:
     solver = (f"<p>solver {_e(s.get('method'))}, {_e(_g(s.get('wall_time_s', math.nan), 3))} s, "
               f"{_e(s.get('stop'))}, seed {_e(s.get('seed'))}</p>") if s else ""
     pics = _thumbnails(r) if thumbnails else ""
+    from .bounds import describe
+
+    bounds = "".join(f"<p>{_e(describe(e))}</p>" for e in getattr(r, "at_bounds", ()))
     return (f'{_CSS}<div class="tuner-r"><p>{head}</p><div style="display:flex;flex-wrap:wrap;align-items:flex-start">'
-            f"{gains}{_checks_table(r.analyses)}</div>{pics}{solver}</div>")
+            f"{gains}{_checks_table(r.analyses)}</div>{bounds}{pics}{solver}</div>")
 
 
 def analysis_html(a: Any, *, thumbnails: bool = True) -> str:

@@ -30,7 +30,8 @@ from .errors import InvalidControllerError, InvalidPlantError, TunerError
 from .lti import SS, Zpk, poly_from_roots, zpk_from_ss
 from .plant import MAX_ORDER, Plant, make_plant, make_plant_zpk
 
-__all__ = ["LoopTFs", "is_control_lti", "plant_from_control", "controller_from_control", "as_plant", "as_plants",
+__all__ = ["LoopTFs", "ReferenceTFs", "reference_tfs",
+           "is_control_lti", "plant_from_control", "controller_from_control", "as_plant", "as_plants",
            "as_controller", "controller_to_control", "loop_tfs", "DEFAULT_PADE_ORDER"]
 
 DEFAULT_PADE_ORDER = 6
@@ -42,6 +43,17 @@ class LoopTFs(NamedTuple):
     L: Any
     S: Any
     T: Any
+
+
+class ReferenceTFs(NamedTuple):
+    """The reference's transfer functions: ``r -> y`` and ``r -> u`` (``Tr, Ur = ...``).
+
+    For a 1-DOF controller ``Tr = T`` and ``Ur = C S``; for a 2-DOF one (``pid2``, ``u = C_r r - C y``)
+    ``Tr = C_r G S`` and ``Ur = C_r S``, while ``L = C G``, ``S`` and ``T`` of :func:`loop_tfs` are the feedback
+    loop's (margins, sensitivities, the load and noise responses)."""
+
+    Tr: Any
+    Ur: Any
 
 
 def is_control_lti(obj: Any) -> bool:
@@ -190,3 +202,19 @@ def loop_tfs(loop: Any, *, pade_order: int | None = DEFAULT_PADE_ORDER) -> LoopT
         L = L * control.tf(*control.pade(loop.delay_s, pade_order))
     one = control.tf([1.0], [1.0], L.dt)
     return LoopTFs(L=L, S=control.feedback(one, L), T=control.feedback(L, one))
+
+
+def reference_tfs(loop: Any, *, pade_order: int | None = DEFAULT_PADE_ORDER) -> ReferenceTFs:
+    """``r -> y`` and ``r -> u`` of a :class:`~tuner.loop.Loop` (see :class:`ReferenceTFs`); the plant as in
+    :func:`loop_tfs` (the zero-order-hold plant with ``z^-d`` at ``dt``; a continuous delay by Padé)."""
+    import control
+
+    lt = loop_tfs(loop, pade_order=pade_order)
+    dt = 0 if loop.dt is None else loop.dt
+    g = loop.loop_plant.zpk
+    G = control.zpk(g.zeros, np.concatenate([g.poles, np.zeros(loop.delay_samples)]), g.gain, dt)
+    if loop.dt is None and loop.delay_s and pade_order is not None:
+        G = G * control.tf(*control.pade(loop.delay_s, pade_order))
+    cr = loop.controller.reference()
+    Cr = control.tf(np.asarray(cr.num, float), np.asarray(cr.den, float), dt)
+    return ReferenceTFs(Tr=Cr * G * lt.S, Ur=Cr * lt.S)

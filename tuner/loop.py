@@ -5,6 +5,10 @@ Unity negative feedback, controller in the forward path::
     r --> (+) --> C --> [ZOH] --> G (with delay) --+--> y
            ^-------------------------------------- |
 
+A 2-DOF controller (``pid2``) is ``u = C_r r - C y`` on one set of states: ``C`` (the feedback part) is the
+loop's ``controller`` for everything about ``L = C G`` (margins, Ms, Mt, Mks, the load response); the
+reference path enters the closed loop's ``r`` column only (:meth:`ControllerTF.ref_ss`).
+
 * continuous loop: ``C(s)`` and ``G(s)``, any delay (exact ``exp(-s*tau)``);
 * sampled-data loop: ``C(z)`` at ``dt`` driving the continuous ``G(s)`` through a
   zero-order hold; the delay must be whole samples. The loop seen at the samples
@@ -140,14 +144,16 @@ class Loop:
         modelled at that step (:class:`FineDelayLoop`)."""
         key = ("cl", h)
         if key not in self._cache:
+            ref = self.controller.ref_ss() if self.controller.two_dof else None
             if self.dt is not None:
-                self._cache[key] = _discrete_loop(self.loop_plant.ss(), self.controller.ss(), self.delay_samples)
+                self._cache[key] = _discrete_loop(self.loop_plant.ss(), self.controller.ss(), self.delay_samples,
+                                                  ref=ref)
             elif not self.delay_s:
-                self._cache[key] = _continuous_loop(self.plant.ss(), self.controller.ss())
+                self._cache[key] = _continuous_loop(self.plant.ss(), self.controller.ss(), ref=ref)
             else:
                 if h is None:
                     raise ValueError("a continuous loop with a delay is modelled at a step h")
-                self._cache[key] = _fine_delay_loop(self.plant.ss(), self.controller.ss(), self.delay_s, h)
+                self._cache[key] = _fine_delay_loop(self.plant.ss(), self.controller.ss(), self.delay_s, h, ref=ref)
         return self._cache[key]
 
 
@@ -163,8 +169,20 @@ def tustin(c: SS, h: float) -> SS:
     return SS(A, B, C, float(c.D + 0.5 * c.C @ B))
 
 
-def _discrete_loop(g: SS, c: SS, d: int) -> ClosedLoop:
-    """States [plant x (n), input register s (d: s[0] = u[k-1] ... s[d-1] = u[k-d]), controller xc (m)]."""
+def _ref_column(B: np.ndarray, ic: slice, c: SS, De: np.ndarray, Dy: np.ndarray, ref: SS | None) -> None:
+    """The controller's input columns: ``B e`` with ``e = r - y`` (1-DOF), or ``Br r - B y`` (2-DOF: ``ref`` has
+    the reference path's ``B``, ``D`` on the controller's states)."""
+    if ref is None:
+        B[ic, :] += np.outer(c.B, De)
+    else:
+        B[ic, :] += np.outer(c.B, -Dy)
+        B[ic, 0] += ref.B
+
+
+def _discrete_loop(g: SS, c: SS, d: int, *, ref: SS | None = None) -> ClosedLoop:
+    """States [plant x (n), input register s (d: s[0] = u[k-1] ... s[d-1] = u[k-d]), controller xc (m)].
+
+    ``ref``: a 2-DOF controller's reference path on the states of ``c`` (``u = C xc + Dr r - D y``)."""
     n, m = g.n, c.n
     nz = n + d + m
     ix, ic = slice(0, n), slice(n + d, nz)
@@ -180,7 +198,7 @@ def _discrete_loop(g: SS, c: SS, d: int) -> ClosedLoop:
         # e = r - y ; u = Cc xc + Dc e
         Cu = -c.D * Cy
         Cu[ic] += c.C
-        Du = c.D * (np.array([1.0, 0.0]) - Dy)
+        Du = c.D * (np.array([1.0, 0.0]) - Dy) if ref is None else np.array([ref.D, 0.0]) - c.D * Dy
     else:
         # u = (Cc xc + Dc (r - Cp x - Dp w)) / (1 + Dc Dp); ua = u + w; y = Cp x + Dp ua
         den = 1.0 + c.D * g.D
@@ -189,7 +207,7 @@ def _discrete_loop(g: SS, c: SS, d: int) -> ClosedLoop:
         Cu = np.zeros(nz)
         Cu[ix] = -c.D * g.C / den
         Cu[ic] = c.C / den
-        Du = np.array([c.D, -c.D * g.D]) / den
+        Du = np.array([c.D if ref is None else ref.D, -c.D * g.D]) / den
         Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
         Cy = np.concatenate([g.C, np.zeros(m)]) + g.D * Ca
         Dy = g.D * Da
@@ -204,12 +222,13 @@ def _discrete_loop(g: SS, c: SS, d: int) -> ClosedLoop:
             A[n + j, n + j - 1] = 1.0
     A[ic, :] += np.outer(c.B, Ce)
     A[ic, ic] += c.A
-    B[ic, :] += np.outer(c.B, De)
+    _ref_column(B, ic, c, De, Dy, ref)
     return ClosedLoop(A, B, Cy, Dy, Cu, Du, Ca, Da, n_plant=n, discrete=True)
 
 
-def _continuous_loop(g: SS, c: SS) -> ClosedLoop:
-    """States [plant x (n), controller xc (m)] of the continuous loop without delay."""
+def _continuous_loop(g: SS, c: SS, *, ref: SS | None = None) -> ClosedLoop:
+    """States [plant x (n), controller xc (m)] of the continuous loop without delay (``ref``: see
+    :func:`_discrete_loop`)."""
     n, m = g.n, c.n
     den = 1.0 + c.D * g.D
     if abs(den) < 1e-12:
@@ -219,7 +238,7 @@ def _continuous_loop(g: SS, c: SS) -> ClosedLoop:
     Cu = np.zeros(nz)
     Cu[ix] = -c.D * g.C / den
     Cu[ic] = c.C / den
-    Du = np.array([c.D, -c.D * g.D]) / den
+    Du = np.array([c.D if ref is None else ref.D, -c.D * g.D]) / den
     Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
     Cy = np.concatenate([g.C, np.zeros(m)]) + g.D * Ca
     Dy = g.D * Da
@@ -230,7 +249,7 @@ def _continuous_loop(g: SS, c: SS) -> ClosedLoop:
     B[ix, :] += np.outer(g.B, Da)
     A[ic, :] += np.outer(c.B, -Cy)
     A[ic, ic] += c.A
-    B[ic, :] += np.outer(c.B, np.array([1.0, 0.0]) - Dy)
+    _ref_column(B, ic, c, np.array([1.0, 0.0]) - Dy, Dy, ref)
     return ClosedLoop(A, B, Cy, Dy, Cu, Du, Ca, Da, n_plant=n, discrete=False)
 
 
@@ -252,6 +271,7 @@ class FineDelayLoop:
     f: float
     ctrl: SS  # Tustin controller at h
     h: float
+    ctrl_r: SS | None = None  # 2-DOF: the reference path on ctrl's states (Tustin at h), or None
 
     def dense(self) -> ClosedLoop:
         """States [plant x (n), register s (m+1: s[j] = (u + w)[k-1-j]), controller (nc)]."""
@@ -265,7 +285,7 @@ class FineDelayLoop:
         Dy = np.zeros(2)
         Cu = -cd.D * Cy
         Cu[ic] += cd.C
-        Du = cd.D * np.array([1.0, 0.0])
+        Du = np.array([cd.D if self.ctrl_r is None else self.ctrl_r.D, 0.0])
         A = np.zeros((nz, nz))
         B = np.zeros((nz, 2))
         A[ix, ix] = self.Phi
@@ -281,15 +301,16 @@ class FineDelayLoop:
             A[n + j, n + j - 1] = 1.0
         A[ic, :] += np.outer(cd.B, -Cy)
         A[ic, ic] += cd.A
-        B[ic, :] += np.outer(cd.B, np.array([1.0, 0.0]) - Dy)
+        _ref_column(B, ic, cd, np.array([1.0, 0.0]) - Dy, Dy, self.ctrl_r)
         return ClosedLoop(A, B, Cy, Dy, Cu, Du, a_y.copy(), np.zeros(2), n_plant=n, discrete=True, h=self.h)
 
 
-def _fine_delay_loop(g: SS, c: SS, tau: float, h: float) -> FineDelayLoop:
+def _fine_delay_loop(g: SS, c: SS, tau: float, h: float, *, ref: SS | None = None) -> FineDelayLoop:
     Phi, G_old, G_new, m, f = zoh_delayed(g, h, tau)
     if m == 0 and f == 0.0:
         raise InvalidPlantError("delay too short for the simulation step", field=("plant", "delay"))
-    return FineDelayLoop(g, Phi, G_old, G_new, m, f, tustin(c, h), h)
+    return FineDelayLoop(g, Phi, G_old, G_new, m, f, tustin(c, h), h,
+                         ctrl_r=None if ref is None else tustin(ref, h))
 
 
 def build_loop(plant: Plant, controller: ControllerTF) -> Loop:

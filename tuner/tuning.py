@@ -164,7 +164,8 @@ def tune(
         structure, spec and dt.
     structure : str
         One of :data:`tuner.controllers.STRUCTURES`: ``p``, ``pi``, ``pd``, ``pid``, ``pid_z`` (discrete only),
-        ``pidf2``, ``lead``, ``lag``, ``leadlag``.
+        ``pid2`` (2-DOF PID with setpoint weights ``b``, ``c``), ``pid_mf2`` (``pidf2``, its deprecated name),
+        ``lead``, ``lag``, ``leadlag``.
     spec : Spec, optional
         Defaults to the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
         error, minimum 2 % settling time). ``Spec.objective`` says what is minimised.
@@ -266,7 +267,11 @@ def tune(
             "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
         }
         from .bounds import at_bounds
+        from .controllers import deprecation_note
 
+        note = deprecation_note(structure) if isinstance(structure, str) else None
+        if note:
+            info["notes"] = [note]
         res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
                          analyses=best.analyses, solver=info, spec=problem.spec,
                          at_bounds=tuple(at_bounds(problem, eng.space, best_x, best.analyses)),

@@ -25,9 +25,12 @@ _DOC = ("The stored controller as it runs on the target, in direct form II trans
         "(`tustin`, `zoh`, or `structure`: the structure's own discretisation). `u_min`/`u_max` clamp the output; "
         "a controller with integral action then gets anti-windup by conditional integration (the integrator, "
         "split off by partial fractions, is held while integrating would drive the saturated output further). "
-        "The header of the text says all of this. 422 (with `loc`) for a bad format, name, dt, method or limits.")
+        "A 2-DOF `pid2` result takes r and y: `double N_update(N_state *s, double r, double y)` (Python "
+        "`update(r, y)`), D on c r - y (c = 0: on the measurement), anti-windup by `anti_windup` (conditional "
+        "integration or back-calculation with tracking time `tt`). The header of the text says all of this. "
+        "422 (with `loc`) for a bad format, name, dt, method or limits.")
 _SUFFIX = {"c": "c", "python": "py", "text": "txt"}
-_QUERY = {"name", "dt", "method", "u_min", "u_max", "format"}
+_QUERY = {"name", "dt", "method", "u_min", "u_max", "format", "anti_windup", "tt"}
 
 
 @router.get("/{tune_id}/export", response_class=Response, summary="A stored controller as code", description=_DOC,
@@ -42,6 +45,10 @@ async def export_tune(
                                                                                  "result"),
     u_min: float | None = Query(None, description="lower output limit"),
     u_max: float | None = Query(None, description="upper output limit"),
+    anti_windup: Literal["conditional", "back_calculation"] = Query(
+        "conditional", description="pid2 results (N_update(s, r, y)): conditional integration or back-calculation "
+        "with tracking time tt (default sqrt(Ti Td), Ti for a PI); 1-DOF controllers: conditional"),
+    tt: float | None = Query(None, description="back-calculation tracking time, s (>= dt)"),
     store: Store = Depends(get_store),
 ) -> PlainTextResponse:
     from tuner.export import check_name, equation_of, render
@@ -52,7 +59,7 @@ async def export_tune(
         raise FieldError(("query", "name"), str(e), type=error_type(e)) from None
     rec = await _record(store, tune_id)
     try:
-        de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max)
+        de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)
         text = render(de, format, name)
     except TunerError as e:
         f = str(e.field[0]) if e.field else ""

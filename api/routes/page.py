@@ -33,13 +33,14 @@ _ASSETS = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; c
 
 def page_config(settings: Settings) -> dict[str, Any]:
     """What the form is built from: structures (parameters, discrete only), spec fields, limits."""
-    from tuner.controllers import STRUCTURES
+    from tuner.controllers import DEPRECATED_STRUCTURES, STRUCTURES
     from tuner.spec import OBJECTIVES, Spec
 
     schema = Spec.model_json_schema()["properties"]
     return {
         "structures": [{"name": s.name, "params": list(s.params), "discrete_only": s.discrete_only}
                        for s in STRUCTURES.values()],
+        "deprecated_structures": dict(DEPRECATED_STRUCTURES),  # old name -> new (a stored tune's form)
         "objectives": list(OBJECTIVES),
         "spec_defaults": Spec().model_dump(mode="json"),
         "spec_help": {k: v.get("description", "") for k, v in schema.items()},

@@ -96,6 +96,11 @@ async def post_tune(
         if e.kind == "tuner_error":
             raise FieldError(body_loc(e.info.get("field") or ()), e.info["message"], type="tuner_error") from None
         raise HTTPException(500, internal_message(e.info, "solver")) from None
+    from tuner.controllers import deprecation_note
+
+    note = deprecation_note(body.structure)
+    if note and isinstance(result, dict) and isinstance(result.get("solver"), dict):  # pidf2: say it is pid_mf2
+        result["solver"]["notes"] = [*result["solver"].get("notes", []), note]
     request = body.model_dump(mode="json")
     request.update(spec=problem.spec.model_dump(mode="json"), dt=problem.dt)
     request["options"]["time_budget_s"] = budget

@@ -432,7 +432,7 @@ function fromRequest(q) {
   else if (p.num) { v.num = p.num.join(", "); v.den = p.den.join(", "); v.var = p.dt ? "z" : "s"; }
   if (p.delay) v.delay = String(p.delay);
   if (q.dt) v.dt = String(q.dt);
-  v.structure = q.structure;
+  v.structure = (CONFIG.deprecated_structures || {})[q.structure] || q.structure; // pidf2 -> pid_mf2
   for (const [k, x] of Object.entries(q.spec || {})) v[k] = x === null ? "" : typeof x === "boolean" ? (x ? "1" : "0") : String(x);
   if (q.options) { v.seed = String(q.options.seed ?? 0); if (q.options.time_budget_s) v.budget = String(q.options.time_budget_s); }
   v.plants = (q.plants || []).filter((x) => x.expr).map((x) => x.expr);

@@ -110,3 +110,32 @@ def test_export_of_a_real_tune(client):
     k = res["gains"]["K"]
     assert f"u[k] = {float(k)!r} * e[k]" in t.text  # b0 = K of K (z^2 + a1 z + a2)/(z (z - 1))
     assert "/tunes/{tune_id}/export" in client.get("/openapi.json").json()["paths"]
+
+
+PID2 = {"Kp": 2.0, "Ki": 3.0, "Kd": 0.2, "Tf": 0.02, "b": 0.6, "c": 0.0}
+
+
+def test_pid2_result_exports_with_r_and_y_and_back_calculation(client, tmp_path):
+    c = controller_tf("pid2", PID2, dt=0.04)
+    rid = client.app.state.store.add(request={}, plants=[],
+                                     result={"structure": "pid2", "gains": PID2, "controller": c.to_dict(),
+                                             "meets_spec": True}).id
+    r = client.get(f"/tunes/{rid}/export", params={"format": "python", "name": "P2", "u_min": -5, "u_max": 5,
+                                                    "anti_windup": "back_calculation", "tt": 0.3})
+    assert r.status_code == 200, r.text
+    assert "def update(self, r, y)" in r.text and "back-calculation" in r.text
+    path = tmp_path / "p2.py"
+    path.write_text(r.text)
+    spec = importlib.util.spec_from_file_location("p2", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    ctl = mod.P2()
+    rr = np.concatenate([np.zeros(5), 0.2 * np.ones(40)])
+    yy = 0.05 * np.sin(np.arange(rr.size))
+    u = np.array([ctl.update(a, b) for a, b in zip(rr, yy)])
+    ref = signal.lfilter(c.num_r, c.den, rr) - signal.lfilter(c.num, c.den, yy)  # inside the limits: the law
+    assert np.max(np.abs(ref)) < 5
+    assert_allclose(u, ref, rtol=1e-10, atol=1e-12)
+    bad = client.get(f"/tunes/{rid}/export", params={"format": "c", "u_max": 1, "anti_windup": "back_calculation",
+                                                      "tt": 0.001})
+    assert bad.status_code == 422 and bad.json()["detail"][0]["loc"] == ["query", "tt"]

@@ -422,3 +422,16 @@ def test_response_numbers_are_finite_or_the_documented_strings(roll):
             raise AssertionError(f"non-standard encoding {x!r}")
 
     walk(roll)
+
+
+def test_tune_accepts_pid2_and_the_deprecated_pidf2(client):
+    r = client.post("/tune", json={"plant": {"expr": "4.674/(s^2+3.523*s+12.38)"}, "dt": 0.04, "structure": "pid2",
+                                   "options": {"time_budget_s": 2}})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert set(body["gains"]) == {"Kp", "Ki", "Kd", "Tf", "b", "c"} and "num_r" in body["controller"]
+    r = client.post("/tune", json={"plant": {"expr": "1/(s+1)"}, "structure": "pidf2",
+                                   "options": {"time_budget_s": 1}})
+    assert r.status_code == 200, r.text
+    assert r.json()["structure"] == "pid_mf2"
+    assert any("deprecated" in n for n in r.json()["solver"]["notes"])

@@ -121,7 +121,7 @@ def test_structure_frequency_response_matches_documented_formula(name, dt):
     """Evaluate the docstring's formula directly at complex points; compare with num/den."""
     st = get_structure(name)
     vals = {"Kp": 1.7, "Ki": 2.3, "Kd": 0.31, "Tf": 0.02, "K": 1.9, "wz": 3.0, "wp": 30.0,
-            "a1": -1.2, "a2": 0.4, "wz1": 2.0, "wp1": 25.0, "wz2": 0.7, "wp2": 0.07}
+            "a1": -1.2, "a2": 0.4, "wz1": 2.0, "wp1": 25.0, "wz2": 0.7, "wp2": 0.07, "b": 0.6, "c": 0.3}
     if name == "lag":
         vals.update(wz=3.0, wp=0.3)
     x = {p: vals[p] for p in st.params}
@@ -139,11 +139,11 @@ def test_structure_frequency_response_matches_documented_formula(name, dt):
             i_term, d_term = Ki / v, Kd * v / (Tf * v + 1)
         else:
             i_term, d_term = Ki * dt * v / (v - 1), Kd * (v - 1) / ((Tf + dt) * v - Tf)
-        if name in ("p", "pi", "pd", "pid"):
+        if name in ("p", "pi", "pd", "pid", "pid2"):  # pid2: its feedback part (on -y) is pid's controller
             return Kp + (i_term if "i" in name else 0) + (d_term if "d" in name else 0)
         if name == "pid_z":
             return x["K"] * (v**2 + x["a1"] * v + x["a2"]) / (v * (v - 1))
-        if name == "pidf2":  # the documented form; at dt: backward-Euler PID (one-sample derivative) x Tustin filter
+        if name == "pid_mf2":  # the documented form; at dt: backward-Euler PID (one-sample derivative) x Tustin filter
             if dt is None:
                 return (Kp + Ki / v + Kd * v) / (Tf**2 * v**2 + math.sqrt(2) * Tf * v + 1)
             sv = 2 / dt * (v - 1) / (v + 1)

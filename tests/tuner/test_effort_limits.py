@@ -60,12 +60,12 @@ def test_mt_mks_of_a_sampled_data_loop_match_a_dense_grid():
     assert m.mks == pytest.approx(np.max(np.abs(C * S)), rel=1e-4)
 
 
-def test_pidf2_is_the_documented_transfer_function():
+def test_pid_mf2_is_the_documented_transfer_function():
     """(kp + ki/s + kd s) / (Tf^2 s^2 + sqrt2 Tf s + 1), evaluated here at a few frequencies."""
     from tuner import get_structure
 
     g = {"Kp": 2.0, "Ki": 0.7, "Kd": 0.3, "Tf": 0.05}
-    c = get_structure("pidf2").tf(g, None)
+    c = get_structure("pid_mf2").tf(g, None)
     for w in (0.01, 0.3, 2.0, 30.0, 500.0):
         s = 1j * w
         ref = (g["Kp"] + g["Ki"] / s + g["Kd"] * s) / (g["Tf"] ** 2 * s**2 + math.sqrt(2) * g["Tf"] * s + 1)

@@ -197,13 +197,13 @@ def _textbook(name, x, dt, w):
         return x["Kp"] + x["Ki"] * integ
     if name == "pd":
         return x["Kp"] + deriv(x["Kd"], x["Tf"])
-    if name == "pid":
+    if name in ("pid", "pid2"):  # pid2: the feedback part
         return x["Kp"] + x["Ki"] * integ + deriv(x["Kd"], x["Tf"])
     if name == "pid_z":
         return x["K"] * (z**2 + x["a1"] * z + x["a2"]) / (z * (z - 1))
     if name in ("lead", "lag"):
         return first(x["K"], x["wz"], x["wp"])
-    if name == "pidf2":
+    if name == "pid_mf2":
         tf = x["Tf"]
         if dt is None:
             return (x["Kp"] + x["Ki"] / s + x["Kd"] * s) / (tf**2 * s**2 + math.sqrt(2) * tf * s + 1)

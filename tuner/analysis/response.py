@@ -199,7 +199,8 @@ def steady_state(loop: Loop, *, load: bool = False) -> tuple[float, float]:
     """Exact steady state ``(y, u)`` after a unit step on the reference (or the load), stable loops."""
     inp = 1 if load else 0
     if loop.dt is None and loop.delay_s:  # e^{-s tau} = 1 at s = 0: the delay-free loop's steady state
-        return _continuous_loop(loop.plant.ss(), loop.controller.ss()).dc(inp)
+        c = loop.controller
+        return _continuous_loop(loop.plant.ss(), c.ss(), ref=c.ref_ss() if c.two_dof else None).dc(inp)
     return loop.closed_loop().dc(inp)
 
 
@@ -238,6 +239,7 @@ def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
 def _simulate_fine_delay(fl: FineDelayLoop, K: int, inp: int) -> tuple[np.ndarray, np.ndarray]:
     """Output and controller output of the sampled delay model over K steps, with a ring buffer."""
     g, c, m = fl.plant, fl.ctrl, fl.m
+    cr = fl.ctrl_r if fl.ctrl_r is not None else c  # 2-DOF: the reference path on the same states
     r, w = (1.0, 0.0) if inp == 0 else (0.0, 1.0)
     buf = np.zeros(m + 1)  # buf[(head + j) % (m+1)] = v[k-1-j]
     head = 0
@@ -248,12 +250,12 @@ def _simulate_fine_delay(fl: FineDelayLoop, K: int, inp: int) -> tuple[np.ndarra
         held = buf[(head + (m - 1 if fl.f == 0.0 else m)) % nb]
         yk = g.C @ x + g.D * held
         e = r - yk
-        uk = c.C @ xc + c.D * e
+        uk = c.C @ xc + (c.D * e if fl.ctrl_r is None else cr.D * r - c.D * yk)
         v = uk + w
         old = buf[(head + m) % nb]
         new = buf[(head + m - 1) % nb] if m >= 1 else v
         x = fl.Phi @ x + fl.G_old * old + fl.G_new * new
-        xc = c.A @ xc + c.B * e
+        xc = c.A @ xc + (c.B * e if fl.ctrl_r is None else cr.B * r - c.B * yk)
         head = (head - 1) % nb
         buf[head] = v
         y[k], u[k] = yk, uk

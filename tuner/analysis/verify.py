@@ -97,6 +97,14 @@ class Analysis:
 
         return loop_tfs(self.loop, pade_order=pade_order)
 
+    def reference_tfs(self, *, pade_order: int | None = 6) -> Any:
+        """``r -> y`` and ``r -> u`` (``Tr, Ur``) as ``control.TransferFunction``: for a 1-DOF controller ``T``
+        and ``C S``; for a 2-DOF one (``pid2``) ``C_r G S`` and ``C_r S``, while :meth:`loop_tfs` gives the
+        feedback loop ``L = C G``. See :func:`tuner.interop.reference_tfs`."""
+        from ..interop import reference_tfs
+
+        return reference_tfs(self.loop, pade_order=pade_order)
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "metrics": asdict(self.metrics),

@@ -16,6 +16,7 @@ from ..errors import TunerError
 __all__ = ["add_parser"]
 
 _OPTION = {"name": "--name", "dt": "--dt", "method": "--method", "u_min": "--u-min", "u_max": "--u-max",
+           "anti_windup": "--anti-windup", "tt": "--tt", "gains": "--result",
            "format": "--format", "controller": "--controller", "expr": "--controller", "num": "--controller",
            "den": "--controller", "result": "--result"}
 
@@ -30,7 +31,11 @@ structure (the structure's own discretisation of tuner.controllers: backward Eul
 filtered derivative, matched pole-zero for lead/lag; needs --result).
 --u-min/--u-max clamp the output; a controller with integral action (PI, PID, pid_z, ...) then gets
 anti-windup by conditional integration: the integrator (split off by partial fractions) is held while
-integrating would drive the saturated output further. The header of the output states all of this."""
+integrating would drive the saturated output further. The header of the output states all of this.
+A 2-DOF pid2 result is exported with both inputs: N_update(N_state *s, double r, double y) (Python:
+update(r, y)), u = Kp(b r - y) + I + D with I integrating r - y and D the filtered derivative of c r - y
+(c = 0: D on the measurement); with limits, anti-windup by --anti-windup conditional (default) or
+back-calculation (tracking time --tt, default sqrt(Ti*Td), Ti for a PI)."""
 
 
 def add_parser(sub: Any) -> None:
@@ -48,6 +53,11 @@ def add_parser(sub: Any) -> None:
                    help="discretisation of a continuous controller (tustin)")
     p.add_argument("--u-min", type=float, default=None, metavar="U", help="lower output limit")
     p.add_argument("--u-max", type=float, default=None, metavar="U", help="upper output limit")
+    p.add_argument("--anti-windup", default="conditional", choices=["conditional", "back-calculation"],
+                   help="pid2 results (N_update(s, r, y)): conditional integration (default) or back-calculation "
+                        "with tracking time --tt (default sqrt(Ti*Td), Ti for a PI; Astrom-Hagglund); active with "
+                        "--u-min/--u-max. 1-DOF controllers: conditional integration")
+    p.add_argument("--tt", type=float, default=None, metavar="S", help="back-calculation tracking time, s (>= dt)")
     p.add_argument("--out", metavar="FILE", help="write to FILE instead of stdout")
     p.set_defaults(handler=_cmd_export)
 
@@ -85,7 +95,8 @@ def _cmd_export(a: argparse.Namespace) -> int:
     try:
         check_name(a.name)
         src = _source(a)
-        de = equation_of(src, dt=a.dt, method=a.method, u_min=a.u_min, u_max=a.u_max)
+        de = equation_of(src, dt=a.dt, method=a.method, u_min=a.u_min, u_max=a.u_max,
+                         anti_windup=a.anti_windup.replace("-", "_"), tt=a.tt)
         text = render(de, a.format, a.name)
         note = clamp_note(src, a.u_min, a.u_max)
         if note:

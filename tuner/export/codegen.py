@@ -239,7 +239,11 @@ def to_python(de: DifferenceEquation, name: str = "controller") -> str:
 
 
 def render(de: DifferenceEquation, fmt: str, name: str = "controller") -> str:
-    """``de`` as ``fmt`` (:data:`FORMATS`)."""
+    """``de`` as ``fmt`` (:data:`FORMATS`); a 2-DOF law (:mod:`tuner.export.twodof`) as its own code."""
     if fmt not in FORMATS:
         raise TunerError(f"format must be one of {list(FORMATS)}, got {fmt!r}", field="format")
+    from .twodof import TwoDofLaw, render2
+
+    if isinstance(de, TwoDofLaw):
+        return render2(de, fmt, name)
     return {"c": to_c, "python": to_python, "text": to_text}[fmt](de, name)

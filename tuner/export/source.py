@@ -9,9 +9,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..controllers import ControllerTF, controller_from_coeffs
-from ..errors import InvalidControllerError
+from ..errors import InvalidControllerError, TunerError
 from .codegen import check_name, render
 from .discrete import DifferenceEquation, difference_equation
+from .twodof import TwoDofLaw, two_dof_law
 
 __all__ = ["export_controller", "from_result", "equation_of", "clamp_note", "ExportWarning"]
 
@@ -27,6 +28,9 @@ def from_result(result: Mapping[str, Any]) -> tuple[ControllerTF, str | None, di
                                      "'tuner tune --json' or of GET /tunes/{id})", field=("result", "controller"))
     try:
         ctrl = controller_from_coeffs(c["num"], c["den"], dt=c.get("dt"))
+        if c.get("num_r") is not None:  # a 2-DOF controller: its reference path (exported from its gains)
+            num_r = controller_from_coeffs(c["num_r"], c["den"], dt=c.get("dt")).num
+            ctrl = ControllerTF(num=ctrl.num, den=ctrl.den, dt=ctrl.dt, num_r=num_r)
     except InvalidControllerError as e:
         raise e.at("result", "controller") from None
     gains = result.get("gains")
@@ -54,15 +58,27 @@ def _parts(controller: Any) -> tuple[ControllerTF, str | None, dict[str, float] 
 
 
 def equation_of(controller: Any, *, dt: float | None = None, method: str = "tustin", u_min: float | None = None,
-                u_max: float | None = None) -> DifferenceEquation:
-    """The :class:`DifferenceEquation` of anything :func:`export_controller` takes."""
+                u_max: float | None = None, anti_windup: str = "conditional", tt: float | None = None
+                ) -> DifferenceEquation | TwoDofLaw:
+    """The :class:`DifferenceEquation` of anything :func:`export_controller` takes; a 2-DOF ``pid2`` result gives
+    its :class:`~tuner.export.twodof.TwoDofLaw` (inputs r and y)."""
     ctrl, structure, gains = _parts(controller)
+    if structure == "pid2" and gains is not None:
+        return two_dof_law(gains, ctrl.dt, dt=dt, method=method, u_min=u_min, u_max=u_max,
+                           anti_windup=anti_windup, tt=tt)
+    if ctrl.two_dof:
+        raise InvalidControllerError("a 2-DOF controller is exported from its structure and gains: give the tune "
+                                     "result (TuneResult or its JSON)", field="controller")
+    if anti_windup != "conditional" or tt is not None:
+        raise TunerError("the 1-DOF export (u = C(z) e) has anti-windup by conditional integration only; "
+                         "back-calculation (anti_windup, tt) is for pid2", field="anti_windup")
     return difference_equation(ctrl, dt=dt, method=method, structure=structure, gains=gains, u_min=u_min,
                                u_max=u_max)
 
 
 def export_controller(controller: Any, *, format: str = "c", name: str = "controller", dt: float | None = None,
-                      method: str = "tustin", u_min: float | None = None, u_max: float | None = None) -> str:
+                      method: str = "tustin", u_min: float | None = None, u_max: float | None = None,
+                      anti_windup: str = "conditional", tt: float | None = None) -> str:
     """The controller as code for the target.
 
     Parameters
@@ -82,6 +98,12 @@ def export_controller(controller: Any, *, format: str = "c", name: str = "contro
         structure's own discretisation (:mod:`tuner.controllers`) and needs a tune result.
     u_min, u_max : float, optional
         Output limits; a controller with integral action gets anti-windup by conditional integration.
+    anti_windup : {"conditional", "back_calculation"}
+        pid2 only (``N_update(s, r, y)``, :mod:`tuner.export.twodof`): conditional integration, or
+        back-calculation with the tracking time ``tt`` (default ``sqrt(Ti Td)``, ``Ti`` for a PI; Astrom &
+        Hagglund). The 1-DOF export (``N_update(s, e)``) has conditional integration.
+    tt : float, optional
+        Back-calculation's tracking time, seconds (at least ``dt``).
 
     Returns
     -------
@@ -89,7 +111,7 @@ def export_controller(controller: Any, *, format: str = "c", name: str = "contro
         The source (or text); its header says where the equation came from and how it is realised.
     """
     check_name(name)
-    de = equation_of(controller, dt=dt, method=method, u_min=u_min, u_max=u_max)
+    de = equation_of(controller, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)
     out = render(de, format, name)
     note = clamp_note(controller, u_min, u_max)
     if note:

@@ -98,6 +98,17 @@ def _canonical(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, ...]:
     return A, Bc, Cc, b[:, 0]
 
 
+def _realize(num: np.ndarray, den: np.ndarray, num_r: np.ndarray | None) -> tuple[np.ndarray, ...]:
+    """``(A, B, C, D, Br, Dr)`` of stacked controllers: 1-DOF, the controllable canonical form (``Br, Dr`` None);
+    2-DOF, the observable canonical form, whose states both paths share (``B, D`` the feedback C on -y, ``Br, Dr``
+    the reference path C_r over the same denominator)."""
+    Ac, Bc, Cc, Dc = _canonical(num, den)
+    if num_r is None:
+        return Ac, Bc, Cc, Dc, None, None
+    _, _, Ccr, Dcr = _canonical(num_r, den)
+    return np.swapaxes(Ac, 1, 2), Cc, Bc, Dc, Ccr, Dcr
+
+
 @dataclass(frozen=True)
 class Start:
     """What the batched verifier says about the start, per plant."""
@@ -176,6 +187,19 @@ class BatchEvaluator:
             num = np.concatenate([np.zeros((B, den.shape[1] - num.shape[1])), num], axis=1)
         return num, den
 
+    def controllers_r(self, X: np.ndarray, m1: int) -> np.ndarray | None:
+        """2-DOF structures: the reference path's numerator (B, m1) over the same denominator; None for 1-DOF."""
+        if not self.st.two_dof:
+            return None
+        B = X.shape[0]
+        cols = [X[:, j] for j in range(X.shape[1])]
+        with np.errstate(all="ignore"):
+            num_r, _ = self.st.ref_coeffs(cols, self.dt, np.exp)
+        num_r = np.stack([np.broadcast_to(np.asarray(c, float), (B,)) for c in num_r], axis=1)
+        if num_r.shape[1] < m1:
+            num_r = np.concatenate([np.zeros((B, m1 - num_r.shape[1])), num_r], axis=1)
+        return num_r
+
     def _c_at(self, num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
         """C at the points x (s or z values), (B, len(x)), by Horner (controllers are low order)."""
         cn = np.zeros((num.shape[0], x.size), complex)
@@ -199,20 +223,25 @@ class BatchEvaluator:
         self.n_evals += X.shape[0]
         num, den = self.controllers(X)
         ok = np.all(np.isfinite(num), axis=1) & np.all(np.isfinite(den), axis=1) & (np.abs(den[:, 0]) > 0)
+        num_r = self.controllers_r(X, den.shape[1])
+        if num_r is not None:
+            ok &= np.all(np.isfinite(num_r), axis=1)
+            num_r = np.where(ok[:, None], num_r, 0.0)
         num = np.where(ok[:, None], num, 0.0)
         den = np.where(ok[:, None], den, 1.0)
-        per_plant = [self._evaluate_plant(pd, num, den, ok) for pd in self.plants]
+        per_plant = [self._evaluate_plant(pd, num, den, ok, num_r) for pd in self.plants]
         return self._combine(per_plant, X)
 
-    def _evaluate_plant(self, pd: _PlantData, num, den, ok) -> dict[str, np.ndarray]:
+    def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None) -> dict[str, np.ndarray]:
+        """One plant's metrics; ``num_r``: the 2-DOF reference path (the frequency metrics are the feedback's)."""
         x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
         C = self._c_at(num, den, x)
         L = C * pd.G[None, :]
         m: dict[str, np.ndarray] = {}
         m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs))
-        A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant = self._closed_loop(pd, num, den)
+        A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant = self._closed_loop(pd, num, den, num_r)
         if self.dt is None and pd.tau:
-            A_eig = self._fine_delay_dense(pd, num, den)[0]
+            A_eig = self._fine_delay_dense(pd, num, den, num_r=num_r)[0]
         else:
             A_eig = A
         with np.errstate(all="ignore"):
@@ -235,14 +264,15 @@ class BatchEvaluator:
         m["stable"] = stable
         m["outside"] = np.where(stable, 0.0, np.where(np.isfinite(out), np.maximum(out, 1e-9), 1e3))
         smin = np.min(sig, axis=1)
-        m.update(self._time_metrics(pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant, stable, smin, num, den))
+        m.update(self._time_metrics(pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant, stable, smin, num, den, num_r))
         return m
 
     # -- closed loops ---------------------------------------------------------------------------
 
-    def _closed_loop(self, pd: _PlantData, num, den):
-        """The stacked closed loops (B, nz, nz) with inputs [r, w] and the maps to y, u and the plant input."""
-        Ac, Bc, Cc, Dc = _canonical(num, den)
+    def _closed_loop(self, pd: _PlantData, num, den, num_r=None):
+        """The stacked closed loops (B, nz, nz) with inputs [r, w] and the maps to y, u and the plant input
+        (``num_r``: a 2-DOF controller's reference path, ``u = C_r r - C y`` on shared states)."""
+        Ac, Bc, Cc, Dc, Br, Dr = _realize(num, den, num_r)
         Bn, m = Bc.shape
         n = pd.Phi.shape[0]
         d = pd.d if self.dt is not None else 0
@@ -264,14 +294,15 @@ class BatchEvaluator:
             Dy = g_D * Da
             Cu = -Dc[:, None] * Cy
             Cu[:, ic] += Cc
-            Du = Dc[:, None] * (e_r[None, :] - Dy)
+            Du = Dc[:, None] * (e_r[None, :] - Dy) if Br is None else \
+                np.stack([Dr, np.zeros(Bn)], axis=1) - Dc[:, None] * Dy
         else:
             dnm = 1.0 + Dc * g_D
             dnm = np.where(np.abs(dnm) < 1e-12, np.nan, dnm)
             Cu = np.zeros((Bn, nz))
             Cu[:, ix] = -(Dc / dnm)[:, None] * g_C[None, :]
             Cu[:, ic] = Cc / dnm[:, None]
-            Du = np.stack([Dc, -Dc * g_D], axis=1) / dnm[:, None]
+            Du = np.stack([Dc if Br is None else Dr, -Dc * g_D], axis=1) / dnm[:, None]
             Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
             Cy = np.zeros((Bn, nz))
             Cy[:, :n] = g_C
@@ -288,19 +319,26 @@ class BatchEvaluator:
                 A[:, n + j, n + j - 1] = 1.0
         A[:, ic, :] += Bc[:, :, None] * Ce[:, None, :]
         A[:, ic, ic] += Ac
-        Bm[:, ic, :] += Bc[:, :, None] * De[:, None, :]
+        if Br is None:
+            Bm[:, ic, :] += Bc[:, :, None] * De[:, None, :]
+        else:  # 2-DOF: the controller's states take Br r - B y
+            Bm[:, ic, :] += Bc[:, :, None] * (-Dy)[:, None, :]
+            Bm[:, ic, 0] += Br
         return A, Bm, Cy, Dy, Cu, Du, Ca, Da, n
 
     def _fine_h(self, pd: _PlantData) -> float:
         return pd.tau / 20.0
 
-    def _fine_delay_dense(self, pd: _PlantData, num, den, h: float | None = None) -> tuple[np.ndarray, ...]:
+    def _fine_delay_dense(self, pd: _PlantData, num, den, h: float | None = None, num_r=None
+                          ) -> tuple[np.ndarray, ...]:
         """The fine sampled model of a continuous loop with delay at step ``h`` (default tau/20, for the poles):
         plant ZOH with the delay on a shifted grid, controller Tustin. States [plant, register of the plant's
         past inputs (m+1), controller]; returns (A, Bm, Cy, Cu)."""
         h = self._fine_h(pd) if h is None else h
         Phi, G_old, G_new, mreg, f = zoh_delayed(_SS(pd.Phi, pd.Gam, pd.C, pd.D), h, pd.tau)
-        Ac, Bc, Cc, Dc = _tustin_batch(*_canonical(num, den), h)
+        Ac0, Bc0, Cc0, Dc0, Br0, Dr0 = _realize(num, den, num_r)
+        Ac, Bc, Cc, Dc = _tustin_batch(Ac0, Bc0, Cc0, Dc0, h)
+        Br, Dr = (Bc, Dc) if Br0 is None else _tustin_batch(Ac0, Br0, Cc0, Dr0, h)[1::2]
         Bn, m = Bc.shape
         n, nr = Phi.shape[0], mreg + 1
         nz = n + nr + m
@@ -310,7 +348,7 @@ class BatchEvaluator:
         Cy = np.broadcast_to(np.concatenate([pd.C, np.zeros(nr + m)]) + pd.D * a_y, (Bn, nz)).copy()
         Cu = -Dc[:, None] * Cy
         Cu[:, ic] += Cc
-        Du = np.stack([Dc, np.zeros(Bn)], axis=1)  # u = Cu z + Dc r
+        Du = np.stack([Dr, np.zeros(Bn)], axis=1)  # u = Cu z + Dr r
         v_in = Du + np.array([0.0, 1.0])  # the register takes u + w
         A = np.zeros((Bn, nz, nz))
         Bm = np.zeros((Bn, nz, 2))
@@ -327,7 +365,7 @@ class BatchEvaluator:
             A[:, n + j, n + j - 1] = 1.0
         A[:, ic, :] += Bc[:, :, None] * (-Cy)[:, None, :]
         A[:, ic, ic] += Ac
-        Bm[:, ic, 0] += Bc
+        Bm[:, ic, 0] += Br
         return A, Bm, Cy, Cu, Du
 
     # -- time responses -------------------------------------------------------------------------
@@ -351,7 +389,7 @@ class BatchEvaluator:
         Kc = np.minimum(Kc, MAX_SAMPLES)
         return [(int(k), np.flatnonzero(Kc == k)) for k in np.unique(Kc)]
 
-    def _time_metrics(self, pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n, stable, smin, num, den
+    def _time_metrics(self, pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n, stable, smin, num, den, num_r=None
                       ) -> dict[str, np.ndarray]:
         spec = self.spec
         Bn = A.shape[0]
@@ -379,7 +417,8 @@ class BatchEvaluator:
             sel = idx[rows]
             Tr = T[rows]
             if self.dt is None and pd.tau:
-                sim, args = self._simulate_fine_delay, (pd, num[sel], den[sel], float(Tr.max()))
+                sim, args = self._simulate_fine_delay, (pd, num[sel], den[sel], float(Tr.max()),
+                                                        None if num_r is None else num_r[sel])
             else:
                 sim, args = self._simulate, (pd, A[sel], Bm[sel], Cy[sel], Dy[sel], Cu[sel], Du[sel], Ca[sel],
                                              Da[sel], n, Tr, K)
@@ -429,16 +468,16 @@ class BatchEvaluator:
         yf = np.einsum("bz,bz->b", zf, Cy) + Dy[:, inp]
         return y, u, t, yf
 
-    def _simulate_fine_delay(self, pd, num, den, T, inp):
+    def _simulate_fine_delay(self, pd, num, den, T, num_r, inp):
         """Continuous loop with delay at the fine step T/CONTINUOUS_STEPS (plant exact, controller Tustin)."""
         h = T / CONTINUOUS_STEPS
         K = CONTINUOUS_STEPS + 1
-        A, Bm, Cy, Cu, Du = self._fine_delay_dense(pd, num, den, h)
+        A, Bm, Cy, Cu, Du = self._fine_delay_dense(pd, num, den, h, num_r=num_r)
         Z = _run(A, Bm[:, :, inp], K)
         y = np.einsum("bkz,bz->bk", Z, Cy)
         u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
         # steady state of the delay-free continuous loop (e^{-s tau} = 1 at s = 0)
-        A0, B0, Cy0, Dy0, *_ = self._closed_loop(pd, num, den)
+        A0, B0, Cy0, Dy0, *_ = self._closed_loop(pd, num, den, num_r)
         with np.errstate(all="ignore"):
             zf = np.linalg.solve(-A0, B0[:, :, inp:inp + 1])[:, :, 0]
         yf = np.einsum("bz,bz->b", zf, Cy0) + Dy0[:, inp]

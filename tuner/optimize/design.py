@@ -54,6 +54,9 @@ def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale |
             lo.append(t0), hi.append(max(10.0 / w0, 10 * t0))
         else:  # polynomial coefficient of a monic quadratic with zeros in |z| <= 1.5
             lo.append(-3.0), hi.append(3.0)
+    for i, (p, kind) in enumerate(zip(st.params, st.kinds)):  # 2-DOF setpoint weights: the structure's range
+        if kind == "weight":
+            lo[i], hi[i] = st.weight_range(p)
     return np.array(lo), np.array(hi)
 
 
@@ -91,6 +94,11 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     plant's ultimate frequency ``w0``. ``spec``: its default filter rules shape the start (the filter at
     ``Td/N`` and no faster than ``dt/pi``).
     """
+    if st.name == "pid2":  # the feedback part is pid's; the default start puts D on the measurement (c = 0)
+        from ..controllers import STRUCTURES
+
+        g2 = initial_guess(STRUCTURES["pid"], plant, dt, scale=scale, zeros=zeros, spec=spec)
+        return {**g2, "b": PID2_START_B, "c": PID2_START_C}
     k0, w0 = scale or plant_scale(plant, dt)
     nyq = bool(getattr(spec, "filter_nyquist", False))
     n_max = getattr(spec, "filter_n_max", None)
@@ -101,15 +109,15 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
         _, c1, c2 = np.real(np.poly(poles))  # two-zero structures: s^2 + c1 s + c2
     g = {"Kp": 1.0, "Ki": z1, "Kd": 0.0, "Tf": 0.0, "K": 1.0, "wz": z1, "wp": min(10 * z1, 3 * w0),
          "wz1": z1, "wp1": min(10 * z1, 3 * w0), "wz2": 0.1 * z1, "wp2": 0.01 * z1}
-    if st.name in ("pid", "pd", "pidf2"):
+    if st.name in ("pid", "pd", "pid_mf2"):
         # Kd s^2 + Kp s + Ki = Kd (s^2 + c1 s + c2)   (pd: Kd s + Kp = Kd (s + z1))
         g.update(Kd=1.0, Kp=z1 if st.name == "pd" else c1, Ki=c2,
                  Tf=(0.1 / w0) if dt is None else tf_min(dt, w0, nyquist=nyq))
-    if dt is not None and st.name in ("pid", "pi", "pidf2"):
+    if dt is not None and st.name in ("pid", "pi", "pid_mf2"):
         # in discrete time put the zeros exactly on the ZOH plant's poles: with Tf = 0 the
         # backward-Euler PID numerator is (Kp + Ki dt + Kd/dt) z^2 - (Kp + 2 Kd/dt) z + Kd/dt
         zp = np.exp(poles * dt)
-        if st.name in ("pid", "pidf2"):
+        if st.name in ("pid", "pid_mf2"):
             _, a1, a2 = np.real(np.poly(zp))
             g.update(Kd=a2 * dt, Kp=-a1 - 2 * a2, Ki=(1 + a1 + a2) / dt, Tf=tf_min(dt, w0, nyquist=nyq))
         else:  # (Kp + Ki dt) z - Kp = z - e^{-z1 dt}
@@ -147,6 +155,7 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     return out
 
 
+PID2_START_B, PID2_START_C = 1.0, 0.0  # pid2's own starts: full proportional setpoint weight, D on the measurement
 START_PM_DEG = 65.0  # the designed starts' phase margin (a little above the default spec's 60)
 START_GM_DB = 8.0
 

@@ -2,7 +2,7 @@
 
 Round 0 is deterministic (the same for every seed): the structure's plant-based starts, a fixed
 space-filling set of points and, for a structure that contains a smaller one (``leadlag`` contains
-``lead``), the smaller structure's designed starts; all
+``lead``; ``pid2`` contains ``pid`` at b = c = 1), the smaller structure's designed starts; all
 scored in one batch (:class:`~tuner.optimize.batch.BatchEvaluator`), the best few distinct ones
 refined by the CasADi NLP (:mod:`~tuner.optimize.nlp`). Later rounds ask Optuna's seeded sampler
 (which has been told every point scored so far) for a batch, and refine the best new distinct
@@ -90,7 +90,19 @@ def _contained(problem: TuningProblem) -> tuple[str, Any] | None:
         def from_lead(g: dict[str, float]) -> dict[str, float]:
             return {"K": g["K"], "wz1": g["wz"], "wp1": g["wp"], "wz2": 1.001 * g["wz"], "wp2": g["wz"]}
         return "lead", from_lead
+    if problem.structure.name == "pid2":
+        # pid2 contains pid at b = c = 1: pid's own starts exactly, and the same with setpoint weights
+        def from_pid(g: dict[str, float]) -> list[dict[str, float]]:
+            return [{**g, "b": b, "c": c} for b, c in PID2_WEIGHT_SEEDS]
+        return "pid", from_pid
     return None
+
+
+#: structures whose search first runs the contained structure's whole search (:meth:`Engine._contained_answer`)
+FULL_CONTAINMENT = ("pid2",)
+#: the (b, c) given to pid's designed starts as pid2's seeds: pid itself first, then D on the measurement with
+#: full and half proportional setpoint weight
+PID2_WEIGHT_SEEDS = ((1.0, 1.0), (1.0, 0.0), (0.5, 0.0))
 
 
 @dataclass
@@ -173,7 +185,10 @@ class Engine:
         return 1e-3 * max(abs(b), 1e-12)
 
     def _distinct(self, k: int, *, unrefined: bool = True) -> list[np.ndarray]:
+        # a 2-DOF structure's setpoint weights do not make a start distinct: the refinement moves them freely, and
+        # starts that differ only there (pid's starts seeded with several b, c) are one start for the feedback
         span = np.maximum(self.space.hi - self.space.lo, 1e-12)
+        span = np.where([k == "weight" for k in self.space.structure.kinds], np.inf, span)
         chosen: list[np.ndarray] = []
         refined = [v for _, v, r in self.pool if r]
         for _, v, r in sorted(self.pool, key=lambda t: t[0]):
@@ -220,6 +235,7 @@ class Engine:
         S = np.array(starts).reshape(len(starts), -1)
         seeded = [v for v in self._seeded_starts()  # those the structure's own starts do not already hold
                   if not len(S) or np.min(np.max(np.abs(S - v) / span, axis=1)) >= 1e-3]
+        seeded = self._contained_answer() + seeded
         n0 = max(1, len(starts) // len(GAIN_DECADES))  # the nominal-gain starts: an incumbent, cheaply
         self._score(np.array(starts[:n0]), source="design")
         # the later batches are cut to what the time left affords (their cost per point is known by now: a slow
@@ -293,10 +309,40 @@ class Engine:
         for v in designed_starts(space, p.nominal, p.dt, variants=True, spec=p.spec):
             g = dict(zip(small.params, space.params(v)))
             with np.errstate(all="ignore"):
-                x = np.array([convert(g)[q] for q in p.structure.params])
-            if np.all(np.isfinite(x)):
-                out.append(self.space.from_params(x))
+                mapped = convert(g)
+                for gm in (mapped if isinstance(mapped, list) else [mapped]):
+                    x = np.array([gm[q] for q in p.structure.params])
+                    if np.all(np.isfinite(x)):
+                        out.append(self.space.from_params(x))
         self.info.seeded_from = name if out else None
+        return out
+
+    def _contained_answer(self) -> list[np.ndarray]:
+        """A structure that must never be worse than the one it contains (``pid2`` and ``pid``): that structure's
+        own search, run first on the same problem and seed with at most half the time left; its best candidates,
+        mapped in (b = c = 1 is that very controller, the other weights are starts), lead this round. The
+        refinement then starts from the contained optimum with the weights free."""
+        if self.problem.structure.name not in FULL_CONTAINMENT:
+            return []
+        import dataclasses
+
+        name, convert = _contained(self.problem)
+        sub_problem = dataclasses.replace(self.problem, structure=get_structure(name))
+        left = self._time_left()
+        if left <= 0:
+            return []
+        sub = Engine(sub_problem, seed=self.seed, deadline=time.perf_counter() + 0.5 * left, solver=self.solver,
+                     local=self.local, n_starts=self.n_starts, n_trials=self.n_trials)
+        sub.run()
+        small = sub_problem.structure
+        out = []
+        for x in sub.finalists(3):
+            g = small.named(x)
+            for gm in convert(g):
+                xx = np.array([gm[q] for q in self.problem.structure.params])
+                if np.all(np.isfinite(xx)):
+                    out.append(self.space.from_params(xx))
+        self.info.seeded_from = name
         return out
 
     def _round(self) -> float:

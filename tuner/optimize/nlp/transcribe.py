@@ -21,7 +21,8 @@ Constraints, per plant:
   ``|C S| <= Mks``, ``2|1 + L| >= alpha |1 - L|`` (disk margin), as requested; the grid has spare
   slots that :mod:`~tuner.optimize.nlp.refine` fills with the frequencies where the verifier finds a
   peak the grid missed (an exchange method), so the limits hold on the verifier's dense grid;
-* the unit step response between samples (lifted ZOH model, exact at N points per sample):
+* the unit step response between samples (lifted ZOH model, exact at N points per sample; a 2-DOF
+  controller's reference path drives it, its feedback part the load response and every frequency-domain row):
   ``y <= 1 + overshoot`` and, for the settling-time objective, the envelope ``|y_i - 1| <= b - slack``
   for every ``t_i >= Ts`` (a 0/1 parameter ``mask``, so moving ``Ts`` never rebuilds); optionally
   ``|u_k| <= control_peak_max``.
@@ -239,12 +240,17 @@ class _Constraints:
         self.ubg.extend([hi] * n)
 
 
-def _controller(key: ProblemKey, st: Structure, space: Space, v: Any, P: dict[str, Any]) -> tuple[list, list]:
-    """The controller's coefficients from the same formulas as the verifier (symbols in, symbols out)."""
+def _controller(key: ProblemKey, st: Structure, space: Space, v: Any, P: dict[str, Any]
+                ) -> tuple[list, list, list | None]:
+    """The controller's coefficients from the same formulas as the verifier (symbols in, symbols out): the
+    feedback ``num, den`` and, for a 2-DOF structure, the reference path's numerator over ``den`` (else None)."""
     nv = len(st.params)
     x_par = space.to_params([v[i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=P["units"],
                             linear_gains=True)
-    return st.coeffs(x_par, None if key.continuous else P["dt"], cs.exp)
+    dt = None if key.continuous else P["dt"]
+    num, den = st.coeffs(x_par, dt, cs.exp)
+    num_r = st.ref_coeffs(x_par, dt, cs.exp)[0] if st.two_dof else None
+    return num, den, num_r
 
 
 def _open_loop_at(w: Any, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any]
@@ -323,7 +329,9 @@ def _responses(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[st
                ) -> tuple[Any, list]:
     """The closed loop's output at N points per sample (lifted model) and the control sequence, for a unit
     step of the reference ``r`` and of the load ``w`` at the plant input (before its delay)."""
-    a, beta, d0 = ctrl
+    a, beta, d0 = ctrl[:3]
+    if len(ctrl) > 3:
+        return _responses_2dof(key, i, ctrl, P, r, w)
     m = len(a)
     n, dly = key.orders[i], key.delays[i]
     Phi, Gam, Cx, Dp, Cf, Df = (P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df"))
@@ -348,6 +356,38 @@ def _responses(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[st
         if m:
             xc_new = [-sum(a[j] * xc[j] for j in range(m)) + e] + [xc[j] for j in range(m - 1)]
             xc = cs.vertcat(*xc_new)
+    return cs.vertcat(*ys), us
+
+
+def _responses_2dof(key: ProblemKey, i: int, ctrl: tuple, P: dict[str, Any], r: float, w: float
+                    ) -> tuple[Any, list]:
+    """:func:`_responses` for a 2-DOF controller ``u = C_r r - C y``: both paths on the states of the observable
+    canonical form of their common denominator (``xc+ = A xc - beta y + beta_r r``, ``u = xc[0] - d0 y + d_r r``)."""
+    a, beta, d0, beta_r, d_r = ctrl
+    m = len(a)
+    n, dly = key.orders[i], key.delays[i]
+    Phi, Gam, Cx, Dp, Cf, Df = (P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df"))
+    x = cs.SX.zeros(n)
+    xc = cs.SX.zeros(m)
+    buf = [cs.SX(0)] * dly
+    ys, us = [], []
+    for _ in range(key.K):
+        x0 = xc[0] if m else 0
+        if dly == 0:
+            u = (x0 + d_r * r - d0 * (cs.dot(Cx, x) + Dp * w)) / (1 + d0 * Dp)
+            ua = u + w
+            y = cs.dot(Cx, x) + Dp * ua
+        else:
+            ua = buf[0]
+            y = cs.dot(Cx, x) + Dp * ua
+            u = x0 + d_r * r - d0 * y
+            buf = buf[1:] + [u + w]
+        ys.append(cs.mtimes(Cf, x) + Df * ua)
+        us.append(u)
+        x = cs.mtimes(Phi, x) + Gam * ua
+        if m:
+            xc = cs.vertcat(*[-a[j] * xc[0] + (xc[j + 1] if j + 1 < m else 0) - beta[j] * y + beta_r[j] * r
+                              for j in range(m)])
     return cs.vertcat(*ys), us
 
 
@@ -399,10 +439,14 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
     p = cs.SX.sym("p", play.size)
     xvar = cs.SX.sym("x", xlay.size)
     P, X = play.unpack(p), xlay.unpack(xvar)
-    cnum, cden = _controller(key, st, space, X["v"], P)
+    cnum, cden, cnum_r = _controller(key, st, space, X["v"], P)
     # the controller in the simulation: at dt, or (continuous loops) Tustin at the fine step h
     snum, sden = _tustin(cnum, cden, P["h"]) if key.continuous else (cnum, cden)
     ctrl = _canonical(snum, sden)
+    if cnum_r is not None:  # 2-DOF: the reference path over the same (Tustin) denominator
+        snum_r = _tustin(cnum_r, cden, P["h"])[0] if key.continuous else cnum_r
+        _, beta_r, d_r = _canonical(snum_r, sden)
+        ctrl = ctrl + (beta_r, d_r)
     c = _Constraints()
     if key.filter_n:  # (N Kp Tf)^2 >= Kd^2, scaled to O(1)
         xp = space.to_params([X["v"][i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=P["units"],
