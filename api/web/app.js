@@ -449,7 +449,7 @@ function useLimit() {
   const p = d?.points[Number($("#tradeoff-pick").value)];
   if (!p || p.limit === null || p.limit === undefined) return;
   const k = d.y === "mks" ? "mks_max" : "control_peak_max";
-  field(k).value = String(Number(Number(p.limit).toPrecision(6)));
+  field(k).value = String(p.limit);  // exactly: a rounded limit could be tighter than the point's
   syncURL();
   $("#progress").textContent = `${k} = ${field(k).value} is in the form: tune to store this design`;
 }
@@ -475,6 +475,7 @@ function showResult(d, { title = "Result" } = {}) {
   if (stored) $("#result-link").href = `/?id=${encodeURIComponent(d.id)}`;
   $("#stored-only").hidden = !stored;
   $("#unstored").hidden = stored;
+  if (stored) for (const c of $$("#curve circle.pt.on")) c.classList.remove("on");  // not a point of the curve
   const v = $("#verdict");
   const several = (d.plants || []).length > 1;
   v.textContent = d.meets_spec ? (several ? `meets spec on all ${d.plants.length} plants` : "meets spec")
