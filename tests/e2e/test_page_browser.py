@@ -411,3 +411,20 @@ def test_the_tradeoff_curve_is_drawn_and_its_slider_picks_a_verified_point(page,
     shot = Path(os.environ.get("TUNER_TRADEOFF_SCREENSHOT") or tmp_path / "tradeoff.png")
     page.screenshot(path=str(shot), full_page=True)
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    # a link with run=tradeoff computes the curve when it opens (and the URL then no longer runs it)
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid", "points": 2,
+                                              "budget": 20, "run": "tradeoff"}))
+    expect(page.locator("#tradeoff-point")).to_contain_text("point 1 of", timeout=120_000)
+    assert "run" not in query(page) and query(page)["points"] == ["2"]
+
+
+def test_a_tradeoff_with_another_objective_is_refused_at_the_objective(page, server, sync_api):
+    expect = sync_api.expect
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid", "objective": "iae"}))
+    page.click("#tradeoff-btn")
+    at = page.locator("[data-loc='spec.objective']")
+    expect(at).to_have_class(re.compile(r"\binvalid\b"), timeout=30_000)
+    expect(at.locator(".err")).to_contain_text("leave spec.objective at settling_time")
+    expect(page.locator("#tradeoff")).to_be_hidden()
+    expect(page.locator("#tradeoff-btn")).to_be_enabled()
