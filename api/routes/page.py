@@ -3,9 +3,10 @@
 No outside assets: the page's script and style are small files of this package, and the
 ``Content-Security-Policy`` allows nothing but this origin (images of the plots come in as ``blob:``
 URLs, fetched with the API key). What the page needs to know about the service (the structures,
-the spec's fields and defaults, the objectives, the budget limits) is put into the page as JSON, so
-the form cannot drift from the library. The page is public like ``/docs``: the API key, when the
-service has one, is entered in the page and sent as ``X-API-Key`` by its requests.
+the spec's fields, their defaults and which take null, the objectives, the budget limits, the trade-off's
+axes) is put into the page as JSON, so the form cannot drift from the library. The page is public like
+``/docs``: the API key, when the service has one, is entered in the page and sent as ``X-API-Key`` by its
+requests.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Any
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.responses import HTMLResponse, Response
 
+from ..schemas import TradeoffRequest
 from ..settings import Settings, get_settings
 
 __all__ = ["router", "WEB", "CSP", "page_config"]
@@ -34,7 +36,8 @@ _ASSETS = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; c
 def page_config(settings: Settings) -> dict[str, Any]:
     """What the form is built from: structures (parameters, discrete only), spec fields, limits."""
     from tuner.controllers import DEPRECATED_STRUCTURES, STRUCTURES
-    from tuner.spec import OBJECTIVES, Spec
+    from tuner.spec import DEFAULT_LIMITS, OBJECTIVES, Spec
+    from tuner.tradeoff import MAX_POINTS, Y_AXES
 
     schema = Spec.model_json_schema()["properties"]
     return {
@@ -44,6 +47,11 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "objectives": list(OBJECTIVES),
         "spec_defaults": Spec().model_dump(mode="json"),
         "spec_help": {k: v.get("description", "") for k, v in schema.items()},
+        # the fields that take null (an empty input sends null: a default limit such as filter_n_max is lifted)
+        "spec_nullable": [k for k, v in schema.items() if any(a.get("type") == "null" for a in v.get("anyOf", ()))],
+        "default_limits": list(DEFAULT_LIMITS),
+        "tradeoff": {"y": list(Y_AXES), "max_points": MAX_POINTS,
+                     "default_points": TradeoffRequest.model_fields["points"].default},
         "default_budget_s": settings.default_budget_s,
         "max_budget_s": settings.max_budget_s,
         "max_plants": settings.max_plants,

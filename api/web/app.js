@@ -1,6 +1,8 @@
 // tuner's page. Plain JavaScript, no library. The form's state lives in the URL (?plant=...&dt=...&structure=...;
-// run=1 runs the tune on open, id=ID shows a stored result); the API's 422 details are shown at the field their
-// loc names; the API key is kept in sessionStorage and sent as X-API-Key.
+// a default design limit that is lifted is written empty, filter_n_max=; run=1 runs the tune on open,
+// run=tradeoff the trade-off curve, id=ID shows a stored result); the API's 422 details are shown at the field
+// their loc names; the API key is kept in sessionStorage and sent as X-API-Key. The trade-off curve is an inline
+// SVG drawn here (DOM calls only: nothing inline for the CSP to refuse).
 "use strict";
 
 const CONFIG = JSON.parse(document.getElementById("config").textContent);
@@ -8,10 +10,12 @@ const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => Array.from(root.querySelectorAll(sel));
 const form = $("#tune-form");
 const SPEC = Object.keys(CONFIG.spec_defaults);
+const NULLABLE = new Set(CONFIG.spec_nullable);  // an empty input sends null (lifts a default limit)
+const LIMITS = CONFIG.default_limits;
 const ROLL = { plant: "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", dt: "0.04", structure: "pid_z" };
 const HIST = 10;
 const KEY = "tuner.apiKey";
-const state = { id: null, running: null, urls: [], histOffset: 0, exportFormat: "c" };
+const state = { id: null, running: null, urls: [], histOffset: 0, exportFormat: "c", curve: null };
 
 // -- talking to the service ----------------------------------------------------------------------
 
@@ -61,7 +65,7 @@ function label(name) {
   for (const [suffix, u] of units) {
     if (name.endsWith(suffix)) { name = name.slice(0, -suffix.length); unit = u; break; }
   }
-  const short = { ms: "Ms", mt: "Mt", mks: "Mks" };
+  const short = { ms: "Ms", mt: "Mt", mks: "Mks", filter_n: "filter N = Td/Tf", control_peak: "control peak |u|" };
   return (short[name] || name.replaceAll("_", " ")) + unit;
 }
 
@@ -79,7 +83,8 @@ function setMode(m) {
 }
 
 function defaults() {
-  const d = { var: "s", budget: String(CONFIG.default_budget_s), seed: "0" };
+  const d = { var: "s", budget: String(CONFIG.default_budget_s), seed: "0", y: CONFIG.tradeoff.y[0],
+              points: String(CONFIG.tradeoff.default_points) };
   for (const k of SPEC) {
     const v = CONFIG.spec_defaults[k];
     d[k] = v === null ? "" : typeof v === "boolean" ? (v ? "1" : "0") : String(v);
@@ -87,7 +92,7 @@ function defaults() {
   return d;
 }
 
-const NAMES = ["plant", "num", "den", "var", "delay", "dt", "structure", ...SPEC, "budget", "seed"];
+const NAMES = ["plant", "num", "den", "var", "delay", "dt", "structure", ...SPEC, "budget", "seed", "y", "points"];
 
 function readForm() {
   const out = {};
@@ -112,6 +117,25 @@ function writeForm(values) {
   setMode(values.num || values.den ? "coeffs" : "expr");
   syncSliders();
   structureHint();
+  syncThesis();
+}
+
+// The "pure thesis spec" box: checked when every default design limit is lifted; checking it lifts them all,
+// unchecking it puts the defaults back.
+function lifted(k) {
+  const el = field(k);
+  return el.type === "checkbox" ? !el.checked : el.value.trim() === "";
+}
+
+function syncThesis() { $("#thesis").checked = LIMITS.every(lifted); }
+
+function setThesis(on) {
+  const d = defaults();
+  for (const k of LIMITS) {
+    const el = field(k);
+    if (el.type === "checkbox") el.checked = on ? false : d[k] === "1";
+    else el.value = on ? "" : d[k];
+  }
 }
 
 function formParams(extra = {}) {
@@ -121,7 +145,8 @@ function formParams(extra = {}) {
   const m = mode();
   for (const n of NAMES) {
     if ((n === "plant" && m !== "expr") || ((n === "num" || n === "den" || n === "var") && m !== "coeffs")) continue;
-    if (f[n] !== "" && f[n] !== d[n]) p.set(n, f[n]);
+    // empty where the default is not (a lifted filter_n_max) is state too: written as "filter_n_max="
+    if (f[n] !== (d[n] ?? "")) p.set(n, f[n]);
   }
   for (const x of f.plants) p.append("plants", x);
   for (const [k, v] of Object.entries(extra)) if (v !== null && v !== undefined) p.set(k, v);
@@ -232,7 +257,11 @@ function tuneBody() {
     const el = field(k);
     if (el.type === "checkbox") spec[k] = el.checked;
     else if (el.tagName === "SELECT") spec[k] = f[k];
-    else { const v = number(f[k], ["body", "spec", k], errs); if (v !== undefined) spec[k] = v; }
+    else {
+      const v = number(f[k], ["body", "spec", k], errs);
+      if (v !== undefined) spec[k] = v;
+      else if (f[k] === "" && NULLABLE.has(k)) spec[k] = null;  // none: JSON null, not the server's default
+    }
   }
   const body = { plant, dt: dt ?? null, structure: f.structure, spec,
                  options: { seed: number(f.seed, ["body", "options", "seed"], errs, { int: true }) ?? 0 } };
@@ -251,52 +280,178 @@ function tuneBody() {
 
 // -- running a tune ------------------------------------------------------------------------------
 
-function busy(on, budget = 0) {
+function busy(on, budget = 0, what = "tuning") {
   $("#run-btn").disabled = on;
+  $("#tradeoff-btn").disabled = on;
   $("#cancel-btn").hidden = !on;
   const el = $("#progress");
   clearInterval(state.ticker);
   if (!on) return;
   const t0 = performance.now();
-  el.innerHTML = '<span class="spinner"></span><span id="elapsed">tuning… 0.0 s</span> <progress></progress>';
+  el.innerHTML = `<span class="spinner"></span><span id="elapsed">${what}… 0.0 s</span> <progress></progress>`;
   const bar = $("progress", el);
   bar.max = budget;
   state.ticker = setInterval(() => {
     const s = (performance.now() - t0) / 1000;
-    $("#elapsed").textContent = `tuning… ${s.toFixed(1)} s of a ${fmt(budget)} s budget`;
+    $("#elapsed").textContent = `${what}… ${s.toFixed(1)} s of a ${fmt(budget)} s budget`;
     bar.value = Math.min(s, budget);
   }, 100);
 }
 
-async function runTune() {
+// POST the form to path (with extra fields in the body); d => the answer when it is a 200, else null.
+async function post(path, extra, what) {
   clearErrors(form);
   const { body, errs, budget } = tuneBody();
-  if (errs.length) { showErrors(form, errs, $("#form-error")); return; }
+  if (errs.length) { showErrors(form, errs, $("#form-error")); return null; }
+  Object.assign(body, extra(errs));
+  if (errs.length) { showErrors(form, errs, $("#form-error")); return null; }
   syncURL();
   const ctl = new AbortController();
   state.running = ctl;
-  busy(true, budget);
+  busy(true, budget, what);
   try {
-    const r = await api("/tune", { method: "POST", json: body, signal: ctl.signal });
+    const r = await api(path, { method: "POST", json: body, signal: ctl.signal });
     const d = await answer(r);
     busy(false);
     if (r.status === 422 && Array.isArray(d.detail)) {
       $("#progress").textContent = "the input needs a change (see the marked fields)";
       showErrors(form, d.detail, $("#form-error"));
-      return;
+      return null;
     }
-    if (!r.ok) { $("#progress").textContent = ""; showGeneral($("#form-error"), `${r.status}: ${detailText(d)}`); return; }
-    $("#progress").textContent = `done in ${fmt(d.solver?.wall_time_s)} s`;
-    showResult(d);
-    syncURL({ id: d.id });
-    loadHistory(0);
+    if (!r.ok) { $("#progress").textContent = ""; showGeneral($("#form-error"), `${r.status}: ${detailText(d)}`); return null; }
+    return d;
   } catch (e) {
     busy(false);
     if (e.name === "AbortError") $("#progress").textContent = "cancelled: the server stops the solve";
     else showGeneral($("#form-error"), `could not reach the service: ${e.message}`);
+    return null;
   } finally {
     state.running = null;
   }
+}
+
+async function runTune() {
+  const d = await post("/tune", () => ({}), "tuning");
+  if (!d) return;
+  $("#progress").textContent = `done in ${fmt(d.solver?.wall_time_s)} s`;
+  showResult(d);
+  syncURL({ id: d.id });
+  loadHistory(0);
+}
+
+// -- the trade-off curve -------------------------------------------------------------------------
+
+async function runTradeoff() {
+  const f = readForm();
+  const d = await post("/tradeoff", (errs) => ({
+    y: f.y, points: number(f.points, ["body", "points"], errs, { int: true }) ?? CONFIG.tradeoff.default_points,
+  }), "computing the curve");
+  if (!d) return;
+  const n = d.points.length;
+  $("#progress").textContent = `${n} verified point${n === 1 ? "" : "s"} in ${fmt(d.wall_time_s)} s`;
+  showCurve(d);
+  syncURL();
+}
+
+// The curve's <svg> is in the page (the HTML parser gives it the SVG namespace, which its children take).
+function svg(tag, attrs = {}, parent = null, text = null) {
+  const el = document.createElementNS($("#curve").namespaceURI, tag);
+  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, String(v));
+  if (text !== null) el.textContent = text;
+  if (parent) parent.append(el);
+  return el;
+}
+
+// About five round ticks covering [lo, hi].
+function ticks(lo, hi) {
+  if (!(hi > lo)) { const pad = Math.abs(lo) * 0.1 || 1; lo -= pad; hi += pad; }
+  const raw = (hi - lo) / 5;
+  const mag = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 2.5, 5, 10].map((m) => m * mag).find((x) => x >= raw);
+  const out = [];
+  for (let t = Math.floor(lo / step) * step; t <= hi + step * 1e-9; t += step) out.push(Number(t.toPrecision(12)));
+  if (out[out.length - 1] < hi) out.push(Number((out[out.length - 1] + step).toPrecision(12)));
+  return out;
+}
+
+function yName(y) { return y === "mks" ? "Mks" : "control peak |u|"; }
+
+function showCurve(d) {
+  state.curve = d;
+  const sec = $("#tradeoff");
+  sec.hidden = false;
+  const n = d.points.length;
+  $("#tradeoff-title").textContent = `${d.structure}: ${n} verified point${n === 1 ? "" : "s"}, settling time vs ${yName(d.y)}` +
+    `, ${fmt(d.wall_time_s)} s`;
+  const skipped = $("#tradeoff-skipped");
+  skipped.replaceChildren();
+  for (const s of d.skipped || []) {
+    const li = document.createElement("li");
+    li.textContent = `left out: ${yName(d.y)} ≤ ${fmt(s.limit)}: ${s.why}`;
+    skipped.append(li);
+  }
+  drawCurve(d);
+  const pick = $("#tradeoff-pick");
+  pick.max = String(Math.max(0, n - 1));
+  pick.value = "0";
+  pick.disabled = n < 2;
+  $("#tradeoff-use").disabled = n === 0;
+  if (n) pickPoint(0);
+  else $("#tradeoff-point").textContent = "no point met the spec";
+}
+
+function drawCurve(d) {
+  const W = 640, H = 300, L = 64, R = 16, T = 14, B = 46;
+  const pts = d.points.map((p) => [Number(p.settling_time_s), Number(p[d.y])]);
+  const root = $("#curve");
+  root.replaceChildren();
+  root.setAttribute("viewBox", `0 0 ${W} ${H}`);
+  root.setAttribute("aria-label", `trade-off curve: settling time against ${yName(d.y)}`);
+  const xt = ticks(Math.min(...pts.map((p) => p[0])), Math.max(...pts.map((p) => p[0])));
+  const yt = ticks(Math.min(...pts.map((p) => p[1])), Math.max(...pts.map((p) => p[1])));
+  const [x0, x1, y0, y1] = [xt[0], xt[xt.length - 1], yt[0], yt[yt.length - 1]];
+  const X = (v) => L + (v - x0) / (x1 - x0) * (W - L - R);
+  const Y = (v) => H - B - (v - y0) / (y1 - y0) * (H - T - B);
+  const grid = svg("g", { class: "grid" }, root);
+  for (const t of xt) {
+    svg("line", { x1: X(t), x2: X(t), y1: T, y2: H - B }, grid);
+    svg("text", { x: X(t), y: H - B + 16, class: "tick", "text-anchor": "middle" }, root, fmt(t));
+  }
+  for (const t of yt) {
+    svg("line", { x1: L, x2: W - R, y1: Y(t), y2: Y(t) }, grid);
+    svg("text", { x: L - 6, y: Y(t) + 4, class: "tick", "text-anchor": "end" }, root, fmt(t));
+  }
+  svg("rect", { x: L, y: T, width: W - L - R, height: H - T - B, class: "frame" }, root);
+  svg("text", { x: L + (W - L - R) / 2, y: H - 8, class: "axis", "text-anchor": "middle" }, root, "settling time [s]");
+  svg("text", { x: 14, y: T + (H - T - B) / 2, class: "axis", "text-anchor": "middle",
+                transform: `rotate(-90 14 ${T + (H - T - B) / 2})` }, root, yName(d.y));
+  svg("polyline", { points: pts.map(([x, y]) => `${X(x)},${Y(y)}`).join(" "), class: "line" }, root);
+  pts.forEach(([x, y], i) => {
+    const c = svg("circle", { cx: X(x), cy: Y(y), r: 6, class: "pt", "data-i": i }, root);
+    svg("title", {}, c, `point ${i + 1}: settling ${fmt(x)} s, ${yName(d.y)} ${fmt(y)}`);
+    svg("text", { x: X(x) + 9, y: Y(y) - 8, class: "num" }, root, String(i + 1));
+    c.addEventListener("click", () => { $("#tradeoff-pick").value = String(i); pickPoint(i); });
+  });
+}
+
+function pickPoint(i) {
+  const d = state.curve;
+  const p = d.points[i];
+  for (const c of $$("#tradeoff-plot circle.pt")) c.classList.toggle("on", Number(c.dataset.i) === i);
+  $("#tradeoff-point").textContent = `point ${i + 1} of ${d.points.length}: settling ${fmt(p.settling_time_s)} s, ` +
+    `${yName(d.y)} ${fmt(p[d.y])}` + (p.limit === null || p.limit === undefined ? "" : ` (tuned with ${yName(d.y)} ≤ ${fmt(p.limit)})`);
+  showResult(p.result, { title: `Trade-off point ${i + 1} of ${d.points.length}` });
+}
+
+// The point's limit into the form: the problem that point solves, to tune (and store) it.
+function useLimit() {
+  const d = state.curve;
+  const p = d?.points[Number($("#tradeoff-pick").value)];
+  if (!p || p.limit === null || p.limit === undefined) return;
+  const k = d.y === "mks" ? "mks_max" : "control_peak_max";
+  field(k).value = String(p.limit);  // exactly: a rounded limit could be tighter than the point's
+  syncURL();
+  $("#progress").textContent = `${k} = ${field(k).value} is in the form: tune to store this design`;
 }
 
 // -- showing a result ----------------------------------------------------------------------------
@@ -310,15 +465,39 @@ function table(el, rows) {
 
 function polynomial(c) { return `[${c.map((x) => fmt(x)).join(", ")}]`; }
 
-function showResult(d) {
-  state.id = d.id;
+// d: a tune result (stored: it has an id; a trade-off point's result has none: no plots, no export).
+function showResult(d, { title = "Result" } = {}) {
+  const stored = Boolean(d.id);
+  state.id = stored ? d.id : null;
   $("#result").hidden = false;
-  $("#result-link").href = `/?id=${encodeURIComponent(d.id)}`;
+  $("#result-title").textContent = title;
+  $("#result-link").hidden = !stored;
+  if (stored) $("#result-link").href = `/?id=${encodeURIComponent(d.id)}`;
+  $("#stored-only").hidden = !stored;
+  $("#unstored").hidden = stored;
+  if (stored) for (const c of $$("#curve circle.pt.on")) c.classList.remove("on");  // not a point of the curve
   const v = $("#verdict");
   const several = (d.plants || []).length > 1;
   v.textContent = d.meets_spec ? (several ? `meets spec on all ${d.plants.length} plants` : "meets spec")
     : `does NOT meet spec: failing ${d.failing.map(label).join(", ")}`;
   v.className = d.meets_spec ? "ok" : "bad";
+  const bounds = $("#at-bounds");  // the parameters on a search bound or a default limit, and the rule that decides
+  bounds.replaceChildren();
+  for (const b of d.at_bounds || []) {
+    const li = document.createElement("li");
+    li.textContent = b.text;
+    bounds.append(li);
+  }
+  const lim = $("#limits");
+  lim.replaceChildren();
+  for (const x of d.limits || []) {
+    const li = document.createElement("li");
+    const code = document.createElement("code");
+    code.textContent = x.field;
+    li.append(code, ` = ${fmt(x.value)}: ${x.rule}`);
+    lim.append(li);
+  }
+  $("#limits-used").hidden = !(d.limits || []).length;
   const why = $("#reasons");  // why an unmet spec is not met, and a spec change the search found feasible
   why.replaceChildren();
   for (const r of d.reasons || []) {
@@ -335,7 +514,7 @@ function showResult(d) {
   for (const ch of d.checks) {
     const tr = body.insertRow();
     cell(tr, label(ch.name));
-    cell(tr, `${OPS[ch.op] || ch.op} ${fmt(ch.required)}`, "num");
+    cell(tr, `${OPS[ch.op] || ch.op} ${fmt(ch.required)}${ch.name === "crossover_rad_s" ? " ± 1 %" : ""}`, "num");
     cell(tr, fmt(ch.achieved), "num");
     cell(tr, ch.ok ? "✓ met" : "✗ not met", ch.ok ? "met" : "unmet");
   }
@@ -355,8 +534,9 @@ function showResult(d) {
   const s = d.solver || {};
   $("#solver").textContent = `${s.method || "solver"}: ${fmt(s.wall_time_s)} s, seed ${fmt(s.seed)}` +
     (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "");
-  showPlots(d.id);
   $("#export-ct").hidden = Boolean(c.dt);
+  if (!stored) return;
+  showPlots(d.id);
   loadExport();
 }
 
@@ -562,8 +742,16 @@ function init() {
   const sel = field("structure");
   for (const s of CONFIG.structures) sel.append(new Option(`${s.name} (${s.params.join(", ")})`, s.name));
   const obj = field("objective");
-  for (const o of CONFIG.objectives) obj.append(new Option(o.replaceAll("_", " "), o));
-  for (const k of SPEC) { const el = field(k); if (el && CONFIG.spec_help[k]) el.closest(".field").title = CONFIG.spec_help[k]; }
+  const maximised = { bandwidth: "maximise bandwidth", disk_margin: "maximise disk margin", ie: "minimise |IE| (maximise Ki)",
+                      mks: "minimise Mks (noise sensitivity)" };
+  for (const o of CONFIG.objectives) obj.append(new Option(maximised[o] || `minimise ${o.replaceAll("_", " ")}`, o));
+  for (const k of SPEC) {  // the library's description as the tooltip, unless the page has its own (the limits)
+    const el = field(k)?.closest(".field");
+    if (el && CONFIG.spec_help[k] && !el.title) el.title = CONFIG.spec_help[k];
+  }
+  const ys = field("y");
+  ys.replaceChildren(...CONFIG.tradeoff.y.map((y) => new Option(y === "mks" ? "Mks (noise sensitivity)" : "control peak |u|", y)));
+  field("points").max = CONFIG.tradeoff.max_points;
   const range = $("input[type=range][data-sync=budget]");
   range.max = CONFIG.max_budget_s;
   field("budget").max = CONFIG.max_budget_s;
@@ -578,11 +766,16 @@ function init() {
     if (t.dataset.sync) { field(t.dataset.sync).value = t.value; }
     else syncSliders();
     if (t.name === "structure") structureHint();
+    if (t.id === "thesis") setThesis(t.checked);
+    if (t.id === "thesis" || LIMITS.includes(t.name)) syncThesis();
     if (t.name !== "pmode" && t.type !== "file") syncURL();
   });
   for (const r of $$("input[name=pmode]")) r.addEventListener("change", () => { setMode(mode()); syncURL(); });
   form.addEventListener("submit", (e) => { e.preventDefault(); runTune(); });
   $("#cancel-btn").addEventListener("click", () => state.running?.abort());
+  $("#tradeoff-btn").addEventListener("click", runTradeoff);
+  $("#tradeoff-pick").addEventListener("input", (e) => pickPoint(Number(e.target.value)));
+  $("#tradeoff-use").addEventListener("click", useLimit);
   $("#share-btn").addEventListener("click", async () => {
     const url = `${location.origin}/?${formParams({ run: "1" })}`;
     try { await navigator.clipboard.writeText(url); $("#progress").textContent = "link copied (it runs the tune when opened)"; }
@@ -607,6 +800,7 @@ function init() {
 
   loadHistory(0);
   if (params.get("run") === "1") runTune();
+  else if (params.get("run") === "tradeoff") runTradeoff();
   else if (params.get("id")) loadStored(params.get("id"));
 }
 

@@ -64,3 +64,44 @@ def test_no_outside_url_in_the_page():
         text = (WEB / f).read_text()
         assert not re.search(r"(https?:)?//[a-z0-9.-]+\.[a-z]{2,}", text, re.I), f
         assert "@import" not in text and "eval(" not in text, f
+
+
+def test_the_form_has_the_issue_18_fields_and_the_config_says_which_take_null(client):
+    from typing import get_args
+
+    from api.schemas import TradeoffRequest
+    from tuner.spec import DEFAULT_LIMITS, OBJECTIVES
+
+    r = client.get("/")
+    cfg = config_of(r.text)
+    # nullable: derived here from the Spec's annotations (a field whose type admits None), not from the schema
+    nullable = [k for k, f in Spec.model_fields.items() if type(None) in get_args(f.annotation)]
+    assert cfg["spec_nullable"] == nullable
+    assert {"filter_n_max", "noise_gain_max", "settling_time_max", "crossover_rad_s"} <= set(nullable)
+    assert "phase_margin_min_deg" not in nullable and "filter_nyquist" not in nullable
+    assert cfg["default_limits"] == list(DEFAULT_LIMITS) == ["filter_n_max", "filter_nyquist", "noise_gain_max"]
+    assert cfg["spec_defaults"]["filter_n_max"] == 20 and cfg["spec_defaults"]["noise_gain_max"] == 10
+    assert cfg["spec_defaults"]["filter_nyquist"] is True
+    assert cfg["objectives"] == list(OBJECTIVES) and {"mks", "disk_margin"} <= set(cfg["objectives"])
+    y_axes = get_args(TradeoffRequest.model_fields["y"].annotation)
+    assert cfg["tradeoff"] == {"y": list(y_axes), "max_points": 20,
+                               "default_points": TradeoffRequest.model_fields["points"].default}
+
+    html = r.text
+    m = re.search(r'<fieldset id="limits-set"[^>]*>(.*?)</fieldset>', html, re.S)
+    assert m, "no default design limits fieldset"
+    limits = m.group(1)
+    assert "<legend>default design limits</legend>" in limits
+    for name in DEFAULT_LIMITS:  # the three limits live in it, each with its rule as a tooltip
+        assert re.search(rf'title="[^"]+"[^>]*>[^<]*\s*<input[^>]*name="{name}"', limits), name
+    assert 'type="checkbox" name="filter_nyquist"' in limits
+    assert 'id="thesis"' in limits and "pure thesis spec (no default limits)" in limits
+    for rule in ("Td/Tf", "Åström", "dt/π", "Nyquist", "K0", "Ziegler"):  # the README's reasoning, in the hints
+        assert rule in limits, rule
+    for name in ("settling_time_max", "crossover_rad_s"):  # the response-time knob: number inputs, empty = none
+        assert re.search(rf'<input type="number" name="{name}"[^>]*placeholder="none"', html), name
+    # the trade-off: its button next to tune, its axis and points, the plot and the slider, the result's bounds
+    assert re.search(r'id="run-btn"[^>]*>tune</button>\s*<button type="button" id="tradeoff-btn"', html)
+    assert re.search(r'<select name="y"', html) and re.search(r'<input type="number" name="points"', html)
+    assert re.search(r'<svg id="curve"', html) and re.search(r'<input type="range" id="tradeoff-pick"', html)
+    assert 'id="at-bounds"' in html and 'id="limits"' in html

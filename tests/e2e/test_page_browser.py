@@ -285,3 +285,146 @@ def test_the_api_key_is_entered_once(browser, tmp_path, sync_api):
             assert page.errors == [] and page.outside == []
         finally:
             ctx.close()
+
+
+def shown_gains(page) -> dict[str, float]:
+    return {k: float(v) for k, v in table_rows(page.locator("#gains"))}
+
+
+def test_a_tune_says_which_parameter_sits_on_a_bound_and_the_pure_thesis_switch(page, server, sync_api):
+    """The roll loop's pid at dt 0.04: Tf on a bound, said in words under the verdict; then the same tune with the
+    default design limits lifted from the page, sent as JSON null/false, kept in the URL."""
+    expect = sync_api.expect
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid"}))
+    with page.expect_response(lambda r: r.url == f"{server.url}/tune", timeout=120_000) as resp:
+        page.click("#run-btn")
+    d = resp.value.json()
+    expect(page.locator("#verdict")).to_have_text(re.compile("meets spec|does NOT meet spec"), timeout=90_000)
+    assert d["at_bounds"], "precondition: the roll pid at dt 0.04 has a parameter on a bound (Tf)"
+    assert [b["param"] for b in d["at_bounds"]] == ["Tf"]
+    expect(page.locator("#at-bounds li")).to_have_text([b["text"] for b in d["at_bounds"]])
+    expect(page.locator("#at-bounds li").first).to_contain_text("Tf is at its lower bound")
+    assert page.locator("#at-bounds").bounding_box()["y"] < page.locator("#gains").bounding_box()["y"]  # prominent
+    fields = {x["field"] for x in d["limits"]}
+    assert {"filter_n_max", "filter_nyquist"} <= fields  # the default limits in force
+    expect(page.locator("#limits li")).to_have_count(len(d["limits"]))
+    for x in d["limits"]:
+        expect(page.locator("#limits")).to_contain_text(x["rule"])
+    shown_checks = [r[0] for r in table_rows(page.locator("#checks tbody"))]
+    assert len(shown_checks) == len(d["checks"]) and "filter N = Td/Tf" in shown_checks
+    assert any(c["name"] == "filter_n" for c in d["checks"])
+
+    # the pure thesis spec: one click lifts the three limits; the request says null / false
+    page.check("#thesis")
+    assert page.input_value("#filter_n_max") == "" and page.input_value("#noise_gain_max") == ""
+    assert not page.is_checked("#filter_nyquist")
+    q = query(page)
+    assert "filter_n_max" not in q and "noise_gain_max" not in q and q["filter_nyquist"] == ["0"]
+    assert "filter_n_max=&" in page.url + "&" and "noise_gain_max=&" in page.url + "&"  # empty, not absent
+    page.reload()  # the URL alone restores the lifted limits
+    assert page.is_checked("#thesis") and page.input_value("#filter_n_max") == ""
+    with (page.expect_request(lambda r: r.url == f"{server.url}/tune") as req,
+          page.expect_response(lambda r: r.url == f"{server.url}/tune", timeout=120_000) as resp):
+        page.click("#run-btn")
+    spec = req.value.post_data_json["spec"]
+    assert spec["filter_n_max"] is None and spec["noise_gain_max"] is None and spec["filter_nyquist"] is False
+    assert spec["settling_time_max"] is None and spec["mks_max"] is None  # empty = JSON null
+    thesis = resp.value.json()
+    expect(page.locator("#verdict")).to_have_text(re.compile("meets spec|does NOT meet spec"), timeout=90_000)
+    stored = httpx.get(f"{server.url}/tunes/{thesis['id']}").json()["request"]["spec"]
+    assert stored["filter_n_max"] is None and stored["noise_gain_max"] is None and stored["filter_nyquist"] is False
+    assert thesis["limits"] == []
+    expect(page.locator("#limits-used")).to_be_hidden()
+    expect(page.locator("#at-bounds li")).to_have_text([b["text"] for b in thesis["at_bounds"]])
+    page.uncheck("#thesis")  # back to the defaults
+    assert page.input_value("#filter_n_max") == "20" and page.input_value("#noise_gain_max") == "10"
+    assert page.is_checked("#filter_nyquist")
+
+
+def test_the_tradeoff_curve_is_drawn_and_its_slider_picks_a_verified_point(page, server, tmp_path, sync_api):
+    expect = sync_api.expect
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid", "points": 3,
+                                              "budget": 20}))
+    with (page.expect_request(lambda r: r.url == f"{server.url}/tradeoff") as req,
+          page.expect_response(lambda r: r.url == f"{server.url}/tradeoff", timeout=120_000) as resp):
+        page.click("#tradeoff-btn")
+        expect(page.locator("#elapsed")).to_contain_text("computing the curve")
+        expect(page.locator("#cancel-btn")).to_be_visible()
+    body = req.value.post_data_json
+    assert body["y"] == "mks" and body["points"] == 3 and body["structure"] == "pid" and body["dt"] == DT
+    assert body["options"]["time_budget_s"] == 20
+    assert resp.value.status == 200
+    d = resp.value.json()
+    pts = d["points"]
+    assert len(pts) >= 2, d  # tests/api/test_tradeoff_route.py: the route gives at least two on this problem
+    expect(page.locator("#tradeoff-point")).to_contain_text(f"point 1 of {len(pts)}", timeout=30_000)
+    expect(page.locator("#run-btn")).to_be_enabled()
+
+    # the plot: one marker per point, placed as the JSON says (settling right-wards, Mks down-wards)
+    circles = page.locator("#curve circle.pt")
+    expect(circles).to_have_count(len(pts))
+    cx = [float(c.get_attribute("cx")) for c in circles.all()]
+    cy = [float(c.get_attribute("cy")) for c in circles.all()]
+    assert all(b > a for a, b in zip(cx, cx[1:])) and all(b > a for a, b in zip(cy, cy[1:]))
+    xs, ys = [p["settling_time_s"] for p in pts], [p["mks"] for p in pts]
+    for i in range(1, len(pts) - 1):  # linear axes: the markers' spacing is the values' spacing
+        assert (cx[i] - cx[0]) / (cx[-1] - cx[0]) == pytest.approx((xs[i] - xs[0]) / (xs[-1] - xs[0]), abs=1e-3)
+        assert (cy[i] - cy[0]) / (cy[-1] - cy[0]) == pytest.approx((ys[i] - ys[0]) / (ys[-1] - ys[0]), abs=1e-3)
+    expect(page.locator("#curve circle.pt.on")).to_have_count(1)
+
+    def shows(i: int) -> None:
+        p = pts[i]
+        expect(page.locator("#result-title")).to_have_text(f"Trade-off point {i + 1} of {len(pts)}")
+        gains = shown_gains(page)
+        assert set(gains) == set(p["gains"]) == {"Kp", "Ki", "Kd", "Tf"}
+        for k, v in p["gains"].items():
+            assert gains[k] == pytest.approx(v, rel=1e-3), k  # shown to 4 significant digits
+        assert p["result"]["gains"] == p["gains"]
+        expect(page.locator("#verdict")).to_have_text("meets spec")
+        checks = table_rows(page.locator("#checks tbody"))
+        assert len(checks) == len(p["result"]["checks"]) and all(row[-1] == "✓ met" for row in checks)
+        metrics = dict(table_rows(page.locator("#metrics")))
+        assert float(metrics["settling time [s]"]) == pytest.approx(p["settling_time_s"], rel=1e-3)
+        assert float(metrics["Mks"]) == pytest.approx(p["mks"], rel=1e-3)
+        expect(page.locator("#at-bounds li")).to_have_count(len(p["result"]["at_bounds"]))
+        assert page.locator("#curve circle.pt.on").get_attribute("data-i") == str(i)
+
+    shows(0)
+    expect(page.locator("#stored-only")).to_be_hidden()  # a point is not stored: no plots, no export
+    expect(page.locator("#unstored")).to_be_visible()
+    page.focus("#tradeoff-pick")
+    for i in range(1, len(pts)):  # the slider, as a user moves it, from the fastest to the most robust
+        page.keyboard.press("ArrowRight")
+        shows(i)
+    page.locator("#curve circle.pt").first.click()  # a click on a marker picks it too
+    shows(0)
+    assert page.input_value("#tradeoff-pick") == "0"
+
+    page.focus("#tradeoff-pick")
+    page.keyboard.press("End")  # the most robust point; its limit into the form, ready to tune and store
+    shows(len(pts) - 1)
+    page.click("#tradeoff-use")
+    limit = float(page.input_value("#mks_max"))
+    assert limit == pytest.approx(pts[-1]["limit"], rel=1e-5)
+    assert float(query(page)["mks_max"][0]) == limit
+
+    shot = Path(os.environ.get("TUNER_TRADEOFF_SCREENSHOT") or tmp_path / "tradeoff.png")
+    page.screenshot(path=str(shot), full_page=True)
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    # a link with run=tradeoff computes the curve when it opens (and the URL then no longer runs it)
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid", "points": 2,
+                                              "budget": 20, "run": "tradeoff"}))
+    expect(page.locator("#tradeoff-point")).to_contain_text("point 1 of", timeout=120_000)
+    assert "run" not in query(page) and query(page)["points"] == ["2"]
+
+
+def test_a_tradeoff_with_another_objective_is_refused_at_the_objective(page, server, sync_api):
+    expect = sync_api.expect
+    page.goto(f"{server.url}/?" + urlencode({"plant": ROLL, "dt": DT, "structure": "pid", "objective": "iae"}))
+    page.click("#tradeoff-btn")
+    at = page.locator("[data-loc='spec.objective']")
+    expect(at).to_have_class(re.compile(r"\binvalid\b"), timeout=30_000)
+    expect(at.locator(".err")).to_contain_text("leave spec.objective at settling_time")
+    expect(page.locator("#tradeoff")).to_be_hidden()
+    expect(page.locator("#tradeoff-btn")).to_be_enabled()
