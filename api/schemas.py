@@ -184,9 +184,11 @@ class CheckOut(_Out):
 
 
 class ControllerOut(_Out):
-    num: list[float]
+    num: list[float] = Field(description="C (the feedback, acting on e = r - y; for pid2 on -y), highest power first")
     den: list[float]
     dt: float | None
+    num_r: list[float] | None = Field(None, description="2-DOF (pid2): the reference path C_r = num_r/den acting "
+                                      "on r (u = C_r r - C y); absent for a 1-DOF controller")
 
 
 class AnalysisOut(_Out):

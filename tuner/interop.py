@@ -7,7 +7,9 @@ no sample time) is refused: give the number. python-control has no input delay, 
 of its own (seconds; whole samples for a discrete model). A state-space model's poles are its eigenvalues
 and its zeros the invariant zeros (:func:`tuner.lti.zpk_from_ss`): no characteristic polynomial is expanded.
 
-Out (:func:`loop_tfs`): ``L = C G``, ``S = 1/(1 + L)``, ``T = L/(1 + L)`` as transfer functions, uncancelled:
+Out (:func:`loop_tfs`): ``L = C G``, ``S = 1/(1 + L)``, ``T = L/(1 + L)`` as transfer functions, uncancelled
+(for a 2-DOF ``pid2`` these are the feedback loop's, ``C`` acting on ``-y``; its ``r -> y`` is ``C_r G S``,
+from :func:`reference_tfs` with ``r -> u``):
 
 * sampled-data loop (a controller at ``dt``): in ``z`` at ``dt``, the plant's zero-order-hold equivalent
   with its delay as ``z^-d`` (exact at the sample instants; what the controller sees);

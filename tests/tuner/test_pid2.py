@@ -149,6 +149,7 @@ def _nlp_step(structure: str, x0: np.ndarray, dt: float | None) -> tuple[np.ndar
     return y_nlp, np.interp(grid.t, r.t, r.y)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dt", [0.04, None])
 def test_nlp_step_response_is_the_2dof_loop(dt):
     """The NLP's reference step is the verifier's r -> y of the 2-DOF loop: exact at dt; in continuous time to
@@ -169,6 +170,7 @@ CASES = [
                                    mks_max=20)),
     ("pitch-dt-settling", PITCH, 0.04, dict()),
     ("lag3-ct", ([1.0], [1.0, 3.0, 3.0, 1.0]), None, dict(objective="itae")),
+    ("matlab-pidtune-ct", ([1.0], [1.0, 0.5, 0.1]), None, dict()),  # the batch ranks this one's answers apart
 ]
 
 
@@ -254,6 +256,7 @@ def test_reference_tfs_are_the_2dof_responses(dt):
                                np.squeeze((C * Gp)(np.exp(1j * w * dt) if dt else 1j * w)), rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_cli_tune_pid2_shows_the_weights_and_pidf2_is_noted(capsys):
     from tuner.cli import main
 
@@ -265,3 +268,40 @@ def test_cli_tune_pid2_shows_the_weights_and_pidf2_is_noted(capsys):
     code = main(["tune", "--plant", "1/(s+1)", "--structure", "pidf2", "--budget", "2"])
     cap = capsys.readouterr()
     assert "pid_mf2" in cap.out and "deprecated" in cap.err
+
+
+def test_cascade_with_pid2_controllers_agrees_with_its_composite_plant():
+    """A pid2 in the inner and the outer loop: the cascade's explicit simulation and the outer loop closed on
+    the composite plant (two separate computations) agree at the samples."""
+    from tuner.analysis.cascade import outer_plant, simulate_cascade
+
+    dt = 0.01
+    inner, outer = make_plant([20.0], [1.0, 20.0]), make_plant([1.0], [1.0, 0.0])
+    ci = controller_tf("pid2", dict(Kp=0.8, Ki=4.0, Kd=0.01, Tf=0.005, b=0.5, c=0.0), dt=dt)
+    co = controller_tf("pid2", dict(Kp=3.0, Ki=1.0, Kd=0.1, Tf=0.02, b=0.7, c=0.0), dt=dt)
+    cas = simulate_cascade(inner, ci, outer, co, horizon_s=3.0)
+    r = step_response(build_loop(outer_plant(inner, ci, outer), co), horizon_s=3.0, samples_per_dt=1)
+    k = min(r.y.size, cas.response.y_samples.size)
+    assert np.max(np.abs(cas.response.y_samples[:k] - r.y[:k])) < 1e-9
+    c1 = controller_tf("pid2", dict(Kp=0.8, Ki=4.0, Kd=0.01, Tf=0.005, b=1.0, c=1.0), dt=dt)
+    r1 = step_response(build_loop(outer_plant(inner, c1, outer), co), horizon_s=3.0, samples_per_dt=1)
+    assert np.max(np.abs(r1.y[:k] - r.y[:k])) > 1e-3  # the inner weights do reach the composite plant
+
+
+@pytest.mark.slow
+def test_study_with_pid2_and_a_pidf2_loop_runs(tmp_path):
+    """Studies take pid2 (and the deprecated pidf2): a two-loop study, a pid2 cascade inner loop included."""
+    import json
+
+    from tuner.cli import main
+
+    f = tmp_path / "s.toml"
+    f.write_text('name = "p2"\ntime_budget_s = 3\n'
+                 '[[loop]]\nname = "pitch"\nplant = "4.674/(s^2+3.523*s+12.38)"\ndt = 0.04\nstructure = "pid2"\n'
+                 '[[loop]]\nname = "x"\ninner = "pitch"\nplant = "1/s"\ndt = 0.04\nstructure = "pidf2"\n')
+    out = tmp_path / "o"
+    assert main(["study", "run", str(f), "--out", str(out), "--no-plots"]) in (0, 1)
+    doc = json.loads((out / "results.json").read_text())
+    assert set(doc["loops"]["pitch"]["gains"]) == {"Kp", "Ki", "Kd", "Tf", "b", "c"}
+    assert doc["loops"]["pitch"]["meets_spec"] is True
+    assert "error" not in doc["loops"]["x"] or not doc["loops"]["x"]["error"]

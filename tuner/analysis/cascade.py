@@ -93,7 +93,7 @@ def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
     if inner.is_discrete or outer.is_discrete or outer.delay_s:
         # theta at the samples, held into the outer plant's ZOH (exact at the samples when the outer plant is
         # given in z; the thesis's model otherwise)
-        cl = _discrete_loop(zi.ss(), controller.ss(), di)
+        cl = _discrete_loop(zi.ss(), controller.ss(), di, ref=_ref(controller))
         theta = SS(cl.A, cl.B[:, 0], cl.Cy, float(cl.Dy[0]))
         zo = outer.zoh(dt)
         sysd = series(theta, _with_input_delay(zo.ss(), delay_in_samples(zo.delay_s, dt)))
@@ -103,7 +103,7 @@ def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
     phys = zoh(both, dt)
     # the inner loop feeds back the inner plant's output, C_i x_i + D_i u
     gth = SS(phys.A, phys.B, np.concatenate([gi.C, np.zeros(go.n)]), gi.D)
-    cl = _discrete_loop(gth, controller.ss(), di)
+    cl = _discrete_loop(gth, controller.ss(), di, ref=_ref(controller))
     n = phys.n
     # outer output = both.C x + both.D ua: the plant-state part of the closed loop, plus the plant input
     Cx = np.zeros(cl.A.shape[0])
@@ -125,6 +125,11 @@ class CascadeResponse:
     response: StepResponse  # y = outer output x(t) between samples, u = outer controller output
     inner_output: np.ndarray  # the inner plant's output (e.g. the angle) on the same grid
     metrics: StepMetrics
+
+
+def _ref(c: ControllerTF) -> SS | None:
+    """A 2-DOF controller's reference path on its states (pid2), or None."""
+    return c.ref_ss() if c.two_dof else None
 
 
 def _mats(sys: SS) -> tuple[np.ndarray, ...]:
@@ -175,6 +180,9 @@ def simulate_cascade(
     Ad, Bd = Ah @ Phi[-1], Ah @ Gam[-1] + Bh  # one whole sample
     Aco, Bco, Cco, Dco = _mats(outer_ctrl.ss())
     Aci, Bci, Cci, Dci = _mats(inner_ctrl.ss())
+    # 2-DOF controllers (pid2): the reference enters through their own path on the same states
+    _, Bro, _, Dro = _mats(outer_ctrl.ref_ss())
+    _, Bri, _, Dri = _mats(inner_ctrl.ref_ss())
     K = int(math.ceil(horizon_s / dt)) + 1
     x = np.zeros((n, 1))
     xo = np.zeros((Aco.shape[0], 1))
@@ -187,12 +195,10 @@ def simulate_cascade(
         xpos = float((Cx @ x)[0, 0])  # strictly proper plants: no feedthrough at the sample
         th = float((Cth @ x)[0, 0])
         ys[k] = xpos
-        eo = 1.0 - xpos
-        ref = float((Cco @ xo + Dco * eo)[0, 0])
-        xo = Aco @ xo + Bco * eo
-        ei = ref - th
-        u = float((Cci @ xi + Dci * ei)[0, 0])
-        xi = Aci @ xi + Bci * ei
+        ref = float((Cco @ xo + Dro * 1.0 - Dco * xpos)[0, 0])  # u = C x + Dr r - D y (1-DOF: Dr = D)
+        xo = Aco @ xo + Bro * 1.0 - Bco * xpos
+        u = float((Cci @ xi + Dri * ref - Dci * th)[0, 0])
+        xi = Aci @ xi + Bri * ref - Bci * th
         xs = Phi @ x + Gam * u  # (N, n, 1)
         y_fine[k * N:(k + 1) * N] = (Cx @ xs)[:, 0, 0] + Dx[0, 0] * u
         th_fine[k * N:(k + 1) * N] = (Cth @ xs)[:, 0, 0] + Dth[0, 0] * u

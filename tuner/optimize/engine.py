@@ -100,6 +100,8 @@ def _contained(problem: TuningProblem) -> tuple[str, Any] | None:
 
 #: structures whose search first runs the contained structure's whole search (:meth:`Engine._contained_answer`)
 FULL_CONTAINMENT = ("pid2",)
+CONTAINED_SHARE = 0.9  # of the time left: the contained search (the guarantee) runs as a tune of it would; a
+                       # budget-bound one leaves pid2 little more than its answer
 #: the (b, c) given to pid's designed starts as pid2's seeds: pid itself first, then D on the measurement with
 #: full and half proportional setpoint weight
 PID2_WEIGHT_SEEDS = ((1.0, 1.0), (1.0, 0.0), (0.5, 0.0))
@@ -319,9 +321,9 @@ class Engine:
 
     def _contained_answer(self) -> list[np.ndarray]:
         """A structure that must never be worse than the one it contains (``pid2`` and ``pid``): that structure's
-        own search, run first on the same problem and seed with at most half the time left; its best candidates,
-        mapped in (b = c = 1 is that very controller, the other weights are starts), lead this round. The
-        refinement then starts from the contained optimum with the weights free."""
+        own search, run first on the same problem and seed with at most CONTAINED_SHARE of the time left; its best
+        candidates, mapped in (b = c = 1 is that very controller, the other weights are starts), lead this round.
+        The refinement then starts from the contained optimum with the weights free."""
         if self.problem.structure.name not in FULL_CONTAINMENT:
             return []
         import dataclasses
@@ -331,17 +333,26 @@ class Engine:
         left = self._time_left()
         if left <= 0:
             return []
-        sub = Engine(sub_problem, seed=self.seed, deadline=time.perf_counter() + 0.5 * left, solver=self.solver,
-                     local=self.local, n_starts=self.n_starts, n_trials=self.n_trials)
+        sub = Engine(sub_problem, seed=self.seed, deadline=time.perf_counter() + CONTAINED_SHARE * left,
+                     solver=self.solver, local=self.local, n_starts=self.n_starts, n_trials=self.n_trials)
         sub.run()
         small = sub_problem.structure
         out = []
-        for x in sub.finalists(3):
+        for j, (score, x) in enumerate(sub.finalists_scored(3)):
             g = small.named(x)
-            for gm in convert(g):
+            for i, gm in enumerate(convert(g)):
                 xx = np.array([gm[q] for q in self.problem.structure.params])
-                if np.all(np.isfinite(xx)):
-                    out.append(self.space.from_params(xx))
+                if not np.all(np.isfinite(xx)):
+                    continue
+                v = self.space.from_params(xx)
+                if i == 0:  # b = c = 1: the contained controller itself, pooled with the score its search gave it
+                    self.pool.append((float(score), v, False))
+                    if score < self.best.score:
+                        self.best = _Best(float(score), v)
+                    if j == 0:
+                        self._contained_x = self.space.params(v)
+                else:
+                    out.append(v)
         self.info.seeded_from = name
         return out
 
@@ -387,14 +398,18 @@ class Engine:
 
     def finalists(self, k: int = 3) -> list[np.ndarray]:
         """The best ``k`` distinct candidates (structure parameters) for the full verification."""
+        return [x for _, x in self.finalists_scored(k)]
+
+    def finalists_scored(self, k: int = 3) -> list[tuple[float, np.ndarray]]:
+        """:meth:`finalists` with their batch scores."""
         span = np.maximum(self.space.hi - self.space.lo, 1e-12)
-        out: list[np.ndarray] = []
-        for _, v, _ in sorted(self.pool, key=lambda t: t[0]):
-            if all(np.linalg.norm((v - w) / span) > 1e-6 for w in out):
-                out.append(v)
+        out: list[tuple[float, np.ndarray]] = []
+        for s, v, _ in sorted(self.pool, key=lambda t: t[0]):
+            if all(np.linalg.norm((v - w) / span) > 1e-6 for _, w in out):
+                out.append((s, v))
             if len(out) >= k:
                 break
-        return [self.space.params(v) for v in out]
+        return [(s, self.space.params(v)) for s, v in out]
 
     def verify_best(self, k: int = 3) -> tuple[np.ndarray, Scored]:
         """Full-resolution verification of the finalists in the search's order: the first that the verifier
@@ -409,6 +424,14 @@ class Engine:
                 best_x, best = x, s
             if best is not None and best.feasible:
                 break
+        x_c = getattr(self, "_contained_x", None)
+        if x_c is not None and not any(np.array_equal(x_c, x) for x in self.finalists(k)):
+            # the contained structure's answer (pid2 at b = c = 1 is pid's): verified too, so that the result is
+            # never worse than that structure's own tune (the batch's scores of the two may rank them otherwise)
+            s = self.ev.score(x_c, full=True)
+            self.verified += 1
+            if s.analyses and (best is None or (s.feasible, -s.score) > (best.feasible, -best.score)):
+                best_x, best = x_c, s
         if best is None:
             from ..errors import TunerError
 
