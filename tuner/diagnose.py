@@ -93,7 +93,7 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
         if g0 < math.inf and not st.integrating:
             out.append(Reason(("steady_state_error",), f"{st.name} has no integral action and the plant{where} no "
                               "integrator: zero steady-state error is out of reach; use a structure with an integrator "
-                              "(pi, pid, pid_z, pidf2) or set zero_steady_state_error = false",
+                              "(pi, pid, pid2, pid_z, pid_mf2) or set zero_steady_state_error = false",
                               {"zero_steady_state_error": False}))
         if g0 == 0.0:
             out.append(Reason(("steady_state_error",), f"the plant{where} has a zero at s = 0 (G(0) = 0): no "
@@ -142,7 +142,7 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
     if not todo:
         if "stable" in failing and not explained:
             reasons.append(Reason(("stable",), f"no stabilising {problem.structure.name} was found for this plant: "
-                                  "try a structure with more freedom (pid, pidf2, leadlag) or a shorter dt"))
+                                  "try a structure with more freedom (pid, pid2, pid_mf2, leadlag) or a shorter dt"))
         return reasons
     if budget_s <= 0:
         return reasons
@@ -212,7 +212,7 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
                                   f"relaxed was: it achieves {achieved}", got))
         elif res is not None:
             reasons.append(Reason(tuple(todo), f"even with {', '.join(todo)} relaxed, no {name} meeting the rest of "
-                                  "the spec was found: try a structure with more freedom (pid, pidf2, leadlag) or "
+                                  "the spec was found: try a structure with more freedom (pid, pid2, pid_mf2, leadlag) or "
                                   "relax the remaining limits"))
     if not any(set(r.constraints) & set(todo) for r in reasons):
         reasons.append(Reason(tuple(todo), f"{', '.join(todo)}: not explained within the time the diagnosis had "
