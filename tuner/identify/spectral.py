@@ -191,7 +191,9 @@ def unexplained_rms(spectra: Sequence[WindowSpectra]) -> float:
     This is the noise floor of a time-domain check: sensor noise, the response to unmeasured
     inputs (gusts) and nonlinearity, as the record shows them; a perfect model's residual has
     about this rms. Slower wander (below two periods of the longest window) is not counted; the
-    check removes a bias and a linear drift."""
+    check removes a bias and a linear drift. Spectral leakage and the per-segment detrending bias
+    the coherence of even noise-free data slightly below 1, which adds a few per cent of the
+    output's rms (in quadrature) to the floor."""
     longest = max(spectra, key=lambda sp: sp.window_s)
     top = float(min(sp.w[-1] for sp in spectra))
     lo = 4.0 * np.pi / longest.window_s
