@@ -40,7 +40,7 @@ def _msg(kind: str, payload: bytes) -> bytes:
     return struct.pack("<HB", len(payload), ord(kind)) + payload
 
 
-def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 1000,
+def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 0,
                dropouts: Sequence[tuple[int, int]] = (), info: dict[str, str] | None = None) -> Path:
     """Write ``topics`` to ``path``; ``dropouts`` are ``(timestamp_us, duration_ms)`` written after the last
     data message at or before that time."""

@@ -4,7 +4,7 @@ A signal is named ``TOPIC.FIELD`` (``vehicle_angular_velocity.xyz[0]``), ``TOPIC
 instance ``N`` of a multi-instance topic (default 0); nested fields keep pyulog's dotted names.
 Each topic has its own ``timestamp`` (µs): topics are asynchronous, so both signals are put onto
 one uniform grid at ``rate_hz`` (default: the slower topic's median rate), over the time both
-cover:
+cover, starting on an input sample:
 
 * the **input** (an actuator command or a torque/attitude setpoint) by **zero-order hold**: the
   value last published at or before each grid time. That is what the plant saw: the mixer and
@@ -73,13 +73,15 @@ class ULogRecords:
 
 
 def is_ulog(path: str | Path) -> bool:
-    """Whether the file starts with the ULog magic bytes (or, unreadable, is named ``.ulg``)."""
+    """Whether the file is named ``.ulg`` or starts with the ULog magic bytes."""
     p = Path(path)
+    if p.suffix.lower() == ".ulg":
+        return True
     try:
         with p.open("rb") as f:
             return f.read(7) == MAGIC
     except OSError:
-        return p.suffix.lower() == ".ulg"
+        return False
 
 
 def parse_signal(text: str, role: str) -> tuple[str, int, str]:
@@ -179,7 +181,7 @@ def read_ulog(src: str | Path | BinaryIO, columns: Mapping[str, str], *, rate_hz
     specs = {role: parse_signal(columns[role], role) for role in ("input", "output")}
     ul = _load(src, sorted({s[0] for s in specs.values()}))
     (tu, xu), (ty, xy) = (_series(ul, src, role, columns[role]) for role in ("input", "output"))
-    t0 = float(ul.start_timestamp) * 1e-6 if getattr(ul, "start_timestamp", 0) else min(tu[0], ty[0])
+    t0 = float(ul.start_timestamp) * 1e-6  # times are reported from the logger's start
     if rate_hz is None:
         rate_hz = float(min(1.0 / np.median(np.diff(tu)), 1.0 / np.median(np.diff(ty))))
         rate_hz = float(f"{rate_hz:.3g}")  # 249.8 Hz of a jittery 250 Hz topic -> 250
@@ -212,11 +214,13 @@ def read_ulog(src: str | Path | BinaryIO, columns: Mapping[str, str], *, rate_hz
         start = max(b, lo)
     edges.append((start, hi))
     inputs, outputs, starts, dropped = [], [], [], []
-    for a, b in edges:
-        n = int(math.floor((b - a) / dt + 1e-9)) + 1
+    for a0, b in edges:
+        i0 = int(np.searchsorted(tu, a0 - 1e-9))  # the grid starts on an input sample: held values are exact
+        a = float(tu[i0]) if i0 < tu.size else b + 1.0
+        n = int(math.floor((b - a) / dt + 1e-9)) + 1 if a <= b else 0
         if n < MIN_SAMPLES:
-            if b > a:
-                dropped.append((a - t0, b - t0))
+            if b > a0:
+                dropped.append((a0 - t0, b - t0))
             continue
         tg = a + dt * np.arange(n)
         iu = np.searchsorted(tu, tg + 1e-9, side="right") - 1  # zero-order hold: last published at or before
