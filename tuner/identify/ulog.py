@@ -93,11 +93,11 @@ def parse_signal(text: str, role: str) -> tuple[str, int, str]:
     return m["topic"], int(m["inst"] or 0), m["field"]
 
 
-def _load(src: str | Path | BinaryIO, topics: list[str]) -> Any:
+def _load(src: str | Path | bytes, topics: list[str] | None) -> Any:
     from pyulog import ULog
 
-    name = getattr(src, "name", None) or ("upload" if not isinstance(src, (str, Path)) else str(src))
-    if isinstance(src, (str, Path)):
+    name = "the upload" if isinstance(src, bytes) else str(src)
+    if not isinstance(src, bytes):
         p = Path(src)
         try:
             size = p.stat().st_size
@@ -109,16 +109,14 @@ def _load(src: str | Path | BinaryIO, topics: list[str]) -> Any:
             raise InvalidDataError(f"{p}: {size} bytes; at most {MAX_ULOG_BYTES} (cut the log)", field="file")
     try:
         with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its corruption notices
-            return ULog(str(src) if isinstance(src, Path) else src, message_name_filter_list=topics)
+            return ULog(io.BytesIO(src) if isinstance(src, bytes) else str(src), message_name_filter_list=topics)
     except Exception as e:  # pyulog raises its own and struct/value errors for a file it cannot parse
         raise InvalidDataError(f"{name}: not a readable ULog file ({type(e).__name__}: {e})", field="file") from None
 
 
-def _topics_in(src: str | Path | BinaryIO) -> list[str]:
+def _topics_in(src: str | Path | bytes) -> list[str]:
     """Every ``topic:instance`` logged, for the error message."""
-    if not isinstance(src, (str, Path)):
-        src.seek(0)
-    ul = _load(src, None)  # type: ignore[arg-type]
+    ul = _load(src, None)
     return sorted({f"{d.name}:{d.multi_id}" if d.multi_id else d.name for d in ul.data_list})
 
 
@@ -170,15 +168,20 @@ def _merge(gaps: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return [(a, b) for a, b in out]
 
 
-def read_ulog(src: str | Path | BinaryIO, columns: Mapping[str, str], *, rate_hz: float | None = None) -> ULogRecords:
+def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
+              rate_hz: float | None = None) -> ULogRecords:
     """The ``columns`` (``{"input": "topic.field", "output": "topic.field"}``) of a ULog log on a uniform grid.
 
-    ``src`` is a path or a binary file object (an upload). See the module's notes on the
+    ``src`` is a path, the file's bytes, or a binary file object (an upload). See the module's notes on the
     interpolation (input held, output linear) and on gaps.
     """
     if set(columns) != {"input", "output"}:
         raise InvalidDataError("a ULog log needs input and output signals (TOPIC.FIELD)", field="input")
     specs = {role: parse_signal(columns[role], role) for role in ("input", "output")}
+    if not isinstance(src, (str, Path, bytes)):
+        src = src.read(MAX_ULOG_BYTES + 1)
+        if len(src) > MAX_ULOG_BYTES:
+            raise InvalidDataError(f"the upload holds more than {MAX_ULOG_BYTES} bytes (cut the log)", field="file")
     ul = _load(src, sorted({s[0] for s in specs.values()}))
     (tu, xu), (ty, xy) = (_series(ul, src, role, columns[role]) for role in ("input", "output"))
     t0 = float(ul.start_timestamp) * 1e-6  # times are reported from the logger's start
