@@ -125,10 +125,18 @@ class IdentifyResult:
     def describe(self) -> str:
         return self.plant().describe()
 
+    def _rational_text(self) -> str:
+        """The rational part as a plant expression (6 significant digits), without the delay."""
+        from ..plant import make_plant
+
+        num, den = self.model.tf()
+        return make_plant(num, den).describe()
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready after :func:`tuner.analysis.jsonable` (non-finite bounds become strings)."""
         return {
             "model": self.model.to_dict(),
+            "plant": self._rational_text(),  # for `tuner tune --plant`, with --delay model.delay
             "cost": self.cost,
             "quality": self.quality,
             "check": self.check,
