@@ -140,3 +140,21 @@ def test_repr_is_a_few_lines():
     assert text.startswith("IdentifyResult: ") and len(text.splitlines()) <= 5 and len(text) < 600, text
     assert "pole_wn_1_rad_s" in text and f"J {res.cost:.3g}" in text and res.check in text
     assert str(res) == text
+
+
+def test_a_check_on_several_fitted_records_plots_and_round_trips():
+    import json
+
+    from tuner.identify import IdentifyResult
+    from tuner.jsonio import jsonable
+
+    log = fly(*GUSTY, delay_s=0.02, seed=21, duration_s=100.0, sweep_fraction=1.0)
+    k = 3000  # a log split at 60 s: the second piece holds the top of the sweep, so nothing is held out
+    res = identify([log.u[:k], log.u[k:]], [log.y[:k], log.y[k:]], rate_hz=50.0, poles=2)
+    v = res.validation
+    assert v.source == "fit" and v.duration_s == pytest.approx(100.0, abs=0.1)
+    assert np.isnan(v.t).sum() == 1 and np.all(np.diff(v.t[np.isfinite(v.t)]) > 0)  # end to end, one break
+    text = json.dumps(jsonable(res.to_dict()), allow_nan=False)
+    back = IdentifyResult.from_dict(json.loads(text))
+    assert back.check == res.check and np.isnan(back.validation.measured).sum() == 1
+    assert len(back.plot().axes) == 4

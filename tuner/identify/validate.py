@@ -194,9 +194,17 @@ def validate_segments(model: Model, segments: list[tuple[Record, int, float]], *
     theil = rms_e / scale if scale > 0 else math.inf
     step = max(1, math.ceil(t.size / _MAX_SERIES))
     dt = segments[0][0].dt
+    # the series for the plot: each segment decimated, several laid end to end with a break (nan) between
+    series, shift = [], 0.0
+    for p in parts:
+        ts = p[0] - p[0][0] + shift if series else p[0]
+        series.append(np.column_stack([ts[::step], p[1][::step], p[2][::step]]))
+        series.append(np.full((1, 3), np.nan))
+        shift = float(ts[-1]) + dt
+    ser = np.vstack(series[:-1])
     return Validation(t_start_s=float(t[0]), duration_s=float(t.size * dt), nrmse=nrmse, theil_u=theil,
-                      rms_error=rms_e, bias=float(coef[0]), drift_per_s=float(coef[1]), t=t[::step],
-                      measured=y_p[::step], model=y_model[::step], noise_rms=float(noise_rms), source=source,
+                      rms_error=rms_e, bias=float(coef[0]), drift_per_s=float(coef[1]), t=ser[:, 0],
+                      measured=ser[:, 1], model=ser[:, 2], noise_rms=float(noise_rms), source=source,
                       theil_scale=scale)
 
 
