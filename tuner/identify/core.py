@@ -176,6 +176,8 @@ def identify(
     delay = _delay(delay, step)
     req_band = _band(band)
     auto = isinstance(holdout, str) and holdout == "auto"
+    if isinstance(holdout, str) and not auto:
+        raise InvalidDataError(f"holdout must be 'auto' or a fraction from 0 to 0.5, got {holdout!r}", field="holdout")
     holdout = AUTO_HOLDOUT if auto else _float(holdout, "holdout", 0.0, 0.5)
     coherence_min = _float(coherence_min, "coherence_min", 0.0, 1.0, lo_open=True, hi_open=True)
     n_points = _int(n_points, "n_points", 8, 200)
