@@ -97,7 +97,8 @@ class IdentifyResult:
                  f"  {pars}" if pars else "  (no parameters)",
                  f"  J {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s: {self.quality}; time-domain check: {self.check}"
                  + (f" (Theil {self.validation.theil_u:.2f}, rms error {self.validation.noise_ratio:.2f} x noise, "
-                    f"on {self.validation.source})" if self.validation is not None else ""),
+                    f"on the {_SHORT.get(self.validation.source, self.validation.source)})"
+                    if self.validation is not None else ""),
                  f"  {self.n_samples} samples at {self.rate_hz:.4g} Hz"
                  + (f", {len(self.warnings)} warning(s)" if self.warnings else "")]
         return "\n".join(lines)
@@ -177,6 +178,7 @@ class IdentifyResult:
         return fit_figure(self, title=title, time_domain=time_domain)
 
 
+_SHORT = {"holdout": "held-out end", "verify": "verification record", "fit": "fitted record"}
 _SPECIAL = {"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}
 
 
