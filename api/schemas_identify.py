@@ -161,7 +161,7 @@ class IdentifyResponse(_Out):
     model: ModelOut
     cost: float = Field(description="CIFER's J over the band (<= 50 good, <= 100 acceptable)")
     quality: Literal["good", "acceptable", "poor"] = Field(description="J's verdict (CIFER's guideline)")
-    check: Literal["good", "noise-limited", "poor", "none"] = Field(
+    check: Literal["good", "fair", "noise-limited", "poor", "none"] = Field(
         "none", description="the time-domain check's verdict, beside J's (see validation)")
     verdict: str
     warnings: list[str]

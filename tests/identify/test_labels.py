@@ -74,6 +74,10 @@ def test_the_check_still_fails_a_wrong_model_on_a_quiet_record():
     k = round(0.8 * rec.n)
     vw = validate(wrong, rec, k, u_trim=float(np.mean(log.u[:k])), noise_rms=res.validation.noise_rms)
     assert vw.verdict == "poor" and vw.noise_ratio > 5
+    # 30 % too much gain: Theil meets the guideline, but the error is several times the floor: "fair"
+    off = Model.from_values(2, 0, {**vals, "gain": 1.3 * vals["gain"]})
+    vo = validate(off, rec, k, u_trim=float(np.mean(log.u[:k])), noise_rms=res.validation.noise_rms)
+    assert vo.theil_u <= THEIL_LIMIT and vo.noise_ratio > 2 * NOISE_RATIO_LIMIT and vo.verdict == "fair"
 
 
 @pytest.mark.parametrize(("sigma", "rel"), [(0.2, 0.05), (0.05, 0.2)])

@@ -449,6 +449,10 @@ def _warnings(cost: float, points: FitPoints, band: tuple[float, float], model: 
             what = "verification record" if val.source == "verify" else "held-out part"
             out.append(f"the {what} hardly excites the plant: its time-domain check means little "
                        "(put doublets there)")
+        elif val.verdict == "fair":
+            out.append(f"time-domain check on {SOURCES[val.source]}: Theil {val.theil_u:.2f} meets the guideline, but "
+                       f"the rms error is {val.noise_ratio:.2f} times the noise floor (> {NOISE_RATIO_LIMIT:g}): the "
+                       "data show a response the model misses (more poles or zeros, another band or delay?)")
         elif not val.ok:
             out.append(f"time-domain check on {SOURCES[val.source]}: Theil's inequality coefficient {val.theil_u:.2f} "
                        f"> {THEIL_LIMIT:g} and the rms error is {val.noise_ratio:.2f} times the noise floor "

@@ -48,7 +48,7 @@ class IdentifyResult:
     """What :func:`tuner.identify` found. ``model`` is continuous (in ``s``), with its delay.
 
     ``cost`` is CIFER's J over ``band_rad_s``; ``quality`` is J's verdict, ``good``/``acceptable``/
-    ``poor`` by the guidelines; ``check`` is the time-domain check's, beside it (``good``,
+    ``poor`` by the guidelines; ``check`` is the time-domain check's, beside it (``good``, ``fair``,
     ``noise-limited``, ``poor`` or ``none``): neither overrules the other. ``warnings`` say what to
     change when something is off (a poor J, poorly determined parameters, a failed time-domain
     check, ...).
@@ -75,8 +75,9 @@ class IdentifyResult:
 
     @property
     def check(self) -> str:
-        """The time-domain check's verdict: ``good`` (Theil <= 0.3), ``noise-limited`` (Theil above,
-        the rms error within 1.5 times the noise floor the data show), ``poor``, or ``none``."""
+        """The time-domain check's verdict (:attr:`Validation.verdict`): ``good`` (Theil <= 0.3, the rms
+        error within 1.5 times the noise floor the data show), ``fair`` (Theil <= 0.3, error above),
+        ``noise-limited`` (Theil above, error within), ``poor`` (both above), or ``none``."""
         return "none" if self.validation is None else self.validation.verdict
 
     @property

@@ -19,8 +19,10 @@ the measured one over the held-out part of the record:
   spectrum ``G_yy (1 - gamma^2)``), i.e. the rms error a perfect model would have, and the Theil
   coefficient noise alone would give. On a gusty or noisy record Theil exceeds 0.3 even for the
   true model; the check is then ``"noise-limited"`` when the rms error is within
-  :data:`NOISE_RATIO_LIMIT` times the floor (the model's own error at most about the noise).
-  Verdicts: ``"good"`` (Theil <= 0.3), ``"noise-limited"``, ``"poor"``.
+  :data:`NOISE_RATIO_LIMIT` times the floor (the model's own error at most about the noise). On a
+  quiet record a model can meet Theil <= 0.3 with an error several times the floor: ``"fair"``.
+  Verdicts: ``"good"`` (Theil <= 0.3, error within 1.5 x the floor), ``"fair"`` (Theil <= 0.3, error
+  above), ``"noise-limited"`` (Theil above, error within), ``"poor"`` (both above).
 """
 
 from __future__ import annotations
@@ -77,11 +79,14 @@ class Validation:
 
     @property
     def verdict(self) -> str:
-        """``"good"`` (Theil <= 0.3), ``"noise-limited"`` (Theil above, rms error within 1.5 times the
-        noise floor) or ``"poor"``."""
+        """``"good"`` (Theil <= 0.3 and the rms error within 1.5 times the noise floor), ``"fair"``
+        (Theil <= 0.3, the error above: the data show what the model misses), ``"noise-limited"``
+        (Theil above 0.3, the error within: noise, not the model) or ``"poor"`` (both above). With no
+        floor known, Theil alone: ``"good"`` or ``"poor"``."""
+        within = self.noise_ratio <= NOISE_RATIO_LIMIT  # False for nan
         if self.theil_u <= THEIL_LIMIT:
-            return "good"
-        return "noise-limited" if self.noise_ratio <= NOISE_RATIO_LIMIT else "poor"
+            return "fair" if math.isfinite(self.noise_ratio) and not within else "good"
+        return "noise-limited" if within else "poor"
 
     @property
     def ok(self) -> bool:

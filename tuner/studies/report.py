@@ -185,8 +185,9 @@ def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
          "cost J (<= 50 good, <= 100 acceptable), Cramér–Rao bounds (guideline <= 20 %), and a time-domain check: "
          "the model simulated on a verification log, the held-out end of the log, or (when that end is the top of "
          "the sweep) the fitted log, Theil's inequality coefficient (guideline <= 0.3) judged beside the noise "
-         "floor the data show (the rms error over the rms a perfect model would leave; 'noise-limited' when Theil "
-         "is above 0.3 but the error within 1.5 times the floor). J's verdict and the check's are reported side "
+         "floor the data show (the rms error over the rms a perfect model would leave): good (Theil <= 0.3, error "
+         "within 1.5 times the floor), fair (Theil <= 0.3, error above), noise-limited (Theil above, error within), "
+         "poor (both above). J's verdict and the check's are reported side "
          "by side. The delay is fitted "
          "in whole samples of the loop's dt. The loops below were tuned and verified on these models.", ""]
     rows, notes = [], []
