@@ -175,3 +175,18 @@ def test_several_files_and_a_verification_log_on_the_command_line(tmp_path, caps
     w = np.geomspace(*res.band_rad_s, 200)
     ratio = res.model.freqresp(w) / true_response(logs[0], w)
     assert np.max(np.abs(20 * np.log10(np.abs(ratio)))) <= 1.0
+
+
+def test_the_output_is_taken_at_its_sample_time(tmp_path, flight):
+    """A gyro topic with PX4's timestamp_sample (measured 2.5 ms before it is published): the output is
+    placed at the sample time; the input at its publication."""
+    t, u, y = flight.t[::20], flight.u[::20], flight.y[::20]
+    pub = T0_US + np.round(t * 1e6).astype(int)
+    gyro = Topic("vehicle_angular_velocity", [("uint64_t", "timestamp_sample", 0), ("float", "xyz", 3)], pub + 2500,
+                 {"timestamp_sample": pub, "xyz": _vec(y)})
+    ulg = write_ulog(tmp_path / "ts.ulg", [_topics(t, u, t, y)[0], gyro])
+    rec = read_ulog(ulg, {"input": IN, "output": OUT})
+    n = rec.inputs[0].size
+    np.testing.assert_allclose(rec.outputs[0], y[:n].astype(np.float32), rtol=1e-6)  # not 2.5 ms late
+    with pytest.raises(InvalidDataError, match=r"fields: \['xyz\[0\]', 'xyz\[1\]', 'xyz\[2\]'\]"):
+        read_ulog(ulg, {"input": IN, "output": "vehicle_angular_velocity.timestamp_sample"})

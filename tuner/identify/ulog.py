@@ -2,7 +2,8 @@
 
 A signal is named ``TOPIC.FIELD`` (``vehicle_angular_velocity.xyz[0]``), ``TOPIC:N.FIELD`` for
 instance ``N`` of a multi-instance topic (default 0); nested fields keep pyulog's dotted names.
-Each topic has its own ``timestamp`` (µs): topics are asynchronous, so both signals are put onto
+Each topic has its own ``timestamp`` (µs; for the output, its ``timestamp_sample`` when the topic has
+one: the instant of the measurement, not of the publication): topics are asynchronous, so both signals are put onto
 one uniform grid at ``rate_hz`` (default: the slower topic's median rate), over the time both
 cover, starting on an input sample:
 
@@ -131,11 +132,14 @@ def _series(ul: Any, src: Any, role: str, spec: str) -> tuple[np.ndarray, np.nda
                                    field=role)
         raise InvalidDataError(f"{role} {spec!r}: no topic {topic!r} in the log; topics: {_topics_in(src)}",
                                field=role)
-    if fld not in data.data or fld == "timestamp":
-        fields = [k for k in data.data if k != "timestamp" and not k.startswith("_padding")]
+    if fld not in data.data or fld in ("timestamp", "timestamp_sample"):
+        fields = [k for k in data.data if k not in ("timestamp", "timestamp_sample") and not k.startswith("_padding")]
         raise InvalidDataError(f"{role} {spec!r}: topic {topic!r} has no field {fld!r}; fields: {fields}",
                                field=role)
-    t = np.asarray(data.data["timestamp"], dtype=np.float64) * 1e-6
+    # the output at the instant it was measured (PX4's timestamp_sample, when the topic has it); the input at
+    # its publication, when it was applied
+    clock = "timestamp_sample" if role == "output" and "timestamp_sample" in data.data else "timestamp"
+    t = np.asarray(data.data[clock], dtype=np.float64) * 1e-6
     x = np.asarray(data.data[fld], dtype=np.float64)
     keep = t > 0  # pyulog's convention: a zero timestamp is not a sample
     t, x = t[keep], x[keep]
