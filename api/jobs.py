@@ -74,8 +74,28 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
     from tuner.identify import identify
     from tuner.jsonio import jsonable
 
-    opts = {k: v for k, v in payload.items() if k not in ("input", "output")}
-    return jsonable(identify(payload["input"], payload["output"], **opts).to_dict())
+    ulog = payload.get("ulog")
+    if ulog is None:
+        opts = {k: v for k, v in payload.items() if k not in ("input", "output")}
+        return jsonable(identify(payload["input"], payload["output"], **opts).to_dict())
+    from tuner.errors import TunerError
+    from tuner.identify.ulog import read_ulog
+
+    try:
+        recs = read_ulog(bytes(ulog["data"]), {"input": ulog["input"], "output": ulog["output"]},
+                         rate_hz=payload.get("rate_hz"))
+    except TunerError as e:
+        role = e.field[0] if e.field else "data"
+        e.field = ("ulog", "data" if role == "file" else role, *e.field[1:])
+        raise
+    opts = {k: v for k, v in payload.items() if k not in ("ulog", "rate_hz", "time")}
+    one = len(recs.inputs) == 1
+    res = identify(recs.inputs[0] if one else recs.inputs, recs.outputs[0] if one else recs.outputs,
+                   rate_hz=recs.rate_hz, **opts)
+    out = jsonable(res.to_dict())
+    out["_samples"] = {"inputs": [r.tolist() for r in recs.inputs], "outputs": [r.tolist() for r in recs.outputs],
+                       "rate_hz": recs.rate_hz}
+    return out
 
 
 def identify_plot_job(payload: dict[str, Any]) -> bytes:

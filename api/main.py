@@ -37,8 +37,9 @@ Optimisation-based controller tuning with an independent verifier, as a service.
 * `GET /tunes`, `GET /tunes/{id}`, `GET /tunes/{id}/plot.png` / `.svg`: stored results.
 * `GET /tunes/{id}/export?format=c|python|text`: the stored controller as C99, a Python class or its
   difference equation (direct form II transposed; optional output limits with anti-windup).
-* `POST /identify`: a logged input/output record in, a fitted transfer function out (frequency
-  response with coherence, CIFER's cost J, Cramér–Rao bounds, a check on held-out data); stored,
+* `POST /identify`: a logged input/output record (JSON samples, or a PX4 ULog log in base64) in, a fitted
+  transfer function out (frequency response with coherence, CIFER's cost J, Cramér–Rao bounds, and a
+  time-domain check judged against the noise floor, its verdict beside J's); stored,
   and listed by `GET /identifications`, `GET /identifications/{id}` (`/plot.png`, `/plot.svg`, `/data`).
 
 Non-finite numbers are the strings `"Infinity"`, `"-Infinity"`, `"NaN"`

@@ -30,6 +30,8 @@ __all__ = [
     "IdentifyOptions",
     "IdentifyRequest",
     "IdentifyResponse",
+    "ULogUpload",
+    "VerifyRecord",
 ]
 
 MAX_SAMPLES = 250_000  # 200,000-sample logs are accepted; the body cap is TUNER_MAX_IDENTIFY_BODY_BYTES
@@ -78,21 +80,51 @@ class IdentifyOptions(_In):
         None, description="delay in whole multiples of this (s): the sample time of the loop the model is for")
     band: Annotated[list[Positive], Field(min_length=2, max_length=2)] | None = Field(
         None, description="fit band [w_min, w_max], rad/s (default: where the coherence >= coherence_min)")
-    holdout: float = Field(0.2, ge=0, le=0.5, allow_inf_nan=False,
-                           description="fraction at the end of the record kept out of the fit, for the check")
+    holdout: Literal["auto"] | Annotated[float, Field(ge=0, le=0.5, allow_inf_nan=False)] = Field(
+        "auto", description='what the time-domain check runs on: "auto" (the last 20 % if it excites the band and '
+                            "is not the top of the sweep, else the fitted record; nothing with verify), a fraction "
+                            "held out at the end, or 0 (no check)")
     coherence_min: float = Field(0.6, gt=0, lt=1, allow_inf_nan=False)
     n_points: int = Field(25, ge=8, le=200, description="log-spaced fit frequencies in the band")
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seeds the fit's random starts")
+
+
+class VerifyRecord(_In):
+    """A separate verification record (e.g. doublets): the time-domain check runs on it."""
+
+    input: Samples
+    output: Samples
+    time: Samples | None = Field(None, description="sample times, s; or rate_hz; neither: the fitted record's rate")
+    rate_hz: Positive | None = None
+
+
+MAX_ULOG_BASE64 = 24_000_000  # characters (18 MB of log); the body cap TUNER_MAX_IDENTIFY_BODY_BYTES applies too
+
+
+class ULogUpload(_In):
+    """A PX4 ULog log (``.ulg``), base64-encoded, and the two signals to take from it."""
+
+    data: str = Field(min_length=16, max_length=MAX_ULOG_BASE64, description="the .ulg file, base64 (standard "
+                      "alphabet, padded)")
+    input: str = Field(min_length=3, max_length=200, description="TOPIC[:INSTANCE].FIELD of the plant input "
+                       "(held between its samples), e.g. vehicle_torque_setpoint.xyz[0]")
+    output: str = Field(min_length=3, max_length=200, description="TOPIC[:INSTANCE].FIELD of the plant output "
+                        "(interpolated linearly), e.g. vehicle_angular_velocity.xyz[0]")
 
 
 class IdentifyRequest(IdentifyOptions):
     model_config = ConfigDict(extra="forbid", strict=True,
                               json_schema_extra={"examples": [IDENTIFY_EXAMPLE]})
 
-    input: Samples = Field(description="plant input samples (e.g. the command)")
-    output: Samples = Field(description="plant output samples (e.g. the angle), as many as input")
+    input: Samples | None = Field(None, description="plant input samples (e.g. the command); or ulog")
+    output: Samples | None = Field(None, description="plant output samples (e.g. the angle), as many as input")
     time: Samples | None = Field(None, description="sample times, s (strictly increasing, uniform); or rate_hz")
-    rate_hz: Positive | None = Field(None, description="sample rate, Hz; or time")
+    rate_hz: Positive | None = Field(None, description="sample rate, Hz; or time. With ulog: the grid the topics "
+                                     "are resampled onto (default: the slower topic's rate)")
+    ulog: ULogUpload | None = Field(None, description="a PX4 ULog log instead of input/output/time; a log split "
+                                    "by gaps is fitted as several records")
+    verify: VerifyRecord | None = Field(None, description="a separate verification record for the time-domain "
+                                        "check (nothing is then held out)")
 
 
 class _Out(BaseModel):
@@ -128,7 +160,9 @@ class IdentifyResponse(_Out):
     created_at: _dt.datetime
     model: ModelOut
     cost: float = Field(description="CIFER's J over the band (<= 50 good, <= 100 acceptable)")
-    quality: Literal["good", "acceptable", "poor"]
+    quality: Literal["good", "acceptable", "poor"] = Field(description="J's verdict (CIFER's guideline)")
+    check: Literal["good", "fair", "noise-limited", "poor", "none"] = Field(
+        "none", description="the time-domain check's verdict, beside J's (see validation)")
     verdict: str
     warnings: list[str]
     band_rad_s: list[float]

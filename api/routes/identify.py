@@ -41,15 +41,33 @@ IdentId = Path(min_length=1, max_length=64, description="the id returned by POST
 
 def _check(body: IdentifyRequest) -> None:
     """Cross-field checks the schema cannot express, each naming its field."""
-    n = len(body.input)
-    if len(body.output) != n:
-        raise FieldError(("body", "output"), f"output has {len(body.output)} samples but input has {n}: give "
-                                             "equal-length records")
-    if (body.time is None) == (body.rate_hz is None):
-        raise FieldError(("body", "rate_hz" if body.time is None else "time"),
-                         "give exactly one of time (sample times, s) or rate_hz (the sample rate)")
-    if body.time is not None and len(body.time) != n:
-        raise FieldError(("body", "time"), f"time has {len(body.time)} samples but input and output have {n}")
+    if body.ulog is not None:
+        for name in ("input", "output", "time"):
+            if getattr(body, name) is not None:
+                raise FieldError(("body", name), f"give either ulog or {name} (the samples come from the log)")
+    else:
+        if body.input is None or body.output is None:
+            raise FieldError(("body", "input" if body.input is None else "output"),
+                             "give input and output samples (or a ulog log)")
+        n = len(body.input)
+        if len(body.output) != n:
+            raise FieldError(("body", "output"), f"output has {len(body.output)} samples but input has {n}: give "
+                                                 "equal-length records")
+        if (body.time is None) == (body.rate_hz is None):
+            raise FieldError(("body", "rate_hz" if body.time is None else "time"),
+                             "give exactly one of time (sample times, s) or rate_hz (the sample rate)")
+        if body.time is not None and len(body.time) != n:
+            raise FieldError(("body", "time"), f"time has {len(body.time)} samples but input and output have {n}")
+    v = body.verify
+    if v is not None:
+        if len(v.output) != len(v.input):
+            raise FieldError(("body", "verify", "output"), f"output has {len(v.output)} samples but input has "
+                                                           f"{len(v.input)}")
+        if v.time is not None and v.rate_hz is not None:
+            raise FieldError(("body", "verify", "time"), "give at most one of time or rate_hz")
+        if v.time is not None and len(v.time) != len(v.input):
+            raise FieldError(("body", "verify", "time"), f"time has {len(v.time)} samples but input has "
+                                                         f"{len(v.input)}")
     if body.zeros > body.poles:
         raise FieldError(("body", "zeros"), f"zeros={body.zeros} is more than poles={body.poles}: the model would "
                                             "be improper")
@@ -57,12 +75,28 @@ def _check(body: IdentifyRequest) -> None:
         raise FieldError(("body", "band"), f"band must be [w_min, w_max] with w_min < w_max, got {body.band}")
 
 
+def _ulog_bytes(body: IdentifyRequest) -> bytes | None:
+    if body.ulog is None:
+        return None
+    import base64
+    import binascii
+
+    try:
+        raw = base64.b64decode(body.ulog.data, validate=True)
+    except (binascii.Error, ValueError):
+        raise FieldError(("body", "ulog", "data"), "not base64 (standard alphabet, padded): encode the .ulg file, "
+                                                   "e.g. base64 -w0 flight.ulg") from None
+    return raw
+
+
 @router.post(
     "/identify", response_model=IdentifyResponse, responses=ERRORS,
     summary="Identify a transfer function from a logged input/output record",
     description="Frequency response with coherence (Welch spectra, several windows composited), a model with "
                 "`poles`/`zeros` and a delay fitted over the coherent band by CIFER's cost J, Cramér–Rao bounds of "
-                "its parameters, and a time-domain check on the held-out end of the record. The result and the "
+                "its parameters, and a time-domain check (on `verify`, the held-out end of the record, or the fitted "
+                "record) judged against the noise floor, reported as `check` beside J's `quality`. The samples are "
+                "JSON arrays, or a PX4 ULog log (`ulog`: base64 and the two TOPIC.FIELD signals). The result and the "
                 "record are stored. Bad data (unequal lengths, non-finite values, a constant input, a record too "
                 "short for the band, a time column that is not uniform, no coherent band): 422 naming the field.",
 )
@@ -78,10 +112,18 @@ async def post_identify(
     client: str = Depends(client_id),
 ) -> JSONResponse:
     _check(body)
-    options = body.model_dump(exclude=set(_SAMPLES))
-    payload = {"input": np.asarray(body.input, dtype=float), "output": np.asarray(body.output, dtype=float),
-               "time": None if body.time is None else np.asarray(body.time, dtype=float),
-               "rate_hz": body.rate_hz, **options}
+    options = body.model_dump(exclude={*_SAMPLES, "ulog", "verify"})
+    raw = _ulog_bytes(body)
+    if raw is not None:
+        payload = {"ulog": {"data": raw, "input": body.ulog.input, "output": body.ulog.output},
+                   "rate_hz": body.rate_hz, **options}
+    else:
+        payload = {"input": np.asarray(body.input, dtype=float), "output": np.asarray(body.output, dtype=float),
+                   "time": None if body.time is None else np.asarray(body.time, dtype=float),
+                   "rate_hz": body.rate_hz, **options}
+    if body.verify is not None:
+        payload["verify"] = {k: np.asarray(v, dtype=float) if isinstance(v, list) else v
+                             for k, v in body.verify.model_dump().items() if v is not None}
     try:
         result = await unless_disconnected(
             request, pool.run(job, payload, timeout_s=settings.identify_timeout_s, client=client))
@@ -93,8 +135,20 @@ async def post_identify(
             field = tuple(e.info.get("field") or ("input",))  # the library's path is the body's
             raise FieldError(("body", *field), e.info["message"], type=error_type(e.info["error"])) from None
         raise HTTPException(500, internal_message(e.info, "identification")) from None
-    request = {**options, "n_samples": len(body.input), "sampling": "time" if body.time is not None else "rate_hz"}
-    data = {"input": body.input, "output": body.output, "time": body.time, "rate_hz": body.rate_hz}
+    samples = result.pop("_samples", None)  # a ULog log's records on the grid
+    if samples is not None:
+        request = {**options, "n_samples": result["n_samples"], "sampling": "ulog",
+                   "ulog": {"input": body.ulog.input, "output": body.ulog.output, "bytes": len(raw or b"")}}
+        data = {"input": [x for r in samples["inputs"] for x in r],
+                "output": [x for r in samples["outputs"] for x in r], "time": None, "rate_hz": samples["rate_hz"],
+                "record_lengths": [len(r) for r in samples["inputs"]]}
+    else:
+        request = {**options, "n_samples": len(body.input),
+                   "sampling": "time" if body.time is not None else "rate_hz"}
+        data = {"input": body.input, "output": body.output, "time": body.time, "rate_hz": body.rate_hz}
+    if body.verify is not None:
+        request["verify"] = {"n_samples": len(body.verify.input)}
+        data["verify"] = body.verify.model_dump()
     rec = await run_in_threadpool(store.add_identification, request=request, data=data, result=result)
     return JSONResponse(jsonable({"id": rec.id, "created_at": rec.created_at.isoformat(), **result}))
 

@@ -725,7 +725,7 @@ async function identify() {
     res.hidden = false;
     res.replaceChildren();
     const p = document.createElement("p");
-    p.textContent = `identified (${d.quality}, J = ${fmt(d.cost)}): ${d.verdict}` + (d.warnings.length ? ` — ${d.warnings.join("; ")}` : "") +
+    p.textContent = `identified (J's verdict: ${d.quality}; time-domain check: ${d.check || "none"}): ${d.verdict}` + (d.warnings.length ? ` — ${d.warnings.join("; ")}` : "") +
       ". The plant below is the fitted model.";
     res.append(p);
     const pr = await api(`/identifications/${encodeURIComponent(d.id)}/plot.svg`);

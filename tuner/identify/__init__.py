@@ -9,9 +9,11 @@ The steps of CIFER (Tischler & Remple), one module each:
 * :mod:`~tuner.identify.model` and :mod:`~tuner.identify.fit`: a gain, factored pole and zero
   sections and a delay, fitted by minimising CIFER's coherence-weighted cost ``J``;
 * :mod:`~tuner.identify.uncertainty`: Cramér–Rao bounds and insensitivities at the optimum;
-* :mod:`~tuner.identify.validate`: simulating the model on held-out data (Theil, NRMSE);
+* :mod:`~tuner.identify.validate`: simulating the model on data that excite the band (Theil, NRMSE)
+  against the noise floor;
 * :mod:`~tuner.identify.result`: :class:`IdentifyResult` (``.plant()``, ``.plot()``, ``.to_dict()``);
-* :mod:`~tuner.identify.csvlog` and :mod:`~tuner.identify.cli`: CSV logs and ``tuner identify``.
+* :mod:`~tuner.identify.csvlog`, :mod:`~tuner.identify.ulog` and :mod:`~tuner.identify.cli`: CSV logs,
+  PX4 ULog logs (through pyulog: asynchronous topics on one grid, gaps) and ``tuner identify``.
 
 The public entry point is :func:`identify`. Importing this package costs nothing (its names load on
 first use: ``tuner --help`` registers ``tuner identify`` without numpy); numpy comes with them, scipy and

@@ -1,7 +1,8 @@
-"""``tuner identify FILE.csv ...``: a transfer function from a logged record.
+"""``tuner identify FILE.csv|FILE.ulg ...``: a transfer function from logged records.
 
 Registered in :mod:`tuner.cli` through ``_EXTRA_COMMANDS``. Exit codes: 0 success; 1 with
-``--check`` when the fit is poor (J > 100); 2 bad input (one line naming the problem).
+``--check`` when the fit is poor (J > 100) or the time-domain check is poor; 2 bad input (one
+line naming the problem).
 """
 
 from __future__ import annotations
@@ -13,12 +14,12 @@ from typing import Any
 
 from ..errors import TunerError
 
-__all__ = ["add_parser", "parse_delay"]
+__all__ = ["add_parser", "parse_delay", "parse_holdout", "read_records"]
 
 _OPTION = {"input": "--input", "output": "--output", "time": "--time", "rate_hz": "--rate", "band": "--band",
            "poles": "--poles", "zeros": "--zeros", "delay": "--delay", "delay_step": "--delay-step",
            "holdout": "--holdout", "coherence_min": "--coherence-min", "n_points": "--points", "seed": "--seed",
-           "windows_s": "--windows"}
+           "windows_s": "--windows", "verify": "--verify"}
 
 
 def parse_delay(text: str) -> str | float | None:
@@ -37,17 +38,83 @@ def parse_delay(text: str) -> str | float | None:
     return v
 
 
+def parse_holdout(text: str) -> str | float:
+    """``auto`` or a fraction."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto or a fraction (0 to 0.5), got {text!r}") from None
+
+
+def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
+    """The records of CSV or ULog files as ``identify`` arguments (``input``, ``output``, ``time``, ``rate_hz``):
+    one file, one record (a ULog log split at gaps may give several); several files are fitted together."""
+    from .csvlog import read_columns
+    from .ulog import is_ulog, read_ulog
+
+    us, ys, ts, rate, csv_time = [], [], [], a.rate, False
+    for f in files:
+        if is_ulog(f):
+            if a.time is not None:
+                raise TunerError(f"{f}: --time names a CSV column; a ULog log is put on a grid at --rate HZ",
+                                 field="time")
+            r = read_ulog(f, {"input": a.input, "output": a.output}, rate_hz=rate)
+            if rate is None:
+                rate = r.rate_hz
+            us += r.inputs
+            ys += r.outputs
+            ts += [None] * len(r.inputs)
+            for lo, hi in r.dropped:
+                _note(f"{f}: {hi - lo:.3g} s between gaps ({lo:.3f}-{hi:.3f} s) is too short to use and was dropped")
+            if r.gaps:
+                _note(f"{f}: {r.describe()}")
+        else:
+            if (a.time is None) == (a.rate is None):
+                raise TunerError(f"{f}: a CSV log needs --time COL (a time column) or --rate HZ", field="time")
+            cols = {"input": a.input, "output": a.output, **({"time": a.time} if a.time is not None else {})}
+            d = read_columns(f, cols)
+            us.append(d["input"])
+            ys.append(d["output"])
+            ts.append(d.get("time"))
+            csv_time = csv_time or a.time is not None
+    if csv_time and any(t is None for t in ts):
+        raise TunerError("mixing CSV logs with a --time column and ULog logs: give --rate for all", field="time")
+    if len(us) == 1:
+        return {"input": us[0], "output": ys[0], "time": ts[0] if csv_time else None,
+                "rate_hz": None if csv_time else rate}
+    return {"input": us, "output": ys, "time": ts if csv_time else None, "rate_hz": None if csv_time else rate}
+
+
+def _note(text: str) -> None:
+    import sys
+
+    print(f"note: {text}", file=sys.stderr)
+
+
 def add_parser(sub: Any) -> None:
-    p = sub.add_parser("identify", help="identify a transfer function from a logged record (CSV)",
+    p = sub.add_parser("identify", help="identify a transfer function from logged records (CSV, PX4 ULog)",
                        description="Frequency response with coherence (composite Welch windows), a transfer "
                                    "function fitted by CIFER's cost J over the coherent band, Cramér–Rao bounds, "
-                                   "and a check on held-out data.")
-    p.add_argument("file", help="CSV log with a header row")
-    base = p.add_mutually_exclusive_group(required=True)
-    base.add_argument("--time", metavar="COL", help="time column, s (uniformly sampled)")
-    base.add_argument("--rate", type=float, metavar="HZ", help="sample rate, when there is no time column")
-    p.add_argument("--input", required=True, metavar="COL", help="plant input column (e.g. the command)")
-    p.add_argument("--output", required=True, metavar="COL", help="plant output column (e.g. the angle)")
+                                   "and a time-domain check (on a verification record, the held-out end of the "
+                                   "log, or the fitted record), judged against the noise floor. Several files "
+                                   "are fitted together (their spectra averaged).")
+    p.add_argument("file", nargs="+", help="CSV log with a header row, or a PX4 ULog log (.ulg); several files: "
+                                           "one fit from all of them (e.g. repeated sweeps)")
+    p.add_argument("--file", dest="more_files", action="append", default=[], metavar="FILE",
+                   help="another log fitted with the others (repeatable)")
+    base = p.add_mutually_exclusive_group()
+    base.add_argument("--time", metavar="COL", help="CSV: time column, s (uniformly sampled)")
+    base.add_argument("--rate", type=float, metavar="HZ",
+                      help="CSV: sample rate, when there is no time column; ULog: the grid the topics are "
+                           "resampled onto (default: the slower topic's rate)")
+    p.add_argument("--input", required=True, metavar="COL",
+                   help="plant input: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
+                        "vehicle_torque_setpoint.xyz[0]); held between its samples")
+    p.add_argument("--output", required=True, metavar="COL",
+                   help="plant output: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
+                        "vehicle_angular_velocity.xyz[0]); interpolated linearly")
     p.add_argument("--poles", required=True, type=int, metavar="N", help="number of poles (1-8)")
     p.add_argument("--zeros", type=int, default=0, metavar="M", help="number of zeros (0-N, default 0)")
     p.add_argument("--delay", type=parse_delay, default="auto", metavar="auto|none|S",
@@ -56,34 +123,44 @@ def add_parser(sub: Any) -> None:
                    help="delay in whole multiples of DT (the loop's sample time)")
     p.add_argument("--band", type=float, nargs=2, default=None, metavar=("WMIN", "WMAX"),
                    help="fit band, rad/s (default: where the coherence >= 0.6)")
-    p.add_argument("--holdout", type=float, default=0.2, metavar="F",
-                   help="fraction at the end of the log kept for the time-domain check (0.2)")
+    p.add_argument("--holdout", type=parse_holdout, default="auto", metavar="auto|F",
+                   help="time-domain check data: auto (default: the last 20 %% if it excites the band and "
+                        "is not the top of the sweep, else the fitted record), a fraction held out at the end, "
+                        "or 0 (no check)")
+    p.add_argument("--verify", metavar="FILE", default=None,
+                   help="a separate verification record (e.g. doublets; same columns or topics): the "
+                        "time-domain check runs on it and nothing is held out")
     p.add_argument("--coherence-min", type=float, default=0.6, metavar="C", help="fit threshold (0.6)")
     p.add_argument("--points", type=int, default=25, metavar="N", help="fit frequencies in the band (25)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts (0)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.add_argument("--plot", metavar="OUT.png", help="write the Bode/coherence plot (png, svg, pdf)")
-    p.add_argument("--check", action="store_true", help="exit 1 when the fit is poor (J > 100)")
+    p.add_argument("--check", action="store_true",
+                   help="exit 1 when the fit is poor (J > 100) or the time-domain check is poor")
     p.set_defaults(handler=_cmd_identify)
 
 
 def _run(a: argparse.Namespace):
     from . import identify
-    from .csvlog import read_columns
 
-    cols = {"input": a.input, "output": a.output}
-    if a.time is not None:
-        cols["time"] = a.time
+    files = [*a.file, *a.more_files]
     try:
-        data = read_columns(a.file, cols)
-        return identify(data["input"], data["output"], time=data.get("time"), rate_hz=a.rate, poles=a.poles,
+        data = read_records(files, a)
+        verify = None
+        if a.verify is not None:
+            v = read_records([a.verify], a)
+            if isinstance(v["input"], list):
+                raise TunerError(f"--verify {a.verify}: the verification log has gaps; give one continuous record",
+                                 field="verify")
+            verify = {k: v[k] for k in ("input", "output", "time", "rate_hz") if v[k] is not None}
+        return identify(data["input"], data["output"], time=data["time"], rate_hz=data["rate_hz"], poles=a.poles,
                         zeros=a.zeros, delay=a.delay, delay_step=a.delay_step, band=a.band, holdout=a.holdout,
-                        coherence_min=a.coherence_min, n_points=a.points, seed=a.seed)
+                        verify=verify, coherence_min=a.coherence_min, n_points=a.points, seed=a.seed)
     except TunerError as e:
         opt = _OPTION.get(str(e.field[0]) if e.field else "")
-        if opt is None or str(e).startswith(str(a.file)):
+        if opt is None or any(str(e).startswith(str(f)) for f in files + [a.verify]):
             raise
-        name = {"--input": a.input, "--output": a.output, "--time": a.time}.get(opt)
+        name = {"--input": a.input, "--output": a.output, "--time": a.time, "--verify": a.verify}.get(opt)
         raise TunerError(f"{opt}{' ' + name if name else ''}: {e}", field=e.field) from e
 
 
@@ -101,7 +178,7 @@ def _cmd_identify(a: argparse.Namespace) -> int:
         print(json.dumps(jsonable(res.to_dict()), indent=2))
     else:
         _print(res, a)
-    return 1 if (a.check and res.quality == "poor") else 0
+    return 1 if (a.check and (res.quality == "poor" or res.check == "poor")) else 0
 
 
 def _print(res: Any, a: argparse.Namespace) -> None:
@@ -117,12 +194,15 @@ def _print(res: Any, a: argparse.Namespace) -> None:
         t.add_row(name, f"{u.value:.5g}", f"{u.cr_bound:.3g}", f"{u.cr_bound_pct:.3g}", f"{u.insensitivity_pct:.3g}")
     con.print(t)
     lo, hi = res.band_rad_s
-    con.print(f"band {lo:.4g}-{hi:.4g} rad/s, {res.fit_points.w.size} fit frequencies; cost J = {res.cost:.4g} "
-              f"({res.quality}; CIFER: <= 50 good, <= 100 acceptable)")
+    con.print(f"band {lo:.4g}-{hi:.4g} rad/s, {res.fit_points.w.size} fit frequencies; cost J = {res.cost:.4g}: "
+              f"{res.quality} (CIFER: <= 50 good, <= 100 acceptable)")
     v = res.validation
     if v is not None:
-        con.print(f"held-out check ({v.t_start_s:.4g}-{v.t_start_s + v.duration_s:.4g} s): Theil {v.theil_u:.3g} "
-                  f"(<= 0.3), NRMSE {v.nrmse:.3g} (fit {v.fit_pct:.3g} %), rms error {v.rms_error:.3g}")
+        con.print(f"time-domain check {v.describe()}")
+    else:
+        con.print("time-domain check: none")
+    for n in res.options.get("notes", ()):
+        con.print(f"note: {n}")
     for w in res.warnings:
         con.print(f"[yellow]warning:[/yellow] {w}")
     if a.plot:

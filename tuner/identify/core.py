@@ -5,14 +5,15 @@ from __future__ import annotations
 import logging
 import math
 import numbers
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from ..errors import InvalidDataError
-from .data import MIN_SAMPLES, lowest_frequency_rad_s, make_record
+from .data import MIN_SAMPLES, Record, lowest_frequency_rad_s, make_record
 from .result import J_ACCEPTABLE, J_GOOD, J_POINT_MAX, FitPoints, IdentifyResult
+from .spectral import composite, frequency_response
 
 __all__ = ["MAX_POLES", "DelaySpec", "identify"]
 
@@ -80,7 +81,8 @@ def identify(
     delay: DelaySpec = "auto",
     delay_step: float | None = None,
     band: Sequence[float] | None = None,
-    holdout: float = 0.2,
+    holdout: float | str = "auto",
+    verify: Mapping[str, Any] | None = None,
     coherence_min: float = 0.6,
     n_points: int = 25,
     windows_s: Sequence[float] | None = None,
@@ -97,10 +99,13 @@ def identify(
 
     Parameters
     ----------
-    input, output : sequence of float
+    input, output : sequence of float, or a list of them
         The logged plant input (e.g. the stick or attitude command) and output (e.g. the
-        angle), equal lengths, finite, at least 128 samples.
-    time : sequence of float, optional
+        angle), equal lengths, finite, at least 128 samples. Several records (lists of
+        sequences: repeated sweeps, or the segments of a log with gaps) are fitted together:
+        their auto- and cross-spectra are averaged over all their windows (as CIFER concatenates
+        sweeps); they share the sample rate.
+    time : sequence of float (or a list of them, one per record), optional
         Sample times in seconds: strictly increasing and uniform within 1 %. Give this or
         ``rate_hz``.
     rate_hz : float, optional
@@ -120,9 +125,19 @@ def identify(
         Fit band ``[w_min, w_max]`` in rad/s. Default: the widest stretch where the coherence is
         at least ``coherence_min``. ``w_min`` may not be below what the record resolves (two
         periods in a window of half the fitted part), ``w_max`` not above 90 % of Nyquist.
-    holdout : float
-        Fraction of the record, at its end, kept out of the fit for the time-domain check
-        (0 to 0.5; 0 = no check). Put the doublets there.
+    holdout : "auto" or float
+        What the time-domain check runs on. A fraction (up to 0.5) holds out the end of the (last)
+        record; 0 = no check. ``"auto"`` (default): with ``verify``, nothing is held out; else the
+        last 20 % is held out only when it excites the coherent band (at least half of its input
+        power inside it: doublets) and keeping it out does not narrow the band (the top of the band
+        within 12 %, the width within 0.15 decades). Otherwise (the tail of a frequency sweep is its
+        incoherent high-frequency end) the whole record is fitted and the check is on the fitted
+        record, labelled so (``validation.source == "fit"``). Every check is judged against the
+        noise floor it can see (see :mod:`tuner.identify.validate`).
+    verify : mapping, optional
+        A separate verification record (CIFER verifies on doublets flown separately):
+        ``{"input": [...], "output": [...]}`` sampled like the fitted record, or with its own
+        ``"time"`` or ``"rate_hz"``. The check runs on it.
     coherence_min : float
         Frequencies with a lower coherence are not fitted (CIFER: 0.6).
     n_points : int
@@ -139,7 +154,8 @@ def identify(
     Returns
     -------
     IdentifyResult
-        Model, cost, band, frequency response, uncertainty, validation, warnings; ``.plant()`` for
+        Model, cost, band, frequency response, uncertainty, validation, warnings; ``quality`` is J's
+        verdict and ``check`` the time-domain one, side by side; ``.plant()`` for
         :func:`tuner.tune`, ``.to_control()`` (the rational part as a ``control.TransferFunction``) and
         ``.delay_s``, ``.plot()``.
 
@@ -152,41 +168,54 @@ def identify(
         The fit failed from every start.
     """
     from .fit import fit_model
-    from .spectral import coherent_band, composite, frequency_response
+    from .spectral import unexplained_rms
 
     poles = _int(poles, "poles", 1, MAX_POLES)
     zeros = _int(zeros, "zeros", 0, poles)
     step = None if delay_step is None else _float(delay_step, "delay_step", 0.0, 1e6, lo_open=True)
     delay = _delay(delay, step)
     req_band = _band(band)
-    holdout = _float(holdout, "holdout", 0.0, 0.5)
+    auto = isinstance(holdout, str) and holdout == "auto"
+    if isinstance(holdout, str) and not auto:
+        raise InvalidDataError(f"holdout must be 'auto' or a fraction from 0 to 0.5, got {holdout!r}", field="holdout")
+    holdout = AUTO_HOLDOUT if auto else _float(holdout, "holdout", 0.0, 0.5)
     coherence_min = _float(coherence_min, "coherence_min", 0.0, 1.0, lo_open=True, hi_open=True)
     n_points = _int(n_points, "n_points", 8, 200)
     n_starts = _int(n_starts, "n_starts", 1, 200)
     seed = _int(seed, "seed", 0, 2**32 - 1)
 
-    rec = make_record(input, output, time=time, rate_hz=rate_hz)
-    fit_rec, check_rec = rec.split(holdout)
-    if fit_rec.n < MIN_SAMPLES:
-        raise InvalidDataError(f"holding out {holdout:g} of {rec.n} samples leaves {fit_rec.n} to fit; at least "
+    recs = _records(input, output, time, rate_hz)
+    ver = None if verify is None else _verify_record(verify, recs[0].dt)
+    if ver is not None and auto:
+        holdout = 0.0
+    rec = recs[-1]
+    if holdout > 0:
+        head, tail = rec.split(holdout)
+        fit_recs = [*recs[:-1], head]
+    else:
+        head, tail, fit_recs = rec, None, recs
+    if min(r.n for r in fit_recs) < MIN_SAMPLES:
+        raise InvalidDataError(f"holding out {holdout:g} of {rec.n} samples leaves {head.n} to fit; at least "
                                f"{MIN_SAMPLES} are needed", field="holdout")
-    w_lowest = lowest_frequency_rad_s(fit_rec.duration_s)
-    if req_band is not None:
-        lo, hi = req_band
-        if lo < w_lowest * (1 - 1e-9):
-            need = 8 * math.pi / lo / (1.0 - holdout)
-            raise InvalidDataError(
-                f"band starts at {lo:g} rad/s, but the fitted part of the record ({fit_rec.duration_s:g} s) has too "
-                f"few cycles there: it resolves down to {w_lowest:.3g} rad/s (two periods in a window of half of "
-                f"it); record at least {need:.3g} s, or start the band at {w_lowest:.3g} rad/s or above",
-                field="band")
-        if hi > 0.9 * rec.nyquist_rad_s:
-            raise InvalidDataError(f"band ends at {hi:g} rad/s, above 90 % of the Nyquist frequency "
-                                   f"({0.9 * rec.nyquist_rad_s:.4g} rad/s at {1 / rec.dt:g} Hz): log faster, or lower "
-                                   "the band's upper end", field="band")
-    det = fit_rec.detrended()
-    fr, spectra = frequency_response(det, windows_s=windows_s)
-    used = req_band if req_band is not None else coherent_band(fr, coherence_min=coherence_min)
+    fit_dur = max(r.duration_s for r in fit_recs)
+    _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, holdout)
+    notes: list[str] = []
+    try:
+        spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
+    except InvalidDataError:
+        if not (auto and tail is not None):
+            raise
+        spectra, fr, used = None, None, None
+    if auto and tail is not None:
+        reason = ("without it there is no coherent band" if used is None else
+                  _tail_unfit(recs, tail, head, used, req_band, windows_s, coherence_min))
+        if reason:  # the whole record is fitted, and checked
+            notes.append(f"the last {holdout:.0%} of the record was not held out: {reason}; the time-domain check "
+                         "is on the fitted record (give a verification record for an independent check)")
+            fit_recs, tail = recs, None
+            fit_dur = max(r.duration_s for r in fit_recs)
+            _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, 0.0)
+            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
     w_fit = np.geomspace(used[0], used[1], n_points)
     pts = composite(spectra, w_fit)
     keep = (pts.coherence >= coherence_min) & np.isfinite(pts.h)
@@ -198,7 +227,7 @@ def identify(
             "parameters); excite the plant over the band, or choose another band",
             field="band" if req_band is not None else "output")
     w, h, coh = pts.w[keep], pts.h[keep], pts.coherence[keep]
-    tau_max = min(math.pi / used[0], fit_rec.duration_s / 4.0)
+    tau_max = min(math.pi / used[0], fit_dur / 4.0)
     out = fit_model(w, h, coh, poles=poles, zeros=zeros, delay=delay, delay_step=step, band=used,
                     tau_max=tau_max, n_starts=n_starts, seed=seed)
     model = out.model
@@ -208,21 +237,158 @@ def identify(
     points = FitPoints(w=w, mag_db=out.problem.mag_db, phase_deg=out.problem.phase_deg, coherence=coh,
                        cost=cost_terms(dm, dp, coh))
     unc = _uncertainty(out, delay)
-    val = None
-    if check_rec is not None:
-        from .validate import validate
-
-        val = validate(model, rec, fit_rec.n, u_trim=float(np.mean(fit_rec.u)))
+    val, check_u = _check(model, spectra, fit_recs, rec, head, tail, ver, holdout)
     warns = _warnings(out.cost, points, used, model, unc, val, n_points=n_points, tau_max=tau_max,
-                      delay=delay, check=check_rec, fit_u=fit_rec.u)
+                      delay=delay, check=check_u, fit_u=np.concatenate([r.u for r in fit_recs]),
+                      want_check=holdout > 0 or ver is not None)
     options = {"poles": poles, "zeros": zeros, "delay": delay, "delay_step": step,
-               "band": None if req_band is None else list(req_band), "holdout": holdout,
+               "band": None if req_band is None else list(req_band), "holdout": "auto" if auto else holdout,
                "coherence_min": coherence_min, "n_points": n_points, "n_starts": n_starts, "seed": seed,
-               "fit_starts_converged": out.starts, "delay_candidates_s": list(out.delay_candidates_s)}
+               "fit_starts_converged": out.starts, "delay_candidates_s": list(out.delay_candidates_s),
+               "records": len(recs), "verify": None if ver is None else {"n_samples": ver.n, "rate_hz": 1 / ver.dt},
+               "noise_floor_rms": unexplained_rms(spectra), "notes": notes}
     return IdentifyResult(model=model, cost=out.cost, band_rad_s=(float(used[0]), float(used[1])),
                           frequency_response=fr, fit_points=points, uncertainty=unc, validation=val,
-                          warnings=tuple(warns), rate_hz=1.0 / rec.dt, n_samples=rec.n,
-                          fit_duration_s=fit_rec.duration_s, options=options)
+                          warnings=tuple(warns), rate_hz=1.0 / rec.dt, n_samples=sum(r.n for r in recs),
+                          fit_duration_s=sum(r.duration_s for r in fit_recs), options=options)
+
+
+AUTO_HOLDOUT = 0.2
+_TAIL_IN_BAND = 0.5  # share of the tail's input power inside the band for it to count as exciting it
+_TAIL_AT_EDGES = 0.25  # share of the tail's input power in the part of the band only it makes coherent
+
+
+def _check_band(req_band: tuple[float, float] | None, fit_dur: float, nyquist: float, dt: float,
+                holdout: float) -> None:
+    if req_band is None:
+        return
+    lo, hi = req_band
+    w_lowest = lowest_frequency_rad_s(fit_dur)
+    if lo < w_lowest * (1 - 1e-9):
+        need = 8 * math.pi / lo / (1.0 - holdout)
+        raise InvalidDataError(
+            f"band starts at {lo:g} rad/s, but the fitted part of the record ({fit_dur:g} s) has too "
+            f"few cycles there: it resolves down to {w_lowest:.3g} rad/s (two periods in a window of half of "
+            f"it); record at least {need:.3g} s, or start the band at {w_lowest:.3g} rad/s or above",
+            field="band")
+    if hi > 0.9 * nyquist:
+        raise InvalidDataError(f"band ends at {hi:g} rad/s, above 90 % of the Nyquist frequency "
+                               f"({0.9 * nyquist:.4g} rad/s at {1 / dt:g} Hz): log faster, or lower "
+                               "the band's upper end", field="band")
+
+
+def _spectral(recs: list[Record], req_band: tuple[float, float] | None, windows_s: Sequence[float] | None,
+              coherence_min: float) -> tuple[list[Any], Any, tuple[float, float]]:
+    from .spectral import coherent_band, frequency_response
+
+    fr, spectra = frequency_response([r.detrended() for r in recs], windows_s=windows_s)
+    used = req_band if req_band is not None else coherent_band(fr, coherence_min=coherence_min)
+    return spectra, fr, used
+
+
+def _band_power_share(u: np.ndarray, dt: float, band: tuple[float, float]) -> float:
+    """Share of the (detrended) signal's power between ``band`` (rad/s), by its periodogram."""
+    from scipy.signal import detrend
+
+    p = np.abs(np.fft.rfft(detrend(u, type="linear"))) ** 2
+    w = 2 * np.pi * np.fft.rfftfreq(u.size, dt)
+    total = float(p[1:].sum())
+    return float(p[(w >= band[0]) & (w <= band[1])].sum() / total) if total > 0 else 0.0
+
+
+def _tail_unfit(recs: list[Record], tail: Record, head: Record, band_fit: tuple[float, float],
+                req_band: tuple[float, float] | None, windows_s: Sequence[float] | None,
+                coherence_min: float) -> str:
+    """Why the record's tail should not be held out ("" if it may): it hardly excites the band,
+    or holding it out narrows the band (the tail of a sweep)."""
+    if np.std(tail.u) < 0.05 * np.std(head.u):
+        return "it hardly excites the plant"
+    try:
+        _, _, band_all = _spectral(recs, req_band, windows_s, coherence_min)
+    except InvalidDataError:
+        band_all = band_fit
+    share = _band_power_share(tail.u, tail.dt, band_all)
+    if share < _TAIL_IN_BAND:
+        return (f"only {share:.0%} of its input power lies in the coherent band {band_all[0]:.3g}-{band_all[1]:.3g} "
+                "rad/s")
+    edges = (_band_power_share(tail.u, tail.dt, (band_fit[1], band_all[1])) if band_all[1] > band_fit[1] else 0.0) + (
+        _band_power_share(tail.u, tail.dt, (band_all[0], band_fit[0])) if band_all[0] < band_fit[0] else 0.0)
+    if edges > _TAIL_AT_EDGES:
+        return (f"{edges:.0%} of its input power lies where only it makes the data coherent (the band is "
+                f"{band_all[0]:.3g}-{band_all[1]:.3g} rad/s with it, {band_fit[0]:.3g}-{band_fit[1]:.3g} without: "
+                "it holds the top of the sweep)")
+    return ""
+
+
+def _check(model: Any, spectra: list[Any], fit_recs: list[Record], rec: Record, head: Record, tail: Record | None,
+           ver: Record | None, holdout: float) -> tuple[Any, np.ndarray | None]:
+    """The time-domain check (or ``None``) and the input it ran on (for the excitation warning)."""
+    from .spectral import unexplained_rms
+    from .validate import validate, validate_segments
+
+    if ver is not None:
+        try:
+            _, own = frequency_response(ver.detrended())
+            floor = unexplained_rms(own)
+        except InvalidDataError:  # too short for spectra: the fitted record's floor
+            floor = unexplained_rms(spectra)
+        return validate(model, ver, 0, u_trim=float(np.mean(ver.u)), noise_rms=floor, source="verify"), ver.u
+    floor = unexplained_rms(spectra)
+    if tail is not None:
+        return validate(model, rec, head.n, u_trim=float(np.mean(head.u)), noise_rms=floor), tail.u
+    if holdout > 0:  # auto fell back to the whole record
+        segs = [(r, 0, float(np.mean(r.u))) for r in fit_recs]
+        return validate_segments(model, segs, noise_rms=floor, source="fit"), None
+    return None, None
+
+
+def _records(input: Any, output: Any, time: Any, rate_hz: Any) -> list[Record]:
+    """One record, or several (lists of sequences), validated; several share the sample time."""
+    multi = _is_multi(input) or _is_multi(output)
+    if not multi:
+        return [make_record(input, output, time=time, rate_hz=rate_hz)]
+    if not (_is_multi(input) and _is_multi(output)) or len(input) != len(output):
+        raise InvalidDataError("several records: give input and output as lists of the same number of records",
+                               field="output")
+    if time is not None and not (_is_multi(time) and len(time) == len(input)):
+        raise InvalidDataError(f"several records: give time as a list of {len(input)} time columns, or rate_hz",
+                               field="time")
+    if len(input) > MAX_RECORDS:
+        raise InvalidDataError(f"{len(input)} records given; at most {MAX_RECORDS}", field="input")
+    recs = []
+    for i, (u, y) in enumerate(zip(input, output)):
+        try:
+            recs.append(make_record(u, y, time=None if time is None else time[i], rate_hz=rate_hz))
+        except InvalidDataError as e:
+            raise InvalidDataError(f"record {i + 1} of {len(input)}: {e}", field=e.field) from None
+    for i, r in enumerate(recs[1:], 2):
+        if abs(r.dt - recs[0].dt) > 1e-6 * recs[0].dt:
+            raise InvalidDataError(f"record {i} is sampled at {1 / r.dt:.6g} Hz, record 1 at {1 / recs[0].dt:.6g} Hz: "
+                                   "records fitted together share the sample rate; resample them", field="time")
+    return recs
+
+
+MAX_RECORDS = 100
+
+
+def _is_multi(x: Any) -> bool:
+    return isinstance(x, (list, tuple)) and len(x) > 0 and np.ndim(x[0]) == 1
+
+
+def _verify_record(verify: Any, dt: float) -> Record:
+    if not isinstance(verify, Mapping) or "input" not in verify or "output" not in verify:
+        raise InvalidDataError("verify must be a mapping with input and output (and optionally time or rate_hz)",
+                               field="verify")
+    extra = set(verify) - {"input", "output", "time", "rate_hz"}
+    if extra:
+        raise InvalidDataError(f"verify: unknown keys {sorted(extra)}; give input, output, time or rate_hz",
+                               field="verify")
+    t, r = verify.get("time"), verify.get("rate_hz")
+    try:
+        return make_record(verify["input"], verify["output"], time=t,
+                           rate_hz=(1.0 / dt if t is None and r is None else r))
+    except InvalidDataError as e:
+        raise InvalidDataError(f"verify: {e}", field=("verify", *e.field)) from None
 
 
 def _uncertainty(out: Any, delay: DelaySpec) -> dict:
@@ -240,9 +406,10 @@ def _uncertainty(out: Any, delay: DelaySpec) -> dict:
 
 
 def _warnings(cost: float, points: FitPoints, band: tuple[float, float], model: Any, unc: dict, val: Any, *,
-              n_points: int, tau_max: float, delay: DelaySpec, check: Any, fit_u: np.ndarray) -> list[str]:
+              n_points: int, tau_max: float, delay: DelaySpec, check: np.ndarray | None, fit_u: np.ndarray,
+              want_check: bool) -> list[str]:
     from .uncertainty import CR_LIMIT_PCT, INSENSITIVITY_LIMIT_PCT
-    from .validate import THEIL_LIMIT
+    from .validate import NOISE_RATIO_LIMIT, SOURCES, THEIL_LIMIT
 
     out: list[str] = []
     if cost > J_ACCEPTABLE:
@@ -275,13 +442,19 @@ def _warnings(cost: float, points: FitPoints, band: tuple[float, float], model: 
                        "do not determine it; fit fewer poles or zeros")
     if delay == "auto" and model.delay_s >= 0.999 * tau_max:
         out.append(f"the delay reached its upper bound ({tau_max:.3g} s): the model lacks phase lag some other way")
-    if check is not None:
+    if want_check:
         if val is None:
             out.append("no time-domain check: the held-out part is too short")
-        elif np.std(check.u) < 0.05 * np.std(fit_u):
-            out.append("the held-out part hardly excites the plant: its time-domain check means little "
+        elif check is not None and np.std(check) < 0.05 * np.std(fit_u):
+            what = "verification record" if val.source == "verify" else "held-out part"
+            out.append(f"the {what} hardly excites the plant: its time-domain check means little "
                        "(put doublets there)")
+        elif val.verdict == "fair":
+            out.append(f"time-domain check on {SOURCES[val.source]}: Theil {val.theil_u:.2f} meets the guideline, but "
+                       f"the rms error is {val.noise_ratio:.2f} times the noise floor (> {NOISE_RATIO_LIMIT:g}): the "
+                       "data show a response the model misses (more poles or zeros, another band or delay?)")
         elif not val.ok:
-            out.append(f"time-domain check on the held-out data: Theil's inequality coefficient {val.theil_u:.2f} > "
-                       f"{THEIL_LIMIT:g}: the model does not predict the held-out response")
+            out.append(f"time-domain check on {SOURCES[val.source]}: Theil's inequality coefficient {val.theil_u:.2f} "
+                       f"> {THEIL_LIMIT:g} and the rms error is {val.noise_ratio:.2f} times the noise floor "
+                       f"(> {NOISE_RATIO_LIMIT:g}): the model does not predict the measured response")
     return out

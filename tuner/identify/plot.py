@@ -1,5 +1,5 @@
 """The fit plot: Bode of the data and the fitted model with a coherence panel (like the thesis's
-Figure 4), and the held-out time-domain check below. A :class:`matplotlib.figure.Figure`, no
+Figure 4), and the time-domain check below. A :class:`matplotlib.figure.Figure`, no
 pyplot state, no backend chosen here (``savefig`` picks one for the file format).
 """
 
@@ -64,7 +64,9 @@ def fit_figure(res: Any, *, title: str | None = None, time_domain: bool = True):
     ax_c.set_xlabel("frequency (rad/s)")
     ax_c.grid(True, which="both", lw=0.3)
     ax_c.legend(loc="lower left", fontsize=8)
-    ax_m.set_title(title or f"{res.describe()}\n{res.verdict}", fontsize=9)
+    lo, hi = res.band_rad_s
+    ax_m.set_title(title or f"{res.describe()}\nJ = {res.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s: {res.quality}; "
+                   f"time-domain check: {res.check}", fontsize=9)
     if with_time:
         v = res.validation
         ax_t = axes[3]
@@ -72,7 +74,10 @@ def fit_figure(res: Any, *, title: str | None = None, time_domain: bool = True):
         ax_t.plot(v.t, v.model, lw=1.0, color="C3", ls="--", label="model, from the measured input")
         ax_t.set_xlabel("time (s)")
         ax_t.set_ylabel("output")
-        ax_t.set_title(f"held-out check: Theil {v.theil_u:.3g}, NRMSE {v.nrmse:.3g}", fontsize=9)
+        from .validate import SOURCES
+
+        ax_t.set_title(f"time-domain check on {SOURCES.get(v.source, v.source)}: Theil {v.theil_u:.3g}, rms error "
+                       f"{v.noise_ratio:.2f} x the noise floor: {v.verdict}", fontsize=9)
         ax_t.grid(True, lw=0.3)
         ax_t.legend(loc="upper right", fontsize=8)
     return fig

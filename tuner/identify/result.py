@@ -47,10 +47,11 @@ class FitPoints:
 class IdentifyResult:
     """What :func:`tuner.identify` found. ``model`` is continuous (in ``s``), with its delay.
 
-    ``cost`` is CIFER's J over ``band_rad_s``; ``quality`` is ``good``/``acceptable``/``poor`` by
-    the J guidelines (``poor`` also when the held-out time-domain check fails); ``warnings`` say
-    what to change when something is off (a poor J, poorly determined parameters, a failed
-    time-domain check, ...).
+    ``cost`` is CIFER's J over ``band_rad_s``; ``quality`` is J's verdict, ``good``/``acceptable``/
+    ``poor`` by the guidelines; ``check`` is the time-domain check's, beside it (``good``, ``fair``,
+    ``noise-limited``, ``poor`` or ``none``): neither overrules the other. ``warnings`` say what to
+    change when something is off (a poor J, poorly determined parameters, a failed time-domain
+    check, ...).
     """
 
     model: Model
@@ -68,20 +69,40 @@ class IdentifyResult:
 
     @property
     def quality(self) -> str:
-        """By CIFER's J guideline; ``"poor"`` also when the held-out check fails (Theil > 0.3)."""
-        if self.validation is not None and not self.validation.ok:
-            return "poor"
+        """J's verdict by CIFER's guideline: ``good`` (J <= 50), ``acceptable`` (<= 100), ``poor``.
+        The time-domain check is :attr:`check`, reported beside it."""
         return quality_of(self.cost)
+
+    @property
+    def check(self) -> str:
+        """The time-domain check's verdict (:attr:`Validation.verdict`): ``good`` (Theil <= 0.3, the rms
+        error within 1.5 times the noise floor the data show), ``fair`` (Theil <= 0.3, error above),
+        ``noise-limited`` (Theil above, error within), ``poor`` (both above), or ``none``."""
+        return "none" if self.validation is None else self.validation.verdict
 
     @property
     def verdict(self) -> str:
         lo, hi = self.band_rad_s
-        s = (f"{self.quality}: J = {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s "
-             f"({self.fit_points.w.size} frequencies)")
+        s = (f"J = {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s ({self.fit_points.w.size} frequencies): "
+             f"{self.quality} (CIFER: <= {J_GOOD:.0f} good, <= {J_ACCEPTABLE:.0f} acceptable)")
         if self.validation is not None:
-            v = self.validation
-            s += f"; held-out check: Theil {v.theil_u:.3g}, fit {v.fit_pct:.3g} %"
+            s += f"; time-domain check {self.validation.describe()}"
+        else:
+            s += "; no time-domain check"
         return s
+
+    def __repr__(self) -> str:
+        lo, hi = self.band_rad_s
+        pars = ", ".join(f"{k} {u.value:.4g} ± {u.cr_bound_pct:.2g} %" for k, u in self.uncertainty.items())
+        lines = [f"IdentifyResult: {self.describe()}",
+                 f"  {pars}" if pars else "  (no parameters)",
+                 f"  J {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s: {self.quality}; time-domain check: {self.check}"
+                 + (f" (Theil {self.validation.theil_u:.2f}, rms error {self.validation.noise_ratio:.2f} x noise, "
+                    f"on the {_SHORT.get(self.validation.source, self.validation.source)})"
+                    if self.validation is not None else ""),
+                 f"  {self.n_samples} samples at {self.rate_hz:.4g} Hz"
+                 + (f", {len(self.warnings)} warning(s)" if self.warnings else "")]
+        return "\n".join(lines)
 
     def plant(self):
         """The model as a :class:`tuner.plant.Plant` (continuous, with its delay) for tuning."""
@@ -106,12 +127,21 @@ class IdentifyResult:
     def describe(self) -> str:
         return self.plant().describe()
 
+    def _rational_text(self) -> str:
+        """The rational part as a plant expression (6 significant digits), without the delay."""
+        from ..plant import make_plant
+
+        num, den = self.model.tf()
+        return make_plant(num, den).describe()
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready after :func:`tuner.analysis.jsonable` (non-finite bounds become strings)."""
         return {
             "model": self.model.to_dict(),
+            "plant": self._rational_text(),  # for `tuner tune --plant`, with --delay model.delay
             "cost": self.cost,
             "quality": self.quality,
+            "check": self.check,
             "verdict": self.verdict,
             "warnings": list(self.warnings),
             "band_rad_s": list(self.band_rad_s),
@@ -149,6 +179,7 @@ class IdentifyResult:
         return fit_figure(self, title=title, time_domain=time_domain)
 
 
+_SHORT = {"holdout": "held-out end", "verify": "verification record", "fit": "fitted record"}
 _SPECIAL = {"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}
 
 

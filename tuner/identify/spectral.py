@@ -34,6 +34,8 @@ __all__ = [
     "coherent_band",
     "composite",
     "frequency_response",
+    "pooled",
+    "unexplained_rms",
     "window_lengths",
     "window_spectra",
 ]
@@ -144,9 +146,14 @@ def window_spectra(rec: Record, window_s: float) -> WindowSpectra:
                          guu=guu, gyy=gyy, guy=guy)
 
 
-def composite(spectra: Sequence[WindowSpectra], w: np.ndarray) -> FrequencyResponse:
-    """Merge the windows' spectra at ``w`` (rad/s), weighted by their random error."""
-    w = np.asarray(w, dtype=float)
+def _merge(spectra: Sequence[WindowSpectra], w: np.ndarray, *, noise: bool = False
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The windows' spectra at ``w`` merged: ``guu, gyy, guy`` and where any window counts.
+
+    Weights: the inverse random error of the response, ``2 n_d gamma^2 / (1 - gamma^2)`` (the
+    composite); with ``noise``, ``n_d (1 + gamma^2) / (1 - gamma^2)``, which is the same where the
+    coherence is high and a plain average over all segments where it is low (for the residual
+    spectrum, where a coherence-only weight would leave nothing)."""
     acc = [np.zeros(w.size), np.zeros(w.size), np.zeros(w.size, dtype=complex)]
     wsum = np.zeros(w.size)
     for sp in spectra:
@@ -154,7 +161,7 @@ def composite(spectra: Sequence[WindowSpectra], w: np.ndarray) -> FrequencyRespo
         with np.errstate(divide="ignore", invalid="ignore"):
             coh = np.nan_to_num(np.abs(guy) ** 2 / (guu * gyy), nan=0.0)
         coh = np.clip(coh, 0.0, _COH_CLIP)
-        weight = 2.0 * sp.n_avg * coh / (1.0 - coh)
+        weight = sp.n_avg * ((1.0 + coh) if noise else 2.0 * coh) / (1.0 - coh)
         weight[(w < 4.0 * np.pi / sp.window_s) | (w > sp.w[-1])] = 0.0
         for a, g in zip(acc, (guu, gyy, guy)):
             a += weight * g
@@ -162,19 +169,67 @@ def composite(spectra: Sequence[WindowSpectra], w: np.ndarray) -> FrequencyRespo
     ok = wsum > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         guu, gyy, guy = (np.where(ok, a / np.where(ok, wsum, 1.0), 0.0) for a in acc)
+    return guu, gyy, guy, ok
+
+
+def composite(spectra: Sequence[WindowSpectra], w: np.ndarray) -> FrequencyResponse:
+    """Merge the windows' spectra at ``w`` (rad/s), weighted by their random error."""
+    w = np.asarray(w, dtype=float)
+    guu, gyy, guy, ok = _merge(spectra, w)
+    with np.errstate(divide="ignore", invalid="ignore"):
         h = np.where(ok & (guu > 0), guy / np.where(guu > 0, guu, 1.0), np.nan + 0j)
         coh = np.where(ok & (guu > 0) & (gyy > 0), np.abs(guy) ** 2 / np.where(ok, guu * gyy, 1.0), 0.0)
     return FrequencyResponse(w=w, h=h, coherence=np.clip(np.nan_to_num(coh), 0.0, 1.0),
                              windows_s=tuple(sp.window_s for sp in spectra))
 
 
-def frequency_response(rec: Record, *, w_min_rad_s: float | None = None, w_max_rad_s: float | None = None,
+def unexplained_rms(spectra: Sequence[WindowSpectra]) -> float:
+    """The rms of the output that no linear model of the input explains: ``sqrt(int G_nn dw / 2 pi)``
+    with the residual spectrum ``G_nn = G_yy - |G_uy|^2 / G_uu = G_yy (1 - gamma^2)`` (Bendat &
+    Piersol), merged over the windows and integrated from the lowest resolved frequency to Nyquist.
+
+    This is the noise floor of a time-domain check: sensor noise, the response to unmeasured
+    inputs (gusts) and nonlinearity, as the record shows them; a perfect model's residual has
+    about this rms. Slower wander (below two periods of the longest window) is not counted; the
+    check removes a bias and a linear drift. Spectral leakage and the per-segment detrending bias
+    the coherence of even noise-free data slightly below 1, which adds a few per cent of the
+    output's rms (in quadrature) to the floor."""
+    longest = max(spectra, key=lambda sp: sp.window_s)
+    top = float(min(sp.w[-1] for sp in spectra))
+    lo = 4.0 * np.pi / longest.window_s
+    if not lo < top:
+        return float("nan")
+    w = np.geomspace(lo, top, max(16, int(np.ceil(POINTS_PER_DECADE * np.log10(top / lo))) + 1))
+    guu, gyy, guy, ok = _merge(spectra, w, noise=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gnn = np.where(ok & (guu > 0), gyy - np.abs(guy) ** 2 / np.where(guu > 0, guu, 1.0), gyy)
+    gnn = np.clip(gnn, 0.0, None)
+    return float(np.sqrt(np.trapezoid(gnn, w) / (2.0 * np.pi)))
+
+
+def pooled(group: Sequence[WindowSpectra]) -> WindowSpectra:
+    """One window length's spectra of several records combined: the auto- and cross-spectra
+    averaged over all their segments (Welch's average over the union of the records' windows, as
+    CIFER concatenates repeated sweeps). The records share the sample time and the window."""
+    if len(group) == 1:
+        return group[0]
+    n = np.array([sp.n_avg for sp in group])
+    g = [sum(k * getattr(sp, a) for k, sp in zip(n, group)) / n.sum() for a in ("guu", "gyy", "guy")]
+    return WindowSpectra(window_s=group[0].window_s, n_avg=float(n.sum()), w=group[0].w, guu=g[0], gyy=g[1], guy=g[2])
+
+
+def frequency_response(rec: Record | Sequence[Record], *, w_min_rad_s: float | None = None,
+                       w_max_rad_s: float | None = None,
                        windows_s: Sequence[float] | None = None) -> tuple[FrequencyResponse, list[WindowSpectra]]:
     """The composite response of a (detrended) record on a log grid, and the window spectra.
 
     The grid runs from the lowest frequency the longest window resolves (``w_min_rad_s`` if
     higher) to 90 % of the Nyquist frequency (``w_max_rad_s`` if lower), 40 points per decade.
+    Several records (same sample time): the windows are chosen for the longest, and each window's
+    spectra are :func:`pooled` over the records that hold it.
     """
+    recs = [rec] if isinstance(rec, Record) else list(rec)
+    rec = max(recs, key=lambda r: r.n)
     top = 0.9 * rec.nyquist_rad_s if w_max_rad_s is None else min(w_max_rad_s, 0.9 * rec.nyquist_rad_s)
     if windows_s is None:
         windows_s = window_lengths(rec.duration_s, rec.dt, w_max_rad_s=top)
@@ -182,7 +237,8 @@ def frequency_response(rec: Record, *, w_min_rad_s: float | None = None, w_max_r
         if not (np.isfinite(t) and 64 * rec.dt <= t <= rec.duration_s):
             raise InvalidDataError(f"window of {t} s: windows must hold at least 64 samples and at most the "
                                    f"whole record ({rec.duration_s:g} s)", field="windows_s")
-    spectra = [window_spectra(rec, t) for t in sorted(windows_s, reverse=True)]
+    spectra = [pooled([window_spectra(r, t) for r in recs if r.n >= round(t / rec.dt)] or [window_spectra(rec, t)])
+               for t in sorted(windows_s, reverse=True)]
     lo = 4.0 * np.pi / spectra[0].window_s
     if w_min_rad_s is not None:
         lo = max(lo, w_min_rad_s)

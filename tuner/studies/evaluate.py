@@ -222,7 +222,7 @@ def identification_summary(lp: LoopDef) -> dict[str, Any]:
     val = d["validation"]
     if val is not None:
         val = {k: v for k, v in val.items() if k != "series"}
-    keep = ("model", "cost", "quality", "verdict", "warnings", "band_rad_s", "uncertainty", "rate_hz", "n_samples",
-            "fit_duration_s")
+    keep = ("model", "cost", "quality", "check", "verdict", "warnings", "band_rad_s", "uncertainty", "rate_hz",
+            "n_samples", "fit_duration_s")
     return {"file": lp.data.file if lp.data else None, **{k: d[k] for k in keep}, "validation": val,
             "plant": identified(lp).describe()}

@@ -182,8 +182,13 @@ def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
     L = ["## Identified plants", "",
          "Plants given as flight logs were identified before tuning (`tuner.identify`): frequency response and "
          "coherence from composite Welch windows, a transfer function fitted over the coherent band by CIFER's "
-         "cost J (<= 50 good, <= 100 acceptable), Cramér–Rao bounds (guideline <= 20 %), and the model simulated "
-         "on the held-out end of the log (Theil's inequality coefficient, guideline <= 0.3). The delay is fitted "
+         "cost J (<= 50 good, <= 100 acceptable), Cramér–Rao bounds (guideline <= 20 %), and a time-domain check: "
+         "the model simulated on a verification log, the held-out end of the log, or (when that end is the top of "
+         "the sweep) the fitted log, Theil's inequality coefficient (guideline <= 0.3) judged beside the noise "
+         "floor the data show (the rms error over the rms a perfect model would leave): good (Theil <= 0.3, error "
+         "within 1.5 times the floor), fair (Theil <= 0.3, error above), noise-limited (Theil above, error within), "
+         "poor (both above). J's verdict and the check's are reported side "
+         "by side. The delay is fitted "
          "in whole samples of the loop's dt. The loops below were tuned and verified on these models.", ""]
     rows, notes = [], []
     for lp in loops:
@@ -191,7 +196,7 @@ def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
         d = lp.data
         src = f"`{d.file}`: {d.input} → {d.output}" if d else ""
         if not ident:
-            rows.append([lp.name, src, f"error: {results.get(lp.name, {}).get('error', 'no result')}"] + ["—"] * 6)
+            rows.append([lp.name, src, f"error: {results.get(lp.name, {}).get('error', 'no result')}"] + ["—"] * 7)
             continue
         unc = ident.get("uncertainty", {})
         worst = max(unc.items(), key=lambda kv: _as_float(kv[1].get("cr_bound_pct")), default=None)
@@ -200,10 +205,11 @@ def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
         rows.append([lp.name, src, f"`{ident.get('plant', '')}`", f"{num(band[0])}–{num(band[1])}",
                      num(ident.get("cost")), ident.get("quality", "—"),
                      f"{num(worst[1].get('cr_bound_pct'))} ({worst[0]})" if worst else "—",
-                     num(val.get("theil_u")), num(val.get("nrmse"))])
+                     f"{ident.get('check', '—')} ({val.get('source', '—')})" if val else "none",
+                     num(val.get("theil_u")), num(val.get("noise_ratio"))])
         notes += [f"- **{lp.name}**: {w}" for w in ident.get("warnings", [])]
-    L += _table(["loop", "log", "identified model", "band [rad/s]", "J", "quality", "largest CR bound [%]",
-                 "Theil (held out)", "NRMSE (held out)"], rows)
+    L += _table(["loop", "log", "identified model", "band [rad/s]", "J", "J's verdict", "largest CR bound [%]",
+                 "time-domain check (on)", "Theil", "rms error / noise floor"], rows)
     if notes:
         L += ["Warnings of the fits:", "", *notes, ""]
     for lp in loops:

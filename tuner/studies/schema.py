@@ -47,7 +47,7 @@ import math
 import tomllib
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
@@ -79,23 +79,31 @@ class PlantData(BaseModel):
     """A plant given as a flight log: the options of :func:`tuner.identify` and where the columns are."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    file: str = Field(min_length=1, description="CSV log, relative to the study file")
-    input: str = Field(min_length=1, description="column of the plant input")
-    output: str = Field(min_length=1, description="column of the plant output")
-    time: str | None = Field(None, min_length=1, description="time column, s (or rate_hz)")
-    rate_hz: float | None = Field(None, gt=0, description="sample rate, Hz (or time)")
+    file: str = Field(min_length=1, description="CSV or PX4 ULog (.ulg) log, relative to the study file")
+    input: str = Field(min_length=1, description="column of the plant input (ULog: TOPIC[:N].FIELD)")
+    output: str = Field(min_length=1, description="column of the plant output (ULog: TOPIC[:N].FIELD)")
+    time: str | None = Field(None, min_length=1, description="time column, s (or rate_hz); not for ULog")
+    rate_hz: float | None = Field(None, gt=0, description="sample rate, Hz (or time); ULog: the resampling grid "
+                                  "(default: the slower topic's rate)")
+    verify: str | None = Field(None, min_length=1, description="a separate verification log (same columns or "
+                               "signals), relative to the study file: the time-domain check runs on it")
     poles: int = Field(ge=1, le=8)
     zeros: int = Field(0, ge=0, le=8)
     delay: Literal["auto", "none"] | float = Field("auto", description='"auto", "none", or seconds (whole samples)')
     band: list[float] | None = Field(None, min_length=2, max_length=2, description="fit band [w_min, w_max], rad/s")
-    holdout: float = Field(0.2, ge=0, le=0.5)
+    holdout: Literal["auto"] | Annotated[float, Field(ge=0, le=0.5)] = Field(
+        "auto", description='time-domain check data: "auto", a fraction held out at the end, or 0 (none)')
     coherence_min: float = Field(0.6, gt=0, lt=1)
     n_points: int = Field(25, ge=8, le=200)
     _path: Path | None = PrivateAttr(None)  # the file resolved against the study's directory
+    _verify_path: Path | None = PrivateAttr(None)
 
     @model_validator(mode="after")
     def _consistent(self) -> PlantData:
-        if (self.time is None) == (self.rate_hz is None):
+        if self.file.lower().endswith(".ulg"):
+            if self.time is not None:
+                raise ValueError("data: a ULog log has no time column (its topics are resampled at rate_hz)")
+        elif (self.time is None) == (self.rate_hz is None):
             raise ValueError("data: give exactly one of time (a column) or rate_hz")
         if self.zeros > self.poles:
             raise ValueError(f"data: zeros={self.zeros} is more than poles={self.poles}")
@@ -279,6 +287,9 @@ def load_study(path: str | Path) -> StudyDef:
         if lp.data is not None:
             f = Path(lp.data.file)
             lp.data._path = f if f.is_absolute() else p.resolve().parent / f
+            if lp.data.verify is not None:
+                v = Path(lp.data.verify)
+                lp.data._verify_path = v if v.is_absolute() else p.resolve().parent / v
     for lp in study.loop:  # build every plant and printed controller once, so errors surface early
         try:
             base_plants(lp)
@@ -299,6 +310,13 @@ def data_path(d: PlantData) -> Path:
     return d._path if d._path is not None else Path(d.file)
 
 
+def verify_path(d: PlantData) -> Path | None:
+    """Where a data loop's verification log is (``None``: none)."""
+    if d.verify is None:
+        return None
+    return d._verify_path if d._verify_path is not None else Path(d.verify)
+
+
 def _digest(path: Path) -> str:
     st = path.stat()
     return _digest_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
@@ -309,18 +327,42 @@ def _digest_cached(path: str, mtime_ns: int, size: int) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-@lru_cache(maxsize=32)
-def _identify_cached(path: str, digest: str, options: str, dt: float | None) -> Any:
-    from ..identify import identify
+def _read_log(path: str, o: dict[str, Any]) -> dict[str, Any]:
+    """A data loop's log as :func:`tuner.identify` arguments (a ULog log split at gaps: several records)."""
     from ..identify.csvlog import read_columns
+    from ..identify.ulog import is_ulog, read_ulog
 
-    o = json.loads(options)
+    if is_ulog(path):
+        r = read_ulog(path, {"input": o["input"], "output": o["output"]}, rate_hz=o["rate_hz"])
+        one = len(r.inputs) == 1
+        return {"input": r.inputs[0] if one else r.inputs, "output": r.outputs[0] if one else r.outputs,
+                "time": None, "rate_hz": r.rate_hz}
     cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {})}
     data = read_columns(path, cols)
+    return {"input": data["input"], "output": data["output"], "time": data.get("time"), "rate_hz": o["rate_hz"]}
+
+
+@lru_cache(maxsize=32)
+def _identify_cached(path: str, digest: str, options: str, dt: float | None, verify: str | None = None,
+                     verify_digest: str | None = None) -> Any:
+    from ..identify import identify
+
+    o = json.loads(options)
+    data = _read_log(path, o)
+    ver = None
+    if verify is not None:
+        try:
+            v = _read_log(verify, o)
+        except TunerError as e:
+            raise type(e)(f"verify {o['verify']}: {e}", field=("verify", *e.field)) from None
+        if isinstance(v["input"], list):
+            raise InvalidStudyError(f"data.verify ({o['verify']}): the verification log has gaps; give one "
+                                    "continuous record")
+        ver = {k: v[k] for k in ("input", "output", "time", "rate_hz") if v[k] is not None}
     delay = None if o["delay"] == "none" else o["delay"]
-    return identify(data["input"], data["output"], time=data.get("time"), rate_hz=o["rate_hz"], poles=o["poles"],
+    return identify(data["input"], data["output"], time=data["time"], rate_hz=data["rate_hz"], poles=o["poles"],
                     zeros=o["zeros"], delay=delay, delay_step=dt, band=o["band"], holdout=o["holdout"],
-                    coherence_min=o["coherence_min"], n_points=o["n_points"])
+                    verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"])
 
 
 def identified(lp: LoopDef) -> Any:
@@ -329,12 +371,15 @@ def identified(lp: LoopDef) -> Any:
     if lp.data is None:
         raise InvalidStudyError(f"loop {lp.name!r} has no data")
     path = data_path(lp.data)
+    vpath = verify_path(lp.data)
     try:
         digest = _digest(path)
+        vdigest = None if vpath is None else _digest(vpath)
     except OSError as e:
-        raise InvalidStudyError(f"data: {path}: cannot read: {e.strerror or e}") from None
+        raise InvalidStudyError(f"data: {e.filename or path}: cannot read: {e.strerror or e}") from None
     try:
-        return _identify_cached(str(path), digest, lp.data.model_dump_json(), lp.dt)
+        return _identify_cached(str(path), digest, lp.data.model_dump_json(), lp.dt,
+                                None if vpath is None else str(vpath), vdigest)
     except TunerError as e:
         where = "data." + ".".join(str(x) for x in e.field) if e.field else "data"
         raise type(e)(f"{where} ({lp.data.file}): {e}", field=("data", *e.field)) from e
@@ -388,6 +433,12 @@ def loop_key(study: StudyDef, name: str) -> str:
                 entry["data_sha256"] = _digest(data_path(lp.data))
             except OSError:
                 entry["data_sha256"] = None
+            vp = verify_path(lp.data)
+            if vp is not None:
+                try:
+                    entry["verify_sha256"] = _digest(vp)
+                except OSError:
+                    entry["verify_sha256"] = None
         parts.append(entry)
     blob = json.dumps({"seed": study.seed, "budget": study.time_budget_s, "loops": parts}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]

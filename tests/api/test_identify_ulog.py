@@ -1,0 +1,93 @@
+"""``POST /identify`` with a PX4 ULog upload (base64), a verification record, and the two verdicts."""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import pytest
+from flight import AXES, fly
+from ulog_writer import Topic, write_ulog
+
+from api.settings import Settings
+
+IN, OUT = "vehicle_torque_setpoint.xyz[0]", "vehicle_angular_velocity.xyz[0]"
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory):
+    db = tmp_path_factory.mktemp("api-identify-ulog") / "tuner.db"
+    return Settings(database_url=f"sqlite:///{db}", workers=1, queue_size=4, max_body_bytes=16_384,
+                    max_identify_body_bytes=16_000_000)
+
+
+@pytest.fixture(scope="module")
+def log():
+    return fly(*AXES["roll"], seed=9, duration_s=60.0)
+
+
+@pytest.fixture(scope="module")
+def ulog_b64(log, tmp_path_factory):
+    ts = 1_000_000 + np.round(log.t * 1e6).astype(int)
+    vec = lambda x: np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    p = write_ulog(tmp_path_factory.mktemp("ulog") / "roll.ulg", [
+        Topic("vehicle_torque_setpoint", [("float", "xyz", 3)], ts, {"xyz": vec(log.u)}),
+        Topic("vehicle_angular_velocity", [("float", "xyz", 3)], ts + 4000, {"xyz": vec(log.y)})])
+    return base64.b64encode(p.read_bytes()).decode()
+
+
+def _422(client, body, loc, match):
+    r = client.post("/identify", json=body)
+    assert r.status_code == 422, r.text
+    item = r.json()["detail"][0]
+    assert item["loc"] == loc and match in item["msg"], item
+    return item
+
+
+def test_a_ulog_upload_is_identified_and_stored(client, log, ulog_b64):
+    r = client.post("/identify", json={"ulog": {"data": ulog_b64, "input": IN, "output": OUT}, "poles": 2,
+                                       "rate_hz": 50.0})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["quality"] == "good" and d["check"] in ("good", "noise-limited") and "_samples" not in d
+    assert d["model"]["parameters"]["pole_wn_1_rad_s"] == pytest.approx(14.8528, rel=0.05)
+    rec = client.get(f"/identifications/{d['id']}").json()
+    assert rec["request"]["sampling"] == "ulog" and rec["request"]["ulog"]["output"] == OUT
+    data = client.get(f"/identifications/{d['id']}/data").json()
+    assert data["rate_hz"] == 50.0 and len(data["input"]) == d["n_samples"] == sum(data["record_lengths"])
+    # the gyro's first sample is 4 ms after the first command: the grid starts on the second command
+    assert data["input"][:3] == pytest.approx(log.u[1:4].astype(np.float32).tolist(), abs=1e-6)
+
+
+def test_ulog_errors_are_422_naming_the_field(client, ulog_b64, log):
+    base = {"ulog": {"data": ulog_b64, "input": IN, "output": OUT}, "poles": 2}
+    it = _422(client, {**base, "ulog": {**base["ulog"], "output": "vehicle_rates.xyz[0]"}},
+              ["body", "ulog", "output"], "no topic 'vehicle_rates' in the log; topics: ['vehicle_angular_velocity', "
+                                          "'vehicle_torque_setpoint']")
+    assert it["type"] == "invalid_data"
+    _422(client, {**base, "ulog": {**base["ulog"], "input": "vehicle_torque_setpoint.q"}},
+         ["body", "ulog", "input"], "has no field 'q'; fields: ['xyz[0]', 'xyz[1]', 'xyz[2]']")
+    _422(client, {**base, "ulog": {**base["ulog"], "data": "not base64!" * 4}}, ["body", "ulog", "data"], "not base64")
+    junk = base64.b64encode(b"\x00" * 64).decode()
+    _422(client, {**base, "ulog": {**base["ulog"], "data": junk}}, ["body", "ulog", "data"], "not a readable ULog")
+    _422(client, {**base, "input": log.u.tolist()}, ["body", "input"], "give either ulog or input")
+    _422(client, {"poles": 2, "rate_hz": 50.0}, ["body", "input"], "give input and output samples (or a ulog log)")
+
+
+def test_a_verification_record_and_the_verdicts_side_by_side(client, log):
+    ver = fly(*AXES["roll"], seed=19, duration_s=30.0)
+    body = {"input": log.u.tolist(), "output": log.y.tolist(), "rate_hz": 50.0, "poles": 2,
+            "verify": {"input": ver.u.tolist(), "output": ver.y.tolist()}}
+    r = client.post("/identify", json=body)
+    assert r.status_code == 200, r.text
+    d = r.json()
+    v = d["validation"]
+    assert v["source"] == "verify" and v["duration_s"] == pytest.approx(30.0, abs=0.05)
+    assert d["check"] == v["verdict"] and v["noise_rms"] > 0 and v["noise_ratio"] == pytest.approx(
+        v["rms_error"] / v["noise_rms"])
+    assert "J = " in d["verdict"] and "time-domain check on the verification record" in d["verdict"]
+    _422(client, {**body, "verify": {**body["verify"], "output": ver.y.tolist()[:-1]}}, ["body", "verify", "output"],
+         "output has")
+    it = _422(client, {**body, "verify": {"input": [0.5] * 200, "output": ver.y.tolist()[:200]}},
+              ["body", "verify", "input"], "verify: input is constant")
+    assert it["type"] == "invalid_data"

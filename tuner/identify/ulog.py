@@ -1,0 +1,243 @@
+"""Reading PX4 flight logs (ULog, ``.ulg``) through :mod:`pyulog`: two topic fields onto one uniform grid.
+
+A signal is named ``TOPIC.FIELD`` (``vehicle_angular_velocity.xyz[0]``), ``TOPIC:N.FIELD`` for
+instance ``N`` of a multi-instance topic (default 0); nested fields keep pyulog's dotted names.
+Each topic has its own ``timestamp`` (µs; for the output, its ``timestamp_sample`` when the topic has
+one: the instant of the measurement, not of the publication): topics are asynchronous, so both signals are put onto
+one uniform grid at ``rate_hz`` (default: the slower topic's median rate), over the time both
+cover, starting on an input sample:
+
+* the **input** (an actuator command or a torque/attitude setpoint) by **zero-order hold**: the
+  value last published at or before each grid time. That is what the plant saw: the mixer and
+  the ESCs hold a command until the next one arrives, so interpolating it would invent values
+  that were never applied (and hide up to one publication interval of delay);
+* the **output** (a measured rate or angle, a sample of a continuous signal) by **linear
+  interpolation** between the two samples around each grid time (error of order
+  ``dt^2 * y''/8``; no delay). Neither is low-pass filtered: choose ``rate_hz`` at or below the
+  slower topic's rate, since faster content aliases as in any resampling by point evaluation.
+
+**Gaps**: an interval between a topic's samples longer than :data:`GAP_FACTOR` times its median
+interval (and than two grid steps), or a logged dropout (ULog ``O`` message), splits the record.
+The grid stops before and restarts after every gap, in either signal; each piece long enough
+(:data:`~tuner.identify.data.MIN_SAMPLES` grid samples) becomes one record, and the records are
+fitted together (their spectra averaged, as CIFER combines sweeps); shorter pieces are dropped
+and reported. A log with no piece long enough is refused, naming the gaps.
+
+Every error is an :class:`~tuner.errors.InvalidDataError` whose ``field`` is the role
+(``"input"``, ``"output"``, ``"file"``, ``"rate_hz"``); a wrong topic lists the topics in the
+log, a wrong field the fields of the topic.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from ..errors import InvalidDataError
+from .data import MAX_SAMPLES, MIN_SAMPLES
+
+__all__ = ["GAP_FACTOR", "MAX_ULOG_BYTES", "ULogRecords", "is_ulog", "parse_signal", "read_ulog"]
+
+GAP_FACTOR = 5.0
+MAX_ULOG_BYTES = 2_000_000_000
+MAGIC = b"ULog\x01\x12\x35"
+_SIGNAL = re.compile(r"^(?P<topic>[A-Za-z0-9_]+)(?::(?P<inst>\d{1,3}))?\.(?P<field>[A-Za-z0-9_.\[\]]+)$")
+
+
+@dataclass(frozen=True)
+class ULogRecords:
+    """The signals on the grid: one ``(input, output)`` pair per piece between gaps, and what was done."""
+
+    inputs: list[np.ndarray]
+    outputs: list[np.ndarray]
+    rate_hz: float
+    t_starts_s: list[float]  # the first grid time of each piece, s from the log's start
+    gaps: list[tuple[float, float]] = field(default_factory=list)  # (from, to), s
+    dropped: list[tuple[float, float]] = field(default_factory=list)  # pieces too short to use, s
+
+    def describe(self) -> str:
+        n = sum(u.size for u in self.inputs)
+        s = f"{len(self.inputs)} record(s), {n} samples at {self.rate_hz:.4g} Hz"
+        if self.gaps:
+            s += f"; split at {len(self.gaps)} gap(s): " + ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in self.gaps[:5])
+        if self.dropped:
+            s += f"; {len(self.dropped)} piece(s) too short dropped"
+        return s
+
+
+def is_ulog(path: str | Path) -> bool:
+    """Whether the file is named ``.ulg`` or starts with the ULog magic bytes."""
+    p = Path(path)
+    if p.suffix.lower() == ".ulg":
+        return True
+    try:
+        with p.open("rb") as f:
+            return f.read(7) == MAGIC
+    except OSError:
+        return False
+
+
+def parse_signal(text: str, role: str) -> tuple[str, int, str]:
+    """``"topic:1.xyz[0]"`` -> ``("topic", 1, "xyz[0]")``."""
+    m = _SIGNAL.match(text.strip())
+    if m is None:
+        raise InvalidDataError(f"{role} {text!r}: name a ULog signal as TOPIC.FIELD, TOPIC:INSTANCE.FIELD, e.g. "
+                               "vehicle_angular_velocity.xyz[0] or actuator_controls_0:1.control[1]", field=role)
+    return m["topic"], int(m["inst"] or 0), m["field"]
+
+
+def _load(src: str | Path | bytes, topics: list[str] | None) -> Any:
+    from pyulog import ULog
+
+    name = "the upload" if isinstance(src, bytes) else str(src)
+    if not isinstance(src, bytes):
+        p = Path(src)
+        try:
+            size = p.stat().st_size
+            if not p.is_file():
+                raise InvalidDataError(f"{p}: not a regular file", field="file")
+        except OSError as e:
+            raise InvalidDataError(f"{p}: cannot read: {e.strerror or e}", field="file") from None
+        if size > MAX_ULOG_BYTES:
+            raise InvalidDataError(f"{p}: {size} bytes; at most {MAX_ULOG_BYTES} (cut the log)", field="file")
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its corruption notices
+            return ULog(io.BytesIO(src) if isinstance(src, bytes) else str(src), message_name_filter_list=topics)
+    except Exception as e:  # pyulog raises its own and struct/value errors for a file it cannot parse
+        raise InvalidDataError(f"{name}: not a readable ULog file ({type(e).__name__}: {e})", field="file") from None
+
+
+def _topics_in(src: str | Path | bytes) -> list[str]:
+    """Every ``topic:instance`` logged, for the error message."""
+    ul = _load(src, None)
+    return sorted({f"{d.name}:{d.multi_id}" if d.multi_id else d.name for d in ul.data_list})
+
+
+def _series(ul: Any, src: Any, role: str, spec: str) -> tuple[np.ndarray, np.ndarray]:
+    topic, inst, fld = parse_signal(spec, role)
+    found = [d for d in ul.data_list if d.name == topic]
+    data = next((d for d in found if d.multi_id == inst), None)
+    if data is None:
+        if found:
+            insts = sorted(d.multi_id for d in found)
+            raise InvalidDataError(f"{role} {spec!r}: topic {topic!r} has instances {insts}, not {inst}",
+                                   field=role)
+        raise InvalidDataError(f"{role} {spec!r}: no topic {topic!r} in the log; topics: {_topics_in(src)}",
+                               field=role)
+    if fld not in data.data or fld in ("timestamp", "timestamp_sample"):
+        fields = [k for k in data.data if k not in ("timestamp", "timestamp_sample") and not k.startswith("_padding")]
+        raise InvalidDataError(f"{role} {spec!r}: topic {topic!r} has no field {fld!r}; fields: {fields}",
+                               field=role)
+    # the output at the instant it was measured (PX4's timestamp_sample, when the topic has it); the input at
+    # its publication, when it was applied
+    clock = "timestamp_sample" if role == "output" and "timestamp_sample" in data.data else "timestamp"
+    t = np.asarray(data.data[clock], dtype=np.float64) * 1e-6
+    x = np.asarray(data.data[fld], dtype=np.float64)
+    keep = t > 0  # pyulog's convention: a zero timestamp is not a sample
+    t, x = t[keep], x[keep]
+    if t.size < 2:
+        raise InvalidDataError(f"{role} {spec!r}: {t.size} samples in the log", field=role)
+    order = np.argsort(t, kind="stable")
+    t, x = t[order], x[order]
+    last = np.r_[t[1:] != t[:-1], True]  # a repeated timestamp: its last value
+    t, x = t[last], x[last]
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        raise InvalidDataError(f"{role} {spec!r}: {bad.size} non-finite samples (first at {t[bad[0]]:.6f} s); "
+                               "remove or interpolate them", field=role)
+    return t, x
+
+
+def _gaps(t: np.ndarray, grid_dt: float) -> list[tuple[float, float]]:
+    d = np.diff(t)
+    lim = max(GAP_FACTOR * float(np.median(d)), 2.0 * grid_dt)
+    return [(float(t[i]), float(t[i + 1])) for i in np.flatnonzero(d > lim)]
+
+
+def _merge(gaps: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    out: list[list[float]] = []
+    for a, b in sorted(gaps):
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
+              rate_hz: float | None = None) -> ULogRecords:
+    """The ``columns`` (``{"input": "topic.field", "output": "topic.field"}``) of a ULog log on a uniform grid.
+
+    ``src`` is a path, the file's bytes, or a binary file object (an upload). See the module's notes on the
+    interpolation (input held, output linear) and on gaps.
+    """
+    if set(columns) != {"input", "output"}:
+        raise InvalidDataError("a ULog log needs input and output signals (TOPIC.FIELD)", field="input")
+    specs = {role: parse_signal(columns[role], role) for role in ("input", "output")}
+    if not isinstance(src, (str, Path, bytes)):
+        src = src.read(MAX_ULOG_BYTES + 1)
+        if len(src) > MAX_ULOG_BYTES:
+            raise InvalidDataError(f"the upload holds more than {MAX_ULOG_BYTES} bytes (cut the log)", field="file")
+    ul = _load(src, sorted({s[0] for s in specs.values()}))
+    (tu, xu), (ty, xy) = (_series(ul, src, role, columns[role]) for role in ("input", "output"))
+    t0 = float(ul.start_timestamp) * 1e-6  # times are reported from the logger's start
+    if rate_hz is None:
+        rate_hz = float(min(1.0 / np.median(np.diff(tu)), 1.0 / np.median(np.diff(ty))))
+        rate_hz = float(f"{rate_hz:.3g}")  # 249.8 Hz of a jittery 250 Hz topic -> 250
+    else:
+        try:
+            rate_hz = float(rate_hz)
+        except (TypeError, ValueError):
+            raise InvalidDataError(f"rate_hz must be a number, got {rate_hz!r}", field="rate_hz") from None
+        if not (math.isfinite(rate_hz) and 0 < rate_hz <= 1e5):
+            raise InvalidDataError(f"rate_hz must be in (0, 1e5] Hz, got {rate_hz!r}", field="rate_hz")
+    dt = 1.0 / rate_hz
+    gaps = _gaps(tu, dt) + _gaps(ty, dt)
+    for d in getattr(ul, "dropouts", []) or []:  # the logger's own dropout notices (ms)
+        a = float(d.timestamp) * 1e-6
+        gaps.append((a, a + float(d.duration) * 1e-3))
+    gaps = _merge(gaps)
+    lo, hi = max(tu[0], ty[0]), min(tu[-1], ty[-1])
+    if not hi - lo > dt:
+        raise InvalidDataError(f"input ({tu[0] - t0:.3f}-{tu[-1] - t0:.3f} s) and output ({ty[0] - t0:.3f}-"
+                               f"{ty[-1] - t0:.3f} s) do not overlap in time", field="output")
+    if (hi - lo) * rate_hz > MAX_SAMPLES:
+        raise InvalidDataError(f"{(hi - lo) * rate_hz:.0f} grid samples at {rate_hz:g} Hz; at most {MAX_SAMPLES} "
+                               "(lower --rate)", field="rate_hz")
+    # the pieces between gaps: [lo, a1], [b1, a2], ... within [lo, hi]
+    edges, start = [], lo
+    for a, b in gaps:
+        if b <= lo or a >= hi:
+            continue
+        edges.append((start, min(a, hi)))
+        start = max(b, lo)
+    edges.append((start, hi))
+    inputs, outputs, starts, dropped = [], [], [], []
+    for a0, b in edges:
+        i0 = int(np.searchsorted(tu, a0 - 1e-9))  # the grid starts on an input sample: held values are exact
+        a = float(tu[i0]) if i0 < tu.size else b + 1.0
+        n = int(math.floor((b - a) / dt + 1e-9)) + 1 if a <= b else 0
+        if n < MIN_SAMPLES:
+            if b > a0:
+                dropped.append((a0 - t0, b - t0))
+            continue
+        tg = a + dt * np.arange(n)
+        iu = np.searchsorted(tu, tg + 1e-9, side="right") - 1  # zero-order hold: last published at or before
+        inputs.append(xu[np.clip(iu, 0, xu.size - 1)])
+        outputs.append(np.interp(tg, ty, xy))
+        starts.append(a - t0)
+    rel = [(a - t0, b - t0) for a, b in gaps if lo < b and a < hi]
+    if not inputs:
+        where = ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in rel[:8]) or "none"
+        raise InvalidDataError(
+            f"no stretch of the log between gaps holds {MIN_SAMPLES} samples at {rate_hz:g} Hz (gaps: {where}; "
+            f"common span {lo - t0:.3f}-{hi - t0:.3f} s); log longer sweeps without dropouts", field="input")
+    return ULogRecords(inputs=inputs, outputs=outputs, rate_hz=rate_hz, t_starts_s=starts, gaps=rel, dropped=dropped)
