@@ -212,8 +212,8 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
                                   f"relaxed was: it achieves {achieved}", got))
         elif res is not None:
             reasons.append(Reason(tuple(todo), f"even with {', '.join(todo)} relaxed, no {name} meeting the rest of "
-                                  "the spec was found: try a structure with more freedom (pid, pid2, pid_mf2, leadlag) or "
-                                  "relax the remaining limits"))
+                                  "the spec was found: try a structure with more freedom (pid, pid2, pid_mf2, "
+                                  "leadlag) or relax the remaining limits"))
     if not any(set(r.constraints) & set(todo) for r in reasons):
         reasons.append(Reason(tuple(todo), f"{', '.join(todo)}: not explained within the time the diagnosis had "
                               f"({budget_s:.2g} s of the budget): a larger time_budget_s gives it more; no re-tune "
