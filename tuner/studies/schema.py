@@ -11,7 +11,7 @@ A study is a TOML file::
     plant = "0.377568*3.5184^2/(s^2+2*0.5006*3.5184*s+3.5184^2)"   # or {num = [...], den = [...]}
     # plants = ["...", "..."]   # instead of plant: a plant set, tuned robustly (nominal first)
     # plant_dt = 0.04           # sample time of a plant given in z
-    # delay = 0.0               # plant input delay, s (whole samples of dt)
+    # delay = 0.0               # plant input delay, s (any; whole samples of plant_dt for a plant in z)
     dt = 0.04                   # controller sample time (omit for a continuous controller)
     structure = "pid_z"
     thesis_controller = "37.79*(z^2-1.85*z+0.8686)/(z*(z-1))"    # optional, compared as printed
@@ -149,10 +149,11 @@ class LoopDef(BaseModel):
                              "leave delay and plant_dt out")
         if self.structure == "pid_z" and self.dt is None:
             raise ValueError("structure pid_z is discrete: give dt")
-        if self.dt is not None and self.delay:
-            n = self.delay / self.dt
+        if self.plant_dt is not None and self.delay:  # a plant in s takes any delay, exactly (also sampled)
+            n = self.delay / self.plant_dt
             if abs(n - round(n)) > 1e-6 * max(1.0, n):
-                raise ValueError(f"delay: {self.delay} s is not a whole number of samples of dt={self.dt} s")
+                raise ValueError(f"delay: {self.delay} s is not a whole number of samples of the plant's "
+                                 f"dt={self.plant_dt} s: a plant given in z needs a multiple of its dt")
         return self
 
     @property
