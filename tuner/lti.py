@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg
 
-__all__ = ["Zpk", "SS", "realize", "series", "zoh", "zoh_delayed", "zoh_fractional", "freqresp", "invariant_zeros", "zpk_from_ss",
-           "conjugate_pairs", "poly_from_roots", "lifted_outputs"]
+__all__ = ["Zpk", "SS", "realize", "series", "zoh", "zoh_delayed", "zoh_fractional", "freqresp", "invariant_zeros",
+           "zpk_from_ss", "conjugate_pairs", "poly_from_roots", "lifted_outputs"]
 
 _IMAG_TOL = 1e-9
 
@@ -281,20 +281,27 @@ def lifted_outputs(sys: SS, dt: float, N: int, phi: float = 0.0) -> tuple[np.nda
             E = E @ E1
         return Cf, Df
     Cf, Df = np.zeros((N, n + 1)), np.zeros(N)
-    if n:
-        _, Gphi = _int_expm(sys.A, sys.B, phi)
+    h = dt / N
+    j0 = min(int(math.ceil(phi / h - 1e-12)), N)  # the first point at or after the switch
+    if n == 0:
+        Cf[:j0, 0], Df[j0:] = sys.D, sys.D
+        return Cf, Df
+    _, Gphi = _int_expm(sys.A, sys.B, phi)
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n] = sys.A, sys.B
+    E1 = linalg.expm(M * h)
+    E = np.eye(n + 1)  # (e^{A s}, int_0^s e^{A r} dr B) at s = j h
+    R = np.eye(n + 1)
+    if j0 < N:
+        R[:n, :n], R[:n, n] = _int_expm(sys.A, sys.B, j0 * h - phi)  # at s - phi for s = j0 h
     for j in range(N):
-        s = j * dt / N
-        if n == 0:
-            Cf[j, 0], Df[j] = (sys.D, 0.0) if s < phi else (0.0, sys.D)
-            continue
-        Es, Gs = _int_expm(sys.A, sys.B, s)
-        Cf[j, :n] = sys.C @ Es
-        if s < phi:  # still the previous input
-            Cf[j, n], Df[j] = sys.C @ Gs + sys.D, 0.0
+        Cf[j, :n] = sys.C @ E[:n, :n]
+        if j < j0:  # still the previous input
+            Cf[j, n], Df[j] = sys.C @ E[:n, n] + sys.D, 0.0
         else:
-            Er, Gr = _int_expm(sys.A, sys.B, s - phi)
-            Cf[j, n], Df[j] = sys.C @ (Er @ Gphi), sys.C @ Gr + sys.D
+            Cf[j, n], Df[j] = sys.C @ (R[:n, :n] @ Gphi), sys.C @ R[:n, n] + sys.D
+            R = R @ E1
+        E = E @ E1
     return Cf, Df
 
 

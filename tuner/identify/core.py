@@ -208,6 +208,7 @@ def identify(
     points = FitPoints(w=w, mag_db=out.problem.mag_db, phase_deg=out.problem.phase_deg, coherence=coh,
                        cost=cost_terms(dm, dp, coh))
     unc = _uncertainty(out, delay)
+    cov = _uncertainty(out, delay, covariance=True)
     val = None
     if check_rec is not None:
         from .validate import validate
@@ -222,21 +223,24 @@ def identify(
     return IdentifyResult(model=model, cost=out.cost, band_rad_s=(float(used[0]), float(used[1])),
                           frequency_response=fr, fit_points=points, uncertainty=unc, validation=val,
                           warnings=tuple(warns), rate_hz=1.0 / rec.dt, n_samples=rec.n,
-                          fit_duration_s=fit_rec.duration_s, options=options)
+                          fit_duration_s=fit_rec.duration_s, options=options, covariance=cov)
 
 
-def _uncertainty(out: Any, delay: DelaySpec) -> dict:
-    """Bounds at the optimum; a delay chosen among whole steps is bounded as if it were free."""
+def _uncertainty(out: Any, delay: DelaySpec, *, covariance: bool = False) -> Any:
+    """Bounds at the optimum (or, ``covariance``, the parameters' covariance in the order of the bounds); a
+    delay chosen among whole steps is bounded as if it were free."""
     from .fit import Problem
     from .model import Structure
+    from .uncertainty import covariance as cov_of
     from .uncertainty import cramer_rao
 
+    fn = cov_of if covariance else cramer_rao
     p, m = out.problem, out.model
     if delay == "auto" and not p.structure.free_delay:
         st = Structure(poles=p.structure.poles, zeros=p.structure.zeros, free_delay=True)
         p = Problem(w=p.w, mag_db=p.mag_db, phase_deg=p.phase_deg, coherence=p.coherence, structure=st, sign=p.sign)
-        return cramer_rao(p, np.concatenate([m.theta, [m.delay_s]]))
-    return cramer_rao(p, m.theta)
+        return fn(p, np.concatenate([m.theta, [m.delay_s]]))
+    return fn(p, m.theta)
 
 
 def _warnings(cost: float, points: FitPoints, band: tuple[float, float], model: Any, unc: dict, val: Any, *,
