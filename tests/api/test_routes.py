@@ -266,7 +266,9 @@ def _with(base, **changes):
 
 INVALID = [
     # (id, route, body, loc, words the message must contain)
-    ("missing-fields", "/tune", {}, ["body", "plant"], "required"),
+    ("missing-fields", "/tune", {}, ["body", "structure"], "required"),
+    ("missing-plant", "/tune", {"structure": "pid_z", "dt": DT}, ["body", "plant"], "identification_id"),
+    ("robust-without-identification", "/tune", _with(T, robust=2), ["body", "robust"], "identification_id"),
     ("plant-empty", "/tune", _with(T, plant={}), ["body", "plant"], "expr"),
     ("plant-both-forms", "/tune", _with(T, plant={"expr": ROLL, "num": [1], "den": [1, 1]}), ["body", "plant"],
      "either"),
