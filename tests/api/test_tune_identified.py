@@ -69,3 +69,19 @@ def test_bad_identification_requests_are_422(client, ident, extra, loc, words):
     assert r.status_code == 422, r.text
     hit = [e for e in r.json()["detail"] if e["loc"] == loc]
     assert hit and words in hit[0]["msg"], r.json()
+
+
+def test_analyze_takes_a_fractional_delay_over_http(client):
+    """A continuous plant with 23 ms of delay under a controller at dt 0.04: answered with the library's figures
+    (the exact ZOH of the delayed plant), not refused."""
+    from tuner import analyze, make_plant
+    from tuner.controllers import controller_from_expr
+
+    ctrl = "3.868*(z^2-1.305*z+0.5668)/(z*(z-1))"
+    r = client.post("/analyze", json={"plant": {"expr": "58.5708/(s^2+14.195*s+220.606)", "delay": 0.023},
+                                      "dt": DT, "controller": {"expr": ctrl}})
+    assert r.status_code == 200, r.text
+    want = analyze(make_plant([58.5708], [1, 14.195, 220.606], delay=0.023), controller_from_expr(ctrl, dt=DT))
+    m = r.json()["metrics"]
+    assert m["phase_margin_deg"] == pytest.approx(want.metrics.phase_margin_deg, abs=1e-9)
+    assert m["overshoot_pct"] == pytest.approx(want.metrics.overshoot_pct, abs=1e-9)
