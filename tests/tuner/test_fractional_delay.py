@@ -73,7 +73,7 @@ def ref_step(num, den, delay_s, cnum, cden, n_samples):
     return np.arange(y.size) * DT / FINE, y
 
 
-def ref_sampled_plant(num, den, delay_s, n_samples=600):
+def ref_sampled_plant(num, den, delay_s, n_samples=200):
     """Pulse response at the samples of the delayed plant: u = 1 over the first sample, simulated finely."""
     Ad, Bd, C, D = _fine_plant(num, den)
     q = _delay_steps(delay_s)
@@ -98,7 +98,7 @@ def ref_margins(h, cnum, cden):
         return np.polyval(cnum, z) / np.polyval(cden, z) * g
 
     wn = math.pi / DT
-    w = np.linspace(1e-3, wn, 40001)
+    w = np.linspace(1e-3, wn, 8001)
     Lw = L(w)
     m = np.log(np.abs(Lw))
     pms = []
