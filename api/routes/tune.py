@@ -83,6 +83,10 @@ async def post_tune(
                          f"{1 + len(extra)} plants given (plant + plants); at most {limit} per request")
     ident = await _identification(body, store)
     problem = tuning_problem(body, identification=ident)
+    if ident is not None and len(problem.plants) > limit:
+        raise FieldError(("body", "robust"), f"the identified model's robust set has {len(problem.plants)} plants; "
+                         f"this server tunes at most {limit} per request: fit fewer parameters, or tune the nominal "
+                         "model (robust null)")
     payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
     timeout_s = settings.solve_limit_s(budget)
     if ident is not None:
