@@ -125,12 +125,13 @@ class MonteCarlo:
     fraction_meeting_spec: float
     n_unstable: int
     worst: dict[str, float]
-    p05: dict[str, float]  # 5th percentile of the margins, 95th of overshoot and settling (the 95 % side)
+    percentile_95: dict[str, float]  # what 95 % of the draws do at least as well as: the 5th percentile of the
+    # margins, the 95th of overshoot and settling
 
     def to_dict(self) -> dict[str, Any]:
         return {"n": self.n, "seed": self.seed, "fraction_meeting": dict(self.fraction_meeting),
                 "fraction_meeting_spec": self.fraction_meeting_spec, "n_unstable": self.n_unstable,
-                "worst": dict(self.worst), "percentile_95": dict(self.p05)}
+                "worst": dict(self.worst), "percentile_95": dict(self.percentile_95)}
 
     def summary(self) -> str:
         w = self.worst
@@ -246,14 +247,14 @@ def monte_carlo(res: Any, controller: Any, spec: Any = None, *, n: int = MONTE_C
         unstable += not a.metrics.stable
         for k in keys:
             vals[k].append(float(getattr(a.metrics, k)))
-    worst, p05 = {}, {}
+    worst, p95 = {}, {}
     for k, v in vals.items():
         x = np.asarray(v, float)
         x = np.where(np.isnan(x), -math.inf if k in ("phase_margin_deg", "gain_margin_db") else math.inf, x)
         low = k in ("phase_margin_deg", "gain_margin_db")
         worst[k] = float(np.min(x) if low else np.max(x)) if x.size else math.nan
-        p05[k] = float(np.percentile(x, 5 if low else 95, method="lower" if low else "higher")) if x.size \
+        p95[k] = float(np.percentile(x, 5 if low else 95, method="lower" if low else "higher")) if x.size \
             else math.nan
     return MonteCarlo(n=n, seed=int(seed), fraction_meeting={k: float(np.mean(v)) for k, v in ok.items()},
                       fraction_meeting_spec=float(np.mean(meets)) if meets else math.nan, n_unstable=int(unstable),
-                      worst=worst, p05=p05)
+                      worst=worst, percentile_95=p95)
