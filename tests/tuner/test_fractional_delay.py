@@ -299,3 +299,16 @@ def test_cascade_outer_plant_with_a_fractional_inner_delay():
     near = outer_plant(make_plant(*ROLL, delay=DT * (1 - 1e-5)), c, outer)
     w = np.linspace(0.3, 70, 20)
     assert np.allclose(near.freqresp(w), whole.freqresp(w), rtol=1e-3)
+
+
+def test_robust_set_mixing_whole_and_fractional_delays():
+    """A plant set whose delays are 0, a fraction, one sample and 1.5 samples (ZOH plants of 2 and 3 states, 0 to
+    1 register): one controller, the NLP on all of them, every plant's loop verified; the worst is the longest
+    delay's, and its margins are the fine-step reference's."""
+    delays = [0.023, 0.0, DT, 0.061]
+    r = tune([make_plant(*ROLL, delay=d) for d in delays], structure="pid_z", dt=DT, time_budget_s=5)
+    assert r.meets_spec and r.solver["nlp_solves_ok"] > 0
+    pms = [a.metrics.phase_margin_deg for a in r.analyses]
+    assert min(pms) == pms[3]
+    pm, gm = ref_margins(ref_sampled_plant(*ROLL, 0.061), r.controller.num, r.controller.den)
+    assert abs(pms[3] - pm) < 1e-6 and abs(r.analyses[3].metrics.gain_margin_db - gm) < 1e-6
