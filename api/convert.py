@@ -84,9 +84,18 @@ def _plant(p: PlantIn, index: int) -> Plant:
     return plant
 
 
-def tuning_problem(body: TuneRequest) -> TuningProblem:
-    """The validated problem of a /tune body (the one semantic validation of the request)."""
-    plants = [_plant(p, i) for i, p in enumerate([body.plant, *(body.plants or [])])]
+def tuning_problem(body: TuneRequest, *, identification: Any = None) -> TuningProblem:
+    """The validated problem of a /tune body (the one semantic validation of the request); with an
+    ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`)."""
+    if identification is not None:
+        from tuner.robust import plant_set
+
+        try:
+            plants = plant_set(identification, body.robust, dt=body.dt)[0]
+        except TunerError as e:
+            raise FieldError.of(e, ("body", "robust") if e.field == ("robust",) else body_loc(e.field)) from None
+    else:
+        plants = [_plant(p, i) for i, p in enumerate([body.plant, *(body.plants or [])])]
     try:
         return TuningProblem.build(plants, structure=body.structure, spec=body.spec, dt=body.dt)
     except TunerError as e:

@@ -117,10 +117,21 @@ class TuneOptions(_In):
 class TuneRequest(_In):
     model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [ROLL_EXAMPLE]})
 
-    plant: PlantIn = Field(description="the nominal plant")
+    plant: PlantIn | None = Field(None, description="the nominal plant (or identification_id)")
     plants: list[PlantIn] | None = Field(
         None, max_length=MAX_PLANTS - 1,
         description="more plants for robust tuning: every constraint must hold on each of them")
+    identification_id: str | None = Field(
+        None, min_length=1, max_length=64,
+        description="instead of plant: the id of a stored identification (POST /identify); its fitted model "
+                    "with the delay as fitted")
+    robust: float | None = Field(
+        None, gt=0, le=10, allow_inf_nan=False,
+        description="with identification_id: one controller for the plant set spanned by the identified "
+                    "parameters' robust-sigma Cramér–Rao bounds, then a Monte Carlo check (result.robust)")
+    monte_carlo: int | None = Field(
+        None, ge=0, le=2000, description="with identification_id: draws of the Monte Carlo check from the "
+                                         "parameters' covariance (default 200 with robust, else 0)")
     dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
     structure: StructureName = Field(description="controller structure; pid2 is the 2-DOF PID u = Kp(b r - y) + "
                                      "Ki/s (r - y) + Kd s/(Tf s+1)(c r - y); pidf2 is the deprecated name of pid_mf2")

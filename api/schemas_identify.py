@@ -77,7 +77,8 @@ class IdentifyOptions(_In):
     delay: Literal["auto"] | Annotated[float, Field(ge=0, le=1e4, allow_inf_nan=False)] | None = Field(
         "auto", description='"auto" estimates an equivalent time delay; a number fixes it (s); null: none')
     delay_step: Positive | None = Field(
-        None, description="delay in whole multiples of this (s): the sample time of the loop the model is for")
+        None, description="optional: restrict the delay to whole multiples of this (s); by default the delay "
+                    "is fitted freely (the tuner takes any delay exactly, also in a sampled-data loop)")
     band: Annotated[list[Positive], Field(min_length=2, max_length=2)] | None = Field(
         None, description="fit band [w_min, w_max], rad/s (default: where the coherence >= coherence_min)")
     holdout: Literal["auto"] | Annotated[float, Field(ge=0, le=0.5, allow_inf_nan=False)] = Field(

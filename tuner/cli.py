@@ -197,8 +197,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("tune", help="tune a controller structure: minimum settling time subject to the spec",
                        epilog=_objectives_help() + "\n\n" + EXIT_CODES)
-    t.add_argument("--plant", required=True, action="append",
+    t.add_argument("--plant", action="append",
                    help="plant expression; repeat for robust tuning over a plant set (nominal first)")
+    t.add_argument("--identified", metavar="ID.json",
+                   help="instead of --plant: the model identified from a log (the JSON of 'tuner identify --json'), "
+                   "its delay as fitted (exact in a sampled-data loop)")
+    t.add_argument("--robust", type=float, default=None, metavar="K",
+                   help="with --identified: one controller for the plant set spanned by the identified parameters' "
+                   "K-sigma Cramér–Rao bounds (nominal + corners of the dominant parameters), then a Monte Carlo "
+                   "check on draws from their covariance")
+    t.add_argument("--monte-carlo", type=int, default=None, metavar="N",
+                   help="with --identified: draws of the Monte Carlo check (default 200 with --robust, else 0)")
     t.add_argument("--dt", type=float, default=None, help="controller sample time (and of z plants)")
     t.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds (all plants)")
     t.add_argument("--structure", required=True,
@@ -359,8 +368,17 @@ def _cmd_tune(a: argparse.Namespace) -> int:
 
     spec = _spec_from_args(a)
     plot_fmt = _plot_format(a)
-    plants = []
-    for i, text in enumerate(a.plant):
+    if (a.plant is None) == (a.identified is None):
+        raise TunerError("give --plant (a model) or --identified ID.json (a model identified from a log), not both")
+    if a.identified is None and (a.robust is not None or a.monte_carlo is not None):
+        raise TunerError(f"{'--robust' if a.robust is not None else '--monte-carlo'}: needs --identified ID.json "
+                         "(the uncertainty of an identified model)")
+    plants: Any = []
+    if a.identified is not None:
+        if a.delay:
+            raise TunerError("--delay: an identified model carries its fitted delay: leave --delay out")
+        plants = _load_identified(a.identified)
+    for i, text in enumerate(a.plant or ()):
         with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
             plants.append(plant_from_expr(text, dt=a.dt, delay=a.delay))
     if not (0 < a.budget <= 3600):  # (nan fails too)
@@ -369,7 +387,8 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         check_dt(a.dt)
     if not (0 <= a.seed < 2**32):  # Optuna's sampler seeds numpy, which rejects anything else
         raise TunerError("--seed: must be an integer from 0 to 2**32 - 1")
-    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget)
+    extra = {} if a.identified is None else {"robust": a.robust, "monte_carlo": a.monte_carlo}
+    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget, **extra)
     out = res.to_json()
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
@@ -394,14 +413,23 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     s = res.solver
     print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
+    many = len(res.analyses) > 1
     print(f"objective {res.spec.objective} = {fmt(out['objective']['value'])}"
-          + (" (worst over the plants)" if len(plants) > 1 else ""))
+          + (" (worst over the plants)" if many else ""))
+    rd = res.robust
+    if rd is not None and rd.k is not None:
+        print(f"robust: {rd.k:g}-sigma set of {rd.n_plants} plants (corners of {', '.join(rd.corners)}"
+              + (f"; +-{rd.k:g} sigma of {', '.join(rd.axes)}" if rd.axes else "") + ")")
+    if rd is not None and rd.monte_carlo is not None:
+        mc = rd.monte_carlo
+        print(mc.summary())
+        print("  meeting each constraint: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in mc.fraction_meeting.items()))
     for lim in res.limits:
         print(f"default limit: {lim['rule']}" + (" (--no-default-limits lifts it)" if lim["field"] else ""))
     for e in out["at_bounds"]:
         print(f"at a bound: {e['text']}")
     if res.meets_spec:
-        print("meets the spec on every plant" if len(plants) > 1 else "meets the spec")
+        print("meets the spec on every plant" if many else "meets the spec")
     else:
         print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
         for r in out["reasons"]:
@@ -449,12 +477,32 @@ def _cmd_tradeoff(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _load_identified(path: str) -> Any:
+    """The :class:`~tuner.identify.IdentifyResult` in ``path`` (the JSON of ``tuner identify --json``)."""
+    from .identify.result import IdentifyResult
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+    except OSError as e:
+        raise TunerError(f"--identified {path}: cannot read: {e.strerror or e}") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise TunerError(f"--identified {path}: not JSON: {e}") from None
+    try:
+        return IdentifyResult.from_dict(d)
+    except TunerError as e:
+        raise TunerError(f"--identified {path}: {e}") from None
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+        raise TunerError(f"--identified {path}: not the JSON of 'tuner identify --json' (missing or bad "
+                         f"{e})") from None
+
+
 _COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune, "tradeoff": _cmd_tradeoff}
 
 
 _ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
               "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec",
-              "points": "--points", "x": "--x", "y": "--y"}
+              "points": "--points", "x": "--x", "y": "--y", "robust": "--robust", "monte_carlo": "--monte-carlo"}
 
 
 def _argument_of(f: tuple[str | int, ...]) -> str | None:

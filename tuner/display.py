@@ -97,6 +97,10 @@ def tune_repr(r: Any) -> str:
     if s:
         lines.append(f"  solver   {s.get('method')}, {_g(s.get('wall_time_s', math.nan), 3)} s, {s.get('stop')}, "
                      f"seed {s.get('seed')}")
+    rd = getattr(r, "robust", None)
+    if rd is not None:
+        lines.append(f"  robust   {'nominal model' if rd.k is None else f'{rd.k:g}-sigma set of {rd.n_plants} plants'}"
+                     + (f"; {rd.monte_carlo.summary()}" if rd.monte_carlo is not None else ""))
     return "\n".join(lines)
 
 

@@ -140,6 +140,12 @@ def as_plant(plant: Any, *, delay: float | None = None) -> Plant:
         return plant
     if is_control_lti(plant):
         return plant_from_control(plant, delay=delay or 0.0)
+    from .robust import is_identification
+
+    if is_identification(plant):  # its fitted model, the delay as fitted
+        if delay:
+            raise InvalidPlantError("an identification carries its fitted delay: leave delay out", field="delay")
+        return plant.plant()
     raise InvalidPlantError("expected a tuner Plant or a python-control TransferFunction/StateSpace, got "
                             f"{type(plant).__name__}")
 

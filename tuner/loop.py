@@ -11,8 +11,10 @@ reference path enters the closed loop's ``r`` column only (:meth:`ControllerTF.r
 
 * continuous loop: ``C(s)`` and ``G(s)``, any delay (exact ``exp(-s*tau)``);
 * sampled-data loop: ``C(z)`` at ``dt`` driving the continuous ``G(s)`` through a
-  zero-order hold; the delay must be whole samples. The loop seen at the samples
-  is ``C(z) * ZOH[G](z) * z^-d``; the output between samples comes from ``G(s)``;
+  zero-order hold, any delay ``tau = d dt + phi``. The loop seen at the samples
+  is ``C(z) * ZOH[G e^{-s phi}](z) * z^-d`` (exact; the fraction ``phi`` is one extra
+  state of the ZOH plant, :meth:`tuner.plant.Plant.zoh`); the output between samples
+  comes from ``G(s)`` with the delayed held input;
 * discrete plant ``G(z)`` at the same ``dt``: between-sample output uses the
   continuous plant whose ZOH equivalent is ``G(z)``, when one exists.
 
@@ -330,7 +332,7 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
                             plant_ct=plant, plant_d=None))
     dt = controller.dt
     try:
-        pd = plant.zoh(dt)  # validates dt match for discrete plants and whole-sample delay
+        pd = plant.zoh(dt)  # validates dt match for discrete plants; any delay (fraction in the realisation)
     except TunerError as e:
         raise (e if e.field == ("dt",) else e.at("plant")) from None
     d = delay_in_samples(pd.delay_s, dt)

@@ -10,6 +10,8 @@ a companion matrix whose coefficients span five decades.
 
 * :func:`zoh` / :func:`zoh_delayed`: exact ZOH equivalents (the delayed one for a delay that is not a
   whole number of steps: the input held on a shifted grid, still exact for a piecewise-constant input);
+  :func:`zoh_fractional`: the same as one discrete realisation with one extra state (the previous input),
+  the ZOH of ``G(s) e^{-s phi}`` for ``0 < phi < dt`` (MATLAB's ``c2d`` of a delayed model);
 * :func:`freqresp`: ``C (xI - A)^{-1} B + D`` at many ``x`` (``s = jw`` or ``z = e^{jw dt}``) by a
   complex Schur form and vectorised back substitution;
 * :func:`invariant_zeros`: the finite zeros of ``(A, B, C, D)`` from the Rosenbrock pencil.
@@ -26,8 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg
 
-__all__ = ["Zpk", "SS", "realize", "series", "zoh", "zoh_delayed", "freqresp", "invariant_zeros", "zpk_from_ss",
-           "conjugate_pairs", "poly_from_roots"]
+__all__ = ["Zpk", "SS", "realize", "series", "zoh", "zoh_delayed", "zoh_fractional", "freqresp", "invariant_zeros",
+           "zpk_from_ss", "conjugate_pairs", "poly_from_roots", "lifted_outputs"]
 
 _IMAG_TOL = 1e-9
 
@@ -238,6 +240,69 @@ def zoh_delayed(sys: SS, h: float, tau: float) -> tuple[np.ndarray, np.ndarray, 
     E2, G2 = _int_expm(sys.A, sys.B, h - f)  # the new input acts over the last h - f
     E1, G1 = _int_expm(sys.A, sys.B, f)  # the old one over the first f
     return Phi, E2 @ G1, G2, m, f
+
+
+def zoh_fractional(sys: SS, dt: float, phi: float) -> SS:
+    """Exact ZOH at ``dt`` of ``x' = A x + B u(t - phi)``, ``0 < phi < dt``, as one discrete realisation.
+
+    States ``[x, v]`` with ``v[k] = u[k-1]``: ``x[k+1] = Phi x[k] + Gam0 u[k] + Gam1 v[k]``, ``v[k+1] = u[k]``,
+    with ``Gam0 = int_0^{dt-phi} e^{A s} ds B`` (the new input, over the last ``dt - phi``) and
+    ``Gam1 = e^{A (dt-phi)} int_0^{phi} e^{A s} ds B`` (the previous one, over the first ``phi``). The output
+    at ``t_k`` still sees the previous input: ``y[k] = C x[k] + D v[k]`` (no feedthrough).
+    """
+    n = sys.n
+    if n == 0:
+        Phi, G0, G1 = np.zeros((0, 0)), np.zeros(0), np.zeros(0)
+    else:
+        Phi, _ = _int_expm(sys.A, sys.B, dt)
+        E2, G0 = _int_expm(sys.A, sys.B, dt - phi)
+        _, G1p = _int_expm(sys.A, sys.B, phi)
+        G1 = E2 @ G1p
+    A = np.zeros((n + 1, n + 1))
+    A[:n, :n], A[:n, n] = Phi, G1
+    return SS(A, np.concatenate([G0, [1.0]]), np.concatenate([sys.C, [sys.D]]), 0.0)
+
+
+def lifted_outputs(sys: SS, dt: float, N: int, phi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """``Cf`` (N, n'), ``Df`` (N): the output of ``x' = A x + B u(t - phi)`` at ``t_k + j dt/N`` from the
+    state of its ZOH model at ``t_k`` and the input held over ``[t_k, t_k+1)``: ``y = Cf[j] z_k + Df[j] u_k``.
+
+    ``phi = 0``: ``z = x`` (the coordinates of :func:`zoh`); ``0 < phi < dt``: ``z = [x, u[k-1]]`` (those of
+    :func:`zoh_fractional`), the previous input acting until ``t_k + phi``.
+    """
+    n = sys.n
+    if phi == 0.0:
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n] = sys.A, sys.B
+        E1 = linalg.expm(M * (dt / N))
+        Cf, Df, E = np.zeros((N, n)), np.zeros(N), np.eye(n + 1)
+        for j in range(N):
+            Cf[j], Df[j] = sys.C @ E[:n, :n], sys.C @ E[:n, n] + sys.D
+            E = E @ E1
+        return Cf, Df
+    Cf, Df = np.zeros((N, n + 1)), np.zeros(N)
+    h = dt / N
+    j0 = min(int(math.ceil(phi / h - 1e-12)), N)  # the first point at or after the switch
+    if n == 0:
+        Cf[:j0, 0], Df[j0:] = sys.D, sys.D
+        return Cf, Df
+    _, Gphi = _int_expm(sys.A, sys.B, phi)
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n] = sys.A, sys.B
+    E1 = linalg.expm(M * h)
+    E = np.eye(n + 1)  # (e^{A s}, int_0^s e^{A r} dr B) at s = j h
+    R = np.eye(n + 1)
+    if j0 < N:
+        R[:n, :n], R[:n, n] = _int_expm(sys.A, sys.B, j0 * h - phi)  # at s - phi for s = j0 h
+    for j in range(N):
+        Cf[j, :n] = sys.C @ E[:n, :n]
+        if j < j0:  # still the previous input
+            Cf[j, n], Df[j] = sys.C @ E[:n, n] + sys.D, 0.0
+        else:
+            Cf[j, n], Df[j] = sys.C @ (R[:n, :n] @ Gphi), sys.C @ R[:n, n] + sys.D
+            R = R @ E1
+        E = E @ E1
+    return Cf, Df
 
 
 # -- frequency response and zeros ---------------------------------------------------------------

@@ -4,15 +4,18 @@ A :class:`Plant` is a SISO transfer function ``num/den`` in ``s`` (``dt is None`
 or in ``z`` (sample time ``dt``), with an optional input delay in seconds.
 Coefficients are stored highest power first, denominator monic.
 
-Delay: continuous plants accept any delay >= 0 (handled exactly in the
-frequency domain, by a fine-step simulation in the time domain). A discrete
-plant, or a continuous plant in a sampled-data loop, needs a delay that is a
-whole number of samples; anything else is rejected with a clear error rather
-than rounded.
+Delay: continuous plants accept any delay >= 0, exactly: in a continuous loop (the frequency
+domain, a fine-step simulation in the time domain) and in a sampled-data loop at ``dt``, where
+``tau = m dt + phi`` (``0 <= phi < dt``) becomes the ZOH equivalent of ``G(s) e^{-s tau}`` (the
+modified z-transform; MATLAB's ``c2d`` of a delayed model): ``m`` whole samples of register and,
+for ``phi > 0``, one extra state (the previous input, :func:`tuner.lti.zoh_fractional`). A plant
+given in z needs a delay of whole samples of its ``dt``; anything else is rejected with a clear
+error rather than rounded.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,11 +25,11 @@ from scipy import linalg
 
 from .errors import InvalidPlantError, TunerError
 from .expr import parse_tf_expr
-from .lti import SS, Zpk, realize, zoh, zpk_from_ss
+from .lti import SS, Zpk, realize, zoh, zoh_fractional, zpk_from_ss
 from .lti import freqresp as lti_freqresp
 
 __all__ = ["Plant", "tf_freqresp", "make_plant", "make_plant_zpk", "plant_from_expr", "MAX_ORDER", "delay_in_samples",
-           "check_dt", "MIN_DT_S", "MAX_DT_S"]
+           "check_dt", "MIN_DT_S", "MAX_DT_S", "split_delay"]
 
 MAX_ORDER = 20
 MIN_DT_S = 1e-6  # 1 us: faster than any digital controller this tunes; keeps pi/dt and the grids finite
@@ -53,15 +56,28 @@ def check_dt(dt: float | None, *, what: str = "dt") -> float | None:
 
 
 def delay_in_samples(delay_s: float, dt: float) -> int:
-    """Whole number of samples in ``delay_s``; a clear error if it is not whole."""
+    """Whole number of samples in ``delay_s`` (the delay of a plant given in z); a clear error if it is not
+    whole."""
     d = delay_s / dt
     k = int(round(d))
     if abs(d - k) > 1e-6 * max(1.0, d):
         raise InvalidPlantError(
             f"delay {delay_s} s is not a whole number of samples of dt={dt} s "
-            f"({d:.4g} samples); give a multiple of dt", field="delay"
+            f"({d:.4g} samples): a plant given in z needs a multiple of dt (a continuous plant in s takes any "
+            "delay, also in a sampled-data loop)", field="delay"
         )
     return k
+
+
+def split_delay(delay_s: float, dt: float) -> tuple[int, float]:
+    """``(m, phi)`` with ``delay_s = m dt + phi``, ``0 <= phi < dt``; a delay within ``1e-6`` (relative) of
+    whole samples is whole (``phi = 0``)."""
+    d = delay_s / dt
+    k = int(round(d))
+    if abs(d - k) <= 1e-6 * max(1.0, d):
+        return k, 0.0
+    m = int(math.floor(d))
+    return m, float(delay_s - m * dt)
 
 
 def _coeffs(values: Sequence[float], name: str) -> np.ndarray:
@@ -141,8 +157,17 @@ class Plant:
         g = lti_freqresp(self.ss(), x)
         return g * np.exp(-1j * w * self.delay_s) if self.delay_s else g
 
+    @property
+    def zoh_fraction(self) -> float:
+        """For the ZOH equivalent of a continuous plant whose delay is not whole samples: the fractional part
+        ``phi`` (s) of the delay, held in the realisation's extra state (:func:`tuner.lti.zoh_fractional`);
+        its ``delay_s`` is then the whole samples. 0 otherwise."""
+        return float(self._cache.get("zoh_fraction", 0.0))
+
     def zoh(self, dt: float) -> Plant:
-        """Zero-order-hold equivalent at ``dt`` (delay carried as whole samples)."""
+        """Zero-order-hold equivalent at ``dt`` of the plant with its delay, exact for any delay: ``delay_s``
+        of the result is the whole samples ``m dt`` of ``tau = m dt + phi``; a fraction ``phi > 0`` is in the
+        realisation (one extra state, the previous input; see :attr:`zoh_fraction`)."""
         dt = check_dt(dt)
         key = ("zoh", dt)
         if key not in self._cache:
@@ -157,10 +182,10 @@ class Plant:
                     "resampling a discrete plant is not supported", field="dt"
                 )
             return self
-        d = delay_in_samples(self.delay_s, dt)
+        d, phi = split_delay(self.delay_s, dt)
         with np.errstate(all="ignore"):
             try:
-                sysd = zoh(self.ss(), dt)
+                sysd = zoh(self.ss(), dt) if phi == 0.0 else zoh_fractional(self.ss(), dt, phi)
                 zk = zpk_from_ss(sysd, discrete=True)
             except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
                 raise InvalidPlantError(f"cannot discretise the plant at dt={dt} (ZOH): {e}; rescale the model") \
@@ -171,6 +196,8 @@ class Plant:
         out = Plant(num=num, den=den, dt=dt, delay_s=d * dt, zpk=zk)
         out._cache["ss"] = sysd  # the ZOH of the cascade itself, not a realisation of its zpk
         out._cache["ct_parent"] = self
+        if phi:
+            out._cache["zoh_fraction"] = phi
         return out
 
     def rational_discrete(self) -> tuple[np.ndarray, np.ndarray]:
@@ -287,7 +314,7 @@ def make_plant(
     Raises :class:`~tuner.errors.InvalidPlantError` naming the problem: non-finite
     coefficients, zero denominator or numerator, improper, order above
     ``max_order``, ``dt <= 0``, negative or non-finite delay, or a delay that is
-    not a whole number of samples of a discrete plant. Open-loop unstable plants
+    not a whole number of samples of a discrete plant (a continuous plant takes any delay). Open-loop unstable plants
     are accepted.
     """
     if den is None:

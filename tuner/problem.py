@@ -2,7 +2,7 @@
 
 :func:`tuner.tune` and the service both build a :class:`TuningProblem`; every check of the
 combination happens here, once (a discrete structure needs ``dt``, discrete plants agree on
-their sample time, a delay is whole samples of the loop's ``dt``, each plant can form a loop
+their sample time, a discrete plant's delay is whole samples of its ``dt``, each plant can form a loop
 with the structure). Errors carry ``field`` paths relative to the problem: ``("dt",)``,
 ``("structure",)``, ``("plants", i, "delay")``; the plant's scale (ultimate gain and frequency,
 :func:`tuner.optimize.design.plant_scale`) is computed here once per tune.

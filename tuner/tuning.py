@@ -44,6 +44,7 @@ class TuneResult:
     reasons: tuple[Any, ...] = ()  # tuner.diagnose.Reason: why the spec is not met, what would make it feasible
     at_bounds: tuple[dict[str, Any], ...] = ()  # parameters on a search bound or a default limit (tuner.bounds)
     limits: tuple[dict[str, Any], ...] = ()  # the default design limits in force (field, value, rule)
+    robust: Any = None  # tuner.robust.RobustDesign: a design from an identification (plant set, Monte Carlo)
 
     @property
     def meets_spec(self) -> bool:
@@ -130,6 +131,8 @@ class TuneResult:
         }
         if len(self.analyses) > 1:
             out["plants"] = [a.to_dict() for a in self.analyses]
+        if self.robust is not None:
+            out["robust"] = self.robust.to_dict()
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -152,16 +155,19 @@ def tune(
     local: bool = True,
     nlp_solver: str = "sqp",
     diagnose: bool = True,
+    robust: float | None = None,
+    monte_carlo: int | None = None,
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
     Parameters
     ----------
-    plant_or_plants : Plant, control.TransferFunction, control.StateSpace, a sequence of them, or TuningProblem
+    plant_or_plants : Plant, control.TransferFunction, control.StateSpace, a sequence, TuningProblem, IdentifyResult
         The plant; for robust tuning the whole set, nominal first (one controller, every constraint on every
         plant). A python-control model may be continuous or discrete (its ``dt``; ``dt=True`` is refused: give
         the number), see :mod:`tuner.interop`. A :class:`~tuner.problem.TuningProblem` already holds the
-        structure, spec and dt.
+        structure, spec and dt. An :class:`~tuner.identify.IdentifyResult` (from :func:`tuner.identify`) is
+        its fitted model with the delay as fitted (any delay is exact in a sampled-data loop).
     structure : str
         One of :data:`tuner.controllers.STRUCTURES`: ``p``, ``pi``, ``pd``, ``pid``, ``pid_z`` (discrete only),
         ``pid2`` (2-DOF PID with setpoint weights ``b``, ``c``), ``pid_mf2`` (``pidf2``, its deprecated name),
@@ -193,6 +199,14 @@ def tune(
         When the spec is not met, say why in ``reasons`` (:mod:`tuner.diagnose`: limits that are
         impossible by definition, and for each failing limit the tightest value a short re-tune with it
         relaxed found feasible), within what is left of the budget.
+    robust : float, optional
+        With an identification result: design for the plant set spanned by the identified parameters'
+        ``robust``-sigma Cramér–Rao bounds (the nominal, the corners of the dominant parameters, +-K sigma of
+        the others; :mod:`tuner.robust`), then check the controller on ``monte_carlo`` draws from the
+        parameters' covariance. Reported in ``result.robust``.
+    monte_carlo : int, optional
+        Draws of the Monte Carlo check (seeded by ``seed``); default 200 with ``robust``, else none (give a
+        number to check a nominal design from an identification too).
 
     Returns
     -------
@@ -221,6 +235,18 @@ def tune(
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
     t0 = time.perf_counter()
     deadline = t0 + float(time_budget_s)
+    from .robust import check_draws, is_identification, plant_set
+
+    ident, design = None, None
+    if is_identification(plant_or_plants):
+        if delay is not None:
+            raise TunerError("an identification carries its fitted delay: leave delay out", field="delay")
+        ident = plant_or_plants
+        plant_or_plants, design = plant_set(ident, robust, dt=dt)
+        n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
+    elif robust is not None or monte_carlo is not None:
+        raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
+                         field="robust" if robust is not None else "monte_carlo")
     if isinstance(plant_or_plants, TuningProblem):
         if structure is not None or spec is not None or dt is not None or delay is not None:
             raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
@@ -297,6 +323,12 @@ def tune(
                 info["found_by_diagnosis"] = True
             res.solver["wall_time_s"] = time.perf_counter() - t0
             res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
+    if ident is not None:
+        if n_mc:
+            from .robust import monte_carlo as _mc
+
+            design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=int(seed)))
+        res = replace(res, robust=design)
     return res
 
 

@@ -9,8 +9,10 @@ from fastapi import APIRouter, Body, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
+from tuner.errors import TunerError
 from tuner.jsonio import jsonable
 from tuner.problem import MAX_PLANTS
+from tuner.robust import MONTE_CARLO_DRAWS
 
 from ..convert import FieldError, body_loc, plant_dict, tuning_problem
 from ..deps import client_id, get_pool, get_store, get_tune_job
@@ -20,6 +22,8 @@ from ..pool import JobFailed, JobTimeout, WorkerPool
 from ..schemas import ROLL_EXAMPLE, ErrorOut, TuneRequest, TuneResponse, ValidationErrorOut
 from ..settings import Settings, get_settings
 from ..store import Store
+
+_SECONDS_PER_DRAW = 0.5  # the Monte Carlo check's allowance per draw (a verification), beyond the budget
 
 __all__ = ["router", "ERRORS"]
 
@@ -77,12 +81,22 @@ async def post_tune(
     if 1 + len(extra) > limit:
         raise FieldError(("body", "plants"),
                          f"{1 + len(extra)} plants given (plant + plants); at most {limit} per request")
-    problem = tuning_problem(body)
+    ident = await _identification(body, store)
+    problem = tuning_problem(body, identification=ident)
+    if ident is not None and len(problem.plants) > limit:
+        raise FieldError(("body", "robust"), f"the identified model's robust set has {len(problem.plants)} plants; "
+                         f"this server tunes at most {limit} per request: fit fewer parameters, or tune the nominal "
+                         "model (robust null)")
     payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
+    timeout_s = settings.solve_limit_s(budget)
+    if ident is not None:
+        n_mc = body.monte_carlo if body.monte_carlo is not None else (MONTE_CARLO_DRAWS if body.robust else 0)
+        payload.update(identification=ident, robust=body.robust, monte_carlo=n_mc)
+        timeout_s += _SECONDS_PER_DRAW * n_mc
     await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)
     try:
         result = await unless_disconnected(
-            request, pool.run(job, payload, timeout_s=settings.solve_limit_s(budget), client=client))
+            request, pool.run(job, payload, timeout_s=timeout_s, client=client))
     except JobTimeout as e:
         raise HTTPException(504, f"the solve did not finish within its time budget of {budget:g} s "
                                  f"(stopped at {e.limit_s:.3g} s, grace included); no verified result to "
@@ -102,8 +116,39 @@ async def post_tune(
     if note and isinstance(result, dict) and isinstance(result.get("solver"), dict):  # pidf2: say it is pid_mf2
         result["solver"]["notes"] = [*result["solver"].get("notes", []), note]
     request = body.model_dump(mode="json")
+    if ident is None:  # a plain request is stored as before
+        for k in ("identification_id", "robust", "monte_carlo"):
+            request.pop(k, None)
     request.update(spec=problem.spec.model_dump(mode="json"), dt=problem.dt)
     request["options"]["time_budget_s"] = budget
     record = await run_in_threadpool(store.add, request=request, plants=[plant_dict(p) for p in problem.plants],
                                      result=result)
     return JSONResponse(jsonable({"id": record.id, "created_at": record.created_at.isoformat(), **result}))
+
+
+async def _identification(body: TuneRequest, store: Store) -> Any:
+    """The stored identification a body names (``identification_id``), as an IdentifyResult; checks that the body
+    gives exactly one of plant and identification_id, and robust/monte_carlo only with the latter."""
+    if (body.plant is None) == (body.identification_id is None):
+        raise FieldError(("body", "plant"), "give plant (a model) or identification_id (a stored identification, "
+                         "POST /identify), not both" if body.plant is not None else "Field required: give plant (a "
+                         "model) or identification_id (a stored identification, POST /identify)")
+    if body.identification_id is None:
+        for name in ("robust", "monte_carlo"):
+            if getattr(body, name) is not None:
+                raise FieldError(("body", name), f"{name} needs identification_id: the uncertainty of an identified "
+                                 "model (POST /identify)")
+        return None
+    if body.plants:
+        raise FieldError(("body", "plants"), "plants with identification_id: the plant set comes from the "
+                         "identification (robust); leave plants out")
+    rec = await run_in_threadpool(store.get_identification, body.identification_id)
+    if rec is None:
+        raise FieldError(("body", "identification_id"), f"no stored identification with id "
+                         f"{body.identification_id!r} (GET /identifications lists them)")
+    from tuner.identify.result import IdentifyResult
+
+    try:
+        return IdentifyResult.from_dict(rec.result)
+    except (TunerError, KeyError, TypeError, ValueError) as e:
+        raise FieldError(("body", "identification_id"), f"the stored identification cannot be read: {e}") from None

@@ -702,8 +702,7 @@ async function identify() {
                  poles: number($("#id-poles").value, ["body", "poles"], errs, { int: true }) ?? 2,
                  zeros: number($("#id-zeros").value, ["body", "zeros"], errs, { int: true }) ?? 0 };
   const dt = Number(field("dt").value) || null;
-  body.delay = $("#id-delay").checked ? "auto" : null;
-  if ($("#id-delay").checked && dt) body.delay_step = dt;
+  body.delay = $("#id-delay").checked ? "auto" : null;  // the delay as fitted: the loop takes any delay exactly
   if ($("#col-time").value !== "") body.time = column($("#col-time"), errs);
   else if (dt) body.rate_hz = 1 / dt;
   else errs.push({ loc: ["body", "rate_hz"], msg: "choose the time column, or give dt (the log's sample time)" });

@@ -266,7 +266,9 @@ def _with(base, **changes):
 
 INVALID = [
     # (id, route, body, loc, words the message must contain)
-    ("missing-fields", "/tune", {}, ["body", "plant"], "required"),
+    ("missing-fields", "/tune", {}, ["body", "structure"], "required"),
+    ("missing-plant", "/tune", {"structure": "pid_z", "dt": DT}, ["body", "plant"], "identification_id"),
+    ("robust-without-identification", "/tune", _with(T, robust=2), ["body", "robust"], "identification_id"),
     ("plant-empty", "/tune", _with(T, plant={}), ["body", "plant"], "expr"),
     ("plant-both-forms", "/tune", _with(T, plant={"expr": ROLL, "num": [1], "den": [1, 1]}), ["body", "plant"],
      "either"),
@@ -287,8 +289,8 @@ INVALID = [
     ("discrete-structure-needs-dt", "/tune", _with(T, dt=None), ["body", "dt"], "discrete"),
     ("dt-zero", "/tune", _with(T, dt=0), ["body", "dt"], "greater than or equal to 0.000001"),
     ("dt-mismatch", "/tune", _with(T, plant=Z_PLANT, dt=0.05), ["body", "dt"], "discrete at dt=0.04"),
-    ("delay-not-whole-samples", "/tune", _with(T, plant={"expr": ROLL, "delay": 0.05}), ["body", "plant", "delay"],
-     "whole number of samples"),
+    ("delay-not-whole-samples", "/tune", _with(T, plant={**Z_PLANT, "delay": 0.05}), ["body", "plant", "delay"],
+     "a plant given in z needs a multiple of dt"),
     ("delay-negative", "/tune", _with(T, plant={"expr": ROLL, "delay": -1}), ["body", "plant", "delay"], ""),
     ("unknown-structure", "/tune", _with(T, structure="pidd"), ["body", "structure"], "pid_z"),
     ("spec-out-of-range", "/tune", _with(T, spec={"phase_margin_min_deg": 100}),

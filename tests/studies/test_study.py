@@ -74,8 +74,10 @@ def test_plant_errors_name_the_loop(tmp_path):
     f.write_text('name = "t"\n[[loop]]\nname = "alt"\nplant = "0.04/(z-1)"\ndt = 0.04\nstructure = "pi"\n')
     with pytest.raises(InvalidStudyError, match=r"loop 'alt': plant: plant is in z: give its sample time dt"):
         load_study(f)
-    f.write_text('name = "t"\n[[loop]]\nname = "a"\nplant = "1/(s+1)"\ndelay = 0.3\ndt = 0.2\nstructure = "pi"\n')
-    with pytest.raises(InvalidStudyError, match=r"loop 'a': delay: 0.3 s is not a whole number of samples"):
+    f.write_text('name = "t"\n[[loop]]\nname = "a"\nplant = "0.1/(z-0.9)"\nplant_dt = 0.2\ndelay = 0.3\ndt = 0.2\n'
+                 'structure = "pi"\n')
+    with pytest.raises(InvalidStudyError, match=r"loop 'a': delay: 0.3 s is not a whole number of samples of the "
+                                                 r"plant's dt=0.2 s"):
         load_study(f)
 
 

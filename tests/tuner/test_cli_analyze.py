@@ -190,8 +190,8 @@ BAD = [
     (["--plant", "s/(z+1)", "--dt", "0.04", "--controller", RC], "--plant: mixes 's' and 'z'"),
     (["--plant", "1/(z-0.5)", "--controller", "1"], "--plant: plant is in z: give its sample time dt"),
     (["--plant", R, "--dt", "0.04", "--delay", "-0.04", "--controller", RC], "delay must be finite and >= 0"),
-    (["--plant", "1/(z-0.5)", "--dt", "0.04", "--delay", "0.05", "--controller", RC], "not a whole number of samples"),
-    (["--plant", R, "--dt", "0.04", "--delay", "0.05", "--controller", RC], "not a whole number of samples"),
+    (["--plant", "1/(z-0.5)", "--dt", "0.04", "--delay", "0.05", "--controller", RC],
+     "a plant given in z needs a multiple of dt"),
     # controllers
     (["--plant", R, "--dt", "0.04", "--controller", "1/s"], "--controller: controller is in s but a sample time"),
     (["--plant", R, "--controller", RC], "--controller: controller is in z: give its sample time dt"),

@@ -170,13 +170,20 @@ def test_zoh_matches_matrix_exponential(num, den):
     assert_allclose(d.num, b, rtol=1e-8, atol=1e-12)
 
 
-def test_zoh_carries_whole_sample_delay_and_rejects_fractional():
+def test_zoh_carries_whole_sample_delay_and_a_fraction_in_the_realisation():
     p = make_plant([1], [1, 1], delay=0.08)
     d = p.zoh(0.04)
-    assert d.delay_s == pytest.approx(0.08)
+    assert d.delay_s == pytest.approx(0.08) and d.zoh_fraction == 0.0
     assert_allclose(d.rational_discrete()[1], np.concatenate([d.den, [0, 0]]))
-    with pytest.raises(InvalidPlantError, match="not a whole number of samples"):
-        make_plant([1], [1, 1], delay=0.05).zoh(0.04)
+    # 0.05 = 1 sample + 0.01 s: the modified z-transform of 1/(s+1), written out:
+    # G(z) = z^-1 [(1 - e^{-(dt-phi)}) z + (e^{-(dt-phi)} - e^{-dt})] / (z (z - e^{-dt}))
+    f = make_plant([1], [1, 1], delay=0.05).zoh(0.04)
+    assert f.delay_s == pytest.approx(0.04) and f.zoh_fraction == pytest.approx(0.01)
+    z = np.exp(1j * np.linspace(0.1, 70, 9) * 0.04)
+    a, b = math.exp(-0.03), math.exp(-0.04)
+    want = ((1 - a) * z + (a - b)) / (z * (z - b)) / z
+    got = np.polyval(f.num, z) / np.polyval(f.den, z) / z
+    assert_allclose(got, want, rtol=1e-10)
 
 
 def test_zoh_of_discrete_plant():

@@ -17,8 +17,8 @@ ROLL_P = plant_from_expr(ROLL)
     (dict(plant_or_plants=ROLL_P, structure="pid", dt=0), ("dt",)),
     (dict(plant_or_plants=[], structure="pid"), ("plants",)),
     (dict(plant_or_plants=[ROLL_P, "1/(s+1)"], structure="pid"), ("plants", 1)),
-    (dict(plant_or_plants=[ROLL_P, make_plant([1.0], [1.0, 1.0], delay=0.05)], structure="pid", dt=DT),
-     ("plants", 1, "delay")),
+    (dict(plant_or_plants=[ROLL_P, make_plant([1.0], [1.0, 1.0], delay=201.5 * DT)], structure="pid", dt=DT),
+     ("plants", 1, "delay")),  # above MAX_DELAY_SAMPLES (a fraction of a sample is fine: exact)
     (dict(plant_or_plants=make_plant([0.04], [1.0, -1.0], dt=0.04), structure="pi", dt=0.05), ("dt",)),
     (dict(plant_or_plants=[make_plant([0.04], [1.0, -1.0], dt=0.04), make_plant([0.05], [1.0, -1.0], dt=0.05)],
           structure="pi"), ("plants", 1, "dt")),

@@ -39,7 +39,7 @@ from scipy import linalg
 from ..controllers import ControllerTF
 from ..errors import InvalidPlantError
 from ..loop import _discrete_loop
-from ..lti import SS, series, zoh, zpk_from_ss
+from ..lti import SS, series, zoh, zoh_fractional, zpk_from_ss
 from ..plant import MAX_ORDER, Plant, delay_in_samples, make_plant
 from .response import StepMetrics, StepResponse, step_metrics
 
@@ -100,9 +100,13 @@ def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
         return _plant_from_ss(sysd, dt)
     gi, go = inner.ss(), outer.ss()
     both = series(gi, go)  # states [inner x, outer x]; output: the outer plant's
-    phys = zoh(both, dt)
-    # the inner loop feeds back the inner plant's output, C_i x_i + D_i u
-    gth = SS(phys.A, phys.B, np.concatenate([gi.C, np.zeros(go.n)]), gi.D)
+    phi = zi.zoh_fraction  # an inner delay that is not whole samples: its fraction is one more state
+    phys = zoh(both, dt) if not phi else zoh_fractional(both, dt, phi)
+    # the inner loop feeds back the inner plant's output, C_i x_i + D_i u (with a fraction: the previous u)
+    if phi:
+        gth = SS(phys.A, phys.B, np.concatenate([gi.C, np.zeros(go.n), [gi.D]]), 0.0)
+    else:
+        gth = SS(phys.A, phys.B, np.concatenate([gi.C, np.zeros(go.n)]), gi.D)
     cl = _discrete_loop(gth, controller.ss(), di, ref=_ref(controller))
     n = phys.n
     # outer output = both.C x + both.D ua: the plant-state part of the closed loop, plus the plant input

@@ -6,7 +6,8 @@ expanded and no high-order difference equation is run.
 
 * Sampled-data loop: the closed-loop state recursion at ``dt`` is exact at the samples; the plant
   output between samples is ``y(t_k + j dt/N) = Cf[j] x_k + Df[j] u_k`` from the continuous
-  plant's realisation in the same coordinates (exact at the ``N`` points per sample).
+  plant's realisation in the same coordinates (exact at the ``N`` points per sample; a delay that
+  is not whole samples included: the held input switches ``phi`` after each sample).
 * Continuous loop without delay: the closed loop discretised exactly (matrix exponential) at a
   fine step ``h``; exact at every fine instant for a step input.
 * Continuous loop with delay: a sampled model at a fine step ``h`` (plant: exact ZOH with the delay
@@ -35,6 +36,7 @@ from scipy import linalg
 
 from ..errors import InvalidPlantError
 from ..loop import FineDelayLoop, Loop, _continuous_loop
+from ..lti import lifted_outputs
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
            "step_metrics", "default_horizon", "steady_state"]
@@ -218,21 +220,15 @@ def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
 
 
 def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
-    """``Cf`` (N, n), ``Df`` (N): the continuous plant's output at ``t_k + j dt/N`` from its state at t_k
-    and the held input (the realisation of ``loop.plant_ct``, the coordinates of the ZOH plant)."""
-    key = ("lifted", loop.dt, N)
+    """``Cf`` (N, n), ``Df`` (N): the continuous plant's output at ``t_k + j dt/N`` from the ZOH plant's state
+    at t_k and its held input (the realisation of ``loop.plant_ct``, the coordinates of the ZOH plant; with a
+    fractional delay ``phi`` the ZOH plant's extra state is the previous input, acting until ``t_k + phi``,
+    :func:`tuner.lti.lifted_outputs`)."""
+    phi = loop.plant_d.zoh_fraction if loop.plant_d is not None else 0.0
+    key = ("lifted", loop.dt, N, phi)
     pct = loop.plant_ct
     if key not in pct._cache:
-        g = pct.ss()
-        n = g.n
-        M = np.zeros((n + 1, n + 1))
-        M[:n, :n], M[:n, n] = g.A, g.B
-        E1 = linalg.expm(M * (loop.dt / N))
-        Cf, Df, E = np.zeros((N, n)), np.zeros(N), np.eye(n + 1)
-        for j in range(N):
-            Cf[j], Df[j] = g.C @ E[:n, :n], g.C @ E[:n, n] + g.D
-            E = E @ E1
-        pct._cache[key] = (Cf, Df)
+        pct._cache[key] = lifted_outputs(pct.ss(), loop.dt, N, phi)
     return pct._cache[key]
 
 

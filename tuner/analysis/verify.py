@@ -154,7 +154,8 @@ def analyze(
     spec : Spec, optional
         What is checked; defaults to the thesis spec (see :class:`~tuner.spec.Spec`).
     delay : float, optional
-        Input delay of a python-control plant, s (whole samples in a sampled-data loop). A
+        Input delay of a python-control plant, s (any delay for a continuous model, exact also in a
+        sampled-data loop; whole samples for a discrete model). A
         :class:`~tuner.plant.Plant` carries its own delay.
     horizon_s : float, optional
         Length of the simulated step response, s; default: 10 time constants of the slowest closed-loop

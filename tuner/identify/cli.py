@@ -120,7 +120,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--delay", type=parse_delay, default="auto", metavar="auto|none|S",
                    help="equivalent time delay: auto (estimate, default), none, or seconds")
     p.add_argument("--delay-step", type=float, default=None, metavar="DT",
-                   help="delay in whole multiples of DT (the loop's sample time)")
+                   help="restrict the delay to whole multiples of DT (optional: the tuner takes the delay as "
+                   "fitted, exactly, also in a sampled-data loop)")
     p.add_argument("--band", type=float, nargs=2, default=None, metavar=("WMIN", "WMAX"),
                    help="fit band, rad/s (default: where the coherence >= 0.6)")
     p.add_argument("--holdout", type=parse_holdout, default="auto", metavar="auto|F",

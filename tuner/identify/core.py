@@ -238,6 +238,7 @@ def identify(
                        cost=cost_terms(dm, dp, coh))
     unc = _uncertainty(out, delay)
     val, check_u = _check(model, spectra, fit_recs, rec, head, tail, ver, holdout)
+    cov = _uncertainty(out, delay, covariance=True)
     warns = _warnings(out.cost, points, used, model, unc, val, n_points=n_points, tau_max=tau_max,
                       delay=delay, check=check_u, fit_u=np.concatenate([r.u for r in fit_recs]),
                       want_check=holdout > 0 or ver is not None)
@@ -250,7 +251,8 @@ def identify(
     return IdentifyResult(model=model, cost=out.cost, band_rad_s=(float(used[0]), float(used[1])),
                           frequency_response=fr, fit_points=points, uncertainty=unc, validation=val,
                           warnings=tuple(warns), rate_hz=1.0 / rec.dt, n_samples=sum(r.n for r in recs),
-                          fit_duration_s=sum(r.duration_s for r in fit_recs), options=options)
+                          fit_duration_s=sum(r.duration_s for r in fit_recs), options=options,
+                          covariance=cov)
 
 
 AUTO_HOLDOUT = 0.2
@@ -391,18 +393,21 @@ def _verify_record(verify: Any, dt: float) -> Record:
         raise InvalidDataError(f"verify: {e}", field=("verify", *e.field)) from None
 
 
-def _uncertainty(out: Any, delay: DelaySpec) -> dict:
-    """Bounds at the optimum; a delay chosen among whole steps is bounded as if it were free."""
+def _uncertainty(out: Any, delay: DelaySpec, *, covariance: bool = False) -> Any:
+    """Bounds at the optimum (or, ``covariance``, the parameters' covariance in the order of the bounds); a
+    delay chosen among whole steps is bounded as if it were free."""
     from .fit import Problem
     from .model import Structure
+    from .uncertainty import covariance as cov_of
     from .uncertainty import cramer_rao
 
+    fn = cov_of if covariance else cramer_rao
     p, m = out.problem, out.model
     if delay == "auto" and not p.structure.free_delay:
         st = Structure(poles=p.structure.poles, zeros=p.structure.zeros, free_delay=True)
         p = Problem(w=p.w, mag_db=p.mag_db, phase_deg=p.phase_deg, coherence=p.coherence, structure=st, sign=p.sign)
-        return cramer_rao(p, np.concatenate([m.theta, [m.delay_s]]))
-    return cramer_rao(p, m.theta)
+        return fn(p, np.concatenate([m.theta, [m.delay_s]]))
+    return fn(p, m.theta)
 
 
 def _warnings(cost: float, points: FitPoints, band: tuple[float, float], model: Any, unc: dict, val: Any, *,

@@ -66,6 +66,9 @@ class IdentifyResult:
     n_samples: int
     fit_duration_s: float
     options: dict[str, Any] = field(default_factory=dict)
+    # the parameters' covariance (Cramér–Rao matrix) in the order of ``uncertainty``, in their own units:
+    # its diagonal is the square of each cr_bound (tuner.identify.uncertainty.covariance)
+    covariance: np.ndarray | None = None
 
     @property
     def quality(self) -> str:
@@ -153,6 +156,8 @@ class IdentifyResult:
             "n_samples": self.n_samples,
             "fit_duration_s": self.fit_duration_s,
             "options": dict(self.options),
+            "covariance": None if self.covariance is None else {
+                "parameters": list(self.uncertainty), "matrix": np.asarray(self.covariance, float).tolist()},
         }
 
     @classmethod
@@ -167,7 +172,8 @@ class IdentifyResult:
                    fit_points=FitPoints.from_dict(_nums(d["fit_points"])), uncertainty=unc,
                    validation=None if val is None else Validation.from_dict(_nums(val)),
                    warnings=tuple(d.get("warnings", ())), rate_hz=_num(d["rate_hz"]), n_samples=int(d["n_samples"]),
-                   fit_duration_s=_num(d["fit_duration_s"]), options=dict(d.get("options", {})))
+                   fit_duration_s=_num(d["fit_duration_s"]), options=dict(d.get("options", {})),
+                   covariance=_covariance(d.get("covariance"), list(unc)))
 
     def plot(self, *, title: str | None = None, time_domain: bool = True):
         """Bode plot of the data and the fit with a coherence panel (and the held-out check).
@@ -181,6 +187,24 @@ class IdentifyResult:
 
 _SHORT = {"holdout": "held-out end", "verify": "verification record", "fit": "fitted record"}
 _SPECIAL = {"Infinity": math.inf, "-Infinity": -math.inf, "NaN": math.nan}
+
+
+def _covariance(d: Any, names: list[str]) -> np.ndarray | None:
+    """The stored covariance, checked against the parameters' order (``None`` when absent)."""
+    if d is None:
+        return None
+    from ..errors import InvalidDataError
+
+    if not isinstance(d, dict) or list(d.get("parameters", ())) != names:
+        raise InvalidDataError(f"covariance: expected {{'parameters': {names}, 'matrix': ...}}", field="covariance")
+    try:
+        m = np.asarray(_nums(d["matrix"]), dtype=float)
+    except (TypeError, ValueError, KeyError):
+        raise InvalidDataError("covariance: matrix must be a square list of numbers", field="covariance") from None
+    if m.shape != (len(names), len(names)):
+        raise InvalidDataError(f"covariance: matrix must be {len(names)} x {len(names)}, got shape {m.shape}",
+                               field="covariance")
+    return m
 
 
 def _num(v: Any) -> float:

@@ -31,7 +31,7 @@ import numpy as np
 
 from .fit import Problem
 
-__all__ = ["CR_LIMIT_PCT", "INSENSITIVITY_LIMIT_PCT", "ParameterUncertainty", "cramer_rao"]
+__all__ = ["CR_LIMIT_PCT", "INSENSITIVITY_LIMIT_PCT", "ParameterUncertainty", "cramer_rao", "covariance"]
 
 CR_LIMIT_PCT = 20.0
 INSENSITIVITY_LIMIT_PCT = 10.0
@@ -53,6 +53,29 @@ class ParameterUncertainty:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def covariance(problem: Problem, theta: np.ndarray) -> np.ndarray:
+    """The parameters' covariance at ``theta`` (``s^2 (A^T A)^-1``, the Cramér–Rao matrix), in parameter order
+    (:meth:`~tuner.identify.model.Structure.names`) and in the parameters' own units (gain, rad/s, damping,
+    s): ``D Cov_theta D`` with ``D = diag(|value|)`` for the log-parameters and 1 for the delay, so its
+    diagonal is the square of the ``cr_bound`` of :func:`cramer_rao`. ``inf`` everywhere when the
+    information matrix is singular."""
+    theta = np.asarray(theta, dtype=float)
+    A = problem.jacobian(theta)
+    r = problem.residuals(theta)
+    m, p = A.shape
+    s2 = float(r @ r) / (m - p) if m > p else math.inf
+    M = A.T @ A
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        try:
+            cond = np.linalg.cond(M)
+            cov = np.linalg.inv(M) * s2 if np.isfinite(cond) and cond < 1e14 else np.full((p, p), np.inf)
+        except np.linalg.LinAlgError:
+            cov = np.full((p, p), np.inf)
+        values = problem.model(theta).values()
+        d = np.array([1.0 if n == "delay_s" else abs(values[n]) for n in problem.structure.names()])
+        return cov * np.outer(d, d)
 
 
 def cramer_rao(problem: Problem, theta: np.ndarray) -> dict[str, ParameterUncertainty]:

@@ -27,10 +27,11 @@ from .schema import (
     identified,
     loop_key,
     thesis_controller_of,
+    true_plant_of,
 )
 
 __all__ = ["LoopEval", "loop_plants", "evaluate_loop", "evaluate_gains", "evaluate_thesis", "tune_loop",
-           "gains_entry", "check_gains_file", "identification_summary"]
+           "gains_entry", "check_gains_file", "identification_summary", "uncertainty_checks"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,7 +214,28 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
            "spec": lp.spec.model_dump(), "plant": [p.describe() for p in plants]}
     if lp.data is not None:
         out["identification"] = identification_summary(lp)
+        out.update(uncertainty_checks(lp, res.controller, seed=study.seed if lp.seed is None else lp.seed))
     return jsonable(out)
+
+
+def uncertainty_checks(lp: LoopDef, controller: ControllerTF, *, seed: int = 0) -> dict[str, Any]:
+    """A data loop's controller judged beyond the identified model: the Monte Carlo check on draws from the
+    identified covariance (``robust`` / ``monte_carlo``, :mod:`tuner.robust`) and the verifier on the
+    ``true_plant`` the log was made from."""
+    from ..robust import MONTE_CARLO_DRAWS, monte_carlo, plant_set
+
+    out: dict[str, Any] = {}
+    ident = identified(lp)
+    if lp.robust is not None:
+        out["robust"] = plant_set(ident, lp.robust, dt=lp.dt)[1].to_dict()
+    n = lp.monte_carlo if lp.monte_carlo is not None else (MONTE_CARLO_DRAWS if lp.robust is not None else 0)
+    if n:
+        out["monte_carlo"] = monte_carlo(ident, controller, lp.spec, n=n, seed=seed).to_dict()
+    true = true_plant_of(lp)
+    if true is not None:
+        a = analyze(true, controller, lp.spec)
+        out["true_plant"] = {"plant": true.describe(), **a.to_dict()}
+    return out
 
 
 def identification_summary(lp: LoopDef) -> dict[str, Any]:

@@ -11,7 +11,7 @@ A study is a TOML file::
     plant = "0.377568*3.5184^2/(s^2+2*0.5006*3.5184*s+3.5184^2)"   # or {num = [...], den = [...]}
     # plants = ["...", "..."]   # instead of plant: a plant set, tuned robustly (nominal first)
     # plant_dt = 0.04           # sample time of a plant given in z
-    # delay = 0.0               # plant input delay, s (whole samples of dt)
+    # delay = 0.0               # plant input delay, s (any; whole samples of plant_dt for a plant in z)
     dt = 0.04                   # controller sample time (omit for a continuous controller)
     structure = "pid_z"
     thesis_controller = "37.79*(z^2-1.85*z+0.8686)/(z*(z-1))"    # optional, compared as printed
@@ -29,7 +29,9 @@ A study is a TOML file::
     name = "roll"               # a plant given as flight data: identified, then tuned
     data = {file = "data/roll_sweep.csv", time = "t", input = "roll_cmd", output = "roll",
             poles = 2, zeros = 0, delay = "auto"}
-    dt = 0.04                   # the delay is fitted in whole samples of dt
+    dt = 0.04                   # the delay as fitted (exact in the loop); data.delay_step restricts it
+    # robust = 2                # design for the identified parameters' 2-sigma set, Monte Carlo check
+    # true_plant = {expr = "...", delay = 0.04}   # a synthetic log's truth: the report judges the loop on it
     structure = "pid_z"
 
 ``data.file`` is relative to the study file (when loaded with :func:`load_study`); a data
@@ -57,7 +59,8 @@ from ..plant import MAX_DT_S, MIN_DT_S, Plant, make_plant, plant_from_expr
 from ..spec import Spec
 
 __all__ = ["InvalidStudyError", "PlantCoeffs", "PlantData", "LoopDef", "StudyDef", "load_study", "parse_study",
-           "base_plants", "loop_key", "controller_of", "thesis_controller_of", "identified", "data_path"]
+           "base_plants", "loop_key", "controller_of", "thesis_controller_of", "identified", "data_path",
+           "true_plant_of"]
 
 _NAME = r"^[A-Za-z0-9_.-]+$"
 
@@ -75,6 +78,14 @@ class PlantCoeffs(BaseModel):
 PlantText = str | PlantCoeffs
 
 
+class TruePlant(BaseModel):
+    """The plant a synthetic log was made from: an expression in s and its delay."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    expr: str = Field(min_length=1, max_length=2000, description="transfer function in s")
+    delay: float = Field(0.0, ge=0, allow_inf_nan=False, description="input delay, s")
+
+
 class PlantData(BaseModel):
     """A plant given as a flight log: the options of :func:`tuner.identify` and where the columns are."""
 
@@ -89,7 +100,10 @@ class PlantData(BaseModel):
                                "signals), relative to the study file: the time-domain check runs on it")
     poles: int = Field(ge=1, le=8)
     zeros: int = Field(0, ge=0, le=8)
-    delay: Literal["auto", "none"] | float = Field("auto", description='"auto", "none", or seconds (whole samples)')
+    delay: Literal["auto", "none"] | float = Field("auto", description='"auto" (fitted), "none", or seconds')
+    delay_step: float | None = Field(None, gt=0, le=MAX_DT_S, allow_inf_nan=False,
+                                     description="restrict the fitted delay to whole multiples of this, s (default: "
+                                                 "the delay as fitted; it is exact in the sampled-data loop)")
     band: list[float] | None = Field(None, min_length=2, max_length=2, description="fit band [w_min, w_max], rad/s")
     holdout: Literal["auto"] | Annotated[float, Field(ge=0, le=0.5)] = Field(
         "auto", description='time-domain check data: "auto", a fraction held out at the end, or 0 (none)')
@@ -138,6 +152,14 @@ class LoopDef(BaseModel):
     n_trials: int | None = Field(None, ge=1, le=100_000)
     n_starts: int | None = Field(None, ge=1, le=20)
     note: str | None = Field(None, description="shown in the report (e.g. why a spec is relaxed)")
+    robust: float | None = Field(None, gt=0, le=10, allow_inf_nan=False,
+                                 description="data loops: design for the plant set spanned by the identified "
+                                             "parameters' robust-sigma Cramér–Rao bounds (tuner.robust)")
+    monte_carlo: int | None = Field(None, ge=0, le=10_000,
+                                    description="data loops: draws of the Monte Carlo check from the identified "
+                                                "covariance (default 200 with robust, else 0)")
+    true_plant: TruePlant | None = Field(None, description="data loops: the plant the log was made from (a "
+                                         "synthetic log's truth), on which the report also judges the loop")
     variant_of: str | None = Field(None, description="name of the loop this one varies (another spec on the same "
                                    "plant): the report says what the change costs")
 
@@ -155,12 +177,17 @@ class LoopDef(BaseModel):
         if self.data is not None and (self.delay or self.plant_dt is not None):
             raise ValueError("data: the delay is identified (data.delay) and the plant is continuous; "
                              "leave delay and plant_dt out")
+        if self.data is None:
+            for name in ("robust", "monte_carlo", "true_plant"):
+                if getattr(self, name) is not None:
+                    raise ValueError(f"{name}: only for a plant given as data (a flight log to identify)")
         if self.structure == "pid_z" and self.dt is None:
             raise ValueError("structure pid_z is discrete: give dt")
-        if self.dt is not None and self.delay:
-            n = self.delay / self.dt
+        if self.plant_dt is not None and self.delay:  # a plant in s takes any delay, exactly (also sampled)
+            n = self.delay / self.plant_dt
             if abs(n - round(n)) > 1e-6 * max(1.0, n):
-                raise ValueError(f"delay: {self.delay} s is not a whole number of samples of dt={self.dt} s")
+                raise ValueError(f"delay: {self.delay} s is not a whole number of samples of the plant's "
+                                 f"dt={self.plant_dt} s: a plant given in z needs a multiple of its dt")
         return self
 
     @property
@@ -294,6 +321,7 @@ def load_study(path: str | Path) -> StudyDef:
         try:
             base_plants(lp)
             thesis_controller_of(lp)
+            true_plant_of(lp)
         except TunerError as e:
             raise InvalidStudyError(f"{p}: loop {lp.name!r}: {e}") from None
     return study
@@ -361,13 +389,13 @@ def _identify_cached(path: str, digest: str, options: str, dt: float | None, ver
         ver = {k: v[k] for k in ("input", "output", "time", "rate_hz") if v[k] is not None}
     delay = None if o["delay"] == "none" else o["delay"]
     return identify(data["input"], data["output"], time=data["time"], rate_hz=data["rate_hz"], poles=o["poles"],
-                    zeros=o["zeros"], delay=delay, delay_step=dt, band=o["band"], holdout=o["holdout"],
-                    verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"])
+                    zeros=o["zeros"], delay=delay, delay_step=o.get("delay_step"), band=o["band"],
+                    holdout=o["holdout"], verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"])
 
 
 def identified(lp: LoopDef) -> Any:
-    """The :class:`~tuner.identify.IdentifyResult` of a data loop (the delay in whole samples of the
-    loop's dt); computed once per file content and options."""
+    """The :class:`~tuner.identify.IdentifyResult` of a data loop (the delay as fitted, or in whole multiples of
+    ``data.delay_step``); computed once per file content and options."""
     if lp.data is None:
         raise InvalidStudyError(f"loop {lp.name!r} has no data")
     path = data_path(lp.data)
@@ -387,8 +415,15 @@ def identified(lp: LoopDef) -> Any:
 
 def base_plants(lp: LoopDef) -> list[Plant]:
     """The loop's own plants (for a cascade: from the inner loop's output to this loop's output);
-    for a data loop, the identified model."""
+    for a data loop, the identified model (with ``robust``, its K-sigma plant set, :func:`tuner.robust.plant_set`)."""
     if lp.data is not None:
+        if lp.robust is not None:
+            from ..robust import plant_set
+
+            try:
+                return plant_set(identified(lp), lp.robust, dt=lp.dt)[0]
+            except TunerError as e:
+                raise type(e)(f"robust: {e}", field=("robust",)) from e
         return [identified(lp).plant()]
     out = []
     for i, text in enumerate(lp.plant_list):
@@ -399,6 +434,19 @@ def base_plants(lp: LoopDef) -> list[Plant]:
             raise type(e)(f"{field}: {e}") from e
         out.append(p)
     return out
+
+
+def true_plant_of(lp: LoopDef) -> Plant | None:
+    """A data loop's ``true_plant`` (the truth of a synthetic log), or None."""
+    if lp.true_plant is None:
+        return None
+    try:
+        p = plant_from_expr(lp.true_plant.expr, delay=lp.true_plant.delay)
+    except TunerError as e:
+        raise type(e)(f"true_plant: {e}") from e
+    if p.is_discrete:
+        raise InvalidStudyError("true_plant: give the plant in s (the continuous plant the log was made from)")
+    return p
 
 
 def controller_of(lp: LoopDef, gains: dict[str, float]) -> ControllerTF:

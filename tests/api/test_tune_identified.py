@@ -1,0 +1,87 @@
+"""``POST /tune`` with ``identification_id``: a stored identification tuned in one step, its delay as fitted
+(a fraction of dt), optionally for its K-sigma plant set with a Monte Carlo check."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from flight import fly
+
+from api.settings import Settings
+
+DT = 0.04
+TRUE = ([0.31 * 12.2**2], [1.0, 2 * 0.42 * 12.2, 12.2**2])
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory):
+    db = tmp_path_factory.mktemp("api-tune-identified") / "tuner.db"
+    return Settings(database_url=f"sqlite:///{db}", workers=1, queue_size=4, max_identify_body_bytes=16_000_000)
+
+
+@pytest.fixture(scope="module")
+def ident(client):
+    log = fly(*TRUE, delay_s=0.02, seed=41, duration_s=60.0)
+    r = client.post("/identify", json={"input": log.u.tolist(), "output": log.y.tolist(), "time": log.t.tolist(),
+                                       "poles": 2})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["covariance"]["parameters"] == list(d["uncertainty"])
+    return d
+
+
+def _body(ident, **kw):
+    return {"identification_id": ident["id"], "dt": DT, "structure": "pid_z",
+            "options": {"seed": 0, "time_budget_s": 2}, **kw}
+
+
+def test_tune_a_stored_identification(client, ident):
+    tau = ident["model"]["delay"]
+    assert 0 < tau % DT < 0.999 * DT  # a fraction of dt: tuned as it is
+    r = client.post("/tune", json=_body(ident, monte_carlo=10))
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["robust"]["k"] is None and d["robust"]["monte_carlo"]["n"] == 10
+    assert d["robust"]["parameters"]["delay_s"] == pytest.approx(tau, rel=1e-12)
+    stored = client.get(f"/tunes/{d['id']}").json()
+    assert stored["request"]["identification_id"] == ident["id"]
+    assert stored["robust"]["monte_carlo"]["n"] == 10
+
+
+@pytest.mark.slow
+def test_robust_tune_of_a_stored_identification(client, ident):
+    r = client.post("/tune", json=_body(ident, robust=2, monte_carlo=20, options={"seed": 0, "time_budget_s": 4}))
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["robust"]["k"] == 2 and d["robust"]["n_plants"] == 17 and len(d["plants"]) == 17
+    assert d["robust"]["monte_carlo"]["n"] == 20
+    assert math.isfinite(d["robust"]["monte_carlo"]["worst"]["phase_margin_deg"])
+
+
+@pytest.mark.parametrize("extra,loc,words", [
+    ({"identification_id": "nope"}, ["body", "identification_id"], "no stored identification"),
+    ({"plant": {"expr": "1/(s+1)"}}, ["body", "plant"], "not both"),
+    ({"plants": [{"expr": "1/(s+1)"}]}, ["body", "plants"], "leave plants out"),
+])
+def test_bad_identification_requests_are_422(client, ident, extra, loc, words):
+    r = client.post("/tune", json={**_body(ident), **extra})
+    assert r.status_code == 422, r.text
+    hit = [e for e in r.json()["detail"] if e["loc"] == loc]
+    assert hit and words in hit[0]["msg"], r.json()
+
+
+def test_analyze_takes_a_fractional_delay_over_http(client):
+    """A continuous plant with 23 ms of delay under a controller at dt 0.04: answered with the library's figures
+    (the exact ZOH of the delayed plant), not refused."""
+    from tuner import analyze, make_plant
+    from tuner.controllers import controller_from_expr
+
+    ctrl = "3.868*(z^2-1.305*z+0.5668)/(z*(z-1))"
+    r = client.post("/analyze", json={"plant": {"expr": "58.5708/(s^2+14.195*s+220.606)", "delay": 0.023},
+                                      "dt": DT, "controller": {"expr": ctrl}})
+    assert r.status_code == 200, r.text
+    want = analyze(make_plant([58.5708], [1, 14.195, 220.606], delay=0.023), controller_from_expr(ctrl, dt=DT))
+    m = r.json()["metrics"]
+    assert m["phase_margin_deg"] == pytest.approx(want.metrics.phase_margin_deg, abs=1e-9)
+    assert m["overshoot_pct"] == pytest.approx(want.metrics.overshoot_pct, abs=1e-9)
