@@ -223,3 +223,21 @@ def polyprod(*factors):
     for f in factors:
         out = np.polymul(out, np.asarray(f, float))
     return out
+
+
+def pid_backward_euler(g, dt):
+    """The backward-Euler PID of tuner/controllers.py written out: Kp + Ki dt z/(z-1) + Kd (z-1)/((Tf+dt) z - Tf)
+    (num, den in z, highest power first)."""
+    kp, ki, kd, tf = g["Kp"], g["Ki"], g["Kd"], g["Tf"]
+    a = [tf + dt, -tf]
+    num = np.polyadd(np.polyadd(np.polymul([kp], np.polymul([1, -1], a)), np.polymul([ki * dt, 0], a)),
+                     np.polymul([kd, -kd], [1, -1]))
+    return num, np.polymul([1, -1], a)
+
+
+def mks_sampled(c_num, c_den, plant_num, plant_den, dt, n=GRID_POINTS):
+    """max |C/(1 + C G_zoh)| on a dense grid up to the Nyquist frequency (the plant's ZOH built here)."""
+    w = dense_grid(dt, n=n)
+    L = eval_L(*open_loop(plant_num, plant_den, c_num, c_den, dt=dt), w, dt=dt)
+    C = eval_L(c_num, c_den, w, dt=dt)
+    return float(np.max(np.abs(C / (1 + L))))

@@ -58,25 +58,30 @@ def at_bounds(problem: Any, space: Any, x: np.ndarray, analyses: Any) -> list[di
             out.append({"param": p, "value": val, "bound": side, "limit": lim, "rule": rule})
     if rules.applies(st, spec):
         n = rules.filter_n(st, x)
-        if math.isfinite(n) and n >= spec.filter_n_max * (1 - LIMIT_TOL):
+        if n >= spec.filter_n_max * (1 - LIMIT_TOL):
             kp, kd = x[st.params.index("Kp")], x[st.params.index("Kd")]
-            lim = abs(kd / kp) / spec.filter_n_max
-            if not any(e["param"] == "Tf" for e in out):
-                out.append({"param": "Tf", "value": float(x[st.params.index("Tf")]), "bound": "lower",
-                            "limit": float(lim), "rule": f"the derivative-filter rule N = Td/Tf <= "
-                            f"{spec.filter_n_max:g} (N = {n:.4g}) decides"})
+            lim = abs(kd / kp) / spec.filter_n_max if kp else math.inf
+            beyond = not n <= spec.filter_n_max * (1 + 1e-6)
+            out.append({"param": "Tf", "value": float(x[st.params.index("Tf")]), "bound": "lower",
+                        "limit": float(lim), "beyond": beyond,
+                        "rule": f"the derivative-filter rule N = Td/Tf <= {spec.filter_n_max:g} (N = {n:.4g}) "
+                        + ("is violated" if beyond else "decides")})
     for lim in problem.limits:
         if lim["field"] != "mks_max":
             continue
         mks = max(a.metrics.mks for a in analyses)
         if math.isfinite(mks) and mks >= lim["value"] * (1 - LIMIT_TOL):
+            beyond = mks > lim["value"] * (1 + 1e-6)
             out.append({"param": None, "value": float(mks), "bound": "upper", "limit": float(lim["value"]),
-                        "rule": f"the noise budget ({lim['rule']}) decides: Mks = {mks:.4g}"})
+                        "beyond": beyond, "rule": f"the noise budget ({lim['rule']}) "
+                        + ("is exceeded" if beyond else "decides") + f": Mks = {mks:.4g}"})
     return out
 
 
 def describe(entry: dict[str, Any]) -> str:
     """One sentence: "Tf is at its lower bound 0.0127: the sampling rule ... decides"."""
     if entry.get("param") is None:
-        return f"Mks is at its limit {_fmt(entry['limit'])}: {entry['rule']}"
-    return f"{entry['param']} is at its {entry['bound']} bound {_fmt(entry['limit'])}: {entry['rule']}"
+        where = "beyond" if entry.get("beyond") else "at"
+        return f"Mks is {where} its limit {_fmt(entry['limit'])}: {entry['rule']}"
+    where = "past" if entry.get("beyond") else "at"
+    return f"{entry['param']} is {where} its {entry['bound']} bound {_fmt(entry['limit'])}: {entry['rule']}"

@@ -65,7 +65,8 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
         "default design limits (tune; on unless lifted)",
         "A derivative filter N = Td/Tf <= 20 (Astrom & Hagglund, Advanced PID Control, 2006: N in 2..20) for pd, "
         "pid, pid2, pid_mf2; at --dt a filter corner at most the Nyquist frequency (Tf >= dt/pi); a noise budget "
-        "Mks <= 10 K0 (K0: the plant's ultimate gain, or 1/|G(0)| if larger; 10 K0 is the noise gain of a "
+        "Mks <= 10 K0 (K0: the plant's ultimate gain, 1/|G| at -135 deg if its phase never reaches -180, or "
+        "1/|G(0)| if larger; 10 K0 is the noise gain of a "
         "Ziegler-Nichols PID with N of 10-20). The thesis's pid_z keeps its own form (only the noise budget).")
     d.add_argument("--filter-n", type=float, default=None, metavar="N", help="derivative filter rule N_max (20)")
     d.add_argument("--no-filter-nyquist", action="store_true", help="lift the filter's Nyquist rule (Tf >= 1e-3 dt)")
@@ -331,6 +332,12 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     from .jsonio import jsonable
     from .plant import check_dt, plant_from_expr
 
+    for flag, given in (("--filter-n", a.filter_n is not None), ("--noise-gain", a.noise_gain is not None),
+                        ("--no-filter-nyquist", a.no_filter_nyquist), ("--no-default-limits", a.no_default_limits)):
+        if given:
+            raise TunerError(f"{flag}: the default design limits are the tune's (they act on a structure's "
+                             "parameters and the plant's scale); analyze checks the limits you give: --mks, --ms, "
+                             "--mt, --control-peak, ...")
     spec = _spec_from_args(a)
     plot_fmt = _plot_format(a)
     with field("--dt"):  # name the right argument (an s-plant ignores dt, so it would surface at --controller)
@@ -425,7 +432,8 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         print(mc.summary())
         print("  meeting each constraint: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in mc.fraction_meeting.items()))
     for lim in res.limits:
-        print(f"default limit: {lim['rule']}" + (" (--no-default-limits lifts it)" if lim["field"] else ""))
+        print(f"design limit: {lim['rule']}" + (" (a default; --no-default-limits lifts it)" if lim.get("default")
+                                                 else ""))
     for e in out["at_bounds"]:
         print(f"at a bound: {e['text']}")
     if res.meets_spec:
@@ -458,9 +466,16 @@ def _cmd_tradeoff(a: argparse.Namespace) -> int:
         raise TunerError("--objective: the trade-off's speed axis is the settling time; leave --objective out")
     res = tradeoff(plants, structure=a.structure, spec=spec, dt=a.dt, x=a.x, y=a.y, points=a.points, seed=a.seed,
                    time_budget_s=a.budget)
+    code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
         print(json.dumps(res.to_json(), indent=2))
-        return EXIT_OK
+        return code
+    if not res.meets_spec:
+        print("the spec itself is not met: no trade-off curve (relax it first)")
+        for r in res.reasons:
+            hint = suggestion_flags(r.suggest)
+            print(f"  why: {in_flags(r.message)}" + (f" [try {hint}]" if hint else ""))
+        return code
     from rich.console import Console
     from rich.table import Table
 
@@ -468,13 +483,13 @@ def _cmd_tradeoff(a: argparse.Namespace) -> int:
     for col in ("#", "settling_time_s", res.y, f"{res.y} limit", "gains"):
         t.add_column(col)
     for k, ((ts, y), lim, r) in enumerate(zip(res.values(), res.limits, res.points)):
-        t.add_row(str(k), fmt(ts), fmt(y), "spec" if k == 0 else fmt(lim),
+        t.add_row(str(k), fmt(ts), fmt(y), "spec" if lim is None else fmt(lim),
                   ", ".join(f"{n} = {v:.4g}" for n, v in r.gains.items()))
     Console(highlight=False).print(t)
     for sk in res.skipped:
         print(f"left out: {res.y} <= {fmt(sk['limit'])}: {sk['why']}")
     print(f"{len(res.points)} points in {res.wall_time_s:.2f} s")
-    return EXIT_OK
+    return code
 
 
 def _load_identified(path: str) -> Any:

@@ -80,9 +80,13 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
         where = "" if len(problem.plants) == 1 else f" (plant #{i + 1})"
         g0 = dc_gain(p)
         if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
-            out.append(Reason(("mks",), f"mks <= {sp.mks_max:g} is below |C S| at zero frequency, 1/G(0) = "
+            k = _budget_scale(problem)
+            sug = {"noise_gain_max": _outward(1.0 / g0 * 1.001 / k, -1)} if k else \
+                {"mks_max": _outward(1.0 / g0 * 1.001, -1)}
+            what = f"the noise budget mks <= {sp.mks_max:.4g}" if k else f"mks <= {sp.mks_max:g}"
+            out.append(Reason(("mks",), f"{what} is below |C S| at zero frequency, 1/G(0) = "
                               f"{1.0 / g0:.4g}, which every controller with integral action has{where}: "
-                              "allow at least that", {"mks_max": _outward(1.0 / g0 * 1.001, -1)}))
+                              "allow at least that", sug))
         if not sp.zero_steady_state_error:
             continue
         if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - 1e-9):
@@ -102,16 +106,32 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
     return out
 
 
+def _budget_scale(problem: TuningProblem) -> float | None:
+    """The gain the default noise budget is relative to, when the budget is the Mks limit in force (else None)."""
+    from .problem import noise_scale
+
+    if any(lim["field"] == "mks_max" for lim in problem.limits):
+        return noise_scale(problem.plants, problem.scale)
+    return None
+
+
 def _relaxed(spec: Spec, changes: dict[str, Any]) -> Spec:
     return Spec.model_validate({**spec.model_dump(), **changes})  # validated: a suggestion is always a valid spec
 
 
 def _field_value(res: Any, check: str) -> float:
     """The value of the limit's spec field that the re-tuned design ``res`` just meets, worst over the plants:
-    the metric itself, except for the lower gain margin (``gain_margin_lower_db <= -gm``: gm = -value)."""
+    the metric itself, except for the lower gain margin (``gain_margin_lower_db <= -gm``: gm = -value) and the
+    derivative filter's N (from the design's parameters)."""
     fld, sign, _ = _LIMITS[check]
     if check == "gain_margin_lower_db":
         return min(-a.metrics.gain_margin_lower_db for a in res.analyses)
+    if check == "filter_n":
+        from .controllers import get_structure
+        from .optimize.rules import filter_n
+
+        st = get_structure(res.structure)
+        return filter_n(st, st.vector(res.gains))
     vals = [getattr(a.metrics, check) for a in res.analyses]
     return min(vals) if sign > 0 else max(vals)
 
@@ -128,15 +148,25 @@ def _outward(x: float, sign: int) -> float:
 
 
 def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: int, budget_s: float,
-             min_tune_s: float = 0.05, found: list | None = None) -> list[Reason]:
+             min_tune_s: float = 0.05, found: list | None = None, analyses: Any = ()) -> list[Reason]:
     """Reasons for ``failing`` (check names of the best design); ``tune_fn(problem, seed, budget)`` re-tunes.
 
     ``min_tune_s``: what one re-tune needs at least (its final verification included); a re-tune is started
     only if the longest one so far (or ``min_tune_s`` before the first) still fits in what is left of
-    ``budget_s``, so the diagnosis ends within it."""
+    ``budget_s``, so the diagnosis ends within it. ``analyses``: the best design's (what a target crossover
+    reached); ``found``: every re-tuned result is appended to it (the caller may adopt one that meets the spec)."""
     reasons = definitional_reasons(problem)
     explained = {c for r in reasons for c in r.constraints}
     todo = [c for c in dict.fromkeys(failing) if c in _LIMITS and c not in explained]
+    if problem.asked_spec.settling_time_max is None and "settling_time_s" in todo:
+        todo.remove("settling_time_s")  # "settles at all" (< inf): no limit to relax
+    if "crossover_rad_s" in failing and "crossover_rad_s" not in explained:
+        wc = [a.metrics.crossover_rad_s for a in analyses]
+        got = ", ".join(f"{w:.4g}" for w in wc if math.isfinite(w)) or "none"
+        reasons.append(Reason(("crossover_rad_s",), f"the target crossover crossover_rad_s = "
+                              f"{problem.spec.crossover_rad_s:g} rad/s was not reached with {problem.structure.name} "
+                              f"together with the other constraints (the best design found crosses at {got} rad/s): "
+                              "choose another target, or relax the margins and peaks"))
     if "gain_margin_db" in todo and "gain_margin_lower_db" in todo:
         todo.remove("gain_margin_lower_db")
     if not todo:
@@ -150,6 +180,20 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
     each = max(min_tune_s, budget_s / (len(todo) * (BISECTIONS + 1) + 1))
     longest = [min_tune_s]
     sp, name = problem.asked_spec, problem.structure.name
+    k_budget = _budget_scale(problem)
+
+    def changes_for(check: str, value: Any) -> dict[str, Any]:
+        """The spec change that sets ``check``'s limit to ``value``: the noise budget, where it is the Mks limit
+        in force, is lifted and the value given as mks_max."""
+        fld = _LIMITS[check][0]
+        if check == "mks" and k_budget:
+            return {"noise_gain_max": None, "mks_max": value}
+        return {fld: value}
+
+    def suggestion(check: str, shown: float) -> dict[str, Any]:
+        if check == "mks" and k_budget:
+            return {"noise_gain_max": _outward(shown / k_budget, -1)}
+        return {_LIMITS[check][0]: shown}
 
     def attempt(changes: dict[str, Any]) -> Any:
         if time.perf_counter() + max(longest[0], each) > end:
@@ -166,11 +210,16 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
     single_ok = False
     for check in todo:
         fld, sign, loosest = _LIMITS[check]
-        res = attempt({fld: loosest})
+        asked_v = getattr(sp, fld)
+        if asked_v is None:  # a limit the problem resolved (the noise budget as mks_max)
+            asked_v = getattr(problem.spec, fld)
+        if asked_v is None or isinstance(asked_v, bool):
+            continue
+        res = attempt(changes_for(check, loosest))
         if res is None or not res.meets_spec:
             continue
         single_ok = True
-        asked = float(getattr(sp, fld))
+        asked = float(asked_v)
         got = _field_value(res, check)  # the relaxed design meets every other constraint, and this limit at `got`
         op = ">=" if sign > 0 else "<="
         if not math.isfinite(got) or (got >= asked if sign > 0 else got <= asked):
@@ -182,7 +231,7 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
         lo, hi = (best, asked) if sign > 0 else (asked, best)  # for >=: feasible at lo, not found at hi
         for _ in range(BISECTIONS):
             mid = 0.5 * (lo + hi)
-            r = attempt({fld: mid})
+            r = attempt(changes_for(check, mid))
             if r is None:
                 break
             if r.meets_spec:
@@ -196,16 +245,22 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
                                   "did not find that design (budget or a missed basin); retry with a larger "
                                   "time_budget_s or another seed"))
             continue
-        reasons.append(Reason((check,), f"{check} {op} {asked:g} was not met with {name} on this plant together "
-                              f"with the other constraints; the tightest a search found feasible is {fld} = {shown:g}",
-                              {fld: shown}))
+        sug = suggestion(check, shown)
+        said = ", ".join(f"{k} = {v:g}" for k, v in sug.items())
+        reasons.append(Reason((check,), f"{check} {op} {asked:.4g} was not met with {name} on this plant together "
+                              f"with the other constraints; the tightest a search found feasible is {said}", sug))
     if not single_ok:
-        changes = {_LIMITS[c][0]: _LIMITS[c][2] for c in todo}
+        changes = {}
+        for c in todo:
+            changes.update(changes_for(c, _LIMITS[c][2]))
         res = attempt(changes)
         if res is not None and res.meets_spec:
             # suggest what the relaxed design achieves (rounded to the feasible side), never the lifted limits
-            got = {_LIMITS[c][0]: _outward(_field_value(res, c), _LIMITS[c][1]) for c in todo}
-            got = {k: v for k, v in got.items() if math.isfinite(v)}
+            got = {}
+            for c in todo:
+                v = _outward(_field_value(res, c), _LIMITS[c][1])
+                if math.isfinite(v):
+                    got.update(suggestion(c, v))
             achieved = ", ".join(f"{k} = {v:g}" for k, v in got.items())
             reasons.append(Reason(tuple(todo), f"{', '.join(todo)} were not met together with {name} on this plant: "
                                   "no re-tune with a single one relaxed was found feasible, one with all of them "

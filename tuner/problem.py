@@ -20,7 +20,7 @@ from .loop import build_loop
 from .optimize.design import PlantScale, initial_guess, plant_scale
 from .optimize.rules import has_filter_rule
 from .plant import Plant, check_dt
-from .spec import Spec
+from .spec import FILTER_N_MAX, NOISE_GAIN_MAX, Spec
 
 __all__ = ["TuningProblem", "MAX_PLANTS"]
 
@@ -104,14 +104,16 @@ def resolve_limits(spec: Spec, st: Structure, plants: Sequence[Plant], dt: float
         k = noise_scale(plants, scale)
         budget = spec.noise_gain_max * k
         if spec.mks_max is None or budget < spec.mks_max:
-            limits.append({"field": "mks_max", "value": budget,
+            limits.append({"field": "mks_max", "value": budget, "default": spec.noise_gain_max == NOISE_GAIN_MAX,
                            "rule": f"noise budget: Mks <= noise_gain_max x K0 = {spec.noise_gain_max:g} x {k:.4g}"})
             spec = spec.model_copy(update={"mks_max": budget})
     if spec.filter_n_max is not None and has_filter_rule(st):
-        limits.append({"field": "filter_n_max", "value": spec.filter_n_max,
-                       "rule": f"derivative filter: N = Td/Tf <= {spec.filter_n_max:g} (Astrom-Hagglund)"})
+        dflt = spec.filter_n_max == FILTER_N_MAX
+        limits.append({"field": "filter_n_max", "value": spec.filter_n_max, "default": dflt,
+                       "rule": f"derivative filter: N = Td/Tf <= {spec.filter_n_max:g}"
+                       + (" (Astrom-Hagglund)" if dflt else "")})
     if spec.filter_nyquist and dt is not None and "Tf" in st.params:
-        limits.append({"field": "filter_nyquist", "value": dt / math.pi,
+        limits.append({"field": "filter_nyquist", "value": dt / math.pi, "default": True,
                        "rule": f"filter corner at most the Nyquist frequency: Tf >= dt/pi = {dt / math.pi:.4g} s"})
     return spec, tuple(limits)
 

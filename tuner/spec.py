@@ -63,8 +63,9 @@ class Spec(BaseModel):
         "nothing); false lifts it (Tf >= 1e-3 dt)")
     noise_gain_max: float | None = Field(
         NOISE_GAIN_MAX, gt=0, description="noise budget: Mks = max |C/(1+L)| <= this times K0, the nominal plant's "
-        "gain scale 1/|G(j w0)| (w0: where its phase, hold and delay included, reaches -180 deg; its ultimate "
-        "gain). A Ziegler-Nichols PID (Kp = 0.6 Ku) with N = 10..20 has a high-frequency gain of 6.6..12.6 Ku: 10 "
+        "gain scale 1/|G(j w0)| (w0: where its phase, hold and delay included, reaches -180 deg: its ultimate "
+        "gain; a plant whose phase never gets there: where it reaches -135 deg), or 1/|G(0)| when that is larger. "
+        "A Ziegler-Nichols PID (Kp = 0.6 Ku) with N = 10..20 has a high-frequency gain of 6.6..12.6 Ku: 10 "
         "is that classic aggressive design's noise gain; the tighter of this and mks_max applies; null lifts it")
 
     @classmethod

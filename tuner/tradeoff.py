@@ -42,9 +42,15 @@ class TradeoffResult:
     x: str
     y: str
     points: tuple[Any, ...]
-    limits: tuple[float, ...]  # the y limit each point was tuned with (the first: none beyond the spec's)
+    limits: tuple[float | None, ...]  # the y limit each point was tuned with (None: the spec's own optimum)
     skipped: tuple[dict[str, Any], ...] = field(default=())  # limits that gave no new point, and why
     wall_time_s: float = 0.0
+    reasons: tuple[Any, ...] = ()  # when the spec itself is not met (no point): why (tuner.diagnose.Reason)
+
+    @property
+    def meets_spec(self) -> bool:
+        """Whether the spec is met at all (then every point meets it)."""
+        return bool(self.points)
 
     def values(self) -> list[tuple[float, float]]:
         """``(settling time, y)`` of each point (worst over the plants)."""
@@ -62,6 +68,8 @@ class TradeoffResult:
                         "meets_spec": r.meets_spec, "result": r.to_dict()}
                        for (x, y), lim, r in zip(self.values(), self.limits, self.points)],
             "skipped": [dict(s) for s in self.skipped],
+            "meets_spec": self.meets_spec,
+            "reasons": [r.to_dict() for r in self.reasons],
         }
 
     def to_json(self) -> dict[str, Any]:
@@ -129,13 +137,14 @@ def tradeoff(plant_or_plants: Any, *, structure: str | None = None, spec: Spec |
         problem = TuningProblem.build(plants, structure=structure, spec=spec, dt=dt)
     each = float(time_budget_s) / (points + 1)
     first = tune(problem, seed=seed, time_budget_s=each)
-    if not first.meets_spec:
-        raise TunerError("the spec itself is not met (no fastest point): relax it first; " +
-                         "; ".join(r.message for r in first.reasons), field="spec")
+    if not first.meets_spec:  # no fastest point: say why, as tune does
+        return TradeoffResult(structure=problem.structure.name, x=x, y=y, points=(), limits=(),
+                              skipped=({"limit": None, "why": "the spec itself is not met"},),
+                              wall_time_s=time.perf_counter() - t0, reasons=tuple(first.reasons))
     fld = Y_AXES[y]
     asked = problem.asked_spec
     m0, floor = _y(first, y), _floor(problem, y)
-    kept, limits, skipped = [first], [getattr(problem.spec, fld) or math.inf], []
+    kept, limits, skipped = [first], [None], []
     for k in range(1, points):
         m = floor + (m0 - floor) * FLOOR_SHARE ** (k / (points - 1))
         left = end - time.perf_counter()

@@ -52,6 +52,7 @@ async def export_tune(
     store: Store = Depends(get_store),
 ) -> PlainTextResponse:
     from tuner.export import check_name, equation_of, render
+    from tuner.export.source import clamp_note
 
     try:
         check_name(name)
@@ -61,9 +62,14 @@ async def export_tune(
     try:
         de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)
         text = render(de, format, name)
+        note = clamp_note(rec.result, u_min, u_max)
     except TunerError as e:
         f = str(e.field[0]) if e.field else ""
         if f not in _QUERY:  # the stored controller with these limits (the only choice left to the caller)
             f = "u_min" if u_min is not None else "u_max" if u_max is not None else "dt"
         raise FieldError(("query", f), str(e), type=error_type(e)) from None
-    return PlainTextResponse(text, headers={"Content-Disposition": f'inline; filename="{name}.{_SUFFIX[format]}"'})
+    headers = {"Content-Disposition": f'inline; filename="{name}.{_SUFFIX[format]}"'}
+    if note:  # in the source too (a comment), and as a header for the page and scripts
+        text = f"{ {'c': '// ', 'python': '# '}.get(format, '')}WARNING: {note}\n{text}"
+        headers["X-Tuner-Warning"] = note
+    return PlainTextResponse(text, headers=headers)

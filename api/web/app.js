@@ -65,7 +65,7 @@ function label(name) {
   for (const [suffix, u] of units) {
     if (name.endsWith(suffix)) { name = name.slice(0, -suffix.length); unit = u; break; }
   }
-  const short = { ms: "Ms", mt: "Mt", mks: "Mks", filter_n: "filter N = Td/Tf", control_peak: "control peak |u|" };
+  const short = { ms: "Ms", mt: "Mt", mks: "Mks", filter_n: "filter N = Td/Tf", filter_tf_s: "filter Tf ≥ dt/π", control_peak: "control peak |u|" };
   return (short[name] || name.replaceAll("_", " ")) + unit;
 }
 

@@ -98,7 +98,7 @@ def _cmd_export(a: argparse.Namespace) -> int:
         de = equation_of(src, dt=a.dt, method=a.method, u_min=a.u_min, u_max=a.u_max,
                          anti_windup=a.anti_windup.replace("-", "_"), tt=a.tt)
         text = render(de, a.format, a.name)
-        note = clamp_note(src, a.u_min, a.u_max)
+        note = clamp_note(src, a.u_min, a.u_max, flag=True)
         if note:
             print(f"tuner: warning: {note}", file=sys.stderr)
     except TunerError as e:

@@ -8,6 +8,8 @@ import warnings
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from ..controllers import ControllerTF, controller_from_coeffs
 from ..errors import InvalidControllerError, TunerError
 from .codegen import check_name, render
@@ -125,26 +127,40 @@ class ExportWarning(UserWarning):
     """The exported controller's limits change what was verified (the design's linear control peak exceeds them)."""
 
 
-def clamp_note(controller: Any, u_min: float | None, u_max: float | None) -> str | None:
-    """A warning when the verified linear control peak of a unit reference step exceeds the output limits the
-    export clamps to (the clamp then shapes the response, which the verifier did not see); None otherwise or when
-    the peak is unknown (a bare controller)."""
+def clamp_note(controller: Any, u_min: float | None, u_max: float | None, *, flag: bool = False) -> str | None:
+    """A warning when the verified control signal of a unit reference step leaves the output limits the export
+    clamps to (the clamp then shapes the response, which the verifier did not see); None otherwise, or when the
+    response is unknown (a bare controller). ``flag``: name the command-line flag, else the spec field."""
     from ..tuning import TuneResult
 
     if u_min is None and u_max is None:
         return None
-    peak = None
+    hi = lo = None  # the largest and smallest u of the verified unit-step responses
     if isinstance(controller, TuneResult):
-        peak = max(a.metrics.control_peak for a in controller.analyses)
+        us = [a.response.u for a in controller.analyses if a.response is not None and a.response.u.size]
+        if us:
+            hi, lo = max(float(np.max(u)) for u in us), min(float(np.min(u)) for u in us)
     elif isinstance(controller, Mapping) and isinstance(controller.get("metrics"), Mapping):
-        v = controller["metrics"].get("control_peak")
-        peak = float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
-    if peak is None or not math.isfinite(peak):
+        v = controller["metrics"].get("control_peak")  # a stored result: max |u| only (its sign is not kept)
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+            hi, lo = float(v), (-float(v) if u_min is not None and u_min < 0 else None)
+    if hi is None or not (math.isfinite(hi) and (lo is None or math.isfinite(lo))):
         return None
+    over = []
+    if u_max is not None and hi > u_max:
+        over.append((hi, u_max, "above"))
+    if u_min is not None and lo is not None and lo < u_min:
+        over.append((lo, u_min, "below"))
+    if not over:
+        return None
+    peak, lim, side = max(over, key=lambda t: abs(t[0] - t[1]))
+    share = lim / peak if peak != 0 and lim / peak > 0 else None
+    steps = f"reference steps larger than {share:.3g} saturate the actuator" if share is not None else \
+        "every reference step saturates the actuator"
+    name = "--control-peak" if flag else "control_peak_max"
     room = min(abs(v) for v in (u_min, u_max) if v is not None)
-    if peak <= room:
-        return None
-    return (f"the design's linear control peak for a unit reference step is {peak:.4g}, beyond the output limit "
-            f"{room:g} this export clamps to: steps larger than {room / peak:.3g} saturate the actuator and the "
-            "verified margins and step metrics no longer describe the response; tune with a control-peak limit "
-            f"(--control-peak {room:g}) or scale the reference")
+    hint = f"tune with a control-peak limit ({name} {room:g}) or scale the reference" if room > 0 else \
+        "scale the reference or the limits"
+    return (f"the design's control signal for a unit reference step reaches {peak:.4g}, {side} the output limit "
+            f"{lim:g} this export clamps to: {steps}, and the verified margins and step metrics no longer describe "
+            f"the response; {hint}")

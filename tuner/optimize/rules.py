@@ -15,7 +15,8 @@ import numpy as np
 from ..controllers import Structure
 from ..spec import Check, Spec
 
-__all__ = ["filter_n", "filter_n_batch", "filter_check", "applies", "has_filter_rule", "FILTERED"]
+__all__ = ["filter_n", "filter_n_batch", "filter_check", "applies", "has_filter_rule", "FILTERED", "nyquist_check",
+           "checks"]
 
 FILTERED = ("pd", "pid", "pid2", "pid_mf2", "pidf2")  # structures with a derivative filter Tf
 
@@ -58,3 +59,20 @@ def filter_check(st: Structure, spec: Spec, x: Any) -> Check:
     n, lim = filter_n(st, x), float(spec.filter_n_max)
     ok = bool(n <= lim * (1 + 1e-9))
     return Check("filter_n", "<=", lim, n, ok, 0.0 if ok else (n - lim if math.isfinite(n) else math.inf))
+
+
+def nyquist_check(st: Structure, spec: Spec, x: Any, dt: float | None) -> Check | None:
+    """The verifier's check of ``Spec.filter_nyquist`` (Tf >= dt/pi at a sample time), or None where it does not
+    apply (continuous, no filter, lifted). The search keeps it as its box's floor; the verifier checks it anyway."""
+    if not (spec.filter_nyquist and dt is not None and "Tf" in st.params):
+        return None
+    tf, lim = float(x[st.params.index("Tf")]), dt / math.pi
+    ok = bool(tf >= lim * (1 - 1e-9))
+    return Check("filter_tf_s", ">=", lim, tf, ok, 0.0 if ok else lim - tf)
+
+
+def checks(st: Structure, spec: Spec, x: Any, dt: float | None) -> list[Check]:
+    """Every check of the rules on the parameters that applies to ``st`` under ``spec``."""
+    out = [filter_check(st, spec, x)] if applies(st, spec) else []
+    ny = nyquist_check(st, spec, x, dt)
+    return out + ([ny] if ny is not None else [])

@@ -116,10 +116,10 @@ class Evaluator:
 
     def _with_rules(self, an: tuple[Analysis, ...], x: np.ndarray) -> tuple[Analysis, ...]:
         """The analyses with the checks of the rules on the parameters (the derivative filter's N)."""
-        if not rules.applies(self.structure, self.spec):
+        extra = rules.checks(self.structure, self.spec, x, self.dt)
+        if not extra:
             return an
-        chk = rules.filter_check(self.structure, self.spec, x)
-        return tuple(replace(a, checks=[*a.checks, chk]) for a in an)
+        return tuple(replace(a, checks=[*a.checks, *extra]) for a in an)
 
     def _loops(self, x: np.ndarray) -> list:
         ctrl = self.controller(x)

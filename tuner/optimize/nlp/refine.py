@@ -299,6 +299,8 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
     if level is not None:
         field_ = "mks_max" if spec.objective == "mks" else "disk_margin_min"
         cur = getattr(spec, field_)
+        # the NLP holds the peak at the level itself (not _TIGHT inside it): a peak counts as missed beyond it
+        level = level / _TIGHT if spec.objective == "mks" else level * _TIGHT
         tighter = level if cur is None else (min(cur, level) if spec.objective == "mks" else max(cur, level))
         spec = spec.model_copy(update={field_: tighter})
     ctrl = ev.st.tf(space.params(v), ev.dt)
@@ -355,7 +357,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
                      poles=tuple(lf.poles.size for lf in data.lifted),
                      delays=tuple(lf.delay_samples for lf in data.lifted), K=grid.K, N=grid.N,
                      phase_cross=tuple(data.has_pc), control_peak=spec.control_peak_max is not None,
-                     objective=spec.objective, solver=solver, pm=spec.phase_margin_min_deg > 0,
+                     objective=spec.objective, solver=solver,
+                     pm=spec.phase_margin_min_deg > 0 or spec.crossover_rad_s is not None,
                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
                      mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
                      filter_n=rules.applies(space.structure, spec),
