@@ -170,6 +170,11 @@ def identify(
     if fit_rec.n < MIN_SAMPLES:
         raise InvalidDataError(f"holding out {holdout:g} of {rec.n} samples leaves {fit_rec.n} to fit; at least "
                                f"{MIN_SAMPLES} are needed", field="holdout")
+    if isinstance(delay, float) and delay > fit_rec.duration_s / 4.0:
+        raise InvalidDataError(
+            f"delay {delay:g} s is longer than a quarter of the fitted part of the record ({fit_rec.duration_s:g} s, "
+            f"the longest delay its spectra resolve: {fit_rec.duration_s / 4.0:.4g} s); give a shorter delay, "
+            "'auto', or a longer record", field="delay")
     w_lowest = lowest_frequency_rad_s(fit_rec.duration_s)
     if req_band is not None:
         lo, hi = req_band
