@@ -18,6 +18,7 @@ from ..deps import client_id, get_identify_job, get_identify_plot_job, get_plot_
 from ..disconnect import unless_disconnected
 from ..errors import internal_message
 from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..quota import check_identification_quota
 from ..schemas_identify import (
     IDENTIFY_EXAMPLE,
     IdentificationData,
@@ -78,6 +79,7 @@ async def post_identify(
     client: str = Depends(client_id),
 ) -> JSONResponse:
     _check(body)
+    await run_in_threadpool(check_identification_quota, store, settings, len(body.input))
     options = body.model_dump(exclude=set(_SAMPLES))
     payload = {"input": np.asarray(body.input, dtype=float), "output": np.asarray(body.output, dtype=float),
                "time": None if body.time is None else np.asarray(body.time, dtype=float),
@@ -143,7 +145,8 @@ async def _plot(ident_id: str, fmt: str, store: Store, pool: WorkerPool, job: Ca
                 settings: Settings, media: str) -> Response:
     rec = await _record(store, ident_id)
     img = await draw_in_pool(pool, job, {"result": rec.result, "fmt": fmt}, settings)
-    return Response(img, media_type=media, headers={"Cache-Control": "public, max-age=86400"})
+    scope = "private" if settings.api_key is not None else "public"  # as the tune plots
+    return Response(img, media_type=media, headers={"Cache-Control": f"{scope}, max-age=86400"})
 
 
 @router.get("/identifications/{ident_id}/plot.png", response_class=Response, tags=["results"],
