@@ -33,7 +33,8 @@ def server(tmp_path_factory):
         yield s
 
 
-@pytest.mark.parametrize("path, rendered", [("/docs", ".opblock-summary-path"), ("/redoc", "[role=menuitem], li label")])
+@pytest.mark.parametrize("path, rendered", [("/docs", ".opblock-summary-path"),
+                                            ("/redoc", "[role=menuitem], li label")])
 def test_docs_render_under_their_csp(browser, server, path, rendered):
     ctx = browser.new_context()
     page = ctx.new_page()
@@ -49,4 +50,8 @@ def test_docs_render_under_their_csp(browser, server, path, rendered):
     finally:
         ctx.close()
     violations = [m for m in console if "Content Security Policy" in m or "Refused to" in m]
-    assert violations == [] and errors == [] and outside == [], (violations, errors, outside)
+    # ReDoc's footer logo is an image on cdn.redoc.ly: the policy blocks it (nothing leaves the machine), and
+    # that is the only thing it may block: nothing the page needs from the service itself
+    blocked_outside = [u for u in outside if any(u in m and "img-src" in m for m in violations)]
+    assert outside == blocked_outside and len(violations) == len(blocked_outside), (violations, outside)
+    assert all(u.startswith("https://cdn.redoc.ly/") for u in blocked_outside) and errors == [], (outside, errors)
