@@ -11,7 +11,8 @@ first chunk (a NUL byte, or bytes that are not UTF-8). Every error is a
 limit                  value        for
 =====================  ===========  ===================================================
 :data:`MAX_CSV_BYTES`  256 MiB      a CSV log (``tuner identify``)
-:data:`MAX_JSON_BYTES` 16 MiB       a JSON document (``tuner export --result``, gains)
+:data:`MAX_JSON_BYTES` 16 MiB       a JSON document (``tuner export --result``, ``verify --gains``)
+:data:`MAX_STUDY_BYTES` 4 MiB       a study file (TOML)
 =====================  ===========  ===================================================
 """
 
@@ -25,11 +26,12 @@ from typing import Any
 
 from .errors import TunerError
 
-__all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "read_text", "read_json"]
+__all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "MAX_STUDY_BYTES", "read_text", "read_json"]
 
 CHUNK_BYTES = 1 << 20
 MAX_CSV_BYTES = 256 << 20
 MAX_JSON_BYTES = 16 << 20
+MAX_STUDY_BYTES = 4 << 20
 
 
 def _mib(n: int) -> str:
@@ -78,6 +80,6 @@ def read_json(path: str | Path, *, limit: int = MAX_JSON_BYTES, field: str | Seq
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
-        raise TunerError(f"{name}: not JSON ({e.msg} at line {e.lineno}){tail}", field=field) from None
+        raise TunerError(f"{name}: not valid JSON ({e.msg} at line {e.lineno}){tail}", field=field) from None
     except RecursionError:
         raise TunerError(f"{name}: JSON nested too deeply to read{tail}", field=field) from None

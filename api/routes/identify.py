@@ -15,9 +15,8 @@ from tuner.jsonio import jsonable
 
 from ..convert import FieldError, error_type
 from ..deps import client_id, get_identify_job, get_identify_plot_job, get_plot_pool, get_pool, get_store
-from ..disconnect import unless_disconnected
-from ..errors import internal_message
-from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..jobrun import run_job
+from ..pool import WorkerPool
 from ..quota import check_identification_quota
 from ..schemas_identify import (
     IDENTIFY_EXAMPLE,
@@ -84,17 +83,12 @@ async def post_identify(
     payload = {"input": np.asarray(body.input, dtype=float), "output": np.asarray(body.output, dtype=float),
                "time": None if body.time is None else np.asarray(body.time, dtype=float),
                "rate_hz": body.rate_hz, **options}
-    try:
-        result = await unless_disconnected(
-            request, pool.run(job, payload, timeout_s=settings.identify_timeout_s, client=client))
-    except JobTimeout:
-        raise HTTPException(504, f"the identification took longer than {settings.identify_timeout_s:g} s and was "
-                                 "stopped; decimate the record or fit fewer poles") from None
-    except JobFailed as e:
-        if e.kind == "tuner_error":
-            field = tuple(e.info.get("field") or ("input",))  # the library's path is the body's
-            raise FieldError(("body", *field), e.info["message"], type=error_type(e.info["error"])) from None
-        raise HTTPException(500, internal_message(e.info, "identification")) from None
+    result = await run_job(
+        request, pool, job, payload, timeout_s=settings.identify_timeout_s, client=client, what="identification",
+        loc=lambda f: ("body", *f), default_field=("input",),  # the library's path is the body's
+        type_of=lambda info: error_type(info["error"]),
+        timeout_detail=lambda e: f"the identification took longer than {settings.identify_timeout_s:g} s and was "
+                                 "stopped; decimate the record or fit fewer poles")
     request = {**options, "n_samples": len(body.input), "sampling": "time" if body.time is not None else "rate_hz"}
     data = {"input": body.input, "output": body.output, "time": body.time, "rate_hz": body.rate_hz}
     rec = await run_in_threadpool(store.add_identification, request=request, data=data, result=result)

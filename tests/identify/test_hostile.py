@@ -129,3 +129,17 @@ def test_the_same_column_as_input_and_output_is_refused(csv_file, log, capsys):
     assert e.value.field == ("output",)
     assert main(["identify", csv_file, "--time", "t", "--input", "cmd", "--output", "cmd", "--poles", "1"]) == 2
     assert "--output cmd" in _err(capsys)
+
+
+def test_every_cli_file_input_goes_through_the_bounded_reader(tmp_path, capsys):
+    """The study file and the gains file too: a device is refused at once (exit 2, naming the input)."""
+    assert main(["study", "run", "/dev/zero"]) == 2
+    assert "/dev/zero" in _err(capsys)
+    study = tmp_path / "s.toml"
+    study.write_text('name = "t"\n[[loop]]\nname = "a"\nplant = "1/(s+1)"\nstructure = "pi"\n')
+    assert main(["verify", str(study), "--gains", "/dev/urandom"]) == 2
+    assert "--gains /dev/urandom" in _err(capsys)
+    from tuner.analysis import response
+    from tuner.optimize import batch
+
+    assert batch.MAX_SAMPLES is response.MAX_SAMPLES  # one source for the verifier's and the search's limit
