@@ -234,6 +234,13 @@ def test_controller_constructors_return_or_raise_tuner_error(c, dt):
     assert ctrl.den.size - 1 <= 40  # one controller-order limit, whatever the form
 
 
+# hostile input: the extremes of every accepted range (gains near 1e300, 1e-300) overflow while a loop is evaluated
+# (to inf, which the verifier reports honestly); these tests expect the overflow warnings that normal use never
+# shows (pytest's config makes them errors)
+HOSTILE = pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
+
+
+@HOSTILE
 @pytest.mark.slow
 @given(p=plants(), c=controllers(), dt=dts, spec=specs)
 @settings(max_examples=80, **SETTINGS)
@@ -251,11 +258,6 @@ def test_analyze_returns_an_honest_result_or_a_tuner_error(p, c, dt, spec):
         assert_tuner_error(e)
         return
     assert_honest(an)
-
-
-# hostile input: evaluating a loop with gains near 1e300 overflows (to inf, which the verifier reports honestly);
-# these tests expect the overflow warnings that normal use never shows (pytest's config makes them errors)
-HOSTILE = pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
 
 
 @HOSTILE
@@ -300,6 +302,7 @@ def test_problem_build_returns_or_raises_tuner_error(p, structure, dt, spec):
     assert all(math.isfinite(v) and v > 0 for v in prob.scale)
 
 
+@HOSTILE
 @pytest.mark.slow
 @given(p=plants(), structure=st.sampled_from(sorted(STRUCTURES)),
        dt=st.one_of(dts, st.sampled_from([1000.0, 1e4])), spec=specs, n_plants=st.integers(1, 3))
