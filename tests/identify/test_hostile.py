@@ -114,6 +114,12 @@ def test_values_near_1e300_get_a_message_about_overflow(log):
     assert e.value.field == ("output",)
 
 
+def test_values_below_1e_60_get_a_message_about_underflow(log):
+    with pytest.raises(InvalidDataError, match="underflow") as e:
+        identify(log.u * 1e-100, log.y * 1e-100, time=log.t, poles=2)
+    assert e.value.field == ("input",)
+
+
 def test_a_tiny_well_excited_signal_is_identified_as_the_same_model(log):
     """Scale invariance: the input and output in other units (x 1e-13) give the same model and cost."""
     ref = identify(log.u, log.y, time=log.t, poles=2, delay_step=0.04)
