@@ -18,6 +18,8 @@ RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin tuner \
 USER tuner
 WORKDIR /data
 ENV TUNER_DATABASE_URL=sqlite:////data/tuner.db
+# Host names served (api.guard): loopback by default (docker run -p 127.0.0.1:8000:8000 ...); reached under
+# another name, set e.g. -e TUNER_ALLOWED_HOSTS=tuner.example.com (else 400)
 VOLUME ["/data"]
 
 EXPOSE 8000

@@ -18,7 +18,7 @@ from .pool import WorkerPool
 from .settings import Settings, get_settings
 from .store import Store
 
-__all__ = ["get_store", "get_pool", "get_plot_pool", "get_plot_cache", "require_api_key", "client_id",
+__all__ = ["get_store", "get_pool", "get_plot_pool", "get_plot_cache", "require_api_key", "client_id", "client_key",
            "get_tune_job", "get_analyze_job", "get_plot_job", "get_identify_job", "get_identify_plot_job"]
 
 _api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
@@ -46,7 +46,11 @@ def client_id(request: Request, key: str | None = Security(_api_key_header)) -> 
     """Who asks, for the per-client limits: the client's address, with its API key's fingerprint if
     it sent one. The address is the one uvicorn reports (behind a proxy, run uvicorn with
     ``--proxy-headers --forwarded-allow-ips`` so that it is the client's, not the proxy's)."""
-    host = request.client.host if request.client is not None else "unknown"
+    return client_key(request.client.host if request.client is not None else "unknown", key)
+
+
+def client_key(host: str, key: str | None) -> str:
+    """:func:`client_id` from the address and the key (also used before the body is read, :mod:`api.guard`)."""
     if key:
         return f"key:{hashlib.sha256(key.encode()).hexdigest()[:12]}@{host}"
     return f"addr:{host}"

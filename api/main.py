@@ -58,7 +58,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app. ``settings`` default to the environment (``TUNER_*``)."""
     from fastapi_offline import FastAPIOffline
 
+    from .deps import client_key
     from .errors import install_error_handlers
+    from .guard import Guard
     from .limits import BodySizeLimit, HeadAsGet
     from .routes import api_router, public_router
 
@@ -114,6 +116,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
                        path_limits={"/identify": settings.max_identify_body_bytes})
     app.add_middleware(HeadAsGet)
+    # outermost: host, key and per-client limit from the headers before any body is read; body read timeout
+    app.add_middleware(Guard, allowed_hosts=settings.allowed_host_set,
+                       api_key=None if settings.api_key is None else settings.api_key.get_secret_value(),
+                       body_timeout_s=settings.body_timeout_s, client_of=client_key,
+                       pool_of=lambda: getattr(app.state, "pool", None))
     return app
 
 

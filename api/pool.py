@@ -295,6 +295,12 @@ class WorkerPool:
             del self._running[client]
         self._dispatch()
 
+    def would_refuse(self, client: str) -> bool:
+        """Whether a job of ``client`` asked for now would get :class:`ClientBusy` (decided before its body is read)."""
+        if self._eligible(client) and not any(w.client == client for w in self._waiters):
+            return False
+        return self._waiting[client] >= self.max_waiting_per_client
+
     async def _acquire(self, client: str) -> None:
         if self._eligible(client) and not any(w.client == client for w in self._waiters):
             self._grant(client)

@@ -36,6 +36,12 @@ variable                       default                     meaning
                                                            time as JSON are about 13 MB)
 ``TUNER_IDENTIFY_TIMEOUT_S``   ``60``                      limit of one identification (then 504)
 ``TUNER_MAX_PLANTS``           ``20``                      plants per robust request (nominal included)
+``TUNER_ALLOWED_HOSTS``        ``127.0.0.1,localhost,::1`` ``Host`` names served (comma-separated); others
+                                                           get 400 (DNS rebinding); ``*``: any
+``TUNER_BODY_TIMEOUT_S``       ``60``                      a request body must arrive within this, else 408
+``TUNER_MAX_IDENTIFICATIONS``  ``1000``                    stored identifications; beyond: 507
+``TUNER_MAX_IDENTIFICATION_``  ``20000000``                samples of all stored identifications' records
+``SAMPLES``                                                together; beyond: 507
 ``TUNER_MAX_TASKS_PER_WORKER`` ``200``                     a solver process is replaced after this many jobs
 ``TUNER_START_METHOD``         ``forkserver``              how solver processes start (or ``spawn``)
 ``TUNER_WORKER_MEMORY_MB``     ``4096``                    address-space cap of one solver process; a
@@ -95,12 +101,25 @@ class Settings(BaseSettings):
     max_identify_body_bytes: int = Field(24_000_000, ge=1024)
     identify_timeout_s: float = Field(60.0, gt=0, le=600)
     max_plants: int = Field(20, ge=1)
+    allowed_hosts: str = Field("127.0.0.1,localhost,::1", min_length=1,
+                               description="Host names served, comma-separated; '*' for any")
+    body_timeout_s: float = Field(60.0, gt=0, le=3600)
+    max_identifications: int = Field(1000, ge=0)
+    max_identification_samples: int = Field(20_000_000, ge=0)
 
     @model_validator(mode="after")
     def _consistent(self) -> Settings:
         if self.default_budget_s > self.max_budget_s:
             raise ValueError(f"default_budget_s={self.default_budget_s} is above max_budget_s={self.max_budget_s}")
         return self
+
+    @property
+    def allowed_host_set(self) -> frozenset[str] | None:
+        """The allowed ``Host`` names (lower case, no port), or ``None`` for any."""
+        from .guard import host_name
+
+        names = {host_name(h) for h in self.allowed_hosts.split(",") if h.strip()}
+        return None if "*" in names else frozenset(names)
 
     def solve_limit_s(self, budget_s: float) -> float:
         """When a solve with this budget is stopped from outside."""

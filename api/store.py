@@ -261,6 +261,16 @@ class Store:
 
         return self._read(fn)
 
+    def identification_usage(self) -> tuple[int, int]:
+        """How many identifications are stored, and their records' samples together."""
+        R = _IdentificationRow
+
+        def fn(s: Session) -> tuple[int, int]:
+            n, samples = s.execute(select(func.count(), func.coalesce(func.sum(R.n_samples), 0))).one()
+            return int(n), int(samples)
+
+        return self._read(fn)
+
     def list_identifications(self, *, limit: int, offset: int) -> tuple[list[IdentificationSummary], int]:
         """Newest first; also the total number stored."""
         R = _IdentificationRow

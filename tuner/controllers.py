@@ -348,9 +348,10 @@ class Structure:
                     f"{self.name}: {zero_t[0]} must be > 0 {why}",
                     field=("gains", zero_t[0]),
                 )
-        num, den = self.coeffs(x, dt, np.exp)
-        num = np.asarray(num, dtype=float)
-        den = np.asarray(den, dtype=float)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflowing parameters: refused just below
+            num, den = self.coeffs(x, dt, np.exp)
+            num = np.asarray(num, dtype=float)
+            den = np.asarray(den, dtype=float)
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))) or den[0] == 0:
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid transfer function",
                                          field="gains")

@@ -316,7 +316,7 @@ def freqresp(sys: SS, x: np.ndarray) -> np.ndarray:
     if n == 0:
         return out
     v = np.zeros((n,) + x.shape, dtype=complex)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # at a pole / huge gains: inf, reported
         for i in range(n - 1, -1, -1):
             acc = b[i] + (T[i, i + 1:] @ v[i + 1:] if i + 1 < n else 0.0)
             v[i] = acc / (x - T[i, i])

@@ -5,16 +5,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Depends, HTTPException, Request
+from fastapi import APIRouter, Body, Depends, Request
 from fastapi.responses import JSONResponse
 
 from tuner.jsonio import jsonable
 
-from ..convert import FieldError, analysis_inputs, body_loc
+from ..convert import analysis_inputs, body_loc
 from ..deps import client_id, get_analyze_job, get_pool
-from ..disconnect import unless_disconnected
-from ..errors import internal_message
-from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..jobrun import run_job
+from ..pool import WorkerPool
 from ..schemas import ROLL_ANALYZE_EXAMPLE, AnalyzeRequest, AnalyzeResponse
 from ..settings import Settings, get_settings
 from .tune import ERRORS
@@ -45,15 +44,8 @@ async def post_analyze(
 ) -> JSONResponse:
     plant, ctrl, spec = analysis_inputs(body)
     payload = {"plant": plant, "controller": ctrl, "spec": spec}
-    try:
-        out = await unless_disconnected(
-            request, pool.run(job, payload, timeout_s=settings.analyze_timeout_s, client=client))
-    except JobTimeout:
-        raise HTTPException(504, f"the analysis took longer than {settings.analyze_timeout_s:g} s and was "
-                                 "stopped") from None
-    except JobFailed as e:
-        if e.kind == "tuner_error":
-            raise FieldError(body_loc(e.info.get("field") or ("controller",)), e.info["message"],
-                             type="tuner_error") from None
-        raise HTTPException(500, internal_message(e.info, "analysis")) from None
+    out = await run_job(
+        request, pool, job, payload, timeout_s=settings.analyze_timeout_s, client=client, what="analysis",
+        loc=body_loc, default_field=("controller",),
+        timeout_detail=lambda e: f"the analysis took longer than {settings.analyze_timeout_s:g} s and was stopped")
     return JSONResponse(jsonable({**out, "controller": ctrl.to_dict()}))

@@ -15,9 +15,9 @@ from tuner.jsonio import jsonable
 
 from ..convert import FieldError, error_type
 from ..deps import client_id, get_identify_job, get_identify_plot_job, get_plot_pool, get_pool, get_store
-from ..disconnect import unless_disconnected
-from ..errors import internal_message
-from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..jobrun import run_job
+from ..pool import WorkerPool
+from ..quota import check_identification_quota
 from ..schemas_identify import (
     IDENTIFY_EXAMPLE,
     IdentificationData,
@@ -112,6 +112,9 @@ async def post_identify(
     client: str = Depends(client_id),
 ) -> JSONResponse:
     _check(body)
+    # the quota before any work (a ULog upload's sample count is known only after parsing: its bytes count then)
+    await run_in_threadpool(check_identification_quota, store, settings,
+                            len(body.input) if body.input is not None else 0)
     options = body.model_dump(exclude={*_SAMPLES, "ulog", "verify"})
     raw = _ulog_bytes(body)
     if raw is not None:
@@ -124,17 +127,12 @@ async def post_identify(
     if body.verify is not None:
         payload["verify"] = {k: np.asarray(v, dtype=float) if isinstance(v, list) else v
                              for k, v in body.verify.model_dump().items() if v is not None}
-    try:
-        result = await unless_disconnected(
-            request, pool.run(job, payload, timeout_s=settings.identify_timeout_s, client=client))
-    except JobTimeout:
-        raise HTTPException(504, f"the identification took longer than {settings.identify_timeout_s:g} s and was "
-                                 "stopped; decimate the record or fit fewer poles") from None
-    except JobFailed as e:
-        if e.kind == "tuner_error":
-            field = tuple(e.info.get("field") or ("input",))  # the library's path is the body's
-            raise FieldError(("body", *field), e.info["message"], type=error_type(e.info["error"])) from None
-        raise HTTPException(500, internal_message(e.info, "identification")) from None
+    result = await run_job(
+        request, pool, job, payload, timeout_s=settings.identify_timeout_s, client=client, what="identification",
+        loc=lambda f: ("body", *f), default_field=("input",),  # the library's path is the body's
+        type_of=lambda info: error_type(info["error"]),
+        timeout_detail=lambda e: f"the identification took longer than {settings.identify_timeout_s:g} s and was "
+                                 "stopped; decimate the record or fit fewer poles")
     samples = result.pop("_samples", None)  # a ULog log's records on the grid
     if samples is not None:
         request = {**options, "n_samples": result["n_samples"], "sampling": "ulog",
@@ -197,7 +195,8 @@ async def _plot(ident_id: str, fmt: str, store: Store, pool: WorkerPool, job: Ca
                 settings: Settings, media: str) -> Response:
     rec = await _record(store, ident_id)
     img = await draw_in_pool(pool, job, {"result": rec.result, "fmt": fmt}, settings)
-    return Response(img, media_type=media, headers={"Cache-Control": "public, max-age=86400"})
+    scope = "private" if settings.api_key is not None else "public"  # as the tune plots
+    return Response(img, media_type=media, headers={"Cache-Control": f"{scope}, max-age=86400"})
 
 
 @router.get("/identifications/{ident_id}/plot.png", response_class=Response, tags=["results"],

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Depends, HTTPException, Request
+from fastapi import APIRouter, Body, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
@@ -16,9 +16,8 @@ from tuner.robust import MONTE_CARLO_DRAWS
 
 from ..convert import FieldError, body_loc, plant_dict, tuning_problem
 from ..deps import client_id, get_pool, get_store, get_tune_job
-from ..disconnect import unless_disconnected
-from ..errors import internal_message
-from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..jobrun import run_job
+from ..pool import WorkerPool
 from ..schemas import ROLL_EXAMPLE, ErrorOut, TuneRequest, TuneResponse, ValidationErrorOut
 from ..settings import Settings, get_settings
 from ..store import Store
@@ -94,22 +93,14 @@ async def post_tune(
         payload.update(identification=ident, robust=body.robust, monte_carlo=n_mc)
         timeout_s += _SECONDS_PER_DRAW * n_mc
     await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)
-    try:
-        result = await unless_disconnected(
-            request, pool.run(job, payload, timeout_s=timeout_s, client=client))
-    except JobTimeout as e:
-        raise HTTPException(504, f"the solve did not finish within its time budget of {budget:g} s "
-                                 f"(stopped at {e.limit_s:.3g} s, grace included); no verified result to "
-                                 f"return. Retry with a larger options.time_budget_s (at most "
-                                 f"{settings.max_budget_s:g}) or a simpler structure.") from None
-    except JobFailed as e:
-        if e.kind == "tuner_error" and e.info.get("timeout"):  # the library: nothing verified within the budget
-            raise HTTPException(504, f"nothing could be verified within the time budget of {budget:g} s "
-                                     f"({e.info['message']}). Retry with a larger options.time_budget_s (at most "
-                                     f"{settings.max_budget_s:g}) or a simpler structure.") from None
-        if e.kind == "tuner_error":
-            raise FieldError(body_loc(e.info.get("field") or ()), e.info["message"], type="tuner_error") from None
-        raise HTTPException(500, internal_message(e.info, "solver")) from None
+    retry = f"Retry with a larger options.time_budget_s (at most {settings.max_budget_s:g}) or a simpler structure."
+    result = await run_job(
+        request, pool, job, payload, timeout_s=timeout_s, client=client, what="solver",
+        loc=body_loc,
+        timeout_detail=lambda e: f"the solve did not finish within its time budget of {budget:g} s (stopped at "
+                                 f"{e.limit_s:.3g} s, grace included); no verified result to return. {retry}",
+        budget_detail=lambda info: f"nothing could be verified within the time budget of {budget:g} s "
+                                   f"({info['message']}). {retry}")
     from tuner.controllers import deprecation_note
 
     note = deprecation_note(body.structure)

@@ -153,3 +153,32 @@ def test_api_key_guards_identification(client, body, stored, override_settings):
                                   ("get", f"/identifications/{stored['id']}/data", None)]:
         assert client.request(method, path, json=payload).status_code == 401
     assert client.get("/identifications", headers={"X-API-Key": "k"}).status_code == 200
+
+
+def test_a_fixed_delay_longer_than_the_record_is_422_naming_delay(client):
+    from api.schemas_identify import IDENTIFY_EXAMPLE
+
+    r = client.post("/identify", json={**IDENTIFY_EXAMPLE, "holdout": 0.2, "delay": 30.02})  # the /docs example
+    assert r.status_code == 422, r.text
+    (item,) = r.json()["detail"]
+    assert item["loc"] == ["body", "delay"] and "quarter of the fitted part" in item["msg"]
+
+
+def test_identification_plots_are_private_when_a_key_is_set(client, stored, override_settings):
+    from pydantic import SecretStr
+
+    override_settings(api_key=SecretStr("k"))
+    r = client.get(f"/identifications/{stored['id']}/plot.svg", headers={"X-API-Key": "k"})
+    assert r.status_code == 200 and r.headers["cache-control"].startswith("private")
+    assert r.headers["x-content-type-options"] == "nosniff"
+
+
+def test_stored_identifications_have_a_quota(client, body, stored, override_settings):
+    listed = client.get("/identifications").json()["total"]
+    override_settings(max_identifications=listed)
+    r = client.post("/identify", json=body)
+    assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATIONS" in r.json()["detail"]
+    override_settings(max_identifications=listed + 10, max_identification_samples=len(body["input"]))
+    r = client.post("/identify", json=body)
+    assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATION_SAMPLES" in r.json()["detail"]
+    assert client.get("/identifications").json()["total"] == listed  # nothing was stored

@@ -86,8 +86,8 @@ def test_the_local_stage_improves_the_objective_it_is_asked_for():
     """IAE of a load step under Ms <= 1.4: the CasADi stage on vs off, judged by python-control here."""
     plant = plant_from_expr("1/(s+1)^3")
     spec = Spec(phase_margin_min_deg=0, gain_margin_min_db=0, overshoot_max_pct=100, ms_max=1.4, objective="iae")
-    off = tune(plant, structure="pi", spec=spec, seed=0, time_budget_s=10, local=False)
-    on = tune(plant, structure="pi", spec=spec, seed=0, time_budget_s=10)
+    off = tune(plant, structure="pi", spec=spec, seed=0, time_budget_s=120, local=False)
+    on = tune(plant, structure="pi", spec=spec, seed=0, time_budget_s=120)
     assert on.meets_spec and off.meets_spec
     G = control.tf([1.0], np.poly([-1, -1, -1]))
     iae_on, iae_off = _load_iae(G, on.controller, 60), _load_iae(G, off.controller, 60)
@@ -120,7 +120,7 @@ def test_ie_objective_reaches_the_brute_force_migo_design():
             lo, hi = (mid, hi) if ms(kp, mid) <= 1.4 else (lo, mid)
         best = max(best, lo)
     spec = Spec(phase_margin_min_deg=0, gain_margin_min_db=0, overshoot_max_pct=100, ms_max=1.4, objective="ie")
-    res = tune(plant_from_expr("1/(s+1)^3"), structure="pi", spec=spec, seed=0, time_budget_s=10)
+    res = tune(plant_from_expr("1/(s+1)^3"), structure="pi", spec=spec, seed=0, time_budget_s=120)
     assert res.meets_spec
     assert res.gains["Ki"] >= 0.99 * best, (res.gains, best)
 
@@ -156,7 +156,7 @@ def test_a_loop_that_settles_after_50_s_at_dt_01_is_found(tau):
     dt = tau/100 or finer is within a few per cent of it."""
     ref = _brute_force_pi_double_lag()
     assert 2.5 < ref < 2.9
-    res = tune(plant_from_expr(f"1/({tau:g}s+1)^2"), structure="pi", dt=0.1, seed=0, time_budget_s=30)
+    res = tune(plant_from_expr(f"1/({tau:g}s+1)^2"), structure="pi", dt=0.1, seed=0, time_budget_s=120)
     assert res.meets_spec
     ts = res.analyses[0].metrics.settling_time_s
     assert 2.4 * tau < ts < 1.04 * ref * tau, (ts, ref * tau)
@@ -195,12 +195,12 @@ def test_an_unmet_spec_says_which_limit_and_what_would_do():
     is -180 deg at sqrt(3) rad/s). The reason names the limit and a value that the search found feasible,
     and that value is feasible when asked for."""
     p = plant_from_expr("1/(s+1)^3")
-    res = tune(p, structure="pi", spec=Spec(bandwidth_min_rad_s=5.0), seed=0, time_budget_s=8)
+    res = tune(p, structure="pi", spec=Spec(bandwidth_min_rad_s=5.0), seed=0, time_budget_s=120)
     assert not res.meets_spec and "bandwidth_rad_s" in res.to_json()["failing"]
     assert res.reasons, "an unmet spec must come with a reason"
     r = res.reasons[0]
     assert r.constraints == ("bandwidth_rad_s",) and 0 < r.suggest["bandwidth_min_rad_s"] < 5.0
-    again = tune(p, structure="pi", spec=Spec(**r.suggest), seed=0, time_budget_s=8)
+    again = tune(p, structure="pi", spec=Spec(**r.suggest), seed=0, time_budget_s=120)
     assert again.meets_spec
     d = res.to_json()
     assert d["reasons"][0]["message"] == r.message and d["objective"]["name"] == "settling_time"

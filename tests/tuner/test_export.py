@@ -306,4 +306,4 @@ def test_cli_result_file_that_is_not_a_result(tmp_path, capsys):
     assert code == EXIT_BAD_INPUT and "--result" in err and "controller" in err
     f.write_text("{not json")
     code, _, err = run(capsys, "export", "--result", str(f), "--format", "c")
-    assert code == EXIT_BAD_INPUT and "not JSON" in err
+    assert code == EXIT_BAD_INPUT and "not valid JSON" in err

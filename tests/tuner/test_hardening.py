@@ -23,7 +23,7 @@ def test_overflow_when_made_monic_is_rejected():
 def test_extreme_coefficients_give_an_error_or_an_honest_result(den):
     plant = make_plant([1.0], den)
     try:
-        r = tune(plant, structure="pi", dt=0.1, time_budget_s=5)
+        r = tune(plant, structure="pi", dt=0.1, time_budget_s=120)
     except TunerError as e:  # an error must say what to change
         assert re.search(r"rescale|overflow|coefficient", str(e)), str(e)
     else:  # no spec claimed unless the verifier, run afresh on the returned controller, says so

@@ -41,8 +41,8 @@ def same_metrics(a, b, rtol=1e-9):
 def test_the_same_plant_as_expression_and_as_control_tf_tunes_identically():
     pe, pc = plant_from_expr(EXPR), make_plant(G)
     assert np.array_equal(pe.zpk.poles, pc.zpk.poles) and pe.zpk.gain == pc.zpk.gain
-    r1 = tune(pe, structure="pi", dt=0.05, time_budget_s=30)
-    r2 = tune(G, structure="pi", dt=0.05, time_budget_s=30)
+    r1 = tune(pe, structure="pi", dt=0.05, time_budget_s=120)
+    r2 = tune(G, structure="pi", dt=0.05, time_budget_s=120)
     assert r1.solver["stop"] == r2.solver["stop"] == "converged"  # not cut by the clock: deterministic
     assert r1.gains == r2.gains
     assert r1.to_dict()["metrics"] == r2.to_dict()["metrics"]
@@ -78,7 +78,7 @@ def test_a_discrete_model_keeps_its_dt_and_its_delay_is_whole_samples():
 
 def test_robust_tuning_over_a_list_of_control_models_with_per_plant_delays():
     plants = [ct.tf([1.0], [10.0, 1.0]), ct.tf([1.2], [10.0, 1.0]), ct.tf([0.8], [12.0, 1.0])]
-    res = tune(plants, structure="pi", dt=0.5, delay=[1.0, 1.0, 1.5], time_budget_s=3)
+    res = tune(plants, structure="pi", dt=0.5, delay=[1.0, 1.0, 1.5], time_budget_s=120)
     assert len(res.analyses) == 3
     assert [a.loop.delay_samples for a in res.analyses] == [2, 2, 3]
     assert_allclose(res.analyses[1].loop.plant.dc_gain(), 1.2)
@@ -114,7 +114,7 @@ def test_mimo_and_foreign_objects_are_refused():
 # -- out --------------------------------------------------------------------------------------------------------
 
 def test_to_control_is_the_controller_at_every_frequency():
-    res = tune(G, structure="pid", dt=0.05, time_budget_s=3)
+    res = tune(G, structure="pid", dt=0.05, time_budget_s=120)
     c = res.controller
     k = res.to_control()
     assert k.dt == 0.05

@@ -68,6 +68,6 @@ def test_an_objective_the_nlp_does_not_state_is_searched_without_it():
     from tuner import tune
 
     res = tune(plant_from_expr("1/(s+1)^3"), structure="pi", spec=Spec(objective="bandwidth"), seed=0,
-               time_budget_s=2)
+               time_budget_s=120)  # converges in well under a second alone: never cut by the clock
     assert res.solver["method"] == "optuna" and res.solver["nlp_solves"] == 0
     assert res.meets_spec and res.analyses[0].metrics.bandwidth_rad_s > 0

@@ -79,11 +79,21 @@ def test_iae_is_abs_output_after_a_unit_load_step_at_the_plant_input(pi):
     assert objective_value(pi, Spec(objective="iae")) == pytest.approx(integrate.trapezoid(np.abs(y), t), rel=1e-4)
 
 
-def test_ie_is_one_over_ki():
+def test_ie_is_one_over_ki(pi):
+    from tuner.optimize.scoring import objective_value
+
     # the integrated error after the unit load step, to steady state: the identity the ie objective rests on
     t = _fine(40.0)
     _, y = signal.step(T_LOAD, T=t)
     assert integrate.trapezoid(y, t) == pytest.approx(1.0 / KI, rel=1e-6)
+    # and the library's ie objective is that number (on its own horizon, where the loop has settled)
+    t = _fine(float(pi.response.t[-1]))
+    _, y = signal.step(T_LOAD, T=t)
+    assert objective_value(pi, Spec(objective="ie")) == pytest.approx(abs(integrate.trapezoid(y, t)), rel=1e-4)
+    assert objective_value(pi, Spec(objective="ie")) == pytest.approx(1.0 / KI, rel=1e-3)
+    # without integral action the load step is never rejected: no finite ie
+    p_only = analyze(plant_from_expr("1/(s+1)"), controller_from_expr(f"{KP}", dt=None))
+    assert objective_value(p_only, Spec(objective="ie")) == float("inf")
 
 
 def test_bandwidth_is_where_t_falls_below_its_dc_value_over_sqrt2(pi):

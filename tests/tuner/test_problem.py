@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import cmath
+import math
+
 import pytest
 from quadrotor import DT, ROLL
 
 from tuner import Spec, TunerError, TuningProblem, make_plant, plant_from_expr
-from tuner.optimize.design import plant_scale
 
 ROLL_P = plant_from_expr(ROLL)
 
@@ -34,4 +36,11 @@ def test_problem_holds_the_validated_inputs_and_the_scale_once():
     zp = make_plant([0.04], [1.0, -1.0], dt=0.04)
     p = TuningProblem.build([zp], structure="pi", spec=Spec(ms_max=2.0))
     assert p.dt == 0.04 and p.structure.name == "pi" and p.spec.ms_max == 2.0 and p.nominal is zp
-    assert p.scale == plant_scale(zp, 0.04)
+    # the scale in closed form: G = 0.04/(z - 1) has phase -(90 deg + w dt/2), -135 deg at w0 = pi/(2 dt)
+    # (the ultimate frequency is Nyquist's, excluded), and |G(w0)| = 0.04/|e^{j pi/2} - 1| = 0.04/sqrt(2);
+    # the scale is read off an 800-point log grid (1.7 % apart)
+    k0, w0 = p.scale
+    assert w0 == pytest.approx(math.pi / (2 * 0.04), rel=0.02)
+    assert k0 == pytest.approx(abs(cmath.exp(1j * w0 * 0.04) - 1) / 0.04, rel=1e-12)
+    assert k0 == pytest.approx(math.sqrt(2) / 0.04, rel=0.02)
+    assert p.scale is p.scale  # computed once

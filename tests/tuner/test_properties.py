@@ -234,6 +234,13 @@ def test_controller_constructors_return_or_raise_tuner_error(c, dt):
     assert ctrl.den.size - 1 <= 40  # one controller-order limit, whatever the form
 
 
+# hostile input: the extremes of every accepted range (gains near 1e300, 1e-300) overflow while a loop is evaluated
+# (to inf, which the verifier reports honestly); these tests expect the overflow warnings that normal use never
+# shows (pytest's config makes them errors)
+HOSTILE = pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
+
+
+@HOSTILE
 @pytest.mark.slow
 @given(p=plants(), c=controllers(), dt=dts, spec=specs)
 @settings(max_examples=80, **SETTINGS)
@@ -253,6 +260,7 @@ def test_analyze_returns_an_honest_result_or_a_tuner_error(p, c, dt, spec):
     assert_honest(an)
 
 
+@HOSTILE
 @pytest.mark.parametrize("gain", [1e150, 1e156, 1e200, 1e300, -1e300])
 @pytest.mark.parametrize("dt", [None, 0.1])
 def test_huge_gains_answer_honestly_or_name_the_field(gain, dt):
@@ -277,6 +285,7 @@ def test_huge_gains_answer_honestly_or_name_the_field(gain, dt):
             assert an.metrics.stable is False, (kind, gain)
 
 
+@HOSTILE
 @given(p=plants(), structure=st.sampled_from(sorted(STRUCTURES)), dt=dts, spec=specs)
 @settings(max_examples=150, **SETTINGS)
 def test_problem_build_returns_or_raises_tuner_error(p, structure, dt, spec):
@@ -293,6 +302,7 @@ def test_problem_build_returns_or_raises_tuner_error(p, structure, dt, spec):
     assert all(math.isfinite(v) and v > 0 for v in prob.scale)
 
 
+@HOSTILE
 @pytest.mark.slow
 @given(p=plants(), structure=st.sampled_from(sorted(STRUCTURES)),
        dt=st.one_of(dts, st.sampled_from([1000.0, 1e4])), spec=specs, n_plants=st.integers(1, 3))
@@ -320,12 +330,13 @@ def test_tune_returns_a_verified_result_or_a_tuner_error(p, structure, dt, spec,
 @pytest.mark.parametrize("structure", ["lead", "lag", "leadlag"])
 @pytest.mark.parametrize("dt", [1000.0, 1e4])
 def test_lead_lag_at_a_large_dt(structure, dt):
-    """The issue's class: inverted search bounds (Optuna's ValueError) for lead/lag/leadlag at a large dt."""
-    try:
-        res = tune(plant_from_expr("1/(s+1)"), structure=structure, dt=dt, time_budget_s=0.3, n_trials=6,
-                   n_starts=1)
-    except TunerError as e:
-        assert_tuner_error(e)
-        return
+    """The issue's class: inverted search bounds (Optuna's ValueError) for lead/lag/leadlag at a large dt.
+
+    At dt >> the time constant the sampled plant is about 1/z, which a lead/lag stabilises easily: the tune
+    must return (not raise) a stable loop, with no RuntimeWarning on the way (pytest's config makes one an
+    error). Bounded by the trial count, not the clock (the budget is never what stops it)."""
+    res = tune(plant_from_expr("1/(s+1)"), structure=structure, dt=dt, time_budget_s=60.0, n_trials=6, n_starts=1)
+    assert res.controller.dt == dt and all(math.isfinite(v) and v > 0 for v in res.gains.values())
     for an in res.analyses:
         assert_honest(an)
+        assert an.metrics.stable

@@ -55,9 +55,41 @@ def _same(a, b, rel=1e-9):
     return a == b
 
 
+def oracle_loop(plant, c):
+    """The open loop C*G as num/den by tests/reference.py (ZOH by the matrix exponential, a delay of whole
+    samples as z^-k); None for a continuous loop with a delay (no rational form)."""
+    dt = c.dt
+    if plant.delay_s and dt is None:
+        return None
+    num, den = ref.open_loop(plant.num, plant.den, c.num, c.den, dt=dt, plant_is_discrete=plant.is_discrete)
+    if plant.delay_s:
+        k = round(plant.delay_s / dt)
+        den = np.polymul(den, np.r_[1.0, np.zeros(k)])
+    return num, den
+
+
+def assert_matches_oracle(metrics, plant, c):
+    """Stability, phase and gain margins and Ms of the reported metrics against the independent oracles of
+    tests/reference.py (closed-loop roots, a dense Nyquist grid), not against the library's own analyze()."""
+    loop = oracle_loop(plant, c)
+    if loop is None:
+        return
+    num, den = loop
+    assert metrics.stable == ref.stable_at_gain(num, den, 1.0, c.dt)
+    if not metrics.stable:
+        return
+    m = ref.nyquist_margins(num, den, c.dt)
+    assert _same(metrics.phase_margin_deg, m["pm"]) or abs(metrics.phase_margin_deg - m["pm"]) < 0.05, (
+        metrics.phase_margin_deg, m["pm"])
+    for got, want in ((metrics.gain_margin_db, m["gm_db"]), (metrics.gain_margin_lower_db, m["gml_db"])):
+        assert _same(got, want) or abs(got - want) < 0.05, (got, want)
+    assert metrics.ms == pytest.approx(ref.ms_bruteforce(m["L"]), rel=1e-3)
+
+
 def assert_reported_is_verified(result, plants, spec=None):
     """The result's numbers are the verifier's: an independent analyze() of the reported controller on
-    every plant gives the same metrics and checks, and the controller is the structure's TF of the gains."""
+    every plant gives the same metrics and checks, the controller is the structure's TF of the gains, and
+    stability, margins and Ms agree with the oracles of tests/reference.py (no tuner code)."""
     spec = spec or Spec()
     plants = plants if isinstance(plants, (list, tuple)) else [plants]
     c = result.controller
@@ -75,6 +107,8 @@ def assert_reported_is_verified(result, plants, spec=None):
         assert [(ch.name, ch.ok) for ch in got.checks] == [(ch.name, ch.ok) for ch in want.checks]
         for g, w in zip(got.checks, want.checks):
             assert _same(g.achieved, w.achieved) and _same(g.violation, w.violation), (g, w)
+    for p, got in zip(plants, result.analyses):
+        assert_matches_oracle(got.metrics, p, c)
     # meets_spec is the conjunction of the independent judgements, and to_dict says the same
     assert result.meets_spec == all(a.meets_spec for a in indep)
     d = result.to_dict()

@@ -237,9 +237,13 @@ def _peak(fv, w: np.ndarray, vals: np.ndarray, *, rounds: int = 2, n: int = 65) 
         best = max(best, float(f[j]))
         if 0 < j < n - 1:  # parabola through the three points around the maximum (log frequency)
             f0, f1, f2 = f[j - 1], f[j], f[j + 1]
-            den = f0 - 2 * f1 + f2
-            if den < 0:
-                best = max(best, float(f1 - 0.125 * (f2 - f0) ** 2 / den))
+            if np.isfinite(f0) and np.isfinite(f2):
+                with np.errstate(over="ignore"):
+                    den, d = f0 - 2 * f1 + f2, f2 - f0
+                    if den < 0:  # vertex f1 - d^2 / (8 den), formed without squaring d (no overflow near 1e300)
+                        top = f1 - 0.125 * d * (d / den)
+                        if np.isfinite(top):
+                            best = max(best, float(top))
         a, b = x[max(j - 1, 0)], x[min(j + 1, n - 1)]
     return best
 

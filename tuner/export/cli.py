@@ -7,7 +7,6 @@ line naming the argument).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
@@ -63,16 +62,10 @@ def add_parser(sub: Any) -> None:
 
 
 def _load(path: str) -> Any:
-    try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
-    except OSError as e:
-        raise TunerError(f"--result {path}: cannot read: {e.strerror or e}") from None
-    except UnicodeDecodeError:
-        raise TunerError(f"--result {path}: not UTF-8 text (give the JSON of 'tuner tune --json')") from None
-    except json.JSONDecodeError as e:
-        raise TunerError(f"--result {path}: not JSON ({e.msg} at line {e.lineno}); give the output of "
-                         "'tuner tune --json' or of GET /tunes/{id}") from None
+    from ..fileio import read_json
+
+    return read_json(path, label=f"--result {path}", field="result",
+                     hint="give the output of 'tuner tune --json' or the answer of GET /tunes/{id}")
 
 
 def _source(a: argparse.Namespace) -> Any:
@@ -102,10 +95,16 @@ def _cmd_export(a: argparse.Namespace) -> int:
         if note:
             print(f"tuner: warning: {note}", file=sys.stderr)
     except TunerError as e:
+        if str(e).startswith("-"):
+            raise
         opt = next((_OPTION[str(f)] for f in e.field if str(f) in _OPTION), None)
-        if opt == "--controller" and a.result is not None:
-            opt = "--result"
-        if opt is None or str(e).startswith("-"):
+        if a.result is not None and opt in (None, "--controller", "--result"):
+            # about the result's content (its controller, structure, gains): name the file, never an option
+            # the user did not give (such as --structure, which export does not have)
+            part = str(e.field[0]) if e.field and str(e.field[0]) in ("structure", "gains") else ""
+            raise TunerError(f"--result {a.result}: {'its ' + part + ': ' if part else ''}{e}",
+                             field=("result", *e.field)) from e
+        if opt is None:
             raise
         raise TunerError(f"{opt}: {e}") from e
     if a.out is None:

@@ -44,8 +44,9 @@ def check_name(name: str) -> str:
     if name in _C_KEYWORDS or keyword.iskeyword(name):
         raise TunerError(f"name {name!r} is a C or Python keyword: choose another",
                          field="name")
-    if name.startswith("__") or re.match(r"_[A-Z]", name):
-        raise TunerError(f"name {name!r} is reserved in C (a leading __ or _ and a capital): choose another",
+    if name.startswith("_"):  # C99 7.1.3: every identifier with a leading _ is reserved at file scope
+        raise TunerError(f"name {name!r} is reserved in C (the generated N_state, N_init, N_update are file-scope "
+                         "names, and those starting with _ belong to the implementation): start with a letter",
                          field="name")
     return name
 

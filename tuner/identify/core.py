@@ -198,6 +198,11 @@ def identify(
         raise InvalidDataError(f"holding out {holdout:g} of {rec.n} samples leaves {head.n} to fit; at least "
                                f"{MIN_SAMPLES} are needed", field="holdout")
     fit_dur = max(r.duration_s for r in fit_recs)
+    if isinstance(delay, float) and delay > fit_dur / 4.0:
+        raise InvalidDataError(
+            f"delay {delay:g} s is longer than a quarter of the fitted part of the record ({fit_dur:g} s, "
+            f"the longest delay its spectra resolve: {fit_dur / 4.0:.4g} s); give a shorter delay, "
+            "'auto', or a longer record", field="delay")
     _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, holdout)
     notes: list[str] = []
     try:

@@ -3,7 +3,8 @@
 A log has a header row naming its columns; lines starting with ``#`` before the header are
 comments; the delimiter (comma, semicolon, tab) is detected. Every error names the file, the
 line and the column, and carries ``field`` = the role of the column (``"input"``, ``"output"``,
-``"time"``) so the caller can point at the option that chose it.
+``"time"``) so the caller can point at the option that chose it. The file is read in chunks and
+refused beyond :data:`~tuner.fileio.MAX_CSV_BYTES` (256 MiB) or at its first binary chunk.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidDataError
+from ..errors import InvalidDataError, TunerError
+from ..fileio import MAX_CSV_BYTES, read_text
 
 __all__ = ["MAX_ROWS", "read_columns"]
 
@@ -33,11 +35,17 @@ def read_columns(path: str | Path, columns: Mapping[str, str]) -> dict[str, np.n
     """The named columns of a CSV log as float arrays, keyed by role: ``{"input": "pitch_cmd", ...}``."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8-sig")
-    except OSError as e:
-        raise InvalidDataError(f"{p}: cannot read: {e.strerror or e}", field="file") from None
-    except UnicodeDecodeError as e:
-        raise InvalidDataError(f"{p}: not a UTF-8 text file ({e.reason} at byte {e.start})", field="file") from None
+        text = read_text(p, limit=MAX_CSV_BYTES, field="file", hint="give a CSV log with a header row")
+    except TunerError as e:
+        raise InvalidDataError(str(e), field="file") from None
+    try:
+        return _parse(p, text, columns)
+    except csv.Error as e:  # e.g. a cell longer than csv.field_size_limit() (131,072 characters)
+        raise InvalidDataError(f"{p}: not a readable CSV log ({e}); give a CSV log with a header row",
+                               field="file") from None
+
+
+def _parse(p: Path, text: str, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
     lines = text.splitlines()
     first = 0
     while first < len(lines) and (not lines[first].strip() or lines[first].lstrip().startswith("#")):

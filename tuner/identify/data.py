@@ -20,11 +20,14 @@ import numpy as np
 
 from ..errors import InvalidDataError
 
-__all__ = ["MAX_SAMPLES", "MIN_SAMPLES", "TIME_JITTER", "Record", "lowest_frequency_rad_s", "make_record"]
+__all__ = ["MAX_ABS", "MAX_SAMPLES", "MIN_ABS", "MIN_SAMPLES", "TIME_JITTER", "Record", "lowest_frequency_rad_s",
+           "make_record"]
 
 MIN_SAMPLES = 128
 MAX_SAMPLES = 10_000_000
 TIME_JITTER = 0.01  # sample intervals may differ from the mean by this fraction
+MAX_ABS = 1e60  # larger samples would overflow the spectra (the coherence has fourth powers of samples)
+MIN_ABS = 1e-60  # a signal whose samples are all smaller would underflow them (a record of zeros is "constant")
 
 
 def lowest_frequency_rad_s(duration_s: float) -> float:
@@ -133,9 +136,21 @@ def make_record(input: Sequence[float], output: Sequence[float], *, time: Sequen
             raise InvalidDataError(f"rate_hz must be finite and > 0, got {rate_hz!r}", field="rate_hz")
         dt, t0 = 1.0 / r, 0.0
     for a, field in ((u, "input"), (y, "output")):
+        big = float(np.max(np.abs(a)))
+        if big > MAX_ABS:
+            i = int(np.argmax(np.abs(a)))
+            raise InvalidDataError(f"{field}[{i}] is {float(a[i]):.6g}: values beyond {MAX_ABS:g} in magnitude would "
+                                   "overflow the spectra (their fourth powers); rescale the signal (other units)",
+                                   field=field)
+        if 0.0 < big < MIN_ABS:
+            raise InvalidDataError(f"{field} is at most {big:.6g} in magnitude: values below {MIN_ABS:g} underflow the "
+                                   "spectra (their fourth powers); rescale the signal (other units)", field=field)
         spread = float(np.ptp(a))
-        if spread <= 1e-12 * max(1.0, float(np.max(np.abs(a)))):
+        if spread <= 1e-12 * big:  # relative: a signal's scale (its units) does not matter
             what = "nothing excites the plant" if field == "input" else "the output does not respond"
             raise InvalidDataError(f"{field} is constant ({a[0]:.6g}): {what}; a frequency sweep is needed",
                                    field=field)
+    if np.array_equal(u, y):
+        raise InvalidDataError("output is the same signal as input (the same column twice?): identification needs "
+                               "the plant's input and its measured response", field="output")
     return Record(u=u, y=y, dt=dt, t0=t0)

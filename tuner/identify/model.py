@@ -91,10 +91,9 @@ class Model:
 
     def values(self) -> dict[str, float]:
         """Physical parameter values by name (gain with its sign, frequencies in rad/s, delay in s)."""
-        v = np.exp(self.theta)
+        n_log = self.theta.size - (1 if self.structure.free_delay else 0)  # the delay (last) is in s, not a log
+        v = np.concatenate([np.exp(self.theta[:n_log]), self.theta[n_log:]])
         v[0] *= self.sign
-        if self.structure.free_delay:
-            v[-1] = self.theta[-1]
         out = dict(zip(self.structure.names(), (float(x) for x in v)))
         if not self.structure.free_delay:
             out["delay_s"] = float(self.fixed_delay_s)

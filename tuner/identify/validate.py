@@ -141,6 +141,8 @@ def simulate(model: Model, u: np.ndarray, dt: float) -> np.ndarray:
     u = np.asarray(u, dtype=float)
     k = math.floor(model.delay_s / dt + 1e-9)
     frac = model.delay_s - k * dt
+    if k >= u.size:  # the delay outlasts the record: nothing of the input reaches the output in it
+        return np.zeros(u.size)
     uk = np.concatenate([np.zeros(k), u[: u.size - k]]) if k else u
     n = A.shape[0]
     if n == 0:

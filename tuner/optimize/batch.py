@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from ..analysis.response import _lifted
+from ..analysis.response import MAX_SAMPLES, _lifted  # the verifier's limit is the search's (one source)
 from ..controllers import ControllerTF
 from ..loop import build_loop
 from ..lti import zoh_delayed
@@ -47,8 +47,7 @@ GRID_POINTS = 500
 SAMPLES_PER_DT = 6
 CONTINUOUS_STEPS = 600
 MIN_HORIZON_W0 = 40.0
-MAX_SAMPLES = 20_000  # the verifier's limit too (tuner.analysis.response.MAX_SAMPLES): a candidate needing more
-                      # is judged on that many samples
+# MAX_SAMPLES (from tuner.analysis.response): a candidate needing more samples is judged on that many
 INFEASIBLE = 1e3
 UNSTABLE = 1e5
 

@@ -136,9 +136,10 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     c1 = st.tf(x, dt)
     p_eff = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)
     k = sgn * _margin_gain(c1, p_eff, sgn, w0, dt, k0)
-    for i, kind in enumerate(st.kinds):
-        if kind == "gain":
-            x[i] *= k
+    with np.errstate(over="ignore", invalid="ignore"):  # an extreme plant's gain may overflow: clipped below
+        for i, kind in enumerate(st.kinds):
+            if kind == "gain":
+                x[i] *= k
     g = dict(zip(st.params, x))
     # keep the start inside the search box: in discrete time a lead pole at 3*w0 can lie
     # above the Nyquist frequency pi/dt (roll, yaw at dt = 0.04), the box's upper bound
@@ -146,6 +147,8 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
     out = {}
     for p, a, b in zip(st.params, lo, hi):
         v = float(g[p])
+        if not math.isfinite(v):  # overflowed (an extreme plant): the middle of the box, in its own scale
+            v = float(math.sqrt(a * b)) if a > 0 and math.isfinite(a * b) else 0.5 * a + 0.5 * b
         if not a <= v <= b:
             v = float(np.clip(v, a + 0.01 * (b - a), b - 0.01 * (b - a)))
         out[p] = v
@@ -243,7 +246,8 @@ def plant_scale(plant: Plant, dt: float | None) -> PlantScale:
     if wnyq:
         w = w[w < wnyq * 0.999]
     g = p.freqresp(w)
-    ph = np.unwrap(np.angle(g * plant_sign(plant)))
+    with np.errstate(invalid="ignore", over="ignore"):  # a non-finite response finds no crossing: the fallback
+        ph = np.unwrap(np.angle(g * plant_sign(plant)))
     ph -= 2 * np.pi * np.round(ph[0] / (2 * np.pi))
     w0 = None
     for target in (-np.pi, -0.75 * np.pi):  # first frequency where the phase falls through target

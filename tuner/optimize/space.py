@@ -89,7 +89,10 @@ class Space:
         return np.where(g, -GAIN_SPAN, self.lo), np.where(g, GAIN_SPAN, self.hi)
 
     def params(self, v: np.ndarray, *, linear_gains: bool = False) -> np.ndarray:
-        return np.asarray(self.to_params(np.asarray(v, dtype=float), linear_gains=linear_gains), dtype=float)
+        """Numeric :meth:`to_params`; a coordinate far outside the box (an NLP iterate) may overflow to an
+        infinite (or NaN) parameter, which the callers drop (the engine scores finite points only)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return np.asarray(self.to_params(np.asarray(v, dtype=float), linear_gains=linear_gains), dtype=float)
 
 
 def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None,

@@ -359,14 +359,10 @@ def _cmd_verify(a: argparse.Namespace) -> int:
     from .schema import load_study
 
     study = load_study(a.file)
-    try:
-        data = json.loads(Path(a.gains).read_text(encoding="utf-8"))
-    except OSError as e:
-        raise TunerError(f"--gains {a.gains}: cannot read: {e.strerror or e}") from None
-    except UnicodeDecodeError as e:
-        raise TunerError(f"--gains {a.gains}: not UTF-8 text (byte {e.start}): save it as UTF-8 JSON") from None
-    except json.JSONDecodeError as e:
-        raise TunerError(f"--gains {a.gains}: not valid JSON: {e}") from None
+    from ..fileio import read_json
+
+    data = read_json(a.gains, label=f"--gains {a.gains}", field="gains",
+                     hint="give the gains file a study run wrote (UTF-8 JSON)")
     evals = evaluate_gains(study, check_gains_file(study, data, source=a.gains))
     failing = [(n, e.failing) for n, e in evals.items() if not e.meets_spec]
     if a.json:

@@ -301,12 +301,14 @@ def parse_study(raw: dict[str, Any], *, source: str = "study") -> StudyDef:
 def load_study(path: str | Path) -> StudyDef:
     """Read and validate a study TOML file (data files are found relative to it)."""
     p = Path(path)
+    from ..fileio import MAX_STUDY_BYTES, read_text
+
     try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise InvalidStudyError(f"{p}: cannot read: {e.strerror or e}") from None
-    except UnicodeDecodeError as e:
-        raise InvalidStudyError(f"{p}: not UTF-8 text (byte {e.start}): save the study file as UTF-8") from None
+        text = read_text(p, limit=MAX_STUDY_BYTES, hint="save the study file as UTF-8 TOML")
+    except TunerError as e:
+        raise InvalidStudyError(str(e)) from None
+    try:
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise InvalidStudyError(f"{p}: not valid TOML: {e}") from None
     study = parse_study(raw, source=str(p))

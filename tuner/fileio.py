@@ -1,0 +1,85 @@
+"""Reading the user's files: bounded, in chunks, with errors that name the file and the option.
+
+One reader for every file input of the CLI (a CSV log, a result's JSON, a gains file): it reads at
+most ``limit`` bytes in chunks of :data:`CHUNK_BYTES` and stops at the limit, so that a huge file or
+a device (``/dev/zero``, ``/dev/urandom``) is refused at once instead of filling the memory; text
+is decoded as it arrives (UTF-8, a byte-order mark dropped), so binary data is refused at its
+first chunk (a NUL byte, or bytes that are not UTF-8). Every error is a
+:class:`~tuner.errors.TunerError` with ``field`` = the caller's name for the input.
+
+=====================  ===========  ===================================================
+limit                  value        for
+=====================  ===========  ===================================================
+:data:`MAX_CSV_BYTES`  256 MiB      a CSV log (``tuner identify``)
+:data:`MAX_JSON_BYTES` 16 MiB       a JSON document (``tuner export --result``, ``verify --gains``)
+:data:`MAX_STUDY_BYTES` 4 MiB       a study file (TOML)
+=====================  ===========  ===================================================
+"""
+
+from __future__ import annotations
+
+import codecs
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .errors import TunerError
+
+__all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "MAX_STUDY_BYTES", "read_text", "read_json"]
+
+CHUNK_BYTES = 1 << 20
+MAX_CSV_BYTES = 256 << 20
+MAX_JSON_BYTES = 16 << 20
+MAX_STUDY_BYTES = 4 << 20
+
+
+def _mib(n: int) -> str:
+    return f"{n / (1 << 20):g} MiB"
+
+
+def read_text(path: str | Path, *, limit: int, field: str | Sequence[str | int] = "file", label: str | None = None,
+              hint: str = "") -> str:
+    """The UTF-8 text of ``path``, read in chunks, refused past ``limit`` bytes or at the first binary chunk.
+
+    ``label`` starts every message (default: the path); ``hint`` ends the messages about
+    content (e.g. what file was expected).
+    """
+    name = label or str(path)
+    tail = f"; {hint}" if hint else ""
+    dec = codecs.getincrementaldecoder("utf-8-sig")()
+    parts: list[str] = []
+    size = 0
+    try:
+        with open(path, "rb") as f:
+            while True:
+                chunk = f.read(CHUNK_BYTES)
+                if not chunk:
+                    break
+                size += len(chunk)
+                if size > limit:
+                    raise TunerError(f"{name}: larger than {_mib(limit)} (the limit for this input); give a "
+                                     f"smaller file{tail}", field=field)
+                if b"\0" in chunk:
+                    raise TunerError(f"{name}: a binary file (NUL bytes), not text{tail}", field=field)
+                parts.append(dec.decode(chunk))
+            parts.append(dec.decode(b"", final=True))
+    except OSError as e:
+        raise TunerError(f"{name}: cannot read: {e.strerror or e}", field=field) from None
+    except UnicodeDecodeError as e:
+        raise TunerError(f"{name}: not a UTF-8 text file ({e.reason}){tail}", field=field) from None
+    return "".join(parts)
+
+
+def read_json(path: str | Path, *, limit: int = MAX_JSON_BYTES, field: str | Sequence[str | int] = "file",
+              label: str | None = None, hint: str = "") -> Any:
+    """A JSON document from ``path`` (bounded like :func:`read_text`; nesting too deep for the parser refused)."""
+    name = label or str(path)
+    tail = f"; {hint}" if hint else ""
+    text = read_text(path, limit=limit, field=field, label=label, hint=hint)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise TunerError(f"{name}: not valid JSON ({e.msg} at line {e.lineno}){tail}", field=field) from None
+    except RecursionError:
+        raise TunerError(f"{name}: JSON nested too deeply to read{tail}", field=field) from None
