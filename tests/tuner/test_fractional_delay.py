@@ -267,7 +267,7 @@ def test_batched_verifier_agrees_with_the_verifier():
 
 
 def test_tune_uses_the_nlp_on_fractional_delays():
-    r = tune(make_plant(*ROLL, delay=0.023), structure="pid_z", dt=DT, time_budget_s=5)
+    r = tune(make_plant(*ROLL, delay=0.023), structure="pid_z", dt=DT, time_budget_s=120)
     assert r.solver["nlp_solves_ok"] > 0 and r.meets_spec
 
 
@@ -306,7 +306,7 @@ def test_robust_set_mixing_whole_and_fractional_delays():
     1 register): one controller, the NLP on all of them, every plant's loop verified; the worst is the longest
     delay's, and its margins are the fine-step reference's."""
     delays = [0.023, 0.0, DT, 0.061]
-    r = tune([make_plant(*ROLL, delay=d) for d in delays], structure="pid_z", dt=DT, time_budget_s=5)
+    r = tune([make_plant(*ROLL, delay=d) for d in delays], structure="pid_z", dt=DT, time_budget_s=120)
     assert r.meets_spec and r.solver["nlp_solves_ok"] > 0
     pms = [a.metrics.phase_margin_deg for a in r.analyses]
     assert min(pms) == pms[3]
