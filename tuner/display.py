@@ -14,7 +14,8 @@ import logging
 import math
 from typing import Any
 
-__all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict"]
+__all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict", "metrics_repr",
+           "margins_repr", "check_repr"]
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +45,37 @@ def metrics_line(a: Any) -> str:
     return " | ".join([f"PM {_g(m.phase_margin_deg, 3)} deg at {_g(m.crossover_rad_s, 3)} rad/s", gm,
                        f"overshoot {_g(m.overshoot_pct, 3)} %", f"settling {_g(m.settling_time_s, 3)} s",
                        f"Ms {_g(m.ms, 3)}", f"peak |u| {_g(m.control_peak, 3)}"])
+
+
+def _freq_lines(m: Any) -> list[str]:
+    gm = f"GM {_g(m.gain_margin_db, 3)} dB"
+    if math.isfinite(m.gain_margin_lower_db):
+        gm += f" (lower {_g(m.gain_margin_lower_db, 3)} dB)"
+    return [f"PM {_g(m.phase_margin_deg, 4)} deg at {_g(m.crossover_rad_s, 4)} rad/s, {gm}",
+            f"  Ms {_g(m.ms, 3)} | Mt {_g(m.mt, 3)} | Mks {_g(m.mks, 3)} | bandwidth {_g(m.bandwidth_rad_s, 3)} rad/s"
+            f" | disk margin {_g(m.disk_margin, 3)}"]
+
+
+def metrics_repr(m: Any) -> str:
+    """A :class:`~tuner.analysis.Metrics` in three lines: margins, peaks, step metrics."""
+    head, peaks = _freq_lines(m)
+    step = (f"  step: overshoot {_g(m.overshoot_pct, 3)} % | settling {_g(m.settling_time_s, 3)} s | rise "
+            f"{_g(m.rise_time_s, 3)} s | error {_g(m.steady_state_error, 3)} | peak |u| {_g(m.control_peak, 3)}")
+    return f"Metrics({'stable' if m.stable else 'UNSTABLE'}, {head}\n{peaks}\n{step})"
+
+
+def margins_repr(m: Any) -> str:
+    """A :class:`~tuner.analysis.margins.Margins` in two lines."""
+    head, peaks = _freq_lines(m)
+    if math.isfinite(m.phase_crossover_rad_s):
+        head += f" at {_g(m.phase_crossover_rad_s, 4)} rad/s"
+    return f"Margins({head}\n{peaks})"
+
+
+def check_repr(c: Any) -> str:
+    """A :class:`~tuner.spec.Check` on one line: ``Check(phase_margin_deg 71.2 >= 60: ok)``."""
+    state = "ok" if c.ok else f"FAILS by {_g(c.violation)}"
+    return f"Check({c.name} {_g(c.achieved)} {c.op} {_g(c.required)}: {state})"
 
 
 def _failing(analyses: Any) -> list[str]:

@@ -24,7 +24,7 @@ from ..plant import Plant
 from ..spec import Spec
 from . import rules
 
-__all__ = ["Evaluator", "Scored", "objective_value", "INFEASIBLE"]
+__all__ = ["Evaluator", "Scored", "objective_value", "violation", "INFEASIBLE"]
 
 INFEASIBLE = 1e3  # every infeasible score is above this; feasible scores are below
 UNSTABLE = 1e5
@@ -90,6 +90,13 @@ def _violation(a: Analysis) -> float:
             scale = abs(req) if math.isfinite(req) and req != 0 else 1.0
         total += min(v / scale, 10.0)
     return total
+
+
+def violation(a: Analysis) -> float:
+    """How far ``a`` is from meeting its spec: the sum of its failing checks' violations, each normalised by its
+    requirement and capped at 10 (a non-finite violation counts 10); 0 when every check holds. The search's
+    grading of infeasibility, and how :attr:`tuner.TuneResult.worst` ranks failing plants."""
+    return _violation(a)
 
 
 class Evaluator:
