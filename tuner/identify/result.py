@@ -51,6 +51,22 @@ class IdentifyResult:
     the J guidelines (``poor`` also when the held-out time-domain check fails); ``warnings`` say
     what to change when something is off (a poor J, poorly determined parameters, a failed
     time-domain check, ...).
+
+    Examples
+    --------
+    A first-order plant ``5/(s + 5)`` driven by white noise at 100 Hz, 30 s:
+
+    >>> import control
+    >>> import numpy as np
+    >>> from tuner import identify
+    >>> u = np.random.default_rng(0).standard_normal(3000)
+    >>> y = control.forced_response(control.c2d(control.tf([5], [1, 5]), 0.01), U=u).outputs
+    >>> res = identify(u, y, rate_hz=100, poles=1, delay=None, band=[1.1, 30], n_starts=2)
+    >>> res.quality, round(float(res.plant().poles[0].real))
+    ('good', -5)
+    >>> plant = res.plant()  # for tune(); res.to_control() and res.delay_s for python-control
+    >>> plant.order, res.delay_s
+    (1, 0.0)
     """
 
     model: Model
@@ -75,6 +91,7 @@ class IdentifyResult:
 
     @property
     def verdict(self) -> str:
+        """One line: the quality, CIFER's J over the band, and the held-out check."""
         lo, hi = self.band_rad_s
         s = (f"{self.quality}: J = {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s "
              f"({self.fit_points.w.size} frequencies)")
@@ -104,6 +121,7 @@ class IdentifyResult:
         return control.tf(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
 
     def describe(self) -> str:
+        """The model as text (:meth:`tuner.plant.Plant.describe` of :meth:`plant`)."""
         return self.plant().describe()
 
     def to_dict(self) -> dict[str, Any]:
