@@ -15,7 +15,7 @@ import math
 from typing import Any
 
 __all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict", "metrics_repr",
-           "margins_repr", "check_repr"]
+           "margins_repr", "check_repr", "loop_eval_repr"]
 
 log = logging.getLogger(__name__)
 
@@ -126,6 +126,15 @@ def tune_repr(r: Any) -> str:
         lines.append(f"  solver   {s.get('method')}, {_g(s.get('wall_time_s', math.nan), 3)} s, {s.get('stop')}, "
                      f"seed {s.get('seed')}")
     return "\n".join(lines)
+
+
+def loop_eval_repr(e: Any) -> str:
+    """A study's :class:`~tuner.studies.evaluate.LoopEval`: the loop, the verdict, each plant's metrics (a few)."""
+    robust = f", {len(e.analyses)} plants" if len(e.analyses) > 1 else ""
+    fails = list(e.failing)
+    state = "meets the spec" if e.meets_spec else "does NOT meet the spec: " + ", ".join(fails)
+    return "\n".join([f"LoopEval({e.loop.name}, {_loop_kind(e.analyses[0])}{robust}: {state})",
+                      *_plant_lines(e.analyses)])
 
 
 def analysis_repr(a: Any) -> str:

@@ -20,8 +20,9 @@ Crossings are bracketed on a logarithmic grid (endpoints ``w -> 0``, the
 Nyquist frequency ``pi/dt`` and, continuous, ``w -> inf`` included) and refined
 by vectorised bracketing (two rounds of 72 log-spaced samples inside the bracket,
 then linear interpolation in log frequency: :func:`_root`); peaks are refined
-around the grid maximum and finished with a parabola (:func:`_peak`). ``L`` is evaluated from the factored/state-space forms
-(:meth:`tuner.loop.Loop.freqresp`), never from expanded polynomials.
+around the grid maximum and finished with a parabola (:func:`_peak`). ``L`` is
+evaluated from the factored/state-space forms (:meth:`tuner.loop.Loop.freqresp`),
+never from expanded polynomials.
 """
 
 from __future__ import annotations
