@@ -181,3 +181,20 @@ def test_study_result_repr_is_a_few_lines():
     text = repr(ev)
     assert text.startswith("LoopEval(roll") and len(text.splitlines()) <= 8, text
     assert "does NOT meet" in text
+
+
+# -- the README's "Reading a result" ---------------------------------------------------------------------------
+
+@pytest.mark.slow  # a two-second tune
+def test_readme_reading_a_result_block_runs():
+    import doctest
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = text.split("## From Python", 1)[1].split("\n## ", 1)[0]
+    blocks = [b.split("```", 1)[0] for b in section.split("```pycon\n")[1:]]
+    block = next(b for b in blocks if "res.worst" in b)
+    test = doctest.DocTestParser().get_doctest(block, {}, "README Reading a result", "README.md", 0)
+    runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE | doctest.ELLIPSIS)
+    runner.run(test)
+    assert runner.tries >= 10 and runner.failures == 0
