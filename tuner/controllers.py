@@ -218,10 +218,13 @@ class Structure:
     positive_time: bool = False  # time constants must be > 0 in discrete time too (pidf2's filter)
 
     def gain_scale(self, k0: float, w0: float) -> np.ndarray:
+        """Each parameter's natural scale for a plant of gain scale ``k0`` at frequency ``w0``: ``k0 * w0**unit``."""
         units = self.gain_units or (0,) * len(self.params)
         return np.array([k0 * w0 ** u for u in units])
 
     def tf(self, values: Mapping[str, float] | Sequence[float], dt: float | None) -> ControllerTF:
+        """The controller's transfer function for parameter ``values`` (by name or in order), continuous or at
+        ``dt``; validated (kinds, signs, a proper result)."""
         x = self.vector(values)
         dt = check_dt(dt)
         if self.discrete_only and dt is None:
@@ -244,6 +247,7 @@ class Structure:
         return ControllerTF(num=num / den[0], den=den / den[0], dt=dt)
 
     def vector(self, values: Mapping[str, float] | Sequence[float]) -> np.ndarray:
+        """``values`` (a mapping by name, or a sequence in :attr:`params` order) as a validated array."""
         if isinstance(values, Mapping):
             unknown = set(values) - set(self.params)
             missing = [p for p in self.params if p not in values]
@@ -274,6 +278,7 @@ class Structure:
         return x
 
     def named(self, x: Sequence[float]) -> dict[str, float]:
+        """The parameter vector ``x`` as ``{name: value}``."""
         return {p: float(v) for p, v in zip(self.params, x)}
 
 

@@ -89,6 +89,7 @@ def _failing(analyses: Any) -> list[str]:
 
 
 def verdict(analyses: Any) -> str:
+    """``meets the spec``, or ``does NOT meet the spec:`` and every failing check (once) with its values."""
     fails = _failing(analyses)
     return "meets the spec" if not fails else "does NOT meet the spec: " + "; ".join(fails)
 
@@ -117,6 +118,7 @@ def _plant_lines(analyses: Any) -> list[str]:
 
 
 def tune_repr(r: Any) -> str:
+    """The few-line ``repr`` of a :class:`~tuner.TuneResult`."""
     gains = ", ".join(f"{k} = {_g(v, 6)}" for k, v in r.gains.items())
     robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
     s = r.solver
@@ -138,6 +140,7 @@ def loop_eval_repr(e: Any) -> str:
 
 
 def analysis_repr(a: Any) -> str:
+    """The few-line ``repr`` of an :class:`~tuner.analysis.Analysis`."""
     p = a.poles
     size = abs(p) if a.loop.dt is not None else p.real
     where = "max |z|" if a.loop.dt is not None else "max Re s"
@@ -207,6 +210,7 @@ def _verdict_html(analyses: Any) -> str:
 
 
 def tune_html(r: Any, *, thumbnails: bool = True) -> str:
+    """The HTML summary of a :class:`~tuner.TuneResult` (Jupyter): gains, checks per plant, thumbnails."""
     robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
     head = (f"<b>TuneResult</b> {_e(r.structure)}, {_e(_loop_kind(r.analyses[0]))}{_e(robust)}: "
             f"{_verdict_html(r.analyses)}")
@@ -220,6 +224,7 @@ def tune_html(r: Any, *, thumbnails: bool = True) -> str:
 
 
 def analysis_html(a: Any, *, thumbnails: bool = True) -> str:
+    """The HTML summary of an :class:`~tuner.analysis.Analysis` (Jupyter): checks, thumbnails."""
     head = f"<b>Analysis</b> {_e(_loop_kind(a))}: {_verdict_html([a])}"
     pics = _thumbnails(a) if thumbnails else ""
     return f'{_CSS}<div class="tuner-r"><p>{head}</p>{_checks_table([a])}{pics}</div>'

@@ -47,6 +47,9 @@ STABILITY_STEPS_PER_DELAY = 40
 
 @dataclass(frozen=True, eq=False)
 class StepResponse:
+    """The unit reference step of a loop: the plant output ``y`` and control ``u`` on a fine grid ``t``
+    (between samples for a sampled-data loop), the sample instants, the final value."""
+
     t: np.ndarray  # fine time grid of the plant output
     y: np.ndarray
     u: np.ndarray  # control signal on the same grid
@@ -58,6 +61,8 @@ class StepResponse:
 
 @dataclass(frozen=True)
 class StepMetrics:
+    """Overshoot (%), settling time into the band (s), 10-90 % rise time (s), steady-state error and peak |u|."""
+
     overshoot_pct: float
     settling_time_s: float
     rise_time_s: float
@@ -313,6 +318,8 @@ def _cross(t: np.ndarray, y: np.ndarray, i: int, level: float) -> float:
 
 
 def step_metrics(resp: StepResponse, *, band_pct: float = 2.0) -> StepMetrics:
+    """The step metrics of ``resp`` (see the module): overshoot, settling into ``band_pct`` % of the final value,
+    rise, steady-state error, peak |u|."""
     t, y, yf = resp.t, resp.y, resp.y_final
     sse = 1.0 - yf
     cpk = float(np.max(np.abs(resp.u)))

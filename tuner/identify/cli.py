@@ -38,6 +38,7 @@ def parse_delay(text: str) -> str | float | None:
 
 
 def add_parser(sub: Any) -> None:
+    """Register ``tuner identify`` on the subcommand parsers ``sub``."""
     p = sub.add_parser("identify", help="identify a transfer function from a logged record (CSV)",
                        description="Frequency response with coherence (composite Welch windows), a transfer "
                                    "function fitted by CIFER's cost J over the coherent band, Cramér–Rao bounds, "

@@ -36,10 +36,12 @@ class FitPoints:
     cost: np.ndarray  # 20 W_gamma (dmag^2 + W_p dphase^2): J is their mean
 
     def to_dict(self) -> dict[str, Any]:
+        """The fit points as lists (``w``, ``mag_db``, ``phase_deg``, ``coherence``, ``cost``)."""
         return {k: getattr(self, k).tolist() for k in ("w", "mag_db", "phase_deg", "coherence", "cost")}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FitPoints:
+        """The inverse of :meth:`to_dict`."""
         return cls(**{k: np.asarray(d[k], dtype=float) for k in ("w", "mag_db", "phase_deg", "coherence", "cost")})
 
 

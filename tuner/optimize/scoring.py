@@ -38,6 +38,8 @@ SEARCH_BAND_GUARD = 0.97  # in the search, settle into 97 % of the band: the edg
 
 @dataclass(frozen=True)
 class Scored:
+    """A candidate's score (what the search minimises), whether it is feasible, and its analyses."""
+
     score: float
     feasible: bool
     analyses: tuple[Analysis, ...]
@@ -114,6 +116,7 @@ class Evaluator:
         self._w0 = w0  # the plant's characteristic frequency (the search space's); computed if not given
 
     def controller(self, x: np.ndarray) -> ControllerTF:
+        """The controller of the structure at parameter vector ``x`` (at the loop's ``dt``)."""
         return self.structure.tf(x, self.dt)
 
     def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
@@ -158,6 +161,8 @@ class Evaluator:
         return max(out, 1e-9)
 
     def score(self, x: np.ndarray, *, full: bool = False) -> Scored:
+        """Score ``x`` on every plant: the objective (worst case) if feasible, else a graded penalty
+        above every feasible score (:data:`INFEASIBLE`); ``full``: at the final verification's resolution."""
         self.n_evals += 1
         try:
             loops = self._loops(x)

@@ -67,6 +67,8 @@ class InvalidStudyError(TunerError, ValueError):
 
 
 class PlantCoeffs(BaseModel):
+    """A plant given by coefficients in a study file (``num``, ``den``, highest power first)."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
     num: list[float] = Field(min_length=1)
     den: list[float] = Field(min_length=1)
@@ -157,6 +159,7 @@ class LoopDef(BaseModel):
 
     @property
     def plant_list(self) -> list[PlantText]:
+        """The loop's plants as given (one, or the robust set; nominal first)."""
         return [self.plant] if self.plant is not None else list(self.plants or [])
 
 
@@ -200,6 +203,7 @@ class StudyDef(BaseModel):
         return self
 
     def get(self, name: str) -> LoopDef:
+        """The loop called ``name``."""
         for lp in self.loop:
             if lp.name == name:
                 return lp
@@ -357,10 +361,12 @@ def base_plants(lp: LoopDef) -> list[Plant]:
 
 
 def controller_of(lp: LoopDef, gains: dict[str, float]) -> ControllerTF:
+    """The loop's controller for ``gains`` (its structure at its ``dt``)."""
     return controller_tf(lp.structure, gains, dt=lp.dt)
 
 
 def thesis_controller_of(lp: LoopDef) -> ControllerTF | None:
+    """The loop's published (thesis) controller, or None when the study gives none."""
     if lp.thesis_controller is None:
         return None
     try:
