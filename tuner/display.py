@@ -15,7 +15,7 @@ import math
 from typing import Any
 
 __all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict", "metrics_repr",
-           "margins_repr", "check_repr", "loop_eval_repr"]
+           "margins_repr", "check_repr", "loop_eval_repr", "step_response_repr"]
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +70,15 @@ def margins_repr(m: Any) -> str:
     if math.isfinite(m.phase_crossover_rad_s):
         head += f" at {_g(m.phase_crossover_rad_s, 4)} rad/s"
     return f"Margins({head}\n{peaks})"
+
+
+def step_response_repr(r: Any) -> str:
+    """A :class:`~tuner.analysis.response.StepResponse` on one line (its arrays summarised)."""
+    t = r.t
+    span = f"{t.size} points over {_g(float(t[0]))}..{_g(float(t[-1]))} s" if t.size else "no points"
+    where = "between samples" if r.between_samples else "at the sample instants"
+    samples = f", {r.t_samples.size} samples" if r.t_samples is not None else ""
+    return f"StepResponse({span}{samples}, final value {_g(r.y_final)}, {where}; arrays t, y, u)"
 
 
 def check_repr(c: Any) -> str:

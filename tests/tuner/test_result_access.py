@@ -163,7 +163,7 @@ def test_result_reprs_are_a_few_lines():
     res = result([(1.0, 0.0), (0.5, 0.0), (1.0, 0.3)])
     a = res.analyses[0]
     for obj, head in [(res, "TuneResult("), (a, "Analysis("), (a.metrics, "Metrics("), (a.margins, "Margins("),
-                      (a.checks[1], "Check(")]:
+                      (a.checks[1], "Check("), (a.response, "StepResponse(")]:
         text = repr(obj)
         assert text.startswith(head), text
         assert len(text.splitlines()) <= 8 and len(text) < 1000, text

@@ -126,6 +126,13 @@ class CascadeResponse:
     inner_output: np.ndarray  # the inner plant's output (e.g. the angle) on the same grid
     metrics: StepMetrics
 
+    def __repr__(self) -> str:
+        from ..display import step_response_repr
+
+        m = self.metrics
+        return (f"CascadeResponse(overshoot {m.overshoot_pct:.3g} %, settling {m.settling_time_s:.3g} s;\n  "
+                f"{step_response_repr(self.response)})")
+
 
 def _mats(sys: SS) -> tuple[np.ndarray, ...]:
     """(A, B, C, D) as 2-D arrays (B a column, C a row)."""

@@ -58,6 +58,11 @@ class StepResponse:
     y_final: float
     between_samples: bool  # False when only sample instants are known
 
+    def __repr__(self) -> str:
+        from ..display import step_response_repr
+
+        return step_response_repr(self)
+
 
 @dataclass(frozen=True)
 class StepMetrics:
