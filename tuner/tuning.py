@@ -185,7 +185,7 @@ class TuneResult:
         return export_controller(self, format=format, name=name, dt=dt, method=method, u_min=u_min, u_max=u_max)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (after :func:`~tuner.analysis.jsonable`): the analyze fields + gains, controller, solver.
+        """JSON-ready (after :func:`~tuner.jsonio.jsonable`): the analyze fields + gains, controller, solver.
 
         ``metrics`` and ``checks`` are the nominal plant's; with several plants,
         ``plants`` holds every plant's metrics and checks and ``meets_spec`` is
@@ -246,8 +246,9 @@ def tune(
         One of :data:`tuner.controllers.STRUCTURES`: ``p``, ``pi``, ``pd``, ``pid``, ``pid_z`` (discrete only),
         ``pidf2``, ``lead``, ``lag``, ``leadlag``.
     spec : Spec, optional
-        Defaults to the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
-        error, minimum 2 % settling time). ``Spec.objective`` says what is minimised.
+        Defaults to ``Spec()``: the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
+        error, minimum 2 % settling time) with the default design limits (derivative filter N <= 20, Tf >= dt/pi,
+        noise budget Mks <= 10 K0; ``Spec.thesis()`` lifts them). ``Spec.objective`` says what is minimised.
     dt : float, optional
         Controller sample time, s; ``None`` = continuous (or the plants' dt if discrete).
     delay : float or sequence of float, optional

@@ -107,3 +107,70 @@ def test_data_names_are_documented_where_defined():
 
     assert "STRUCTURES" in (controllers.__doc__ or "") or "STRUCTURES" in (tuner.__doc__ or "")
     assert "__version__" in tuner.__all__ and isinstance(tuner.__version__, str)
+
+
+# -- docs that still describe the code: every cross-reference resolves -----------------------------------------
+
+ROLE = re.compile(r":(?:func|class|mod|meth|data|attr|exc):`~?([^`<>]+?)`")
+EXTERNAL = ("control", "matplotlib", "numpy", "scipy", "optuna", "casadi", "pydantic", "functools", "api.")
+
+
+def _resolves(start, parts) -> bool:
+    obj = start
+    for r in parts:
+        if hasattr(obj, r):
+            obj = getattr(obj, r)
+        elif isinstance(obj, type) and any(r in getattr(obj, a, {}) for a in
+                                           ("__dataclass_fields__", "model_fields", "__annotations__")):
+            return True  # a field
+        else:
+            return False
+    return True
+
+
+def dangling_references(modname: str, text: str) -> list[str]:
+    """The ``:func:``/``:class:``/... targets in ``text`` that name nothing: absolute (``tuner.x.y``), or relative
+    to the module, the ``tuner`` namespace, or a class of the module."""
+    import importlib
+    import sys
+
+    importlib.import_module(modname)
+    mod = sys.modules[modname]
+    out = []
+    for m in ROLE.finditer(text):
+        target = m.group(1).strip().removesuffix("()")
+        if target.startswith(EXTERNAL):
+            continue
+        parts = target.split(".")
+        if parts[0] == "tuner":
+            ok = False
+            for i in range(len(parts), 0, -1):
+                try:
+                    base = importlib.import_module(".".join(parts[:i]))
+                except ImportError:
+                    continue
+                ok = _resolves(sys.modules[".".join(parts[:i])] if i > 1 else base, parts[i:])
+                break
+        else:
+            ok = _resolves(mod, parts) or _resolves(tuner, parts) or any(
+                _resolves(c, parts) for c in vars(mod).values() if isinstance(c, type))
+        if not ok:
+            out.append(f"{modname}:{text[:m.start()].count(chr(10)) + 1}: {target}")
+    return out
+
+
+def test_cross_references_in_the_docs_name_what_exists():
+    from pathlib import Path
+
+    root = Path(tuner.__file__).parent
+    bad = []
+    for f in sorted(root.rglob("*.py")):
+        modname = ".".join(("tuner", *f.relative_to(root).with_suffix("").parts)).removesuffix(".__init__")
+        bad += dangling_references(modname, f.read_text())
+    assert not bad, bad
+
+
+def test_a_dangling_reference_is_found():
+    assert dangling_references("tuner.tuning", "see :func:`tuner.analysis.jsonable` and :class:`NoSuchThing`") == [
+        "tuner.tuning:1: tuner.analysis.jsonable", "tuner.tuning:1: NoSuchThing"]
+    assert dangling_references("tuner.tuning", ":func:`tuner.jsonio.jsonable`, :meth:`TuneResult.to_dict`") == []

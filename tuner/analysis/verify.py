@@ -183,7 +183,7 @@ def analyze_loop(
     loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None,
     samples_per_dt: int | None = None, grid_points: int | None = None, poles: np.ndarray | None = None,
 ) -> Analysis:
-    """Verify ``loop`` against ``spec`` (defaults to the thesis spec); ``poles`` if already computed.
+    """Verify ``loop`` against ``spec`` (default ``Spec()``); ``poles`` if already computed.
 
     The core of :func:`analyze`, on a built :class:`tuner.loop.Loop` (no input conversion, no checks of it).
 
@@ -230,7 +230,10 @@ def analyze(
         Continuous (a continuous loop) or at a sample time ``dt`` (a sampled-data loop: the controller drives
         a continuous plant through a zero-order hold, or a discrete plant at the same ``dt``).
     spec : Spec, optional
-        What is checked; defaults to the thesis spec (see :class:`~tuner.spec.Spec`).
+        What is checked; default ``Spec()``: the thesis constraints (PM >= 60 deg, GM >= 6 dB, overshoot
+        <= 10 %, zero steady-state error) and the limits it states in absolute terms (``ms_max``, ``mks_max``,
+        ...). The default design limits of a tune (the filter rules, the noise budget relative to the plant)
+        are rules on a structure's parameters and are not checked here (see :class:`~tuner.spec.Spec`).
     delay : float, optional
         Input delay of a python-control plant, s (whole samples in a sampled-data loop). A
         :class:`~tuner.plant.Plant` carries its own delay.

@@ -127,7 +127,7 @@ class IdentifyResult:
         return self.plant().describe()
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready after :func:`tuner.analysis.jsonable` (non-finite bounds become strings)."""
+        """JSON-ready after :func:`tuner.jsonio.jsonable` (non-finite bounds become strings)."""
         return {
             "model": self.model.to_dict(),
             "cost": self.cost,

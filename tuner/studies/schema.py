@@ -16,7 +16,7 @@ A study is a TOML file::
     structure = "pid_z"
     thesis_controller = "37.79*(z^2-1.85*z+0.8686)/(z*(z-1))"    # optional, compared as printed
     thesis_settling_s = 0.5     # optional, what the thesis claimed
-    [loop.spec]                 # Spec fields; defaults = the thesis spec
+    [loop.spec]                 # Spec fields; defaults = Spec() (the thesis spec + the default design limits)
     phase_margin_min_deg = 60
 
     [[loop]]
