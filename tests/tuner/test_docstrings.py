@@ -118,13 +118,10 @@ EXTERNAL = ("control", "matplotlib", "numpy", "scipy", "optuna", "casadi", "pyda
 def _resolves(start, parts) -> bool:
     obj = start
     for r in parts:
-        if hasattr(obj, r):
-            obj = getattr(obj, r)
-        elif isinstance(obj, type) and any(r in getattr(obj, a, {}) for a in
-                                           ("__dataclass_fields__", "model_fields", "__annotations__")):
-            return True  # a field
-        else:
-            return False
+        if not hasattr(obj, r):  # else a field of a dataclass, a pydantic model or an annotated class
+            return isinstance(obj, type) and any(r in getattr(obj, a, {}) for a in
+                                                 ("__dataclass_fields__", "model_fields", "__annotations__"))
+        obj = getattr(obj, r)
     return True
 
 
