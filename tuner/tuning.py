@@ -69,7 +69,7 @@ class TuneResult:
     --------
     >>> import control
     >>> from tuner import tune
-    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=2)
+    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default 10 s)
     >>> res.meets_spec
     True
     >>> sorted(res.gains)
@@ -289,7 +289,7 @@ def tune(
     --------
     >>> import control
     >>> from tuner import tune
-    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=2)
+    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default 10 s)
     >>> res.meets_spec
     True
     >>> bool(res.metrics.overshoot_pct <= 10.0)  # the default spec: overshoot <= 10 %
@@ -297,7 +297,7 @@ def tune(
 
     A sampled-data loop (the controller at ``dt`` drives the continuous plant through a hold):
 
-    >>> res = tune(control.tf([4.0], [1.0, 2.0, 4.0]), structure="pi", dt=0.05, time_budget_s=2)
+    >>> res = tune(control.tf([4.0], [1.0, 2.0, 4.0]), structure="pi", dt=0.05, time_budget_s=1)
     >>> res.controller.dt, res.meets_spec
     (0.05, True)
     """

@@ -185,7 +185,6 @@ def test_study_result_repr_is_a_few_lines():
 
 # -- the README's "Reading a result" ---------------------------------------------------------------------------
 
-@pytest.mark.slow  # a two-second tune
 def test_readme_reading_a_result_block_runs():
     import doctest
     from pathlib import Path
