@@ -197,3 +197,11 @@ def test_readme_reading_a_result_block_runs():
     runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE | doctest.ELLIPSIS)
     runner.run(test)
     assert runner.tries >= 10 and runner.failures == 0
+
+
+def test_study_loop_status_repr_is_one_line():
+    from tuner.studies.runner import LoopStatus
+
+    st = LoopStatus("done", 2, result={"gains": {"Kp": 1.0}, "metrics": {f"m{i}": i for i in range(200)}},
+                    worker="w1")
+    assert repr(st) == "LoopStatus(done, epoch 2, worker w1, result with 2 fields)"

@@ -114,6 +114,18 @@ class LoopStatus:
     trial_id: int | None = None  # "free": the WAITING trial to claim (None: create the epoch's study)
     attempt: int = 0  # how many earlier attempts failed (Optuna's retry history)
 
+    def __repr__(self) -> str:
+        parts = [self.state, f"epoch {self.epoch}"]
+        if self.worker:
+            parts.append(f"worker {self.worker}")
+        if self.trial_id is not None:
+            parts.append(f"trial {self.trial_id}")
+        if self.attempt:
+            parts.append(f"attempt {self.attempt + 1}")
+        if self.result is not None:
+            parts.append(f"result with {len(self.result)} fields")
+        return f"LoopStatus({', '.join(parts)})"
+
 
 def _retry_callback() -> Any:
     cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)  # Optuna >= 5
