@@ -1,7 +1,10 @@
 """Results that show themselves: a few lines for ``repr``, an HTML summary for Jupyter.
 
 ``repr`` of a :class:`~tuner.TuneResult` or an :class:`~tuner.analysis.Analysis`: the structure and
-gains, the verdict (and what fails), the main metrics; a robust tune lists its plants (a few). HTML:
+gains, the verdict (and what fails), the main metrics; a robust tune lists its plants (a few). The parts
+have short reprs too: :class:`~tuner.analysis.Metrics` and :class:`~tuner.analysis.margins.Margins` (two or
+three lines), :class:`~tuner.spec.Check` and :class:`~tuner.analysis.response.StepResponse` (one), and a
+study's :class:`~tuner.studies.evaluate.LoopEval` (a few). HTML:
 the same as tables (gains; checks with required / achieved / met, one column per plant) and thumbnails
 of the step response and the Bode plot drawn by :mod:`tuner.analysis.plots` (PNG, base64, no pyplot).
 """
