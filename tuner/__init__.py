@@ -5,7 +5,18 @@ state what "good" means (:class:`Spec`), then :func:`tune` a structure or :func:
 controller; from flight data, :func:`identify` the plant first. Everything returned has been checked
 by the verifier (:mod:`tuner.analysis`). python-control models go in and come out (:mod:`tuner.interop`:
 ``tune(control.tf(...))``, ``result.to_control()``, ``result.loop_tfs()``); :func:`export_controller` writes
-the controller as C99, Python or its difference equation (:mod:`tuner.export`).
+the controller as C99, Python or its difference equation (:mod:`tuner.export`). ``STRUCTURES`` maps each
+controller structure's name to its definition (:func:`get_structure`); ``__version__`` is the installed version.
+
+Examples
+--------
+>>> import control
+>>> import tuner
+>>> a = tuner.analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0]))
+>>> a.meets_spec
+True
+>>> "pid" in tuner.STRUCTURES
+True
 """
 
 from __future__ import annotations

@@ -176,6 +176,7 @@ def suggestion_flags(suggest: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``tuner`` argument parser (every subcommand; ``tuner --help`` prints it with the exit codes)."""
     p = _Parser(prog="tuner", description="Optimisation-based controller tuning with an independent verifier.",
                 epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress; print the traceback of an "
@@ -285,6 +286,7 @@ _EXTRA_COMMANDS: list[str] = ["studies.cli", "identify.cli", "export.cli"]
 
 
 def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, Any]] | None = None) -> None:
+    """Print ``rows`` (metric, value) and the spec ``checks`` as a table under ``title`` (rich)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -315,6 +317,7 @@ def field(name: str) -> Iterator[None]:
 
 
 def fmt(v: Any) -> str:
+    """A value for a table: ``yes``/``no``, a float to 4 significant digits, else ``str``."""
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
@@ -323,6 +326,7 @@ def fmt(v: Any) -> str:
 
 
 def analysis_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
+    """The metrics dict as (name, formatted value) rows."""
     return [(k, fmt(v)) for k, v in metrics.items()]
 
 
@@ -533,6 +537,7 @@ def _argument_of(f: tuple[str | int, ...]) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``tuner`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code (``tuner --help``: the codes)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")

@@ -71,7 +71,22 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class ControllerTF:
-    """A controller transfer function ``num/den`` (highest power first), continuous or at ``dt``."""
+    """A controller transfer function ``num/den`` (highest power first), continuous or at ``dt``.
+
+    Build it validated with :func:`controller_from_coeffs`, :func:`controller_from_expr` or
+    :func:`controller_tf`; a tune's is ``TuneResult.controller``.
+
+    Examples
+    --------
+    >>> from tuner import controller_from_coeffs
+    >>> c = controller_from_coeffs([2.0, 2.0], [1.0, 0.0], dt=None)  # 2 (s + 1) / s
+    >>> c.dt, [float(z.real) for z in c.zpk.zeros], c.zpk.gain
+    (None, [-1.0], 2.0)
+    >>> abs(complex(c.freqresp([1.0])[0]))  # |2 (j + 1) / j| = 2 sqrt(2)  # doctest: +ELLIPSIS
+    2.828...
+    >>> c.to_dict()
+    {'num': [2.0, 2.0], 'den': [1.0, 0.0], 'dt': None}
+    """
 
     num: np.ndarray
     den: np.ndarray
@@ -131,9 +146,11 @@ class ControllerTF:
         return self._cache["two_input"]
 
     def freqresp(self, w: np.ndarray) -> np.ndarray:
+        """``C(j w)`` (continuous) or ``C(exp(j w dt))`` at the frequencies ``w``, rad/s."""
         return tf_freqresp(self.num, self.den, w, dt=self.dt)
 
     def to_dict(self) -> dict[str, Any]:
+        """``{"num": [...], "den": [...], "dt": ...}`` (JSON-ready; a 2-DOF controller also ``num_r``)."""
         out = {"num": [float(c) for c in self.num], "den": [float(c) for c in self.den], "dt": self.dt}
         if self.two_dof:
             out["num_r"] = [float(c) for c in self.num_r]
@@ -331,10 +348,13 @@ class Structure:
         return next((lo, hi) for q, lo, hi in self.weight_ranges if q == p)
 
     def gain_scale(self, k0: float, w0: float) -> np.ndarray:
+        """Each parameter's natural scale for a plant of gain scale ``k0`` at frequency ``w0``: ``k0 * w0**unit``."""
         units = self.gain_units or (0,) * len(self.params)
         return np.array([k0 * w0 ** u for u in units])
 
     def tf(self, values: Mapping[str, float] | Sequence[float], dt: float | None) -> ControllerTF:
+        """The controller's transfer function for parameter ``values`` (by name or in order), continuous or at
+        ``dt``; validated (kinds, signs, a proper result)."""
         x = self.vector(values)
         dt = check_dt(dt)
         if self.discrete_only and dt is None:
@@ -375,6 +395,7 @@ class Structure:
         return ControllerTF(num=num / den[0], den=den / den[0], dt=dt, num_r=num_r / den[0], realization=real)
 
     def vector(self, values: Mapping[str, float] | Sequence[float]) -> np.ndarray:
+        """``values`` (a mapping by name, or a sequence in :attr:`params` order) as a validated array."""
         if isinstance(values, Mapping):
             unknown = set(values) - set(self.params)
             missing = [p for p in self.params if p not in values]
@@ -408,6 +429,7 @@ class Structure:
         return x
 
     def named(self, x: Sequence[float]) -> dict[str, float]:
+        """The parameter vector ``x`` as ``{name: value}``."""
         return {p: float(v) for p, v in zip(self.params, x)}
 
 
@@ -452,6 +474,23 @@ def deprecation_note(name: str) -> str | None:
 
 
 def get_structure(name: str) -> Structure:
+    """The structure called ``name`` (a key of :data:`STRUCTURES`): its parameters, kinds and transfer function.
+
+    Raises :class:`~tuner.errors.InvalidControllerError` (``field == ("structure",)``) for an unknown name; a
+    deprecated name (``pidf2``) gives its new structure with a ``DeprecationWarning``.
+
+    Examples
+    --------
+    >>> from tuner import STRUCTURES, get_structure
+    >>> get_structure("pid").params
+    ('Kp', 'Ki', 'Kd', 'Tf')
+    >>> sorted(STRUCTURES)
+    ['lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z']
+    >>> get_structure("pdi")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidControllerError: unknown structure 'pdi'; choose one of [...]
+    """
     if name in DEPRECATED_STRUCTURES:
         import warnings
 
@@ -466,12 +505,37 @@ def get_structure(name: str) -> Structure:
 
 
 def controller_tf(structure: str, gains: Mapping[str, float], *, dt: float | None) -> ControllerTF:
-    """Transfer function of ``structure`` with named ``gains`` (continuous, or at ``dt``)."""
+    """Transfer function of ``structure`` with named ``gains`` (continuous, or at ``dt``).
+
+    Examples
+    --------
+    >>> from tuner import controller_tf
+    >>> c = controller_tf("pi", {"Kp": 2.0, "Ki": 2.0}, dt=None)  # Kp + Ki/s = 2 (s + 1) / s
+    >>> [float(v) for v in c.num], [float(v) for v in c.den]
+    ([2.0, 2.0], [1.0, 0.0])
+    """
     return get_structure(structure).tf(gains, dt)
 
 
 def controller_from_expr(text: str, *, dt: float | None) -> ControllerTF:
-    """A controller from an expression in ``s`` (continuous) or ``z`` (needs ``dt``)."""
+    """A controller from an expression in ``s`` (continuous) or ``z`` (needs ``dt``).
+
+    The text is parsed, never evaluated; an improper controller, an ``s`` expression with ``dt`` or a ``z``
+    expression without it raise :class:`~tuner.errors.InvalidControllerError` naming the field.
+
+    Examples
+    --------
+    >>> from tuner import controller_from_expr
+    >>> c = controller_from_expr("2*(s + 1)/s", dt=None)
+    >>> [float(v) for v in c.num], [float(v) for v in c.den]
+    ([2.0, 2.0], [1.0, 0.0])
+    >>> controller_from_expr("2*(z - 0.9)/(z - 1)", dt=0.01).dt
+    0.01
+    >>> controller_from_expr("z/(z - 1)", dt=None)
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidControllerError: controller is in z: give its sample time dt
+    """
     from .expr import parse_tf_expr
 
     dt = check_dt(dt)
@@ -525,7 +589,19 @@ def _finite_ss(ss: SS) -> bool:
 
 def controller_from_coeffs(num: Sequence[float], den: Sequence[float], *, dt: float | None) -> ControllerTF:
     """A controller from coefficients (highest power first), continuous or at ``dt``, validated:
-    finite, non-zero numerator and denominator, proper."""
+    finite, non-zero numerator and denominator, proper.
+
+    Examples
+    --------
+    >>> from tuner import controller_from_coeffs
+    >>> c = controller_from_coeffs([4.0, 4.0], [2.0, 0.0], dt=None)  # made monic: 2 (s + 1) / s
+    >>> [float(v) for v in c.num], [float(v) for v in c.den]
+    ([2.0, 2.0], [1.0, 0.0])
+    >>> controller_from_coeffs([1.0, 0.0, 0.0], [1.0, 1.0], dt=None)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidControllerError: improper controller: ...
+    """
     dt = check_dt(dt)
     parts = []
     for name, values in (("num", num), ("den", den)):

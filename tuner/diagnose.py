@@ -60,6 +60,7 @@ class Reason:
     suggest: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """The reason as a dict (``constraints``, ``message``, ``suggest``)."""
         return {"constraints": list(self.constraints), "message": self.message, "suggest": dict(self.suggest)}
 
 

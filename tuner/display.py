@@ -1,7 +1,10 @@
 """Results that show themselves: a few lines for ``repr``, an HTML summary for Jupyter.
 
 ``repr`` of a :class:`~tuner.TuneResult` or an :class:`~tuner.analysis.Analysis`: the structure and
-gains, the verdict (and what fails), the main metrics; a robust tune lists its plants (a few). HTML:
+gains, the verdict (and what fails), the main metrics; a robust tune lists its plants (a few). The parts
+have short reprs too: :class:`~tuner.analysis.Metrics` and :class:`~tuner.analysis.margins.Margins` (two or
+three lines), :class:`~tuner.spec.Check` and :class:`~tuner.analysis.response.StepResponse` (one), and a
+study's :class:`~tuner.studies.evaluate.LoopEval` (a few). HTML:
 the same as tables (gains; checks with required / achieved / met, one column per plant) and thumbnails
 of the step response and the Bode plot drawn by :mod:`tuner.analysis.plots` (PNG, base64, no pyplot).
 """
@@ -14,7 +17,8 @@ import logging
 import math
 from typing import Any
 
-__all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict"]
+__all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict", "metrics_repr",
+           "margins_repr", "check_repr", "loop_eval_repr", "step_response_repr"]
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +50,46 @@ def metrics_line(a: Any) -> str:
                        f"Ms {_g(m.ms, 3)}", f"peak |u| {_g(m.control_peak, 3)}"])
 
 
+def _freq_lines(m: Any) -> list[str]:
+    gm = f"GM {_g(m.gain_margin_db, 3)} dB"
+    if math.isfinite(m.gain_margin_lower_db):
+        gm += f" (lower {_g(m.gain_margin_lower_db, 3)} dB)"
+    return [f"PM {_g(m.phase_margin_deg, 4)} deg at {_g(m.crossover_rad_s, 4)} rad/s, {gm}",
+            f"  Ms {_g(m.ms, 3)} | Mt {_g(m.mt, 3)} | Mks {_g(m.mks, 3)} | bandwidth {_g(m.bandwidth_rad_s, 3)} rad/s"
+            f" | disk margin {_g(m.disk_margin, 3)}"]
+
+
+def metrics_repr(m: Any) -> str:
+    """A :class:`~tuner.analysis.Metrics` in three lines: margins, peaks, step metrics."""
+    head, peaks = _freq_lines(m)
+    step = (f"  step: overshoot {_g(m.overshoot_pct, 3)} % | settling {_g(m.settling_time_s, 3)} s | rise "
+            f"{_g(m.rise_time_s, 3)} s | error {_g(m.steady_state_error, 3)} | peak |u| {_g(m.control_peak, 3)}")
+    return f"Metrics({'stable' if m.stable else 'UNSTABLE'}, {head}\n{peaks}\n{step})"
+
+
+def margins_repr(m: Any) -> str:
+    """A :class:`~tuner.analysis.margins.Margins` in two lines."""
+    head, peaks = _freq_lines(m)
+    if math.isfinite(m.phase_crossover_rad_s):
+        head += f" at {_g(m.phase_crossover_rad_s, 4)} rad/s"
+    return f"Margins({head}\n{peaks})"
+
+
+def step_response_repr(r: Any) -> str:
+    """A :class:`~tuner.analysis.response.StepResponse` on one line (its arrays summarised)."""
+    t = r.t
+    span = f"{t.size} points over {_g(float(t[0]))}..{_g(float(t[-1]))} s" if t.size else "no points"
+    where = "between samples" if r.between_samples else "at the sample instants"
+    samples = f", {r.t_samples.size} samples" if r.t_samples is not None else ""
+    return f"StepResponse({span}{samples}, final value {_g(r.y_final)}, {where}; arrays t, y, u)"
+
+
+def check_repr(c: Any) -> str:
+    """A :class:`~tuner.spec.Check` on one line: ``Check(phase_margin_deg 71.2 >= 60: ok)``."""
+    state = "ok" if c.ok else f"FAILS by {_g(c.violation)}"
+    return f"Check({c.name} {_g(c.achieved)} {c.op} {_g(c.required)}: {state})"
+
+
 def _failing(analyses: Any) -> list[str]:
     seen, out = set(), []
     for a in analyses:
@@ -57,6 +101,7 @@ def _failing(analyses: Any) -> list[str]:
 
 
 def verdict(analyses: Any) -> str:
+    """``meets the spec``, or ``does NOT meet the spec:`` and every failing check (once) with its values."""
     fails = _failing(analyses)
     return "meets the spec" if not fails else "does NOT meet the spec: " + "; ".join(fails)
 
@@ -85,6 +130,7 @@ def _plant_lines(analyses: Any) -> list[str]:
 
 
 def tune_repr(r: Any) -> str:
+    """The few-line ``repr`` of a :class:`~tuner.TuneResult`."""
     gains = ", ".join(f"{k} = {_g(v, 6)}" for k, v in r.gains.items())
     robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
     s = r.solver
@@ -104,7 +150,17 @@ def tune_repr(r: Any) -> str:
     return "\n".join(lines)
 
 
+def loop_eval_repr(e: Any) -> str:
+    """A study's :class:`~tuner.studies.evaluate.LoopEval`: the loop, the verdict, each plant's metrics (a few)."""
+    robust = f", {len(e.analyses)} plants" if len(e.analyses) > 1 else ""
+    fails = list(e.failing)
+    state = "meets the spec" if e.meets_spec else "does NOT meet the spec: " + ", ".join(fails)
+    return "\n".join([f"LoopEval({e.loop.name}, {_loop_kind(e.analyses[0])}{robust}: {state})",
+                      *_plant_lines(e.analyses)])
+
+
 def analysis_repr(a: Any) -> str:
+    """The few-line ``repr`` of an :class:`~tuner.analysis.Analysis`."""
     p = a.poles
     size = abs(p) if a.loop.dt is not None else p.real
     where = "max |z|" if a.loop.dt is not None else "max Re s"
@@ -174,6 +230,7 @@ def _verdict_html(analyses: Any) -> str:
 
 
 def tune_html(r: Any, *, thumbnails: bool = True) -> str:
+    """The HTML summary of a :class:`~tuner.TuneResult` (Jupyter): gains, checks per plant, thumbnails."""
     robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
     head = (f"<b>TuneResult</b> {_e(r.structure)}, {_e(_loop_kind(r.analyses[0]))}{_e(robust)}: "
             f"{_verdict_html(r.analyses)}")
@@ -190,6 +247,7 @@ def tune_html(r: Any, *, thumbnails: bool = True) -> str:
 
 
 def analysis_html(a: Any, *, thumbnails: bool = True) -> str:
+    """The HTML summary of an :class:`~tuner.analysis.Analysis` (Jupyter): checks, thumbnails."""
     head = f"<b>Analysis</b> {_e(_loop_kind(a))}: {_verdict_html([a])}"
     pics = _thumbnails(a) if thumbnails else ""
     return f'{_CSS}<div class="tuner-r"><p>{head}</p>{_checks_table([a])}{pics}</div>'

@@ -7,6 +7,7 @@ parentheses, and implicit multiplication before a variable or ``(``
 the text is tokenised by a regular expression and evaluated by a small
 recursive-descent parser into a ratio of numpy polynomials.
 
+>>> from tuner.expr import parse_tf_expr
 >>> parse_tf_expr("0.2843*18.611/(s+18.611)").var
 's'
 """

@@ -40,7 +40,19 @@ DEFAULT_PADE_ORDER = 6
 
 
 class LoopTFs(NamedTuple):
-    """The loop's transfer functions as python-control objects (``L, S, T = ...``)."""
+    """The loop's transfer functions as python-control objects (``L, S, T = ...``).
+
+    ``L`` the loop gain, ``S = 1/(1 + L)``, ``T = L/(1 + L)``; from ``TuneResult.loop_tfs()`` or
+    ``Analysis.loop_tfs()``.
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import analyze
+    >>> L, S, T = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0])).loop_tfs()
+    >>> round(abs(complex(T(2j))), 6)  # T = 2/(s + 2): |T(2j)| = 1/sqrt(2)
+    0.707107
+    """
 
     L: Any
     S: Any
@@ -99,7 +111,21 @@ def _zpk(sys: Any, discrete: bool) -> Zpk:
 
 
 def plant_from_control(sys: Any, *, delay: float = 0.0, max_order: int = MAX_ORDER) -> Plant:
-    """A :class:`~tuner.plant.Plant` from a python-control model; ``delay`` in seconds (whole samples if discrete)."""
+    """A :class:`~tuner.plant.Plant` from a python-control model; ``delay`` in seconds (whole samples if discrete).
+
+    A ``TransferFunction`` or ``StateSpace``, SISO, continuous (``dt=0``) or discrete (its ``dt``; ``dt=True``
+    is refused: give the number).
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import plant_from_control
+    >>> p = plant_from_control(control.tf([1], [1, 1]), delay=0.05)
+    >>> p.order, p.delay_s, p.dt
+    (1, 0.05, None)
+    >>> plant_from_control(control.ss([[-1.0]], [[1.0]], [[2.0]], [[0.0]])).describe()  # doctest: +ELLIPSIS
+    '(2...) / (s + 1...)'
+    """
     import control
 
     _siso(sys, InvalidPlantError, "plant")
@@ -118,7 +144,16 @@ def plant_from_control(sys: Any, *, delay: float = 0.0, max_order: int = MAX_ORD
 
 
 def controller_from_control(sys: Any) -> ControllerTF:
-    """A :class:`~tuner.controllers.ControllerTF` from a python-control model (its ``dt``)."""
+    """A :class:`~tuner.controllers.ControllerTF` from a python-control model (its ``dt``).
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import controller_from_control
+    >>> c = controller_from_control(control.tf([2, 2], [1, 0], 0.01))
+    >>> c.dt, [float(v) for v in c.den]
+    (0.01, [1.0, 0.0])
+    """
     import control
 
     _siso(sys, InvalidControllerError, "controller")

@@ -31,5 +31,17 @@ def dumps(obj: Any, *, indent: int | None = None) -> str:
 
 
 def jsonable(obj: Any) -> Any:
-    """``obj`` converted to JSON-safe Python values (dicts, lists, str, float, int, bool, None)."""
+    """``obj`` converted to JSON-safe Python values (dicts, lists, str, float, int, bool, None).
+
+    Non-finite floats become ``"Infinity"``, ``"-Infinity"`` and ``"NaN"``; numpy scalars and arrays become
+    numbers and lists.
+
+    Examples
+    --------
+    >>> import math
+    >>> import numpy as np
+    >>> from tuner import jsonable
+    >>> jsonable({"gm_db": math.inf, "x": np.float64(1.5), "poles": np.array([-1.0, -2.0]), "pm": math.nan})
+    {'gm_db': 'Infinity', 'x': 1.5, 'poles': [-1.0, -2.0], 'pm': 'NaN'}
+    """
     return json.loads(dumps(obj))

@@ -91,6 +91,7 @@ class Loop:
 
     @property
     def is_discrete(self) -> bool:
+        """The loop is sampled-data or discrete (a controller at ``dt``)."""
         return self.dt is not None
 
     @property
@@ -139,6 +140,7 @@ class Loop:
         return bool(np.any(np.abs(p - x) < 1e-9 * max(1.0, float(np.max(np.abs(p))) if p.size else 1.0)))
 
     def nyquist_w(self) -> float | None:
+        """The Nyquist frequency ``pi/dt``, rad/s; None for a continuous loop."""
         return np.pi / self.dt if self.dt else None
 
     def closed_loop(self, h: float | None = None) -> ClosedLoop | FineDelayLoop:

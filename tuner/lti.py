@@ -71,6 +71,7 @@ class SS:
 
     @property
     def n(self) -> int:
+        """The number of states."""
         return self.A.shape[0]
 
     def schur(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -101,6 +101,15 @@ class Plant:
     ``num``/``den`` are the coefficients (for display and storage); every computation uses the
     factored form ``zpk`` and its cascade state-space realisation (:meth:`ss`), never the expanded
     polynomials (see :mod:`tuner.lti`).
+
+    Examples
+    --------
+    >>> from tuner import make_plant
+    >>> p = make_plant([2.0], [1.0, 3.0, 2.0], delay=0.01)  # 2 / ((s + 1)(s + 2)), 10 ms delay
+    >>> p.order, p.is_discrete, sorted(float(r) for r in p.poles.real)
+    (2, False, [-2.0, -1.0])
+    >>> p.describe()  # doctest: +ELLIPSIS
+    '(2...) / (...), delay=0.01 s'
     """
 
     num: np.ndarray
@@ -116,18 +125,22 @@ class Plant:
 
     @property
     def is_discrete(self) -> bool:
+        """A plant in ``z`` at ``dt`` (else continuous, in ``s``)."""
         return self.dt is not None
 
     @property
     def order(self) -> int:
+        """The number of poles (the denominator's degree)."""
         return self.den.size - 1
 
     @property
     def poles(self) -> np.ndarray:
+        """The poles (in ``s``, or in ``z`` at ``dt``), from the factored form."""
         return self.zpk.poles
 
     @property
     def zeros(self) -> np.ndarray:
+        """The zeros (in ``s``, or in ``z`` at ``dt``), from the factored form."""
         return self.zpk.zeros
 
     @property
@@ -247,6 +260,7 @@ class Plant:
         return out
 
     def describe(self) -> str:
+        """The plant as text: ``(num) / (den)``, with its ``dt`` and delay when it has them."""
         var = "s" if self.dt is None else "z"
         s = f"({_poly_str(self.num, var)}) / ({_poly_str(self.den, var)})"
         if self.dt is not None:
@@ -316,6 +330,21 @@ def make_plant(
     ``max_order``, ``dt <= 0``, negative or non-finite delay, or a delay that is
     not a whole number of samples of a discrete plant (a continuous plant takes any delay). Open-loop unstable plants
     are accepted.
+
+    Examples
+    --------
+    >>> from tuner import make_plant
+    >>> make_plant([1.0], [1.0, 1.0]).order
+    1
+    >>> make_plant([0.1], [1.0, -0.9], dt=0.01).is_discrete  # in z, at 10 ms
+    True
+    >>> import control
+    >>> make_plant(control.tf([1], [1, 2, 1]), delay=0.02).delay_s
+    0.02
+    >>> make_plant([1.0, 0.0, 0.0], [1.0, 1.0])
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidPlantError: ...
     """
     if den is None:
         from .interop import is_control_lti, plant_from_control
@@ -398,6 +427,22 @@ def plant_from_expr(
 
     An expression in ``z`` needs ``dt``; an expression in ``s`` is continuous
     (``dt``, if given, is then the loop's sample time and is ignored here).
+    The text is parsed by a small parser (never evaluated): numbers, ``s`` or ``z``, ``+ - * / ^``
+    and parentheses; a bad expression raises :class:`~tuner.errors.InvalidExpressionError` with the
+    position.
+
+    Examples
+    --------
+    >>> from tuner import plant_from_expr
+    >>> p = plant_from_expr("0.2843*18.611/(s+18.611)")
+    >>> p.order, round(float(p.poles[0].real), 3)
+    (1, -18.611)
+    >>> plant_from_expr("0.1/(z - 0.9)", dt=0.01).dt
+    0.01
+    >>> plant_from_expr("1/(s+")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidExpressionError: ... (at position ...)
     """
     try:
         p = parse_tf_expr(text)

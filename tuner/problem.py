@@ -31,7 +31,18 @@ MAX_PLANTS = 50
 class TuningProblem:
     """What to tune: a validated plant set (nominal first), a structure, the loop's ``dt``, a spec.
 
-    Build it with :meth:`build`; ``scale`` is the nominal plant's ``(K0, w0)`` at ``dt``.
+    Build it with :meth:`build`; ``scale`` is the nominal plant's ``(K0, w0)`` at ``dt``. :func:`tuner.tune`
+    accepts one in place of the plants (it then holds the structure, spec and dt).
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import TuningProblem, plant_from_control
+    >>> prob = TuningProblem.build([plant_from_control(control.tf([1], [1, 1]))], structure="pi", dt=0.05)
+    >>> prob.structure.name, prob.dt, len(prob.plants)
+    ('pi', 0.05, 1)
+    >>> prob.nominal is prob.plants[0]
+    True
     """
 
     plants: tuple[Plant, ...]
@@ -44,10 +55,12 @@ class TuningProblem:
 
     @property
     def asked_spec(self) -> Spec:
+        """The spec as the user gave it (``spec`` is it with the default limits resolved)."""
         return self.asked if self.asked is not None else self.spec
 
     @property
     def nominal(self) -> Plant:
+        """The nominal plant (the first of the set)."""
         return self.plants[0]
 
     @classmethod

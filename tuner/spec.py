@@ -28,7 +28,30 @@ DEFAULT_LIMITS = ("filter_n_max", "filter_nyquist", "noise_gain_max")
 
 
 class Spec(BaseModel):
-    """A tuning specification. Optional limits are ``None`` when not requested."""
+    """A tuning specification. Optional limits are ``None`` when not requested.
+
+    A frozen pydantic model: every field is validated on construction (a bad value raises
+    ``pydantic.ValidationError`` naming the field); ``model_copy(update=...)`` derives another,
+    ``model_dump()`` gives the dict. The fields, their units and defaults are listed in
+    ``Spec.model_fields`` (each with its ``description``).
+
+    Examples
+    --------
+    >>> from tuner import Spec
+    >>> spec = Spec()  # PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state error
+    >>> spec.phase_margin_min_deg, spec.gain_margin_min_db, spec.objective
+    (60.0, 6.0, 'settling_time')
+    >>> Spec(ms_max=1.4, objective="iae").ms_max
+    1.4
+    >>> Spec.thesis().filter_n_max is None  # the default design limits lifted
+    True
+    >>> Spec(phase_margin_min_deg=120)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    pydantic_core._pydantic_core.ValidationError: 1 validation error for Spec
+    phase_margin_min_deg
+    ...
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -81,7 +104,35 @@ class Spec(BaseModel):
 
 @dataclass(frozen=True)
 class Check:
-    """One constraint: ``achieved op required``; ``violation`` is how far from ok (0 when ok)."""
+    """One constraint: ``achieved op required``; ``violation`` is how far from ok (0 when ok).
+
+    Attributes
+    ----------
+    name : str
+        The metric checked (a :class:`~tuner.analysis.Metrics` field, e.g. ``phase_margin_deg``), or a rule
+        (``stable``, ``filter_n``).
+    op : str
+        ``">="``, ``"<="``, ``"=="`` or ``"<"``.
+    required, achieved
+        The limit and the verified value.
+    ok : bool
+        The constraint holds.
+    violation : float
+        How far from ok, in the metric's unit (0 when ok, ``inf`` when the value is not defined).
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import Spec, analyze
+    >>> a = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0]), Spec(settling_time_max=1.0))
+    >>> a.checks[1]
+    Check(phase_margin_deg 90 >= 60: ok)
+    >>> c = a.failing[0]
+    >>> c
+    Check(settling_time_s 1.956 <= 1: FAILS by 0.956)
+    >>> c.name, c.ok, round(c.achieved, 3)  # settling into 2 % of 2/(s + 2): ln(50)/2 s
+    ('settling_time_s', False, 1.956)
+    """
 
     name: str
     op: str
@@ -91,8 +142,14 @@ class Check:
     violation: float
 
     def to_dict(self) -> dict[str, Any]:
+        """The check as a dict (``name``, ``op``, ``required``, ``achieved``, ``ok``, ``violation``)."""
         return {"name": self.name, "op": self.op, "required": self.required, "achieved": self.achieved,
                 "ok": self.ok, "violation": self.violation}
+
+    def __repr__(self) -> str:
+        from .display import check_repr
+
+        return check_repr(self)
 
 
 def _ge(name: str, value: float, req: float) -> Check:

@@ -62,6 +62,7 @@ class TradeoffResult:
                 f"from fastest to most robust: {pts})")
 
     def to_dict(self) -> dict[str, Any]:
+        """The curve as a dict: each point's values, limit, gains, verdict and full result."""
         return {
             "structure": self.structure, "x": self.x, "y": self.y, "wall_time_s": self.wall_time_s,
             "points": [{"settling_time_s": x, self.y: y, "limit": lim, "gains": r.gains,
@@ -73,6 +74,7 @@ class TradeoffResult:
         }
 
     def to_json(self) -> dict[str, Any]:
+        """:meth:`to_dict` made JSON-ready (:func:`tuner.jsonio.jsonable`)."""
         return jsonable(self.to_dict())
 
 

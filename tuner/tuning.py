@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from .analysis.verify import Analysis
+from .analysis.verify import Analysis, Metrics
 from .bounds import describe
 from .controllers import ControllerTF
 from .errors import TunerError
 from .jsonio import jsonable
 from .problem import MAX_PLANTS, TuningProblem
-from .spec import Spec
+from .spec import Check, Spec
 
 __all__ = ["TuneResult", "tune", "MAX_PLANTS"]
 
@@ -35,6 +35,54 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True, eq=False)
 class TuneResult:
+    """What :func:`tune` returns: the gains, the controller and the verifier's analysis of every plant.
+
+    Every number in it comes from the verifier (:mod:`tuner.analysis`), at full resolution, on every plant
+    of the set (nominal first); none is the optimiser's own estimate.
+
+    Attributes
+    ----------
+    structure : str
+        The controller structure (a key of :data:`tuner.controllers.STRUCTURES`).
+    gains : dict of str to float
+        The tuned parameters by name (e.g. ``{"Kp": ..., "Ki": ...}``).
+    controller : ControllerTF
+        The controller's transfer function (continuous, or at ``dt``).
+    analyses : tuple of Analysis
+        The verifier's analysis of the loop on each plant, nominal first.
+    solver : dict
+        The search's record: ``method``, ``seed``, ``stop``, ``converged``, ``wall_time_s``, counts.
+    spec : Spec
+        The specification tuned for.
+    reasons : tuple of tuner.diagnose.Reason
+        When the spec is not met: why, and what would make it feasible.
+    at_bounds : tuple of dict
+        Parameters on a search bound or a default design limit (:mod:`tuner.bounds`).
+    limits : tuple of dict
+        The default design limits in force (``field``, ``value``, ``rule``).
+
+    See Also
+    --------
+    tune, analyze, Analysis, Metrics
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import tune
+    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default 10 s)
+    >>> res.meets_spec
+    True
+    >>> sorted(res.gains)
+    ['Ki', 'Kp']
+    >>> bool(res.metrics.phase_margin_deg >= res.spec.phase_margin_min_deg)
+    True
+    >>> res.worst is res.analyses[0]  # one plant: it is the one that limits the design
+    True
+    >>> d = res.to_dict()
+    >>> d["meets_spec"], d["objective"]["name"]
+    (True, 'settling_time')
+    """
+
     structure: str
     gains: dict[str, float]
     controller: ControllerTF
@@ -48,15 +96,46 @@ class TuneResult:
 
     @property
     def meets_spec(self) -> bool:
+        """True when every check holds on every plant of the set."""
         return all(a.meets_spec for a in self.analyses)
 
     @property
+    def metrics(self) -> Metrics:
+        """The nominal plant's metrics (``analyses[0].metrics``): ``res.metrics.phase_margin_deg``; every
+        plant's are in ``[a.metrics for a in res.analyses]``, the limiting plant's in ``res.worst.metrics``."""
+        return self.analyses[0].metrics
+
+    @property
+    def checks(self) -> list[Check]:
+        """The nominal plant's checks against the spec (``analyses[0].checks``)."""
+        return self.analyses[0].checks
+
+    @property
+    def failing(self) -> list[Check]:
+        """The failing checks on every plant (a check failing on several plants is listed once per plant)."""
+        return [c for a in self.analyses for c in a.failing]
+
+    @property
     def worst(self) -> Analysis:
-        """The analysis of the plant that decides the result (fails, or has the worst objective)."""
+        """The analysis of the plant that limits the design.
+
+        * If some plant fails the spec: the failing plant that fails worst, i.e. an unstable loop first, then
+          the largest sum of normalised violations (each failing check's ``violation`` divided by its
+          requirement, as the search grades infeasibility: :func:`tuner.optimize.scoring.violation`).
+        * Else (every plant meets the spec): the plant with the worst value of the spec's objective
+          (:func:`tuner.optimize.scoring.objective_value`: the largest settling time for ``settling_time``,
+          the smallest disk margin for ``disk_margin``, ...); its value is :attr:`objective`.
+
+        Ties go to the earlier plant (the nominal first). With one plant it is ``analyses[0]``.
+        """
+        from .optimize.scoring import objective_value, violation
+
         failing = [a for a in self.analyses if not a.meets_spec]
         if failing:
-            return failing[0]
-        return max(self.analyses, key=lambda a: a.metrics.settling_time_s)
+            return max(failing, key=lambda a: (not a.metrics.stable, violation(a)))
+        values = [objective_value(a, self.spec) for a in self.analyses]
+        worst = max(range(len(values)), key=lambda i: math.inf if math.isnan(values[i]) else values[i])
+        return self.analyses[worst]
 
     @cached_property
     def objective(self) -> float:
@@ -107,7 +186,7 @@ class TuneResult:
         return export_controller(self, format=format, name=name, dt=dt, method=method, u_min=u_min, u_max=u_max)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (after :func:`~tuner.analysis.jsonable`): the analyze fields + gains, controller, solver.
+        """JSON-ready (after :func:`~tuner.jsonio.jsonable`): the analyze fields + gains, controller, solver.
 
         ``metrics`` and ``checks`` are the nominal plant's; with several plants,
         ``plants`` holds every plant's metrics and checks and ``meets_spec`` is
@@ -136,6 +215,7 @@ class TuneResult:
         return out
 
     def to_json(self) -> dict[str, Any]:
+        """:meth:`to_dict` made JSON-ready (:func:`tuner.jsonio.jsonable`: non-finite numbers as strings)."""
         return jsonable(self.to_dict())
 
 
@@ -173,8 +253,9 @@ def tune(
         ``pid2`` (2-DOF PID with setpoint weights ``b``, ``c``), ``pid_mf2`` (``pidf2``, its deprecated name),
         ``lead``, ``lag``, ``leadlag``.
     spec : Spec, optional
-        Defaults to the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
-        error, minimum 2 % settling time). ``Spec.objective`` says what is minimised.
+        Defaults to ``Spec()``: the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
+        error, minimum 2 % settling time) with the default design limits (derivative filter N <= 20, Tf >= dt/pi,
+        noise budget Mks <= 10 K0; ``Spec.thesis()`` lifts them). ``Spec.objective`` says what is minimised.
     dt : float, optional
         Controller sample time, s; ``None`` = continuous (or the plants' dt if discrete).
     delay : float or sequence of float, optional
@@ -223,9 +304,17 @@ def tune(
     --------
     >>> import control
     >>> from tuner import tune
-    >>> res = tune(control.tf([4.0], [1.0, 2.0, 4.0]), structure="pi", dt=0.05, time_budget_s=2)  # doctest: +SKIP
-    >>> res.meets_spec  # doctest: +SKIP
+    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default 10 s)
+    >>> res.meets_spec
     True
+    >>> bool(res.metrics.overshoot_pct <= 10.0)  # the default spec: overshoot <= 10 %
+    True
+
+    A sampled-data loop (the controller at ``dt`` drives the continuous plant through a hold):
+
+    >>> res = tune(control.tf([4.0], [1.0, 2.0, 4.0]), structure="pi", dt=0.05, time_budget_s=1)
+    >>> res.controller.dt, res.meets_spec
+    (0.05, True)
     """
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")

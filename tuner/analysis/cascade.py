@@ -130,6 +130,13 @@ class CascadeResponse:
     inner_output: np.ndarray  # the inner plant's output (e.g. the angle) on the same grid
     metrics: StepMetrics
 
+    def __repr__(self) -> str:
+        from ..display import step_response_repr
+
+        m = self.metrics
+        return (f"CascadeResponse(overshoot {m.overshoot_pct:.3g} %, settling {m.settling_time_s:.3g} s;\n  "
+                f"{step_response_repr(self.response)})")
+
 
 def _ref(c: ControllerTF) -> SS | None:
     """A 2-DOF controller's reference path on its states (pid2), or None."""

@@ -18,8 +18,11 @@ picks). Stability is judged separately, from the closed-loop poles.
 
 Crossings are bracketed on a logarithmic grid (endpoints ``w -> 0``, the
 Nyquist frequency ``pi/dt`` and, continuous, ``w -> inf`` included) and refined
-with Brent's method. ``L`` is evaluated from the factored/state-space forms
-(:meth:`tuner.loop.Loop.freqresp`), never from expanded polynomials.
+by vectorised bracketing (two rounds of 72 log-spaced samples inside the bracket,
+then linear interpolation in log frequency: :func:`_root`); peaks are refined
+around the grid maximum and finished with a parabola (:func:`_peak`). ``L`` is
+evaluated from the factored/state-space forms (:meth:`tuner.loop.Loop.freqresp`),
+never from expanded polynomials.
 """
 
 from __future__ import annotations
@@ -38,6 +41,36 @@ _GRID_POINTS = 3000
 
 @dataclass(frozen=True)
 class Margins:
+    """The frequency-domain figures of a loop (what :func:`margins` returns; the module says how).
+
+    Attributes
+    ----------
+    phase_margin_deg, crossover_rad_s : float
+        The worst phase margin over all gain crossings, degrees in [0, 180], and where it is taken
+        (``inf``/``nan`` when ``|L|`` never crosses 1).
+    gain_margin_db, gain_margin_lower_db : float
+        Upper (> 0 dB, ``inf`` if none) and lower (< 0 dB, ``-inf`` if none) gain margins.
+    phase_crossover_rad_s : float
+        Where the upper gain margin is taken (``nan`` if none).
+    disk_margin : float
+        Balanced disk margin alpha (0..2).
+    ms, mt, mks : float
+        Peaks of ``|S|``, ``|T|`` and ``|C S|``.
+    bandwidth_rad_s : float
+        Where ``|T|`` first falls 3 dB below ``|T(0)|``.
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import analyze
+    >>> mg = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0])).margins  # L = 2/s
+    >>> round(mg.phase_margin_deg, 6), round(mg.crossover_rad_s, 6), mg.gain_margin_db
+    (90.0, 2.0, inf)
+    >>> mg
+    Margins(PM 90 deg at 2 rad/s, GM inf dB
+      Ms 1 | Mt 1 | Mks 2 | bandwidth 2 rad/s | disk margin 2)
+    """
+
     phase_margin_deg: float
     crossover_rad_s: float
     gain_margin_db: float
@@ -48,6 +81,11 @@ class Margins:
     bandwidth_rad_s: float
     mt: float = math.nan  # peak of |T| = |L / (1 + L)|
     mks: float = math.nan  # peak of |C S| = |C / (1 + L)|: how much measurement noise reaches the actuator
+
+    def __repr__(self) -> str:
+        from ..display import margins_repr
+
+        return margins_repr(self)
 
 
 def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
@@ -108,7 +146,7 @@ def _asymptote_crossings(loop: Loop) -> np.ndarray:
 def _root(fv, a: float, b: float, *, rounds: int = 2, n: int = 72) -> float:
     """Root of a real function in ``[a, b]`` (bracketed by a sign change): each round samples ``fv`` (an
     array function) at ``n`` log-spaced points and keeps the sub-bracket, ``n^rounds``-fold narrower in
-    all; then linear interpolation. Vectorised: ``rounds`` calls instead of one per Brent step."""
+    all; then linear interpolation. Vectorised: ``rounds`` calls of ``fv`` in all (no scalar iteration)."""
     if not (a > 0 and b > a):
         return 0.5 * (a + b)
     fa = fb = math.nan

@@ -49,6 +49,9 @@ STABILITY_STEPS_PER_DELAY = 40
 
 @dataclass(frozen=True, eq=False)
 class StepResponse:
+    """The unit reference step of a loop: the plant output ``y`` and control ``u`` on a fine grid ``t``
+    (between samples for a sampled-data loop), the sample instants, the final value."""
+
     t: np.ndarray  # fine time grid of the plant output
     y: np.ndarray
     u: np.ndarray  # control signal on the same grid
@@ -57,9 +60,16 @@ class StepResponse:
     y_final: float
     between_samples: bool  # False when only sample instants are known
 
+    def __repr__(self) -> str:
+        from ..display import step_response_repr
+
+        return step_response_repr(self)
+
 
 @dataclass(frozen=True)
 class StepMetrics:
+    """Overshoot (%), settling time into the band (s), 10-90 % rise time (s), steady-state error and peak |u|."""
+
     overshoot_pct: float
     settling_time_s: float
     rise_time_s: float
@@ -311,6 +321,8 @@ def _cross(t: np.ndarray, y: np.ndarray, i: int, level: float) -> float:
 
 
 def step_metrics(resp: StepResponse, *, band_pct: float = 2.0) -> StepMetrics:
+    """The step metrics of ``resp`` (see the module): overshoot, settling into ``band_pct`` % of the final value,
+    rise, steady-state error, peak |u|."""
     t, y, yf = resp.t, resp.y, resp.y_final
     sse = 1.0 - yf
     cpk = float(np.max(np.abs(resp.u)))

@@ -30,6 +30,42 @@ __all__ = ["Metrics", "Analysis", "analyze", "analyze_loop"]
 
 @dataclass(frozen=True)
 class Metrics:
+    """The verifier's figures of one loop (attributes, units in the names; ``asdict`` for a dict).
+
+    ``inf`` gain margin = no crossing; ``inf`` settling time = not settled within the horizon; ``nan`` = not
+    defined (e.g. the step metrics of an unstable loop).
+
+    Attributes
+    ----------
+    stable : bool
+        The closed loop is stable (from its poles).
+    phase_margin_deg, crossover_rad_s : float
+        The worst phase margin over all gain crossings, and the crossover frequency where it is taken.
+    gain_margin_db, gain_margin_lower_db : float
+        Upper gain margin (> 0 dB, ``inf`` if none) and lower gain margin (< 0 dB, ``-inf`` if none).
+    disk_margin : float
+        Balanced disk margin alpha (0..2).
+    ms, mt, mks : float
+        Peaks of ``|S|``, ``|T|`` and ``|C S|`` (noise to the actuator).
+    bandwidth_rad_s : float
+        Closed-loop bandwidth: where ``|T|`` first falls 3 dB below ``|T(0)|``.
+    overshoot_pct, settling_time_s, rise_time_s, steady_state_error, control_peak : float
+        Of the unit reference step: overshoot, settling time into the spec's band, 10-90 % rise time, final
+        error, peak ``|u|``.
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import analyze
+    >>> m = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0])).metrics  # L = 2/s, T = 2/(s + 2)
+    >>> m.stable, round(m.phase_margin_deg, 6), m.gain_margin_db, round(m.bandwidth_rad_s, 4)
+    (True, 90.0, inf, 2.0)
+    >>> m
+    Metrics(stable, PM 90 deg at 2 rad/s, GM inf dB
+      Ms 1 | Mt 1 | Mks 2 | bandwidth 2 rad/s | disk margin 2
+      step: overshoot 0 % | settling 1.96 s | rise 1.1 s | error 0 | peak |u| 2)
+    """
+
     stable: bool
     phase_margin_deg: float
     crossover_rad_s: float
@@ -46,9 +82,44 @@ class Metrics:
     steady_state_error: float
     control_peak: float
 
+    def __repr__(self) -> str:
+        from ..display import metrics_repr
+
+        return metrics_repr(self)
+
 
 @dataclass(frozen=True, eq=False)
 class Analysis:
+    """The verifier's verdict on one loop: what :func:`analyze` returns (and, per plant, a tune).
+
+    Attributes
+    ----------
+    loop : tuner.loop.Loop
+        The loop analysed (plant, controller, sample time, delay).
+    metrics : Metrics
+        Margins, sensitivity peaks, bandwidth and step metrics.
+    checks : list of Check
+        Every constraint of the spec, with what was required and what was achieved.
+    poles : numpy.ndarray
+        The closed-loop poles (in ``s``, or in ``z`` at ``dt``).
+    response : StepResponse or None
+        The unit reference step (``t``, ``y``, ``u``), None for an unstable loop.
+    margins : Margins or None
+        The frequency-domain figures, including the phase-crossover frequency.
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import analyze
+    >>> a = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0]))
+    >>> a.meets_spec, [c.name for c in a.failing]
+    (True, [])
+    >>> a.metrics.phase_margin_deg > 60
+    True
+    >>> a.to_dict()["meets_spec"]
+    True
+    """
+
     loop: Loop
     metrics: Metrics
     checks: list[Check]
@@ -58,10 +129,12 @@ class Analysis:
 
     @property
     def meets_spec(self) -> bool:
+        """True when every check holds."""
         return all(c.ok for c in self.checks)
 
     @property
     def failing(self) -> list[Check]:
+        """The checks that do not hold."""
         return [c for c in self.checks if not c.ok]
 
     def __repr__(self) -> str:
@@ -106,6 +179,7 @@ class Analysis:
         return reference_tfs(self.loop, pade_order=pade_order)
 
     def to_dict(self) -> dict[str, Any]:
+        """``metrics`` (a dict), ``checks`` (dicts) and ``meets_spec``; :func:`tuner.jsonio.jsonable` for JSON."""
         return {
             "metrics": asdict(self.metrics),
             "checks": [c.to_dict() for c in self.checks],
@@ -117,7 +191,19 @@ def analyze_loop(
     loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None,
     samples_per_dt: int | None = None, grid_points: int | None = None, poles: np.ndarray | None = None,
 ) -> Analysis:
-    """Verify ``loop`` against ``spec`` (defaults to the thesis spec); ``poles`` if already computed."""
+    """Verify ``loop`` against ``spec`` (default ``Spec()``); ``poles`` if already computed.
+
+    The core of :func:`analyze`, on a built :class:`tuner.loop.Loop` (no input conversion, no checks of it).
+
+    Examples
+    --------
+    >>> from tuner import controller_from_coeffs, make_plant
+    >>> from tuner.analysis import analyze_loop
+    >>> from tuner.loop import build_loop
+    >>> loop = build_loop(make_plant([1.0], [1.0, 1.0]), controller_from_coeffs([2.0, 2.0], [1.0, 0.0], dt=None))
+    >>> analyze_loop(loop).meets_spec
+    True
+    """
     spec = spec or Spec()
     poles = closed_loop_poles(loop) if poles is None else poles
     stable = is_stable(loop, poles)
@@ -139,7 +225,7 @@ def analyze_loop(
 
 def analyze(
     plant: Any, controller: Any, spec: Spec | None = None, *, delay: float | None = None,
-    horizon_s: float | None = None,
+    horizon_s: float | None = None, dt: float | None = None,
 ) -> Analysis:
     """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks.
 
@@ -152,7 +238,10 @@ def analyze(
         Continuous (a continuous loop) or at a sample time ``dt`` (a sampled-data loop: the controller drives
         a continuous plant through a zero-order hold, or a discrete plant at the same ``dt``).
     spec : Spec, optional
-        What is checked; defaults to the thesis spec (see :class:`~tuner.spec.Spec`).
+        What is checked; default ``Spec()``: the thesis constraints (PM >= 60 deg, GM >= 6 dB, overshoot
+        <= 10 %, zero steady-state error) and the limits it states in absolute terms (``ms_max``, ``mks_max``,
+        ...). The default design limits of a tune (the filter rules, the noise budget relative to the plant)
+        are rules on a structure's parameters and are not checked here (see :class:`~tuner.spec.Spec`).
     delay : float, optional
         Input delay of a python-control plant, s (any delay for a continuous model, exact also in a
         sampled-data loop; whole samples for a discrete model). A
@@ -160,6 +249,12 @@ def analyze(
     horizon_s : float, optional
         Length of the simulated step response, s; default: 10 time constants of the slowest closed-loop
         pole (bounded), see :func:`tuner.analysis.response.default_horizon`.
+    dt : float, optional
+        The controller's sample time, s, as ``tuner analyze --dt``: the loop is sampled-data at ``dt`` (or
+        discrete, with a plant in ``z`` at the same ``dt``). The controller carries its own sample time (a
+        :class:`ControllerTF` built with ``dt=``, a python-control model's ``dt``), so ``dt`` states it: it
+        must agree, else :class:`TunerError` with ``field == ("dt",)`` (a continuous controller with ``dt``
+        given: discretise it first, e.g. ``control.c2d(C, dt, "tustin")``). ``None``: the controller's own.
 
     Returns
     -------
@@ -172,6 +267,34 @@ def analyze(
     TunerError
         Bad input, with ``field`` (``("plant", ...)``, ``("controller", ...)``, ``("dt",)``); also a loop
         whose stability double precision cannot decide (``field == ("controller",)``).
+
+    Examples
+    --------
+    A PI controller ``2(s + 1)/s`` on ``1/(s + 1)``, continuous (the loop is ``2/s``: PM 90 deg):
+
+    >>> import control
+    >>> from tuner import analyze
+    >>> a = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0]))
+    >>> a.meets_spec, round(a.metrics.phase_margin_deg, 1), a.metrics.overshoot_pct < 1e-6
+    (True, 90.0, True)
+
+    The same controller discretised at 0.05 s, driving the plant through a zero-order hold:
+
+    >>> c = control.c2d(control.tf([2, 2], [1, 0]), 0.05, "tustin")
+    >>> a = analyze(control.tf([1], [1, 1]), c, dt=0.05)
+    >>> a.loop.dt, a.meets_spec
+    (0.05, True)
+    >>> analyze(control.tf([1], [1, 1]), c, dt=0.1)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidControllerError: dt = 0.1 s but the controller's sample time is 0.05 s: ...
+
+    A tighter spec:
+
+    >>> from tuner import Spec
+    >>> a = analyze(control.tf([1], [1, 1]), control.tf([2, 2], [1, 0]), Spec(settling_time_max=1.0))
+    >>> [c.name for c in a.failing]
+    ['settling_time_s']
     """
     from ..interop import as_controller, as_plant
 
@@ -183,6 +306,7 @@ def analyze(
         controller = as_controller(controller)
     except TunerError as e:
         raise e.at("controller") from None
+    _check_controller_dt(controller, dt)
     loop = build_loop(plant, controller)
     poles = closed_loop_poles(loop)
     if stability(loop, poles) is None:
@@ -192,3 +316,22 @@ def analyze(
             "the loop's dynamics span too many decades for double precision to tell whether it is stable"
             f"{span}: rescale the controller gain or the plant's time scale", field="controller")
     return analyze_loop(loop, spec, horizon_s=horizon_s, poles=poles)
+
+
+def _check_controller_dt(controller: Any, dt: Any) -> None:
+    """``analyze(..., dt=)``: a given sample time must be the controller's own (field ``dt``)."""
+    if dt is None:
+        return
+    from ..plant import check_dt
+
+    want = check_dt(dt)
+    have = controller.dt
+    if have is None:
+        raise InvalidControllerError(
+            f"dt = {want:g} s but the controller is continuous: give the controller in z at dt = {want:g} s (e.g. "
+            f"control.c2d(C, {want:g}, 'tustin'), or controller_from_coeffs(num, den, dt={want:g})), or drop dt",
+            field="dt")
+    if abs(have - want) > 1e-9 * max(abs(have), abs(want)):
+        raise InvalidControllerError(
+            f"dt = {want:g} s but the controller's sample time is {have:g} s: give the controller at dt = {want:g} "
+            "s, or drop dt", field="dt")

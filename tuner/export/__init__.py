@@ -8,9 +8,15 @@
 * :mod:`~tuner.export.cli`: ``tuner export``.
 
 >>> from tuner.controllers import controller_from_expr
+>>> from tuner.export import difference_equation, export_controller, to_text
 >>> de = difference_equation(controller_from_expr("2*(z - 0.5)/(z - 1)", dt=0.1))
 >>> print(to_text(de, "pi").splitlines()[3])
   u[k] = 2.0 * e[k] - 1.0 * e[k-1] + 1.0 * u[k-1]
+>>> c_source = export_controller(controller_from_expr("2*(z - 0.5)/(z - 1)", dt=0.1), format="c")
+>>> print(c_source)  # doctest: +ELLIPSIS
+/*
+ * controller: discrete controller at dt = 0.1 s (10 Hz), order 1; the discrete controller as given
+...
 
 Importing this package costs nothing (``tuner --help`` registers ``tuner export`` without numpy): its
 names load on first use.

@@ -38,6 +38,7 @@ back-calculation (tracking time --tt, default sqrt(Ti*Td), Ti for a PI)."""
 
 
 def add_parser(sub: Any) -> None:
+    """Register ``tuner export`` on the subcommand parsers ``sub``."""
     p = sub.add_parser("export", help="the controller as C99, a Python class or its difference equation",
                        description=_DESCRIPTION)
     src = p.add_mutually_exclusive_group(required=True)

@@ -78,14 +78,17 @@ class DifferenceEquation:
 
     @property
     def order(self) -> int:
+        """The order of the difference equation (the denominator's degree)."""
         return self.a.size - 1
 
     @property
     def limited(self) -> bool:
+        """An output limit is set (``u_min`` or ``u_max``)."""
         return self.u_min is not None or self.u_max is not None
 
     @property
     def anti_windup(self) -> bool:
+        """The output is limited and the controller integrates: conditional integration applies."""
         return self.limited and self.integrator is not None
 
     def controller(self) -> ControllerTF:

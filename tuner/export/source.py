@@ -111,6 +111,19 @@ def export_controller(controller: Any, *, format: str = "c", name: str = "contro
     -------
     str
         The source (or text); its header says where the equation came from and how it is realised.
+
+    Examples
+    --------
+    >>> from tuner import controller_from_expr, export_controller
+    >>> pi = controller_from_expr("2*(s + 1)/s", dt=None)
+    >>> src = export_controller(pi, format="python", name="Roll", dt=0.01, u_min=-1, u_max=1)
+    >>> ns = {}
+    >>> exec(src, ns)  # our own generated code, not user text
+    >>> ctrl = ns["Roll"]()
+    >>> round(ctrl.update(0.25), 6)  # first sample of 2 (s + 1)/s by Tustin at 10 ms: (2 + 0.01) e[0]
+    0.5025
+    >>> print(export_controller(pi, format="text", dt=0.01))  # doctest: +ELLIPSIS
+    controller: ...
     """
     check_name(name)
     de = equation_of(controller, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)

@@ -94,6 +94,7 @@ def _note(text: str) -> None:
 
 
 def add_parser(sub: Any) -> None:
+    """Register ``tuner identify`` on the subcommand parsers ``sub``."""
     p = sub.add_parser("identify", help="identify a transfer function from logged records (CSV, PX4 ULog)",
                        description="Frequency response with coherence (composite Welch windows), a transfer "
                                    "function fitted by CIFER's cost J over the coherent band, Cramér–Rao bounds, "

@@ -166,6 +166,21 @@ def identify(
         ``rate_hz``, ``band``, ``poles``, ...).
     IdentificationError
         The fit failed from every start.
+
+    Examples
+    --------
+    A first-order plant ``5/(s + 5)`` driven by white noise at 100 Hz, 30 s:
+
+    >>> import control
+    >>> import numpy as np
+    >>> from tuner import identify
+    >>> u = np.random.default_rng(0).standard_normal(3000)
+    >>> y = control.forced_response(control.c2d(control.tf([5], [1, 5]), 0.01), U=u).outputs
+    >>> res = identify(u, y, rate_hz=100, poles=1, delay=None, band=[1.1, 30], n_starts=2)
+    >>> res.quality, round(float(res.plant().poles[0].real))
+    ('good', -5)
+    >>> res.verdict  # doctest: +ELLIPSIS
+    'good: J = ... over 1.1-30 rad/s (25 frequencies); held-out check: Theil ..., fit ... %'
     """
     from .fit import fit_model
     from .spectral import unexplained_rms

@@ -46,14 +46,17 @@ class Record:
 
     @property
     def n(self) -> int:
+        """The number of samples."""
         return int(self.u.size)
 
     @property
     def duration_s(self) -> float:
+        """The record's length, s (``n * dt``)."""
         return self.n * self.dt
 
     @property
     def nyquist_rad_s(self) -> float:
+        """The Nyquist frequency ``pi/dt``, rad/s."""
         return float(np.pi / self.dt)
 
     def detrended(self) -> Record:

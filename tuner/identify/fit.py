@@ -67,6 +67,7 @@ class Problem:
         return np.sqrt(c * W_G), np.sqrt(c * W_P)
 
     def model(self, theta: np.ndarray) -> Model:
+        """The model at parameters ``theta`` (this problem's structure, sign and fixed delay)."""
         return Model(self.structure, np.asarray(theta, dtype=float), sign=self.sign, fixed_delay_s=self.fixed_delay_s)
 
     def errors(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,16 +76,19 @@ class Problem:
         return mag - self.mag_db, _wrap_deg(ph - self.phase_deg)
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
+        """The weighted residuals (magnitude, then phase) whose sum of squares is CIFER's cost ``J``."""
         dm, dp = self.errors(theta)
         a, b = self._scale
         return np.concatenate([a * dm, b * dp])
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """The Jacobian of :meth:`residuals` with respect to ``theta`` (analytic)."""
         _, _, jm, jp = self.model(theta).bode_jacobian(self.w)
         a, b = self._scale
         return np.vstack([a[:, None] * jm, b[:, None] * jp])
 
     def cost(self, theta: np.ndarray) -> float:
+        """CIFER's cost ``J`` at ``theta``: the sum of squares of :meth:`residuals`."""
         r = self.residuals(theta)
         return float(r @ r)
 

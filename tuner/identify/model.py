@@ -56,6 +56,7 @@ class Structure:
 
     @property
     def size(self) -> int:
+        """The number of fitted parameters (``len(names())``)."""
         return len(self.names())
 
 
@@ -83,10 +84,12 @@ class Model:
 
     @property
     def delay_s(self) -> float:
+        """The model's input delay, s (fitted, or the fixed one)."""
         return float(self.theta[-1]) if self.structure.free_delay else float(self.fixed_delay_s)
 
     @property
     def gain(self) -> float:
+        """The model's gain factor (the sign times ``exp(theta[0])``)."""
         return float(self.sign * np.exp(self.theta[0]))
 
     def values(self) -> dict[str, float]:
@@ -186,6 +189,7 @@ class Model:
         return out  # type: ignore[return-value]
 
     def to_dict(self) -> dict[str, Any]:
+        """The model as a dict: ``num``, ``den``, ``delay``, the structure and the named parameters."""
         num, den = self.tf()
         return {"num": num.tolist(), "den": den.tolist(), "delay": self.delay_s,
                 "poles": self.structure.poles, "zeros": self.structure.zeros, "parameters": self.values()}

@@ -20,6 +20,8 @@ def _align(model_deg: np.ndarray, data_deg: np.ndarray) -> float:
 
 
 def fit_figure(res: Any, *, title: str | None = None, time_domain: bool = True):
+    """The identification's figure (matplotlib, no pyplot): the measured frequency response
+    with its coherence and the model's, and the held-out time-domain check."""
     from matplotlib.figure import Figure
 
     fr, fp = res.frequency_response, res.fit_points

@@ -36,10 +36,12 @@ class FitPoints:
     cost: np.ndarray  # 20 W_gamma (dmag^2 + W_p dphase^2): J is their mean
 
     def to_dict(self) -> dict[str, Any]:
+        """The fit points as lists (``w``, ``mag_db``, ``phase_deg``, ``coherence``, ``cost``)."""
         return {k: getattr(self, k).tolist() for k in ("w", "mag_db", "phase_deg", "coherence", "cost")}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FitPoints:
+        """The inverse of :meth:`to_dict`."""
         return cls(**{k: np.asarray(d[k], dtype=float) for k in ("w", "mag_db", "phase_deg", "coherence", "cost")})
 
 
@@ -52,6 +54,22 @@ class IdentifyResult:
     ``noise-limited``, ``poor`` or ``none``): neither overrules the other. ``warnings`` say what to
     change when something is off (a poor J, poorly determined parameters, a failed time-domain
     check, ...).
+
+    Examples
+    --------
+    A first-order plant ``5/(s + 5)`` driven by white noise at 100 Hz, 30 s:
+
+    >>> import control
+    >>> import numpy as np
+    >>> from tuner import identify
+    >>> u = np.random.default_rng(0).standard_normal(3000)
+    >>> y = control.forced_response(control.c2d(control.tf([5], [1, 5]), 0.01), U=u).outputs
+    >>> res = identify(u, y, rate_hz=100, poles=1, delay=None, band=[1.1, 30], n_starts=2)
+    >>> res.quality, round(float(res.plant().poles[0].real))
+    ('good', -5)
+    >>> plant = res.plant()  # for tune(); res.to_control() and res.delay_s for python-control
+    >>> plant.order, res.delay_s
+    (1, 0.0)
     """
 
     model: Model
@@ -85,6 +103,7 @@ class IdentifyResult:
 
     @property
     def verdict(self) -> str:
+        """One line: the quality, CIFER's J over the band, and the held-out check."""
         lo, hi = self.band_rad_s
         s = (f"J = {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s ({self.fit_points.w.size} frequencies): "
              f"{self.quality} (CIFER: <= {J_GOOD:.0f} good, <= {J_ACCEPTABLE:.0f} acceptable)")
@@ -128,6 +147,7 @@ class IdentifyResult:
         return control.tf(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
 
     def describe(self) -> str:
+        """The model as text (:meth:`tuner.plant.Plant.describe` of :meth:`plant`)."""
         return self.plant().describe()
 
     def _rational_text(self) -> str:
@@ -138,7 +158,7 @@ class IdentifyResult:
         return make_plant(num, den).describe()
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready after :func:`tuner.analysis.jsonable` (non-finite bounds become strings)."""
+        """JSON-ready after :func:`tuner.jsonio.jsonable` (non-finite bounds become strings)."""
         return {
             "model": self.model.to_dict(),
             "plant": self._rational_text(),  # for `tuner tune --plant`, with --delay model.delay

@@ -59,6 +59,7 @@ class FrequencyResponse:
 
     @property
     def mag_db(self) -> np.ndarray:
+        """Magnitude, dB (``-inf`` where the estimate is zero)."""
         with np.errstate(divide="ignore"):
             return 20.0 * np.log10(np.abs(self.h))
 
@@ -68,11 +69,13 @@ class FrequencyResponse:
         return np.degrees(np.unwrap(np.angle(self.h)))
 
     def to_dict(self) -> dict[str, Any]:
+        """The response as lists (``w``, ``mag_db``, ``phase_deg``, ``coherence``, ``windows_s``)."""
         return {"w": self.w.tolist(), "mag_db": self.mag_db.tolist(), "phase_deg": self.phase_deg.tolist(),
                 "coherence": self.coherence.tolist(), "windows_s": list(self.windows_s)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FrequencyResponse:
+        """The inverse of :meth:`to_dict`."""
         w = np.asarray(d["w"], dtype=float)
         h = 10.0 ** (np.asarray(d["mag_db"], dtype=float) / 20.0) * np.exp(1j * np.radians(d["phase_deg"]))
         return cls(w=w, h=h, coherence=np.asarray(d["coherence"], dtype=float),

@@ -49,9 +49,11 @@ class ParameterUncertainty:
 
     @property
     def ok(self) -> bool:
+        """Well determined: the Cramer-Rao bound and the insensitivity within the CIFER guidelines."""
         return self.cr_bound_pct <= CR_LIMIT_PCT and self.insensitivity_pct <= INSENSITIVITY_LIMIT_PCT
 
     def to_dict(self) -> dict[str, Any]:
+        """The figures as a dict."""
         return asdict(self)
 
 

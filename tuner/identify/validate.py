@@ -65,6 +65,7 @@ class Validation:
 
     @property
     def fit_pct(self) -> float:
+        """The fit, %: ``100 (1 - NRMSE)``."""
         return 100.0 * (1.0 - self.nrmse)
 
     @property
@@ -90,6 +91,7 @@ class Validation:
 
     @property
     def ok(self) -> bool:
+        """The check passes: its verdict (Theil beside the noise floor) is not poor."""
         return self.verdict != "poor"
 
     def describe(self) -> str:
@@ -103,6 +105,7 @@ class Validation:
         return f"{s}: {self.verdict}"
 
     def to_dict(self) -> dict[str, Any]:
+        """The figures and the series (measured and simulated output) as a dict."""
         return {"t_start_s": self.t_start_s, "duration_s": self.duration_s, "nrmse": self.nrmse,
                 "fit_pct": self.fit_pct, "theil_u": self.theil_u, "rms_error": self.rms_error, "bias": self.bias,
                 "drift_per_s": self.drift_per_s, "theil_limit": THEIL_LIMIT,
@@ -113,6 +116,7 @@ class Validation:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Validation:
+        """The inverse of :meth:`to_dict`."""
         s = d.get("series") or {"t": [], "measured": [], "model": []}
         return cls(t_start_s=float(d["t_start_s"]), duration_s=float(d["duration_s"]), nrmse=float(d["nrmse"]),
                    theil_u=float(d["theil_u"]), rms_error=float(d["rms_error"]), bias=float(d["bias"]),

@@ -126,6 +126,7 @@ class Start:
 
     @classmethod
     def of(cls, batch: BatchEvaluator, x0: np.ndarray) -> Start:
+        """The batched verifier's figures of the single point ``x0``."""
         return cls.row(batch.evaluate(x0[None]), 0)
 
 

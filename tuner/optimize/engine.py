@@ -115,6 +115,8 @@ class _Best:
 
 @dataclass
 class RunInfo:
+    """The search's record (rounds, why it stopped, evaluation and NLP counts): ``TuneResult.solver``."""
+
     rounds: int = 0
     stop: str = "budget"
     batch_evaluations: int = 0
@@ -369,6 +371,8 @@ class Engine:
         return self.best.score
 
     def run(self) -> RunInfo:
+        """Round 0, then later rounds until the search has converged (see the module; ``stop = "converged"``) or
+        the budget ends; returns the record."""
         converged = self._round0()
         self.info.rounds = 1
         stale = 0

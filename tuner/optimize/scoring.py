@@ -24,7 +24,7 @@ from ..plant import Plant
 from ..spec import Spec
 from . import rules
 
-__all__ = ["Evaluator", "Scored", "objective_value", "INFEASIBLE"]
+__all__ = ["Evaluator", "Scored", "objective_value", "violation", "INFEASIBLE"]
 
 INFEASIBLE = 1e3  # every infeasible score is above this; feasible scores are below
 UNSTABLE = 1e5
@@ -38,6 +38,8 @@ SEARCH_BAND_GUARD = 0.97  # in the search, settle into 97 % of the band: the edg
 
 @dataclass(frozen=True)
 class Scored:
+    """A candidate's score (what the search minimises), whether it is feasible, and its analyses."""
+
     score: float
     feasible: bool
     analyses: tuple[Analysis, ...]
@@ -92,6 +94,13 @@ def _violation(a: Analysis) -> float:
     return total
 
 
+def violation(a: Analysis) -> float:
+    """How far ``a`` is from meeting its spec: the sum of its failing checks' violations, each normalised by its
+    requirement and capped at 10 (a non-finite violation counts 10); 0 when every check holds. The search's
+    grading of infeasibility, and how :attr:`tuner.TuneResult.worst` ranks failing plants."""
+    return _violation(a)
+
+
 class Evaluator:
     """Verifier-backed scoring of structure parameters against a plant set."""
 
@@ -107,6 +116,7 @@ class Evaluator:
         self._w0 = w0  # the plant's characteristic frequency (the search space's); computed if not given
 
     def controller(self, x: np.ndarray) -> ControllerTF:
+        """The controller of the structure at parameter vector ``x`` (at the loop's ``dt``)."""
         return self.structure.tf(x, self.dt)
 
     def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
@@ -151,6 +161,8 @@ class Evaluator:
         return max(out, 1e-9)
 
     def score(self, x: np.ndarray, *, full: bool = False) -> Scored:
+        """Score ``x`` on every plant: the objective (worst case) if feasible, else a graded penalty
+        above every feasible score (:data:`INFEASIBLE`); ``full``: at the final verification's resolution."""
         self.n_evals += 1
         try:
             loops = self._loops(x)

@@ -29,6 +29,7 @@ UNSCORABLE = 1e6  # the score told for a point that could not be scored at all
 
 
 def default_sampler(seed: int, n_params: int) -> optuna.samplers.BaseSampler:
+    """The default Optuna sampler: a seeded multivariate TPE (``max(10, 4 n_params)`` start-up trials)."""
     return optuna.samplers.TPESampler(
         seed=seed, multivariate=True, group=False, n_startup_trials=max(10, 4 * n_params), constant_liar=False,
     )
@@ -71,4 +72,5 @@ class SeededSearch:
             self.study.tell(t, float(s) if math.isfinite(s) else UNSCORABLE)
 
     def n_trials(self) -> int:
+        """The number of trials in the study (told and asked)."""
         return len(self.study.get_trials(deepcopy=False))

@@ -35,6 +35,9 @@ _G = 10 ** -DECADES_BELOW  # g = unit * 2*_G*sinh(v ln10) ~ unit * sign(v) 10^(|
 
 @dataclass(frozen=True)
 class Space:
+    """The search box of a structure on a plant: coordinates (gains scaled by ``K0 w0^unit``, frequencies and
+    time constants in log10, ordered pairs as log-ratios) with their bounds ``lo``, ``hi``."""
+
     structure: Structure
     k0: float
     w0: float
@@ -68,6 +71,7 @@ class Space:
         return x
 
     def from_params(self, x: np.ndarray, *, linear_gains: bool = False) -> np.ndarray:
+        """Coordinates of the structure parameters ``x`` (the inverse of :meth:`params`)."""
         v = np.zeros(len(x))
         for i, kind in enumerate(self.structure.kinds):
             if kind == "gain":
@@ -83,6 +87,7 @@ class Space:
         return np.clip(v, lo, hi)
 
     def bounds(self, *, linear_gains: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The box ``(lo, hi)`` in coordinates (``linear_gains``: gains unscaled, within +-``GAIN_SPAN``)."""
         if not linear_gains:
             return self.lo, self.hi
         g = np.array([k == "gain" for k in self.structure.kinds])

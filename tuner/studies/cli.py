@@ -25,6 +25,7 @@ __all__ = ["add_parser", "run_study", "write_outputs"]
 
 
 def add_parser(sub: Any) -> None:
+    """Register ``tuner study`` (``run``, ``verify``, ...) on the subcommand parsers ``sub``."""
     s = sub.add_parser("study", help="tune every loop of a study file (TOML)")
     ssub = s.add_subparsers(dest="study_cmd", required=True, parser_class=type(s))
     r = ssub.add_parser("run", help="tune the study's loops, write results.json, report.md and plots")

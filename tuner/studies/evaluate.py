@@ -47,7 +47,13 @@ class LoopEval:
 
     @property
     def nominal(self) -> Analysis:
+        """The nominal plant's analysis."""
         return self.analyses[0]
+
+    def __repr__(self) -> str:
+        from ..display import loop_eval_repr
+
+        return loop_eval_repr(self)
 
     @property
     def cascade_ok(self) -> bool:
@@ -59,16 +65,19 @@ class LoopEval:
 
     @property
     def meets_spec(self) -> bool:
+        """Every plant meets the spec, and the cascade between samples too."""
         return all(a.meets_spec for a in self.analyses) and self.cascade_ok
 
     @property
     def failing(self) -> list[str]:
+        """The names of the failing checks over every plant (``cascade_between_samples`` for the cascade)."""
         names = sorted({c.name for a in self.analyses for c in a.failing})
         if not self.cascade_ok:
             names.append("cascade_between_samples")
         return names
 
     def cascade_dict(self) -> dict[str, Any] | None:
+        """The cascade's figures (bandwidths, their ratio, the between-samples check), None for a single loop."""
         if self.loop.inner is None:
             return None
         outer_bw = self.nominal.metrics.bandwidth_rad_s
@@ -84,6 +93,7 @@ class LoopEval:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """The nominal plant's metrics and checks, the verdict, the controller; ``plants`` and ``cascade``."""
         d = self.nominal.to_dict()
         out: dict[str, Any] = {"metrics": d["metrics"], "checks": d["checks"], "meets_spec": self.meets_spec,
                                "failing": self.failing, "controller": self.controller.to_dict()}

@@ -60,6 +60,8 @@ def render_report(
     thesis: Mapping[str, LoopEval], plots: Mapping[str, Mapping[str, Path]], *, out_dir: Path,
     storage: str,
 ) -> str:
+    """The study's report as Markdown, from the loops' stored results, the verified tuned and published
+    controllers (``tuned``, ``thesis``) and the plots."""
     L: list[str] = [f"# Study `{study.name}`", ""]
     if study.description:
         L += [study.description, ""]

@@ -74,6 +74,7 @@ class StorageError(TunerError, RuntimeError):
 
 
 def default_storage_url(out_dir: str) -> str:
+    """The default study storage: a SQLite file in ``out_dir``."""
     return f"sqlite:///{os.path.abspath(os.path.join(out_dir, 'study.db'))}"
 
 
@@ -113,6 +114,18 @@ class LoopStatus:
     trial_id: int | None = None  # "free": the WAITING trial to claim (None: create the epoch's study)
     attempt: int = 0  # how many earlier attempts failed (Optuna's retry history)
 
+    def __repr__(self) -> str:
+        parts = [self.state, f"epoch {self.epoch}"]
+        if self.worker:
+            parts.append(f"worker {self.worker}")
+        if self.trial_id is not None:
+            parts.append(f"trial {self.trial_id}")
+        if self.attempt:
+            parts.append(f"attempt {self.attempt + 1}")
+        if self.result is not None:
+            parts.append(f"result with {len(self.result)} fields")
+        return f"LoopStatus({', '.join(parts)})"
+
 
 def _retry_callback() -> Any:
     cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None)  # Optuna >= 5
@@ -139,6 +152,7 @@ class Coordinator:
         self._first_seen: dict[tuple[str, int], float] = {}
 
     def prefix(self, lp: LoopDef) -> str:
+        """The name prefix of the loop ``lp``'s claim studies in the storage (study, loop, the loop's key)."""
         return f"{self.study.name}:{lp.name}:{self.keys[lp.name]}@"
 
     def claim_studies(self, lp: LoopDef, names: list[str] | None = None) -> list[tuple[int, str, int]]:
@@ -203,6 +217,7 @@ class Coordinator:
         return LoopStatus("running", e)
 
     def statuses(self) -> dict[str, LoopStatus]:
+        """What the storage says about every loop (:class:`LoopStatus` by loop name)."""
         out: dict[str, LoopStatus] = {}
         names = [s.study_name for s in self.storage.get_all_studies()]
         for lp in self.study.order():
@@ -305,9 +320,11 @@ class Wakeup:
         self._gen = ctx.Value("q", 0, lock=False)
 
     def seen(self) -> int:
+        """The current wake-up count (a later, larger one means a wake-up came since)."""
         return int(self._gen.value)
 
     def notify(self) -> None:
+        """Wake the waiting workers (a loop was finished or released)."""
         with self._cond:
             self._gen.value += 1
             self._cond.notify_all()

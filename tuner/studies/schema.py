@@ -16,7 +16,7 @@ A study is a TOML file::
     structure = "pid_z"
     thesis_controller = "37.79*(z^2-1.85*z+0.8686)/(z*(z-1))"    # optional, compared as printed
     thesis_settling_s = 0.5     # optional, what the thesis claimed
-    [loop.spec]                 # Spec fields; defaults = the thesis spec
+    [loop.spec]                 # Spec fields; defaults = Spec() (the thesis spec + the default design limits)
     phase_margin_min_deg = 60
 
     [[loop]]
@@ -70,6 +70,8 @@ class InvalidStudyError(TunerError, ValueError):
 
 
 class PlantCoeffs(BaseModel):
+    """A plant given by coefficients in a study file (``num``, ``den``, highest power first)."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
     num: list[float] = Field(min_length=1)
     den: list[float] = Field(min_length=1)
@@ -192,6 +194,7 @@ class LoopDef(BaseModel):
 
     @property
     def plant_list(self) -> list[PlantText]:
+        """The loop's plants as given (one, or the robust set; nominal first)."""
         return [self.plant] if self.plant is not None else list(self.plants or [])
 
 
@@ -235,6 +238,7 @@ class StudyDef(BaseModel):
         return self
 
     def get(self, name: str) -> LoopDef:
+        """The loop called ``name``."""
         for lp in self.loop:
             if lp.name == name:
                 return lp
@@ -452,10 +456,12 @@ def true_plant_of(lp: LoopDef) -> Plant | None:
 
 
 def controller_of(lp: LoopDef, gains: dict[str, float]) -> ControllerTF:
+    """The loop's controller for ``gains`` (its structure at its ``dt``)."""
     return controller_tf(lp.structure, gains, dt=lp.dt)
 
 
 def thesis_controller_of(lp: LoopDef) -> ControllerTF | None:
+    """The loop's published (thesis) controller, or None when the study gives none."""
     if lp.thesis_controller is None:
         return None
     try:

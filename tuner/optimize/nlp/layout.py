@@ -42,9 +42,11 @@ class Layout:
 
     @property
     def size(self) -> int:
+        """The length of the flat vector (every block's elements)."""
         return sum(math.prod(s) for _, s in self.blocks)
 
     def slice(self, name: str) -> slice:
+        """Where block ``name`` lies in the flat vector."""
         a, b, _ = self._index[name]
         return slice(a, b)
 

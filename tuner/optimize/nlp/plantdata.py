@@ -22,6 +22,9 @@ __all__ = ["LiftedPlant", "lift"]
 
 @dataclass(frozen=True)
 class LiftedPlant:
+    """One plant as the NLP's parameters: the exact lifted ZOH model (sample instants and ``N`` points
+    between samples) and the factored form whose frequency response the NLP evaluates."""
+
     Phi: np.ndarray  # n x n
     Gam: np.ndarray  # n
     C: np.ndarray  # n (sample-instant output row)
@@ -35,6 +38,7 @@ class LiftedPlant:
 
     @property
     def n(self) -> int:
+        """The number of plant states."""
         return self.Phi.shape[0]
 
     def blocks(self, i: int, *, delay_s: float = 0.0) -> dict[str, np.ndarray | float]:

@@ -52,6 +52,9 @@ NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's 
 
 @dataclass
 class RefineResult:
+    """What the local refinements found (candidate coordinates) and what they cost (iterations, evaluations,
+    solves; the last solve's success and status)."""
+
     candidates: list[np.ndarray] = field(default_factory=list)  # coordinates
     iterations: int = 0
     evaluations: int = 0

@@ -72,6 +72,9 @@ _CACHE: dict[ProblemKey, Problem] = {}
 
 @dataclass(frozen=True)
 class ProblemKey:
+    """What decides the NLP's shape (structure, plant orders, delays, grid sizes, active constraints): the
+    build cache's key; the plant data themselves are parameters."""
+
     structure: str
     continuous: bool
     orders: tuple[int, ...]  # plant state dimension per plant
@@ -95,15 +98,19 @@ class ProblemKey:
 
     @property
     def grid(self) -> bool:
+        """The problem has a frequency grid (an Ms, Mt, Mks or disk-margin limit or objective)."""
         return self.ms or self.mt or self.mks or self.dm or self.objective in ("mks", "disk_margin")
 
     @property
     def n_grid(self) -> int:
+        """The number of grid frequencies (0 without a grid)."""
         return MS_GRID + GRID_EXTRA if self.grid else 0
 
 
 @dataclass
 class Problem:
+    """A built NLP: the CasADi solver, its constraint bounds and the layouts of its parameters and variables."""
+
     key: ProblemKey
     solver: Any  # casadi nlpsol Function
     n_v: int
@@ -496,10 +503,12 @@ def _estimated_nodes(key: ProblemKey, n_params: int) -> float:
 
 
 def estimated_build_s(key: ProblemKey, n_params: int) -> float:
+    """What building the problem for ``key`` is expected to cost, s (twice the corrected estimate)."""
     return 2.0 * BUILD_S_PER_NODE * _estimated_nodes(key, n_params) * _BUILD_RATIO["seen"]
 
 
 def is_built(key: ProblemKey) -> bool:
+    """The problem for ``key`` is in the build cache."""
     return key in _CACHE
 
 
