@@ -99,6 +99,7 @@ class ControllerTF:
 
     @property
     def two_dof(self) -> bool:
+        """Whether the controller has its own reference path ``num_r/den`` (a 2-DOF controller)."""
         return self.num_r is not None
 
     @property
@@ -342,9 +343,11 @@ class Structure:
 
     @property
     def two_dof(self) -> bool:
+        """Whether the structure acts on the reference and the measurement separately (pid2)."""
         return self.ref_coeffs is not None
 
     def weight_range(self, p: str) -> tuple[float, float]:
+        """The (lower, upper) range of the setpoint weight ``p`` (pid2's ``b``, ``c``)."""
         return next((lo, hi) for q, lo, hi in self.weight_ranges if q == p)
 
     def gain_scale(self, k0: float, w0: float) -> np.ndarray:

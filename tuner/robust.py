@@ -59,6 +59,7 @@ def is_identification(obj: Any) -> bool:
 
 
 def check_robust(k: Any) -> float:
+    """``k`` (standard deviations of the robust set) validated, as a float; TunerError(field="robust") otherwise."""
     if isinstance(k, bool) or not isinstance(k, (int, float, np.integer, np.floating)) or not math.isfinite(k) \
             or not 0 < float(k) <= MAX_ROBUST_K:
         raise TunerError(f"robust must be a number of standard deviations in (0, {MAX_ROBUST_K:g}], got {k!r}",
@@ -67,6 +68,7 @@ def check_robust(k: Any) -> float:
 
 
 def check_draws(n: Any) -> int:
+    """``n`` (Monte Carlo draws) validated, as an int; TunerError(field="monte_carlo") otherwise."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 0 <= int(n) <= MAX_DRAWS:
         raise TunerError(f"monte_carlo must be a whole number of draws from 0 to {MAX_DRAWS}, got {n!r}",
                          field="monte_carlo")
@@ -129,11 +131,13 @@ class MonteCarlo:
     # margins, the 95th of overshoot and settling
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: draws, seed, fractions meeting each constraint and the spec, unstable count, worst, 95 %."""
         return {"n": self.n, "seed": self.seed, "fraction_meeting": dict(self.fraction_meeting),
                 "fraction_meeting_spec": self.fraction_meeting_spec, "n_unstable": self.n_unstable,
                 "worst": dict(self.worst), "percentile_95": dict(self.percentile_95)}
 
     def summary(self) -> str:
+        """One line: the share of draws meeting the spec and the worst margins, overshoot and settling."""
         w = self.worst
         return (f"Monte Carlo ({self.n} draws, seed {self.seed}): {100 * self.fraction_meeting_spec:.1f} % meet the "
                 f"spec; worst PM {w['phase_margin_deg']:.3g} deg, GM {w['gain_margin_db']:.3g} dB, overshoot "
@@ -155,6 +159,7 @@ class RobustDesign:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the set's K, method, parameters and sigmas, corners, axes, size, and the Monte Carlo check."""
         return {"k": self.k, "method": self.method, "parameters": dict(self.parameters), "sigma": dict(self.sigma),
                 "corners": list(self.corners), "axes": list(self.axes), "n_plants": self.n_plants,
                 "monte_carlo": None if self.monte_carlo is None else self.monte_carlo.to_dict()}

@@ -59,6 +59,7 @@ class TwoDofLaw:
 
     @property
     def limited(self) -> bool:
+        """Whether output limits are given (then the anti-windup is active)."""
         return self.u_min is not None or self.u_max is not None
 
 
@@ -133,6 +134,7 @@ def _n(x: float) -> str:
 
 
 def to_text2(law: TwoDofLaw, name: str = "controller") -> str:
+    """The 2-DOF law as its difference equations in text (u from r and y, anti-windup said)."""
     from .codegen import check_name
 
     check_name(name)
@@ -241,6 +243,7 @@ _STATE = (("i", "the integral term I[k-1]"), ("d", "the derivative term D[k-1]")
 
 
 def to_c2(law: TwoDofLaw, name: str = "controller") -> str:
+    """The 2-DOF law as C99: ``name_state``, ``name_init``, ``name_update(s, r, y)`` returning u."""
     from .codegen import check_name
 
     check_name(name)
@@ -257,6 +260,7 @@ def to_c2(law: TwoDofLaw, name: str = "controller") -> str:
 
 
 def to_python2(law: TwoDofLaw, name: str = "controller") -> str:
+    """The 2-DOF law as a standalone Python class ``name`` with ``update(r, y)``."""
     from .codegen import check_name
 
     check_name(name)
@@ -276,8 +280,10 @@ def to_python2(law: TwoDofLaw, name: str = "controller") -> str:
 
 
 def render2(law: TwoDofLaw, fmt: str, name: str) -> str:
+    """The 2-DOF law in ``fmt`` (``c``, ``python`` or ``text``)."""
     return {"c": to_c2, "python": to_python2, "text": to_text2}[fmt](law, name)
 
 
 def is_two_dof(structure: Any) -> bool:
+    """Whether ``structure`` (a name) is exported with r and y (pid2)."""
     return structure == "pid2"

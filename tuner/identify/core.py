@@ -179,8 +179,10 @@ def identify(
     >>> res = identify(u, y, rate_hz=100, poles=1, delay=None, band=[1.1, 30], n_starts=2)
     >>> res.quality, round(float(res.plant().poles[0].real))
     ('good', -5)
+    >>> res.quality, res.check  # J's verdict and the time-domain check's, side by side
+    ('good', 'good')
     >>> res.verdict  # doctest: +ELLIPSIS
-    'good: J = ... over 1.1-30 rad/s (25 frequencies); held-out check: Theil ..., fit ... %'
+    'J = ... over 1.1-30 rad/s (25 frequencies): good (CIFER: ...); time-domain check on the fitted record ...: good'
     """
     from .fit import fit_model
     from .spectral import unexplained_rms

@@ -1,4 +1,4 @@
-"""Reading PX4 flight logs (ULog, ``.ulg``) through :mod:`pyulog`: two topic fields onto one uniform grid.
+"""Reading PX4 flight logs (ULog, ``.ulg``) through pyulog: two topic fields onto one uniform grid.
 
 A signal is named ``TOPIC.FIELD`` (``vehicle_angular_velocity.xyz[0]``), ``TOPIC:N.FIELD`` for
 instance ``N`` of a multi-instance topic (default 0); nested fields keep pyulog's dotted names.
@@ -64,6 +64,7 @@ class ULogRecords:
     dropped: list[tuple[float, float]] = field(default_factory=list)  # pieces too short to use, s
 
     def describe(self) -> str:
+        """One line: the records, their samples and rate, and where the log was split."""
         n = sum(u.size for u in self.inputs)
         s = f"{len(self.inputs)} record(s), {n} samples at {self.rate_hz:.4g} Hz"
         if self.gaps:

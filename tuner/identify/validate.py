@@ -95,6 +95,7 @@ class Validation:
         return self.verdict != "poor"
 
     def describe(self) -> str:
+        """One line: what the check ran on, Theil, the fit, the error beside the noise floor, the verdict."""
         s = f"on {SOURCES.get(self.source, self.source)}"
         if self.source != "fit" or self.t_start_s:
             s += f" ({self.t_start_s:.4g}-{self.t_start_s + self.duration_s:.4g} s)"
