@@ -50,6 +50,12 @@ async def post_tradeoff(
     if body.spec is not None and body.spec.objective != "settling_time":
         raise FieldError(("body", "spec", "objective"), "the trade-off's speed axis is the settling time: leave "
                          "spec.objective at settling_time")
+    for f in ("identification_id", "robust", "monte_carlo"):
+        if getattr(body, f, None) is not None:
+            raise FieldError(("body", f), f"/tradeoff takes a plant (and plants); {f} is for POST /tune: tune the "
+                             "identification there, or give its model as plant")
+    if body.plant is None:
+        raise FieldError(("body", "plant"), "give the plant: {\"expr\": \"...\"} or {\"num\": [...], \"den\": [...]}")
     problem = tuning_problem(body)
     payload = {"problem": problem, "y": body.y, "points": body.points, "seed": body.options.seed,
                "time_budget_s": budget}

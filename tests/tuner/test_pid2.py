@@ -188,13 +188,20 @@ def test_pid2_is_never_worse_than_pid(name, plant, dt, spec):
 
 @pytest.mark.slow
 def test_pid2_setpoint_weights_cut_the_load_iae_on_the_pitch_model():
-    """Issue 18's target: on the Lund line with the overshoot limit, pid2's load IAE <= 0.6 x pid's."""
+    """Issue 18's target: on the Lund line with the overshoot limit, pid2's load IAE <= 0.6 x the 0.110 the issue
+    measured with pid. The load IAE depends on the feedback part only, so the setpoint weights can remove the whole
+    cost of the overshoot limit: pid2 must reach the optimum of pid with the overshoot limit lifted (the issue:
+    0.048), and be better than pid under the limit."""
     p = make_plant(*PITCH)
     sp = Spec(objective="iae", phase_margin_min_deg=0, gain_margin_min_db=0, ms_max=2, mks_max=20)
-    r_pid = tune(p, structure="pid", spec=sp, dt=0.04, seed=0, time_budget_s=20)
-    r_2 = tune(p, structure="pid2", spec=sp, dt=0.04, seed=0, time_budget_s=20)
+    r_pid = tune(p, structure="pid", spec=sp, dt=0.04, seed=0, time_budget_s=60)
+    r_free = tune(p, structure="pid", spec=sp.model_copy(update={"overshoot_max_pct": 100.0}), dt=0.04, seed=0,
+                  time_budget_s=60)
+    r_2 = tune(p, structure="pid2", spec=sp, dt=0.04, seed=0, time_budget_s=60)
     assert r_2.meets_spec and r_2.analyses[0].metrics.overshoot_pct <= 10.0
-    assert r_2.objective <= 0.6 * r_pid.objective
+    assert r_2.objective <= 0.6 * 0.110  # the issue's pid figure
+    assert r_2.objective <= r_free.objective * 1.02  # the overshoot limit costs pid2 nothing
+    assert r_2.objective < r_pid.objective
 
 
 def test_deprecated_pidf2_alias():
