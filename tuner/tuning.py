@@ -141,12 +141,13 @@ def tune(
     seed: int = 0,
     time_budget_s: float = 10.0,
     n_trials: int | None = None,
-    n_starts: int = 3,
+    n_starts: int | None = None,
     sampler: Any = None,
     storage: Any = None,
     local: bool = True,
     nlp_solver: str = "sqp",
     diagnose: bool = True,
+    effort: str = "default",
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
@@ -175,8 +176,8 @@ def tune(
         verified candidate is returned (``solver["stop"]`` says which).
     n_trials : int, optional
         Optuna points per round after the first (default 24).
-    n_starts : int
-        How many distinct candidates the local NLP refines in the first round.
+    n_starts : int, optional
+        How many distinct candidates the local NLP refines in the first round (default: the effort's).
     sampler, storage
         Optuna sampler and storage (in-memory TPE by default; a storage URL is accepted).
     local : bool
@@ -187,6 +188,12 @@ def tune(
         When the spec is not met, say why in ``reasons`` (:mod:`tuner.diagnose`: limits that are
         impossible by definition, and for each failing limit the tightest value a short re-tune with it
         relaxed found feasible), within what is left of the budget.
+    effort : str
+        How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
+        (converged when two refinements agree; about 0.6x the default's time), ``"default"`` adds a restart
+        independent of the first round that must find nothing better, ``"thorough"`` three such restarts in a
+        row, more starts and points (about 2-4x the default's time). ``solver["optimality"]`` says what the
+        search knows about how close its answer is.
 
     Returns
     -------
@@ -211,6 +218,13 @@ def tune(
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
     if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s) and time_budget_s > 0):
         raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
+    from .optimize.engine import EFFORTS
+
+    if effort not in EFFORTS:
+        raise TunerError(f"effort must be one of {', '.join(EFFORTS)}, got {effort!r}", field="effort")
+    if n_starts is not None and not (isinstance(n_starts, (int, np.integer)) and not isinstance(n_starts, bool)
+                                     and 1 <= n_starts <= 50):
+        raise TunerError(f"n_starts must be an integer from 1 to 50, got {n_starts!r}", field="n_starts")
     if nlp_solver not in ("ipopt", "sqp"):
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
     t0 = time.perf_counter()
@@ -239,7 +253,8 @@ def tune(
     with threadpool_limits(limits=1):
         # keep a share of the budget for the final verification at full resolution
         eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
-                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s))
+                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s),
+                     effort=effort)
         run = eng.run()
         t_verify = time.perf_counter()
         best_x, best = eng.verify_best()
@@ -254,6 +269,7 @@ def tune(
             "nlp_solves": run.nlp_solves, "nlp_iterations": run.nlp_iterations, "nlp_evaluations": run.nlp_evaluations,
             "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
             "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
+            "effort": effort, "optimality": eng.optimality(),
         }
         res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
                          analyses=best.analyses, solver=info, spec=problem.spec)

@@ -37,6 +37,10 @@ __all__ = ["RefineResult", "refine", "POINTS_PER_SAMPLE", "MAX_NLP_STEPS"]
 log = logging.getLogger(__name__)
 
 POINTS_PER_SAMPLE = 4
+POINTS_PER_SETTLE = 100  # at least this many NLP grid points up to the settling time (its resolution: 1 %)
+MAX_POINTS_PER_SAMPLE = 32
+MAX_GRID_POINTS = 2048  # the more points per sample are taken only while K * N stays within this
+SLOW_TAIL = 40.0
 CONTINUOUS_STEPS = 400
 MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
 H_WC = 0.1  # continuous loops: the NLP's fine step is at most 0.1 / (the start's fastest gain crossover)
@@ -99,24 +103,39 @@ def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | Non
     settle = _target(start, incumbent)
     unit = ev.dt if ev.dt else 1.0 / w0
     if ev.spec.objective == "settling_time":
-        return 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
+        if not (math.isfinite(settle) and settle > 0):
+            return 60 * unit
+        # three settling times, or as far as the start's slowest pole reaches (up to SLOW_TAIL settling times): a
+        # slow closed-loop pole of small residue (a PID's zero near an integrator or a slow plant pole) can take
+        # the response out of the band again long after it settled; a horizon that ends first lets the
+        # bisection chase settling times the verifier then finds at six times that (underdamped at dt = tau/5)
+        tail = np.nanmax(start.horizon) if np.any(np.isfinite(start.horizon)) else 0.0
+        return float(min(max(3.0 * settle, tail), SLOW_TAIL * settle))
     T = np.nanmax(start.horizon) if np.any(np.isfinite(start.horizon)) else 60 * unit
     return float(T)
 
 
-def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None) -> int:
+def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None, K: int = 0) -> int:
     """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
     them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway)."""
     settle = _target(start, incumbent)
     samples = settle / ev.dt if math.isfinite(settle) else math.inf
-    return POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
+    base = POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
+    # the bisection resolves the settling time to one grid step: a loop settling in a few samples needs more
+    # points per sample than the ripple does (underdamped at dt = tau/5, settling in 3.6 samples: 4 points per
+    # sample left the answer 9 % above the optimum); powers of two, so a warm process reuses its builds
+    want = POINTS_PER_SETTLE / samples if math.isfinite(samples) and samples > 0 else 0
+    n = base
+    while n < want and n < MAX_POINTS_PER_SAMPLE and K * n * 2 <= MAX_GRID_POINTS:
+        n *= 2
+    return n
 
 
 def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None) -> _Grid:
     T = _horizon(ev, start, w0, incumbent)
     if ev.dt is not None:
-        return _Grid(K=_bucket(int(math.ceil(T / ev.dt))), N=_points_per_sample(ev, start, incumbent),
-                     step=ev.dt, h=None)
+        K = _bucket(int(math.ceil(T / ev.dt)))
+        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K), step=ev.dt, h=None)
     # the fine step resolves the loop (H_WC rad of the fastest crossover per step) as well as the horizon: a
     # slow closed-loop pole of small residue (a PI zero next to a plant pole) must not stretch the step over
     # the loop's own dynamics (1/(4s+1) with pidf2: T = 204 s would give h = 0.5 s against wc = 2.7 rad/s);
