@@ -32,10 +32,12 @@ def _controller(d: dict[str, Any]):
 
 
 def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload``: ``problem`` (a validated :class:`tuner.problem.TuningProblem`), ``seed``, ``time_budget_s``."""
+    """``payload``: ``problem`` (a validated :class:`tuner.problem.TuningProblem`), ``seed``, ``time_budget_s``,
+    ``effort``."""
     from tuner.tuning import tune
 
-    return tune(payload["problem"], seed=payload["seed"], time_budget_s=payload["time_budget_s"]).to_json()
+    return tune(payload["problem"], seed=payload["seed"], time_budget_s=payload["time_budget_s"],
+                effort=payload.get("effort", "default")).to_json()
 
 
 def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:

@@ -139,6 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--structure", required=True, help="p, pi, pd, pid, pid_z, lead, lag, leadlag")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
+    t.add_argument("--effort", choices=("fast", "default", "thorough"), default="default",
+                   help="how hard to search: fast (the first round alone, ~0.6x the default's time), default (plus "
+                        "an independent restart that must find nothing better), thorough (three such restarts in a "
+                        "row, more starts: ~2-4x); the output's 'optimality' line says what the search knows")
     t.add_argument("--json", action="store_true")
     _add_plot_args(t)
     _add_spec_args(t)
@@ -261,6 +265,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
 
 
 def _cmd_tune(a: argparse.Namespace) -> int:
+    from .display import optimality_line
     from .plant import check_dt, plant_from_expr
     from .tuning import tune
 
@@ -276,7 +281,8 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         check_dt(a.dt)
     if not (0 <= a.seed < 2**32):  # Optuna's sampler seeds numpy, which rejects anything else
         raise TunerError("--seed: must be an integer from 0 to 2**32 - 1")
-    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget)
+    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget,
+               effort=a.effort)
     out = res.to_json()
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
@@ -296,6 +302,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     s = res.solver
     print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
+    print(optimality_line(s))
     print(f"objective {res.spec.objective} = {fmt(out['objective']['value'])}"
           + (" (worst over the plants)" if len(plants) > 1 else ""))
     if res.meets_spec:
@@ -313,7 +320,8 @@ _COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune}
 
 
 _ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
-              "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec"}
+              "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "effort": "--effort",
+              "spec": "spec"}
 
 
 def _argument_of(f: tuple[str | int, ...]) -> str | None:

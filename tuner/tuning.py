@@ -271,6 +271,9 @@ def tune(
             "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
             "effort": effort, "optimality": eng.optimality(),
         }
+        from .display import optimality_line
+
+        info["optimality"]["summary"] = optimality_line(info)
         res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
                          analyses=best.analyses, solver=info, spec=problem.spec)
         if not res.meets_spec and diagnose:

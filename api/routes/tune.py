@@ -78,7 +78,7 @@ async def post_tune(
         raise FieldError(("body", "plants"),
                          f"{1 + len(extra)} plants given (plant + plants); at most {limit} per request")
     problem = tuning_problem(body)
-    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
+    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget, "effort": body.options.effort}
     await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)
     try:
         result = await unless_disconnected(
