@@ -147,41 +147,12 @@ def independent_check(c: dict[str, Any], cnum, cden, spec: Spec) -> dict[str, An
     nm = ref.nyquist_margins(num, den, dt, n=60_000)
     pm, gm_up, gm_lo = nm["pm"], nm["gm_db"], nm["gml_db"]
     out.update(pm_deg=float(pm), gm_db=float(gm_up), gm_lower_db=float(gm_lo))
-    # the sampled-data step: the controller's difference equation (scipy state space), the plant exact between
-    # samples (matrix exponential at 20 points per sample), the delay as a shift of u
-    from scipy import signal
-
-    A, B, C, D = signal.tf2ss(np.asarray(cnum, float), np.asarray(cden, float))
-    An, Bn, Cn, Dn = ref.ss_of_tf(c["num"], c["den"])
-    n_per = 20
-    h = dt / n_per
-    from scipy import linalg
-
-    nx = An.shape[0]
-    M = np.zeros((nx + 1, nx + 1))
-    M[:nx, :nx], M[:nx, nx:] = An, Bn
-    E = linalg.expm(M * h)
-    Ad, Bd = E[:nx, :nx], E[:nx, nx:]
+    # the sampled-data step (tests/reference.py: the controller's difference equation, the plant exact between
+    # samples at 20 points per sample, the delay as a shift of u), long enough for the slowest closed-loop pole
     poles = np.abs(np.roots(np.polyadd(den, num)))
     rho = float(np.max(poles)) if len(poles) else 0.0
     K = int(min(40_000, max(200, 12 * math.log(1e-4) / math.log(max(rho, 1e-6)))))
-    xc = np.zeros((A.shape[0], 1))
-    xp = np.zeros((nx, 1))
-    ubuf = [0.0] * d
-    ys, ts = [], []
-    for k in range(K):
-        y_k = float((Cn @ xp)[0, 0])
-        e = 1.0 - y_k
-        u = float((C @ xc)[0, 0] + D[0, 0] * e) if A.size else float(D[0, 0] * e)
-        if A.size:
-            xc = A @ xc + B * e
-        ubuf.append(u)
-        ua = ubuf.pop(0)
-        for j in range(n_per):
-            ys.append(float((Cn @ xp)[0, 0]))
-            ts.append(k * dt + j * h)
-            xp = Ad @ xp + Bd * ua
-    t, y = np.array(ts), np.array(ys)
+    t, y = ref.closed_loop_step(c["num"], c["den"], cnum, cden, dt, delay_samples=d, samples=K)
     yf = 1.0
     try:
         settle = ref.settling_time(t, y, yf, band=spec.settling_band_pct / 100)
