@@ -406,6 +406,27 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+STUDY = HERE / "quality_study.toml"
+
+
+def study_toml(cases: list[dict[str, Any]], *, name: str = "quality", budget: float = 10.0, effort: str = "default",
+               spec: dict[str, Any] | None = None) -> str:
+    """The suite as a study file (``tuner study run``): one loop per case, the same plant, dt and structure."""
+    lines = ["# The quality suite as a study (bench/quality.py study): one loop per case of bench/quality_suite.json.",
+             "# Scale out: every worker, on this machine or another, runs",
+             "#   tuner study run bench/quality_study.toml --storage postgresql+psycopg://USER@HOST:5432/DB",
+             f'name = "{name}"', "seed = 0", f"time_budget_s = {budget:g}", f'effort = "{effort}"', ""]
+    for c in cases:
+        lines += ["[[loop]]", f'name = "{c["id"]}"',
+                  f"plant = {{num = {json.dumps(c['num'])}, den = {json.dumps(c['den'])}}}",
+                  f"delay = {c['delay_s']!r}", f"dt = {c['dt']!r}", f'structure = "{c["structure"]}"']
+        if spec:
+            lines.append("[loop.spec]")
+            lines += [f"{k} = {json.dumps(v)}" for k, v in spec.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -424,8 +445,18 @@ def main() -> None:
     u.add_argument("--spec", default="")
     u.add_argument("--reference", default=str(REFERENCE))
     u.add_argument("--only", default="")
+    s = sub.add_parser("study", help="write bench/quality_study.toml (the suite as a study)")
+    s.add_argument("--out", default=str(STUDY))
+    s.add_argument("--only", default="", help="comma-separated case ids (default: every case)")
+    s.add_argument("--name", default="quality")
+    s.add_argument("--effort", default="default")
     a = ap.parse_args()
-    if a.cmd == "generate":
+    if a.cmd == "study":
+        only = set(a.only.split(",")) if a.only else None
+        cases = [c for c in load_suite() if only is None or c["id"] in only]
+        Path(a.out).write_text(study_toml(cases, name=a.name, effort=a.effort))
+        print(f"{len(cases)} loops -> {a.out}")
+    elif a.cmd == "generate":
         cases = generate(a.per_class)
         SUITE.write_text(json.dumps({"command": f"python bench/quality.py generate --per-class {a.per_class}",
                                      "seed": SUITE_SEED, "cases": cases}, indent=1))

@@ -173,7 +173,7 @@ class StudyDef(BaseModel):
     seed: int = Field(0, ge=0, lt=2**32)
     time_budget_s: float = Field(10.0, gt=0, le=3600)
     effort: Literal["fast", "default", "thorough"] = "default"
-    loop: list[LoopDef] = Field(min_length=1, max_length=200)
+    loop: list[LoopDef] = Field(min_length=1, max_length=1000)  # (the quality suite as a study: 210 loops)
 
     @model_validator(mode="after")
     def _graph(self) -> StudyDef:
