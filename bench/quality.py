@@ -168,8 +168,17 @@ def independent_check(c: dict[str, Any], cnum, cden, spec: Spec) -> dict[str, An
 
 # -- the references -----------------------------------------------------------------------------------------
 
-def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0) -> dict[str, Any]:
-    """Independent global optimisation of one case (see the module docstring)."""
+VERIFY = 16  # distinct candidates verified at full resolution per case
+
+
+class _OutOfTime(Exception):
+    pass
+
+
+def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0, cap_s: float = math.inf
+                   ) -> dict[str, Any]:
+    """Independent global optimisation of one case (see the module docstring); each of the four searches gets a
+    quarter of ``evals`` evaluations and of ``cap_s`` seconds (slow loops simulate long horizons)."""
     from scipy.optimize import differential_evolution, minimize
 
     from tuner.optimize.batch import BatchEvaluator
@@ -183,8 +192,11 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0) 
     lo, hi = space.lo, space.hi
     pool: list[tuple[float, np.ndarray]] = []
     n = [0]
+    stage_end = [math.inf]
 
     def f(V: np.ndarray) -> np.ndarray:
+        if time.perf_counter() > stage_end[0]:
+            raise _OutOfTime
         V = np.clip(np.atleast_2d(V), lo, hi)
         X = np.array([space.params(v) for v in V])
         s = batch.evaluate(X).score
@@ -196,14 +208,23 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0) 
     dim = lo.size
     per = evals // 4
     methods: dict[str, float] = {}
+    stage = cap_s / 4
+
+    def best_since(before: int) -> float:
+        return float(min((s for s, _ in pool[before:]), default=math.inf))
+
     for k in range(2):  # DE, two seeds
         pop = 15
         gens = max(5, per // (pop * dim) - 1)
         before = n[0]
-        r = differential_evolution(lambda X: f(X.T), list(zip(lo, hi)), seed=seed + k, popsize=pop, maxiter=gens,
+        stage_end[0] = time.perf_counter() + stage
+        try:
+            differential_evolution(lambda X: f(X.T), list(zip(lo, hi)), seed=seed + k, popsize=pop, maxiter=gens,
                                    tol=0, atol=0, polish=False, init="sobol", vectorized=True,
                                    updating="deferred", mutation=(0.5, 1.0), recombination=0.9)
-        methods[f"de{k}"] = float(r.fun)
+        except _OutOfTime:
+            methods[f"de{k}_capped"] = True
+        methods[f"de{k}"] = best_since(before)
         methods[f"de{k}_evals"] = n[0] - before
     if c["structure"] == "pid_z":
         # the thesis form K (z^2 + a1 z + a2) / (z (z - 1)) is the backward-Euler PID: DE over (Kp, Ki, Kd) in the
@@ -231,22 +252,28 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0) 
             return out
 
         before = n[0]
-        r = differential_evolution(fp, list(zip(psp.lo[:3], psp.hi[:3])), seed=seed + 5, popsize=15,
+        stage_end[0] = time.perf_counter() + stage
+        try:
+            differential_evolution(fp, list(zip(psp.lo[:3], psp.hi[:3])), seed=seed + 5, popsize=15,
                                    maxiter=max(5, per // 45 - 1), tol=0, atol=0, polish=False, init="sobol",
                                    vectorized=True, updating="deferred", mutation=(0.5, 1.0), recombination=0.9)
-        methods["de_pid_form"] = float(r.fun)
+        except _OutOfTime:
+            methods["de_pid_form_capped"] = True
+        methods["de_pid_form"] = best_since(before)
         methods["de_pid_form_evals"] = n[0] - before
     from cmaes import CMA
 
     rng = np.random.default_rng(seed + 7)
     used, popsize, cm_best, k = 0, 4 + int(3 * math.log(dim)), math.inf, 0
-    while used < per:  # BIPOP-like restarts from random points: a large-population wide one, then small local ones
+    stage_end[0] = time.perf_counter() + stage
+    # BIPOP-like restarts from random points: a large-population wide one, then small local ones
+    while used < per and time.perf_counter() < stage_end[0]:
         wide = k % 3 == 0
         opt = CMA(mean=lo + rng.random(dim) * (hi - lo), sigma=(0.25 if wide else 0.05) * float(np.min(hi - lo)),
                   bounds=np.c_[lo, hi], seed=int(rng.integers(1 << 30)),
                   population_size=popsize * 2 ** (k // 3) if wide else popsize)
         k += 1
-        while used < per and not opt.should_stop():
+        while used < per and not opt.should_stop() and time.perf_counter() < stage_end[0]:
             X = np.array([opt.ask() for _ in range(opt.population_size)])
             s = f(X)
             used += len(X)
@@ -255,16 +282,22 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0) 
     methods["cmaes"] = cm_best
     methods["cmaes_evals"] = used
     best = min(pool, key=lambda t: t[0])
-    r = minimize(lambda v: float(f(v[None])[0]), best[1], method="Nelder-Mead", bounds=list(zip(lo, hi)),
+    before = len(pool)
+    stage_end[0] = time.perf_counter() + stage
+    try:
+        minimize(lambda v: float(f(v[None])[0]), best[1], method="Nelder-Mead", bounds=list(zip(lo, hi)),
                  options={"maxfev": per, "xatol": 1e-6, "fatol": 0})
-    methods["polish"] = float(r.fun)
+    except _OutOfTime:
+        methods["polish_capped"] = True
+    methods["polish"] = min(best[0], best_since(before))
+    stage_end[0] = math.inf
     # verify the best distinct candidates at full resolution; the first feasible one is the reference
     ev = Evaluator(list(prob.plants), prob.structure, prob.dt, spec, w0=space.w0)
     span = np.maximum(hi - lo, 1e-12)
     chosen: list[np.ndarray] = []
     ref: dict[str, Any] | None = None
     for s, v in sorted(pool, key=lambda t: t[0]):
-        if s >= 1e3 or len(chosen) >= 40:  # the settling time is discontinuous: the search's best may verify later
+        if s >= 1e3 or len(chosen) >= VERIFY:  # the settling time is discontinuous: the best may verify later
             break
         if any(np.max(np.abs(v - w) / span) < 1e-3 for w in chosen):
             continue
@@ -309,7 +342,7 @@ def cmd_reference(a: argparse.Namespace) -> None:
     for c in todo:
         if time.time() > t_end:
             break
-        r = reference_case(c, spec, evals=a.evals)
+        r = reference_case(c, spec, evals=a.evals, cap_s=a.case_cap_s)
         done[c["id"]] = r
         print(f"{c['id']:16s} {c['structure']:6s} obj {r.get('objective', math.nan):.5g} "
               f"indep {r.get('independent_ok')} {r['wall_s']:.1f}s", flush=True)
@@ -318,11 +351,12 @@ def cmd_reference(a: argparse.Namespace) -> None:
 
 
 def _write_ref(path: Path, spec: Spec, done: dict[str, Any], a: argparse.Namespace) -> None:
-    cmd = f"nice -n 19 python bench/quality.py reference --evals {a.evals}" + (f" --spec '{a.spec}'" if a.spec else "")
+    cmd = (f"nice -n 19 python bench/quality.py reference --evals {a.evals} --case-cap-s {a.case_cap_s:g}"
+           + (f" --spec '{a.spec}'" if a.spec else ""))
     data = {"command": cmd, "spec": spec.model_dump(mode="json"), "evals_per_case": a.evals,
             "method": "scipy differential_evolution x2 (popsize 15, Sobol; pid_z: a third over the equivalent "
                       "backward-Euler PID's gains) + CMA-ES restarts (wide large-population and small local) + "
-                      "Nelder-Mead polish, on tuner.optimize.batch scores; verified by tuner.analyze (best of 40 "
+                      "Nelder-Mead polish, on tuner.optimize.batch scores; verified by tuner.analyze (best of 16 "
                       "distinct candidates) and independently by tests/reference.py",
             "references": [done[k] for k in sorted(done)]}
     tmp = path.with_suffix(".tmp")
@@ -439,6 +473,8 @@ def main() -> None:
     r.add_argument("--only", default="", help="comma-separated case ids")
     r.add_argument("--cap-s", type=float, default=0.0, help="stop starting new cases after this many seconds")
     r.add_argument("--fresh", action="store_true", help="recompute the cases already stored")
+    r.add_argument("--case-cap-s", type=float, default=math.inf,
+                   help="at most this many seconds per case (a quarter per search; slow loops)")
     u = sub.add_parser("run", help="tune every case and compare with the references")
     u.add_argument("--effort", default="default")
     u.add_argument("--seed", type=int, default=0)

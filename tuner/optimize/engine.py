@@ -63,6 +63,7 @@ SCAN_POINTS = 96
 SCAN_DECADES = 0.3  # half-width per coordinate, in the search's coordinates (decades for gains and times)
 SCAN_SEED = 20261202
 GAIN_DECADES = (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5)  # the designed starts' gains, in decades of the guess
+PROJECTION_SHRINK = (1e-2, 1e-4)  # the projections' shrunk gains (see Engine._projections)
 BASIN = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
 INFEASIBLE_EXTRA = 2  # an infeasible incumbent must survive this many more restarts before "converged"
 
@@ -425,17 +426,26 @@ class Engine:
             self._scan(seed=SCAN_SEED + self.restarts)
 
     def _projections(self) -> list[np.ndarray]:
-        """The incumbent with one gain at a time set to zero (a PID's optimum may be an ID, a PI's an I: the
-        search's coordinates are logarithmic in a gain far from zero, so that move is long for a refinement
-        or a scan, and a restart's refinement from the projection reaches the other basin)."""
+        """The incumbent with one gain at a time set to zero or shrunk by 10^-2 and 10^-4 (a PID's optimum may
+        be an ID; a PI's on an integrating plant a P with an integral time thousands of times the settling
+        time, where Ki = 0 exactly cancels the integrator: the search's coordinates are logarithmic in a gain
+        far from zero, so that move is long for a refinement or a scan, and a restart's refinement from the
+        projection reaches the other basin)."""
         if self.best.v is None:
             return []
         out = []
+        x = self.space.params(self.best.v)
         for i, kind in enumerate(self.space.structure.kinds):
             if kind == "gain" and abs(self.best.v[i]) > 1e-9:
                 v = self.best.v.copy()
                 v[i] = 0.0
                 out.append(v)
+                for shrink in PROJECTION_SHRINK:
+                    y = np.array(x, dtype=float)
+                    y[i] *= shrink
+                    w = self.space.from_params(y)
+                    if np.all(np.isfinite(w)):
+                        out.append(np.clip(w, self.space.lo, self.space.hi))
         return out
 
     def run(self) -> RunInfo:
