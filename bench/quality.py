@@ -401,16 +401,18 @@ def cmd_run(a: argparse.Namespace) -> None:
     for c in cases:
         if only and c["id"] not in only:
             continue
-        t = tune_case(c, spec, effort=a.effort, seed=a.seed)
+        t = tune_case(c, spec, effort=a.effort, seed=a.seed, budget=a.budget)
         t["ratio"] = ratio(t, refs.get(c["id"]))
         t |= {"class": c["class"], "structure": c["structure"], "order": c["order"]}
         rows.append(t)
         print(f"{c['id']:16s} {c['structure']:6s} {t['objective']:.5g} ratio {t['ratio']} {t['wall_s']*1e3:.0f} ms "
               f"{t['stop']}", flush=True)
     RESULTS.mkdir(exist_ok=True)
-    out = RESULTS / f"quality_{a.effort}.json"
-    out.write_text(json.dumps({"command": " ".join(sys.argv), "effort": a.effort, "seed": a.seed,
-                               "rows": rows}, indent=1, allow_nan=True))
+    out = Path(a.out) if a.out else RESULTS / f"quality_{a.effort or 'baseline'}.json"
+    load = os.getloadavg()
+    out.write_text(json.dumps({"command": "python bench/quality.py " + " ".join(sys.argv[1:]), "effort": a.effort,
+                               "seed": a.seed, "machine": f"load average at the end {load[0]:.1f}/{load[1]:.1f}/"
+                               f"{load[2]:.1f} on {os.cpu_count()} cores", "rows": rows}, indent=1, allow_nan=True))
     print(table(rows))
 
 
@@ -441,6 +443,53 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 STUDY = HERE / "quality_study.toml"
+RUNS = ("baseline", "fast", "default", "thorough")
+
+
+def cmd_report(a: argparse.Namespace) -> None:
+    """bench/QUALITY.md: every stored run against the current references (ratios recomputed here)."""
+    cases = {c["id"]: c for c in load_suite()}
+    refdoc = json.loads(Path(a.reference).read_text())
+    refs = {r["id"]: r for r in refdoc["references"]}
+    ok = {k for k, r in refs.items() if r.get("feasible") and r.get("independent_ok")}
+    L = ["# Quality suite: the tuner against independent reference optima", "",
+         f"Suite: {len(cases)} plants (`bench/quality_suite.json`, `python bench/quality.py generate`, seed "
+         f"{SUITE_SEED}); references for {len(refs)} of them (`bench/quality_reference.json`, "
+         f"`{refdoc['command']}`), {len(ok)} feasible and verified twice (tuner.analyze and tests/reference.py); "
+         f"{sum(1 for r in refs.values() if not r.get('feasible'))} with no feasible design found by the references, "
+         f"{sum(1 for r in refs.values() if r.get('feasible') and not r.get('independent_ok'))} whose independent "
+         "check disagreed (both excluded from the ratios).", "",
+         f"Reference method: {refdoc['method']}. Spec: the thesis spec (`Spec()`: {refdoc['spec']}).", "",
+         "Ratio = the tuner's verified objective / the reference's (lower is better; < 1: the tuner beat the "
+         "reference). A tune that does not meet the spec counts as ratio ∞.", ""]
+    for name in RUNS:
+        f = RESULTS / f"quality_{name}.json"
+        if not f.exists():
+            continue
+        doc = json.loads(f.read_text())
+        rows = []
+        for t in doc["rows"]:
+            t = dict(t)
+            t["ratio"] = ratio(t, refs.get(t["id"]))
+            rows.append(t)
+        xs = [r["ratio"] for r in rows if r["ratio"] is not None]
+        L += [f"## {name}", "", f"`{doc['command']}` ({len(rows)} tunes; {len(xs)} with a verified reference; "
+              f"{doc.get('machine', '')})", "", table(rows), ""]
+        if xs:
+            w4 = [r["wall_s"] * 1e3 for r in rows if r["order"] <= 4]
+            L += [f"- within 1 %: {np.mean([x <= 1.01 for x in xs]) * 100:.1f} %; within 0.5 %: "
+                  f"{np.mean([x <= 1.005 for x in xs]) * 100:.1f} %; within 3 %: "
+                  f"{np.mean([x <= 1.03 for x in xs]) * 100:.1f} %; tuner better than the reference by > 1 %: "
+                  f"{sum(x < 0.99 for x in xs)}; median wall (order ≤ 4): {_q(w4, .5):.0f} ms", ""]
+            bad = sorted((r for r in rows if r["ratio"] is not None and r["ratio"] > 1.01), key=lambda r: -r["ratio"])
+            if bad:
+                L += ["Above 1 %:", "", "| case | structure | tuner | reference | ratio | stop |",
+                      "|---|---|---|---|---|---|"]
+                L += [f"| {r['id']} | {r['structure']} | {r['objective']:.5g} | {refs[r['id']]['objective']:.5g} | "
+                      f"{r['ratio']:.4f} | {r['stop']} |" for r in bad]
+                L.append("")
+    Path(a.out).write_text("\n".join(L) + "\n")
+    print(f"-> {a.out}")
 
 
 def study_toml(cases: list[dict[str, Any]], *, name: str = "quality", budget: float = 10.0, effort: str = "default",
@@ -481,13 +530,20 @@ def main() -> None:
     u.add_argument("--spec", default="")
     u.add_argument("--reference", default=str(REFERENCE))
     u.add_argument("--only", default="")
+    u.add_argument("--out", default="", help="default bench/results/quality_<effort>.json")
+    u.add_argument("--budget", type=float, default=10.0)
+    rp = sub.add_parser("report", help="bench/QUALITY.md from the stored runs and references")
+    rp.add_argument("--reference", default=str(REFERENCE))
+    rp.add_argument("--out", default=str(HERE / "QUALITY_TABLES.md"))
     s = sub.add_parser("study", help="write bench/quality_study.toml (the suite as a study)")
     s.add_argument("--out", default=str(STUDY))
     s.add_argument("--only", default="", help="comma-separated case ids (default: every case)")
     s.add_argument("--name", default="quality")
     s.add_argument("--effort", default="default")
     a = ap.parse_args()
-    if a.cmd == "study":
+    if a.cmd == "report":
+        cmd_report(a)
+    elif a.cmd == "study":
         only = set(a.only.split(",")) if a.only else None
         cases = [c for c in load_suite() if only is None or c["id"] in only]
         Path(a.out).write_text(study_toml(cases, name=a.name, effort=a.effort))
