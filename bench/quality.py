@@ -338,7 +338,7 @@ def cmd_reference(a: argparse.Namespace) -> None:
     t_end = time.time() + a.cap_s if a.cap_s else math.inf
     todo = [c for c in cases if c["id"] not in done and (only is None or c["id"] in only)]
     # round-robin over the classes, so that a capped run covers every class
-    todo.sort(key=lambda c: (int(c["id"].split("-")[1]), CLASSES.index(c["class"])))
+    todo.sort(key=_round_robin)
     for c in todo:
         if time.time() > t_end:
             break
@@ -398,6 +398,9 @@ def cmd_run(a: argparse.Namespace) -> None:
     spec = spec_of(json.loads(a.spec) if a.spec else {})
     only = set(a.only.split(",")) if a.only else None
     rows = []
+    RESULTS.mkdir(exist_ok=True)
+    out = Path(a.out) if a.out else RESULTS / f"quality_{a.effort or 'baseline'}.json"
+    cases = sorted(cases, key=_round_robin)  # every class early: a run stopped part-way covers them all
     for c in cases:
         if only and c["id"] not in only:
             continue
@@ -407,13 +410,20 @@ def cmd_run(a: argparse.Namespace) -> None:
         rows.append(t)
         print(f"{c['id']:16s} {c['structure']:6s} {t['objective']:.5g} ratio {t['ratio']} {t['wall_s']*1e3:.0f} ms "
               f"{t['stop']}", flush=True)
-    RESULTS.mkdir(exist_ok=True)
-    out = Path(a.out) if a.out else RESULTS / f"quality_{a.effort or 'baseline'}.json"
+        _write_run(out, a, rows)
+    _write_run(out, a, rows)
+    print(table(rows))
+
+
+def _round_robin(c: dict[str, Any]) -> tuple[int, int]:
+    return int(c["id"].split("-")[1]), CLASSES.index(c["class"])
+
+
+def _write_run(out: Path, a: argparse.Namespace, rows: list[dict[str, Any]]) -> None:
     load = os.getloadavg()
     out.write_text(json.dumps({"command": "python bench/quality.py " + " ".join(sys.argv[1:]), "effort": a.effort,
                                "seed": a.seed, "machine": f"load average at the end {load[0]:.1f}/{load[1]:.1f}/"
                                f"{load[2]:.1f} on {os.cpu_count()} cores", "rows": rows}, indent=1, allow_nan=True))
-    print(table(rows))
 
 
 def _q(xs: list[float], q: float) -> float:
