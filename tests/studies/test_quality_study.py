@@ -97,3 +97,20 @@ def test_suite_study_two_separate_workers_one_killed(tmp_path):
                 p.kill()
                 p.wait()
         delete_study_records(storage, name)
+
+
+def test_study_effort_is_read_and_keys_only_change_when_it_is_not_the_default(tmp_path):
+    from tuner.studies.schema import loop_key
+
+    base = 'name = "e"\n[[loop]]\nname = "a"\nplant = "1/(s+1)"\ndt = 0.1\nstructure = "pi"\n'
+    f0, f1, f2 = tmp_path / "0.toml", tmp_path / "1.toml", tmp_path / "2.toml"
+    f0.write_text(base)
+    f1.write_text('effort = "default"\n' + base)
+    f2.write_text(base + 'effort = "thorough"\n')
+    s0, s1, s2 = load_study(f0), load_study(f1), load_study(f2)
+    assert s0.effort == s1.effort == "default" and s2.loop[0].effort == "thorough"
+    assert loop_key(s0, "a") == loop_key(s1, "a") != loop_key(s2, "a")
+    bad = tmp_path / "3.toml"
+    bad.write_text('effort = "max"\n' + base)
+    with pytest.raises(Exception, match="effort"):
+        load_study(bad)
