@@ -4,17 +4,19 @@ Round 0 is deterministic (the same for every seed): the structure's plant-based 
 space-filling set of points and, for a structure that contains a smaller one (``leadlag`` contains
 ``lead``), the smaller structure's designed starts; all
 scored in one batch (:class:`~tuner.optimize.batch.BatchEvaluator`), the best few distinct ones
-refined by the CasADi NLP (:mod:`~tuner.optimize.nlp`). Later rounds ask Optuna's seeded sampler
-(which has been told every point scored so far) for a batch, and refine the best new distinct
-candidates. The search stops when
+refined by the CasADi NLP (:mod:`~tuner.optimize.nlp`), a scan around the incumbent, and the incumbent
+polished once on the NLP's fine grid (:meth:`Engine._polish`). Later rounds are restarts
+(:meth:`Engine._restart`; with ``Effort.optuna`` also Optuna's seeded sampler, told every point scored
+so far). The search stops when
 
 * **converged**: independent evidence agrees with the incumbent. Round 0 agreeing with itself (two
   refinements from distinct starts reaching the same value within the tolerance: half a sample of
   settling time, or 0.1 %) is not enough except at ``effort="fast"``: the incumbent must survive
   ``Effort.confirm`` *restarts* in a row, each a second basin search independent of round 0's
   trajectory (a fresh scrambled-Sobol set over the whole box seeded by the user's seed and the
-  round, Optuna's batch, refinements of the best candidates outside every basin refined so far,
-  and a scan around the incumbent), none finding anything better by more than the tolerance. An
+  round, the incumbent with each gain zeroed or shrunk, refinements of the best candidates outside
+  every basin refined so far, and a scan around the incumbent), none finding anything better by more
+  than the tolerance. An
   infeasible incumbent needs ``INFEASIBLE_EXTRA`` more restarts; or
 * **budget**: the time budget (minus what the final verification needs) is used up.
 
