@@ -472,13 +472,17 @@ def cmd_report(a: argparse.Namespace) -> None:
          f"Reference method: {refdoc['method']}. Spec: the thesis spec (`Spec()`: {refdoc['spec']}).", "",
          "Ratio = the tuner's verified objective / the reference's (lower is better; < 1: the tuner beat the "
          "reference). A tune that does not meet the spec counts as ratio ∞.", ""]
-    for name in RUNS:
-        f = RESULTS / f"quality_{name}.json"
-        if not f.exists():
-            continue
-        doc = json.loads(f.read_text())
+    docs = {n: json.loads((RESULTS / f"quality_{n}.json").read_text()) for n in RUNS
+            if (RESULTS / f"quality_{n}.json").exists()}
+    # every run is compared on the cases all of them tuned (and that have a verified reference)
+    common = set.intersection(*({r["id"] for r in d["rows"]} for d in docs.values())) & ok if docs else set()
+    L += [f"Every table below is over the same {len(common)} cases: those every run tuned and that have a "
+          "verified reference.", ""]
+    for name, doc in docs.items():
         rows = []
         for t in doc["rows"]:
+            if t["id"] not in common:
+                continue
             t = dict(t)
             t["ratio"] = ratio(t, refs.get(t["id"]))
             rows.append(t)
