@@ -400,6 +400,10 @@ def cmd_run(a: argparse.Namespace) -> None:
     rows = []
     RESULTS.mkdir(exist_ok=True)
     out = Path(a.out) if a.out else RESULTS / f"quality_{a.effort or 'baseline'}.json"
+    if a.append and out.exists():  # keep what is there, tune only the cases it lacks
+        rows = json.loads(out.read_text())["rows"]
+        have = {r["id"] for r in rows}
+        cases = [c for c in cases if c["id"] not in have]
     cases = sorted(cases, key=_round_robin)  # every class early: a run stopped part-way covers them all
     for c in cases:
         if only and c["id"] not in only:
@@ -472,7 +476,8 @@ def cmd_report(a: argparse.Namespace) -> None:
          f"Reference method: {refdoc['method']}. Spec: the thesis spec (`Spec()`: {refdoc['spec']}).", "",
          "Ratio = the tuner's verified objective / the reference's (lower is better; < 1: the tuner beat the "
          "reference). A tune that does not meet the spec counts as ratio ∞.", ""]
-    docs = {n: json.loads((RESULTS / f"quality_{n}.json").read_text()) for n in RUNS
+    runs = a.runs.split(",") if a.runs else RUNS
+    docs = {n: json.loads((RESULTS / f"quality_{n}.json").read_text()) for n in runs
             if (RESULTS / f"quality_{n}.json").exists()}
     # every run is compared on the cases all of them tuned (and that have a verified reference)
     common = set.intersection(*({r["id"] for r in d["rows"]} for d in docs.values())) & ok if docs else set()
@@ -546,9 +551,11 @@ def main() -> None:
     u.add_argument("--only", default="")
     u.add_argument("--out", default="", help="default bench/results/quality_<effort>.json")
     u.add_argument("--budget", type=float, default=10.0)
+    u.add_argument("--append", action="store_true", help="keep the stored run's rows, tune the missing cases")
     rp = sub.add_parser("report", help="bench/QUALITY.md from the stored runs and references")
     rp.add_argument("--reference", default=str(REFERENCE))
     rp.add_argument("--out", default=str(HERE / "QUALITY_TABLES.md"))
+    rp.add_argument("--runs", default="", help="comma-separated runs to compare (default: all stored)")
     s = sub.add_parser("study", help="write bench/quality_study.toml (the suite as a study)")
     s.add_argument("--out", default=str(STUDY))
     s.add_argument("--only", default="", help="comma-separated case ids (default: every case)")
