@@ -435,7 +435,9 @@ class Engine:
         sob = qmc.Sobol(lo.size, scramble=True, seed=np.random.default_rng([self.seed, self.restarts, 20]))
         m = max(1, int(round(math.log2(max(1, self.effort.restart_points)))))
         fresh = lo + sob.random_base2(m) * (hi - lo)
-        if self.effort.optuna:  # (TPE's ask costs tens of ms a point with hundreds of trials told)
+        # (TPE's ask costs tens of ms a point with hundreds of trials told; a search without the local stage,
+        # e.g. the bandwidth objective, has only the sampler to home in on its optimum)
+        if self.effort.optuna or not self.local:
             self._tell_new()
             trials, V = self._search.ask(self.n_trials or ROUND_TRIALS)
             self._search.told(trials, self._score(V, source="optuna") if len(V) else [])
