@@ -190,10 +190,10 @@ def tune(
         relaxed found feasible), within what is left of the budget.
     effort : str
         How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
-        (converged when two refinements agree; about 0.6x the default's time), ``"default"`` adds a restart
-        independent of the first round that must find nothing better, ``"thorough"`` three such restarts in a
-        row, more starts and points (about 2-4x the default's time). ``solver["optimality"]`` says what the
-        search knows about how close its answer is.
+        (converged when two refinements agree), ``"default"`` adds a restart independent of the first round
+        that must find nothing better, ``"thorough"`` three such restarts in a row, more starts and points
+        (about 1.5x the default's time); measured costs in bench/QUALITY.md. ``solver["optimality"]`` says
+        what the search knows about how close its answer is.
 
     Returns
     -------
