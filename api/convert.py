@@ -49,7 +49,7 @@ def error_type(e: BaseException | str) -> str:
     return out or "invalid"
 
 
-_OPTIONS = ("seed", "time_budget_s")
+_OPTIONS = ("seed", "time_budget_s", "effort")
 
 
 def body_loc(field: Sequence[str | int]) -> Loc:

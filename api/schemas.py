@@ -112,6 +112,10 @@ class TuneOptions(_In):
         None, gt=0, le=60, allow_inf_nan=False,
         description="wall-time budget of the solve (default 10 s; the server may set a lower maximum). "
                     "Past it the best verified result so far is returned, or 504 if the solver overruns.")
+    effort: Literal["fast", "default", "thorough"] = Field(
+        "default", description="how hard to search: fast (the first round alone), default (plus an independent "
+                               "restart that must find nothing better), thorough (three in a row, more starts); "
+                               "solver.optimality says what the search knows about how close the answer is")
 
 
 class TuneRequest(_In):

@@ -241,3 +241,33 @@ def mks_sampled(c_num, c_den, plant_num, plant_den, dt, n=GRID_POINTS):
     L = eval_L(*open_loop(plant_num, plant_den, c_num, c_den, dt=dt), w, dt=dt)
     C = eval_L(c_num, c_den, w, dt=dt)
     return float(np.max(np.abs(C / (1 + L))))
+
+
+def closed_loop_step(plant_num, plant_den, c_num, c_den, dt, *, delay_samples=0, n_per_sample=20, samples=2000):
+    """Unit-step response of the sampled-data loop: the discrete controller ``c_num/c_den`` (in z, highest power
+    first) acting on e = 1 - y(k dt), its output held (ZOH) and delayed by ``delay_samples`` samples into the
+    continuous plant, which is integrated exactly (matrix exponential) at ``n_per_sample`` points per sample.
+    Returns (t, y) over ``samples`` samples."""
+    A, B, C, D = signal.tf2ss(np.asarray(c_num, float), np.asarray(c_den, float))
+    An, Bn, Cn, _ = ss_of_tf(plant_num, plant_den)
+    nx = An.shape[0]
+    h = dt / n_per_sample
+    M = np.zeros((nx + 1, nx + 1))
+    M[:nx, :nx], M[:nx, nx:] = An, Bn
+    E = linalg.expm(M * h)
+    Ad, Bd = E[:nx, :nx], E[:nx, nx:]
+    xc = np.zeros((A.shape[0], 1))
+    xp = np.zeros((nx, 1))
+    ubuf = [0.0] * int(delay_samples)
+    ys = np.empty(samples * n_per_sample)
+    for k in range(samples):
+        e = 1.0 - float((Cn @ xp)[0, 0])
+        u = (float((C @ xc)[0, 0]) if A.size else 0.0) + float(D[0, 0]) * e
+        if A.size:
+            xc = A @ xc + B * e
+        ubuf.append(u)
+        ua = ubuf.pop(0)
+        for j in range(n_per_sample):
+            ys[k * n_per_sample + j] = float((Cn @ xp)[0, 0])
+            xp = Ad @ xp + Bd * ua
+    return np.arange(ys.size) * h, ys

@@ -219,6 +219,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "lead, lag, leadlag")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
+    t.add_argument("--effort", choices=("fast", "default", "thorough"), default="default",
+                   help="how hard to search: fast (the first round alone), default (plus an independent restart "
+                        "that must find nothing better), thorough (three such restarts in a row, more starts: about "
+                        "1.5x the default's time); the output's 'optimality' line says what the search knows")
     t.add_argument("--json", action="store_true")
     _add_plot_args(t)
     _add_spec_args(t)
@@ -374,6 +378,7 @@ def _weights_note(gains: dict[str, float]) -> str:
 
 
 def _cmd_tune(a: argparse.Namespace) -> int:
+    from .display import optimality_line
     from .plant import check_dt, plant_from_expr
     from .tuning import tune
 
@@ -399,7 +404,8 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     if not (0 <= a.seed < 2**32):  # Optuna's sampler seeds numpy, which rejects anything else
         raise TunerError("--seed: must be an integer from 0 to 2**32 - 1")
     extra = {} if a.identified is None else {"robust": a.robust, "monte_carlo": a.monte_carlo}
-    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget, **extra)
+    res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget,
+               effort=a.effort, **extra)
     out = res.to_json()
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
@@ -424,6 +430,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     s = res.solver
     print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
+    print(optimality_line(s))
     many = len(res.analyses) > 1
     print(f"objective {res.spec.objective} = {fmt(out['objective']['value'])}"
           + (" (worst over the plants)" if many else ""))
@@ -521,7 +528,8 @@ _COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune, "tradeoff": _cmd_tradeo
 
 _ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
               "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec",
-              "points": "--points", "x": "--x", "y": "--y", "robust": "--robust", "monte_carlo": "--monte-carlo"}
+              "effort": "--effort", "points": "--points", "x": "--x", "y": "--y", "robust": "--robust",
+              "monte_carlo": "--monte-carlo"}
 
 
 def _argument_of(f: tuple[str | int, ...]) -> str | None:

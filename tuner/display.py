@@ -129,6 +129,27 @@ def _plant_lines(analyses: Any) -> list[str]:
     return lines
 
 
+def optimality_line(s: dict[str, Any] | None) -> str:
+    """One line on what the search knows about how close its answer is (``solver["optimality"]``)."""
+    o = (s or {}).get("optimality")
+    if not o:
+        return ""
+    parts = [f"{o['basins']} basin{'s' if o['basins'] != 1 else ''} refined"]
+    n = o.get("restarts", 0)
+    if n:
+        imp = o.get("restart_improved", 0)
+        parts.append(f"{n} independent restart{'s' if n != 1 else ''}, " +
+                     ("none found better" if not imp else f"{imp} found better"
+                      + (f" (round 0 was {o['round0_gap'] * 100:.2g} % worse)" if o.get("round0_gap") else "")))
+    else:
+        parts.append("no independent restart")
+    gap = o.get("gap")
+    parts.append("no distinct alternative" if gap is None else f"best distinct alternative {gap * 100:+.3g} %")
+    stop = s.get("stop")
+    verdict_ = "converged" if stop == "converged" else "budget used (not confirmed)"
+    return f"optimality ({o.get('effort', 'default')} effort, {verdict_}): " + ", ".join(parts)
+
+
 def tune_repr(r: Any) -> str:
     """The few-line ``repr`` of a :class:`~tuner.TuneResult`."""
     gains = ", ".join(f"{k} = {_g(v, 6)}" for k, v in r.gains.items())
@@ -143,6 +164,8 @@ def tune_repr(r: Any) -> str:
     if s:
         lines.append(f"  solver   {s.get('method')}, {_g(s.get('wall_time_s', math.nan), 3)} s, {s.get('stop')}, "
                      f"seed {s.get('seed')}")
+        if optimality_line(s):
+            lines.append(f"  {optimality_line(s)}")
     rd = getattr(r, "robust", None)
     if rd is not None:
         lines.append(f"  robust   {'nominal model' if rd.k is None else f'{rd.k:g}-sigma set of {rd.n_plants} plants'}"
@@ -237,7 +260,8 @@ def tune_html(r: Any, *, thumbnails: bool = True) -> str:
     gains = _table(["gain", "value"], [[_e(k), _e(_g(v, 6))] for k, v in r.gains.items()])
     s = r.solver
     solver = (f"<p>solver {_e(s.get('method'))}, {_e(_g(s.get('wall_time_s', math.nan), 3))} s, "
-              f"{_e(s.get('stop'))}, seed {_e(s.get('seed'))}</p>") if s else ""
+              f"{_e(s.get('stop'))}, seed {_e(s.get('seed'))}</p>"
+              + (f"<p class=\"optimality\">{_e(optimality_line(s))}</p>" if optimality_line(s) else "")) if s else ""
     pics = _thumbnails(r) if thumbnails else ""
     from .bounds import describe
 

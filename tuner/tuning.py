@@ -229,7 +229,7 @@ def tune(
     seed: int = 0,
     time_budget_s: float = 10.0,
     n_trials: int | None = None,
-    n_starts: int = 3,
+    n_starts: int | None = None,
     sampler: Any = None,
     storage: Any = None,
     local: bool = True,
@@ -237,6 +237,7 @@ def tune(
     diagnose: bool = True,
     robust: float | None = None,
     monte_carlo: int | None = None,
+    effort: str = "default",
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
@@ -268,8 +269,8 @@ def tune(
         verified candidate is returned (``solver["stop"]`` says which).
     n_trials : int, optional
         Optuna points per round after the first (default 24).
-    n_starts : int
-        How many distinct candidates the local NLP refines in the first round.
+    n_starts : int, optional
+        How many distinct candidates the local NLP refines in the first round (default: the effort's).
     sampler, storage
         Optuna sampler and storage (in-memory TPE by default; a storage URL is accepted).
     local : bool
@@ -288,6 +289,12 @@ def tune(
     monte_carlo : int, optional
         Draws of the Monte Carlo check (seeded by ``seed``); default 200 with ``robust``, else none (give a
         number to check a nominal design from an identification too).
+    effort : str
+        How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
+        (converged when two refinements agree), ``"default"`` adds a restart independent of the first round
+        that must find nothing better, ``"thorough"`` three such restarts in a row, more starts and points
+        (about 1.5x the default's time); measured costs in bench/QUALITY.md. ``solver["optimality"]`` says
+        what the search knows about how close its answer is.
 
     Returns
     -------
@@ -320,6 +327,13 @@ def tune(
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
     if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s) and time_budget_s > 0):
         raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
+    from .optimize.engine import EFFORTS
+
+    if effort not in EFFORTS:
+        raise TunerError(f"effort must be one of {', '.join(EFFORTS)}, got {effort!r}", field="effort")
+    if n_starts is not None and not (isinstance(n_starts, (int, np.integer)) and not isinstance(n_starts, bool)
+                                     and 1 <= n_starts <= 50):
+        raise TunerError(f"n_starts must be an integer from 1 to 50, got {n_starts!r}", field="n_starts")
     if nlp_solver not in ("ipopt", "sqp"):
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
     t0 = time.perf_counter()
@@ -365,14 +379,15 @@ def tune(
     with threadpool_limits(limits=1):
         # keep a share of the budget for the final verification at full resolution
         eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
-                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s))
+                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s),
+                     effort=effort)
         # "as robust as possible at this speed": the fastest design meeting the spec is a candidate too (the
         # robustness objectives' landscape is flat where the settling time's is not; the fast design may win)
         fast = None
         if problem.spec.objective in ROBUSTNESS_OBJECTIVES and diagnose:
             fast_problem = replace(problem, spec=problem.spec.model_copy(update={"objective": "settling_time"}))
             fast = tune(fast_problem, seed=int(seed), time_budget_s=FAST_SHARE * float(time_budget_s),
-                        n_starts=n_starts, nlp_solver=nlp_solver, local=local, diagnose=False)
+                        n_starts=n_starts, nlp_solver=nlp_solver, local=local, diagnose=False, effort=effort)
         run = eng.run()
         t_verify = time.perf_counter()
         best_x, best = eng.verify_best()
@@ -387,6 +402,7 @@ def tune(
             "nlp_solves": run.nlp_solves, "nlp_iterations": run.nlp_iterations, "nlp_evaluations": run.nlp_evaluations,
             "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
             "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
+            "effort": effort, "optimality": eng.optimality(),
         }
         from .bounds import at_bounds
         from .controllers import deprecation_note
@@ -394,6 +410,9 @@ def tune(
         note = deprecation_note(structure) if isinstance(structure, str) else None
         if note:
             info["notes"] = [note]
+        from .display import optimality_line
+
+        info["optimality"]["summary"] = optimality_line(info)
         res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
                          analyses=best.analyses, solver=info, spec=problem.spec,
                          at_bounds=tuple(at_bounds(problem, eng.space, best_x, best.analyses)),

@@ -86,7 +86,7 @@ async def post_tune(
         raise FieldError(("body", "robust"), f"the identified model's robust set has {len(problem.plants)} plants; "
                          f"this server tunes at most {limit} per request: fit fewer parameters, or tune the nominal "
                          "model (robust null)")
-    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget}
+    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget, "effort": body.options.effort}
     timeout_s = settings.solve_limit_s(budget)
     if ident is not None:
         n_mc = body.monte_carlo if body.monte_carlo is not None else (MONTE_CARLO_DRAWS if body.robust else 0)

@@ -83,7 +83,7 @@ function setMode(m) {
 }
 
 function defaults() {
-  const d = { var: "s", budget: String(CONFIG.default_budget_s), seed: "0", y: CONFIG.tradeoff.y[0],
+  const d = { var: "s", budget: String(CONFIG.default_budget_s), seed: "0", effort: "default", y: CONFIG.tradeoff.y[0],
               points: String(CONFIG.tradeoff.default_points) };
   for (const k of SPEC) {
     const v = CONFIG.spec_defaults[k];
@@ -92,7 +92,8 @@ function defaults() {
   return d;
 }
 
-const NAMES = ["plant", "num", "den", "var", "delay", "dt", "structure", ...SPEC, "budget", "seed", "y", "points"];
+const NAMES = ["plant", "num", "den", "var", "delay", "dt", "structure", ...SPEC, "budget", "seed", "effort", "y",
+               "points"];
 
 function readForm() {
   const out = {};
@@ -267,6 +268,7 @@ function tuneBody() {
                  options: { seed: number(f.seed, ["body", "options", "seed"], errs, { int: true }) ?? 0 } };
   const budget = number(f.budget, ["body", "options", "time_budget_s"], errs);
   if (budget !== undefined) body.options.time_budget_s = budget;
+  if (f.effort && f.effort !== "default") body.options.effort = f.effort;
   if (f.plants.length) {
     body.plants = f.plants.map((e) => {
       const p = { expr: e };
@@ -533,7 +535,8 @@ function showResult(d, { title = "Result" } = {}) {
   table($("#metrics"), Object.entries(d.metrics).map(([k, x]) => [label(k), fmt(x)]));
   const s = d.solver || {};
   $("#solver").textContent = `${s.method || "solver"}: ${fmt(s.wall_time_s)} s, seed ${fmt(s.seed)}` +
-    (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "");
+    (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "") +
+    (s.optimality?.summary ? `. ${s.optimality.summary}` : "");
   $("#export-ct").hidden = Boolean(c.dt);
   if (!stored) return;
   showPlots(d.id);
@@ -614,7 +617,11 @@ function fromRequest(q) {
   if (q.dt) v.dt = String(q.dt);
   v.structure = (CONFIG.deprecated_structures || {})[q.structure] || q.structure; // pidf2 -> pid_mf2
   for (const [k, x] of Object.entries(q.spec || {})) v[k] = x === null ? "" : typeof x === "boolean" ? (x ? "1" : "0") : String(x);
-  if (q.options) { v.seed = String(q.options.seed ?? 0); if (q.options.time_budget_s) v.budget = String(q.options.time_budget_s); }
+  if (q.options) {
+    v.seed = String(q.options.seed ?? 0);
+    if (q.options.time_budget_s) v.budget = String(q.options.time_budget_s);
+    v.effort = q.options.effort || "default";
+  }
   v.plants = (q.plants || []).filter((x) => x.expr).map((x) => x.expr);
   return v;
 }

@@ -437,3 +437,14 @@ def test_tune_accepts_pid2_and_the_deprecated_pidf2(client):
     assert r.status_code == 200, r.text
     assert r.json()["structure"] == "pid_mf2"
     assert any("deprecated" in n for n in r.json()["solver"]["notes"])
+
+
+def test_tune_reports_optimality_and_takes_an_effort(client, roll):
+    o = roll["solver"]["optimality"]
+    assert o["effort"] == "default" and isinstance(o["summary"], str) and o["summary"].startswith("optimality")
+    r = client.post("/tune", json={**ROLL_BODY, "options": {"seed": 0, "time_budget_s": BUDGET, "effort": "fast"}})
+    assert r.status_code == 200, r.text
+    assert r.json()["solver"]["optimality"]["effort"] == "fast"
+    bad = client.post("/tune", json={**ROLL_BODY, "options": {"seed": 0, "effort": "max"}})
+    assert bad.status_code == 422
+    assert any(d["loc"][-1] == "effort" for d in bad.json()["detail"]), bad.text

@@ -193,13 +193,14 @@ def test_engine_is_deterministic():
 
 
 def test_engine_scores_are_the_verifiers():
-    """The pool's scores are the batched verifier's; re-score the best with the scalar verifier at search
-    resolution: the same settling time to a sample (the batch uses the same horizon and band)."""
+    """The pool's scores are the batched verifier's; re-score the best with the full verifier: the same
+    settling time to a sample. (Not the scalar scorer at search resolution: it settles into 97 % of the band,
+    and the local stage's optimum rides the band's edge, which the full verifier accepts.)"""
     eng, info = _engine(0)
     assert info.stop in ("converged", "budget")
     s, v, _ = min(eng.pool, key=lambda t: t[0])
     assert s < 1e3  # the thesis roll loop meets the default spec
-    scalar = eng.ev.score(eng.space.params(v)).score
+    scalar = eng.ev.score(eng.space.params(v), full=True).score
     assert scalar == pytest.approx(s, abs=DT)
 
 

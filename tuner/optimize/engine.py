@@ -4,17 +4,29 @@ Round 0 is deterministic (the same for every seed): the structure's plant-based 
 space-filling set of points and, for a structure that contains a smaller one (``leadlag`` contains
 ``lead``; ``pid2`` contains ``pid`` at b = c = 1), the smaller structure's designed starts; all
 scored in one batch (:class:`~tuner.optimize.batch.BatchEvaluator`), the best few distinct ones
-refined by the CasADi NLP (:mod:`~tuner.optimize.nlp`). Later rounds ask Optuna's seeded sampler
-(which has been told every point scored so far) for a batch, and refine the best new distinct
-candidates. The search stops when
+refined by the CasADi NLP (:mod:`~tuner.optimize.nlp`), a scan around the incumbent, and the incumbent
+polished once on the NLP's fine grid (:meth:`Engine._polish`). Later rounds are restarts
+(:meth:`Engine._restart`; with ``Effort.optuna`` also Optuna's seeded sampler, told every point scored
+so far). The search stops when
 
-* **converged**: in round 0, two refinements from distinct starts reached the same best value
-  (within half a sample of settling time, or 0.1 %), or the ``STALE_REFINES`` refinements after the
-  best one did not improve on it; after that, no round improved the best by more than that in
-  ``PATIENCE`` rounds; or
+* **converged**: independent evidence agrees with the incumbent. Round 0 agreeing with itself (two
+  refinements from distinct starts reaching the same value within the tolerance: half a sample of
+  settling time, or 0.1 %) is not enough except at ``effort="fast"``: the incumbent must survive
+  ``Effort.confirm`` *restarts* in a row, each a second basin search independent of round 0's
+  trajectory (a fresh scrambled-Sobol set over the whole box seeded by the user's seed and the
+  round, the incumbent with each gain zeroed or shrunk, refinements of the best candidates outside
+  every basin refined so far, and a scan around the incumbent), none finding anything better by more
+  than the tolerance. An
+  infeasible incumbent needs ``INFEASIBLE_EXTRA`` more restarts; or
 * **budget**: the time budget (minus what the final verification needs) is used up.
 
-``info["stop"]`` says which. The final choice is made by the full verifier, never by the search.
+``info["stop"]`` says which; ``info.optimality`` (:meth:`Engine.optimality`) says what the search knows
+about how close its answer is: the basins its refinements ended in, the best distinct alternative and
+its gap, the restarts and whether one improved. The final choice is made by the full verifier, never by
+the search: the best verified of ``Effort.verify`` finalists.
+
+``effort`` (:data:`EFFORTS`) trades time for confidence: ``fast`` is round 0 alone (its own agreement
+converges), ``default`` adds one confirming restart, ``thorough`` three with more starts and points.
 """
 
 from __future__ import annotations
@@ -35,7 +47,7 @@ from .scoring import Evaluator, Scored
 from .search import SeededSearch
 from .space import Space, make_space
 
-__all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES"]
+__all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES", "Effort", "EFFORTS"]
 
 #: the objectives the local NLP states exactly (``nlp.transcribe._objective``); the others (bandwidth) are
 #: optimised by the global search alone
@@ -53,6 +65,33 @@ SCAN_POINTS = 96
 SCAN_DECADES = 0.3  # half-width per coordinate, in the search's coordinates (decades for gains and times)
 SCAN_SEED = 20261202
 GAIN_DECADES = (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5)  # the designed starts' gains, in decades of the guess
+PROJECTION_SHRINK = (1e-2, 1e-4)  # the projections' shrunk gains (see Engine._projections)
+BASIN = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
+INFEASIBLE_EXTRA = 2  # an infeasible incumbent must survive this many more restarts before "converged"
+
+
+@dataclass(frozen=True)
+class Effort:
+    """How hard a tune searches (``tune(..., effort=)``, CLI ``--effort``): see the module docstring."""
+
+    name: str
+    n_starts: int  # round 0's refinements from distinct candidates
+    design_points: int  # round 0's fixed space-filling set
+    confirm: int  # restarts in a row that must find nothing better (0: round 0's own agreement converges)
+    restart_points: int  # scrambled-Sobol points over the whole box per restart
+    restart_refines: int  # refinements per restart (the best candidates outside every refined basin)
+    verify: int  # finalists verified at full resolution; the best verified wins
+    optuna: bool  # restarts also ask Optuna's seeded sampler (told every point so far) for a batch
+
+
+EFFORTS = {
+    "fast": Effort("fast", n_starts=2, design_points=32, confirm=0, restart_points=32, restart_refines=1, verify=1,
+                   optuna=True),
+    "default": Effort("default", n_starts=3, design_points=DESIGN_POINTS, confirm=1, restart_points=64,
+                      restart_refines=2, verify=2, optuna=False),
+    "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
+                       verify=5, optuna=True),
+}
 
 
 def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = False, spec: Any = None
@@ -63,6 +102,8 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
     st = space.structure
     scale = (space.k0, space.w0)
     zs = zero_variants(plant, dt, space.w0) if variants else [None]
+    if variants:
+        zs = zs + _unstable_variants(plant, dt)
     guesses = []
     for zeros in zs:
         with np.errstate(all="ignore"):
@@ -78,7 +119,54 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
                 if kind == "gain":
                     x[i] *= 10.0 ** decades
             starts.append(space.from_params(x))
+    if variants:
+        starts += _filter_variants(space, guesses)
     return starts
+
+
+FILTER_N = (10.0, 3.0)  # derivative filters of the filtered starts: Tf = Td / N (Td = Kd / Kp)
+FILTER_DECADES = (0.0, -0.5)
+
+
+def _filter_variants(space: Space, guesses: list[np.ndarray]) -> list[np.ndarray]:
+    """The designed starts again with the derivative filter of textbook practice, Tf = Td / N, instead of at its
+    floor: under a noise limit (Mks) the optimum's filter is slow (the pitch model with Mks <= 20, IAE: Tf =
+    0.034 s at dt = 0.04, IAE 0.072, where every floor-filter start ends near 0.25), a long move in the
+    search's logarithmic Tf for a refinement."""
+    st = space.structure
+    if "Tf" not in st.params or "Kd" not in st.params or "Kp" not in st.params:
+        return []
+    i_tf, i_kd, i_kp = st.params.index("Tf"), st.params.index("Kd"), st.params.index("Kp")
+    out = []
+    for decades in FILTER_DECADES:
+        for x0 in guesses:
+            if not (x0[i_kp] != 0 and x0[i_kd] / x0[i_kp] > 0):
+                continue
+            for n in FILTER_N:
+                x = x0.copy()
+                for i, kind in enumerate(st.kinds):
+                    if kind == "gain":
+                        x[i] *= 10.0 ** decades
+                x[i_tf] = max(x0[i_tf], x0[i_kd] / x0[i_kp] / n)
+                v = space.from_params(x)
+                out.append(np.clip(v, space.lo, space.hi))
+    return out
+
+
+def _unstable_variants(plant, dt: float | None) -> list[np.ndarray]:
+    """Zero placements for an open-loop unstable plant: on the mirror image of its slowest unstable pole (a PI
+    on 1/(s - 1) meets the spec with its zero near s = -1; the stable-pole placements put it at 0.3 w0, 12 times
+    further, where every start overshoots 26 %), alone (the other zero far) and doubled."""
+    poles = np.asarray(plant.poles, dtype=complex)
+    if plant.dt is not None:
+        poles = np.log(poles[np.abs(poles) > 1e-12]) / plant.dt
+    rhp = sorted((p for p in poles if p.real > 1e-9 * max(1.0, abs(p))), key=abs)
+    if not rhp:
+        return []
+    r = abs(rhp[0])
+    far = -np.inf if dt is not None else -10.0 * r
+    return [np.array([-r, far], dtype=complex), np.array([-r, -r], dtype=complex),
+            np.array([-0.5 * r, far], dtype=complex)]
 
 
 def _contained(problem: TuningProblem) -> tuple[str, Any] | None:
@@ -133,8 +221,8 @@ class Engine:
     """One tune's search (see the module docstring); :meth:`run` returns the candidates to verify."""
 
     def __init__(self, problem: TuningProblem, *, seed: int, deadline: float, solver: str = "sqp", local: bool = True,
-                 n_starts: int = 3, n_trials: int | None = None, sampler: Any = None, storage: Any = None,
-                 reserve_s: float = 0.0) -> None:
+                 n_starts: int | None = None, n_trials: int | None = None, sampler: Any = None,
+                 storage: Any = None, reserve_s: float = 0.0, effort: str | Effort = "default") -> None:
         self.problem = problem
         self.space = make_space(problem.structure, problem.nominal, problem.dt, scale=problem.scale,
                                 nyquist=problem.spec.filter_nyquist)
@@ -143,7 +231,14 @@ class Engine:
         # the local stage states the objectives it optimises exactly (the others: the global search alone)
         self.seed, self.deadline, self.solver = seed, deadline, solver
         self.local = local and problem.spec.objective in NLP_OBJECTIVES
-        self.n_starts, self.n_trials = n_starts, n_trials
+        self.effort = effort if isinstance(effort, Effort) else EFFORTS[effort]
+        self.n_starts = self.effort.n_starts if n_starts is None else n_starts
+        self.n_trials = n_trials
+        self.refined: list[tuple[float, np.ndarray]] = []  # where each refinement ended (its best candidate)
+        self.restarts = 0
+        self.restart_improved = 0  # restarts that improved the incumbent by more than the tolerance
+        self.round0_best = math.inf
+        self._polished: set[bytes] = set()
         self.sampler, self.storage = sampler, storage
         self.reserve_s = reserve_s
         self.info = RunInfo()
@@ -166,7 +261,20 @@ class Engine:
             return np.zeros(0)
         X = np.array([self.space.params(v) for v in V])
         t0 = time.perf_counter()
-        r = self.batch.evaluate(X, incumbent_s=self.best.score if self._settling else None)
+        inc = self.best.score if self._settling else None
+        r = self.batch.evaluate(X, incumbent_s=inc)
+        if inc is not None:
+            # the incumbent bounds the simulated horizon (3 times its settling time): a candidate that settles
+            # earlier and leaves the band again after that horizon would look better than it is; whatever
+            # would beat the incumbent is scored again over its own horizon
+            j = np.flatnonzero(r.score < inc)
+            if j.size:
+                r2 = self.batch.evaluate(X[j])
+                r.score[j] = r2.score
+                for a, b in zip(r.per_plant, r2.per_plant):
+                    for key in ("settling_time_s", "wc", "wp", "horizon_s"):
+                        if key in a and key in b:
+                            a[key][j] = b[key]
         self._per_point = (time.perf_counter() - t0) / len(V)
         self.info.batch_evaluations += len(V)
         for j, (v, s) in enumerate(zip(V, r.score)):
@@ -204,7 +312,21 @@ class Engine:
                 break
         return chosen
 
-    def _refine(self, starts: list[np.ndarray]) -> list[float]:
+    def _polish(self) -> None:
+        """The incumbent refined once more on the fine NLP grid (``refine(fine=True)``: the settling time
+        resolved to about 1 %, the horizon as far as the slowest pole reaches), if it has not been already:
+        the coarse grid's bisection stops up to a grid step (a quarter sample) above the optimum, and a
+        horizon of three settling times misses a slow tail that leaves the band later (PID on an integrating
+        plant at dt = tau/30: 6.6 % above the optimum)."""
+        if not (self.local and self._settling and self.best.v is not None) or self._time_left() <= 0:
+            return
+        key = self.best.v.tobytes()
+        if key in self._polished:
+            return
+        self._polished.add(key)
+        self._refine([self.best.v], fine=True)
+
+    def _refine(self, starts: list[np.ndarray], *, fine: bool = False) -> list[float]:
         """Refine each start; returns the best batch score each refinement reached."""
         from .nlp.refine import refine
 
@@ -214,7 +336,8 @@ class Engine:
                 break
             self.pool = [(s, w, True) if w is v else (s, w, r) for s, w, r in self.pool]
             res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
-                         incumbent=self.best.score if self._settling else None, start=self._starts.get(v.tobytes()))
+                         incumbent=self.best.score if self._settling else None, start=self._starts.get(v.tobytes()),
+                         fine=fine)
             i = self.info
             i.starts_refined += 1
             i.nlp_solves += res.solves
@@ -222,6 +345,9 @@ class Engine:
             i.nlp_evaluations += res.evaluations
             i.nlp_solves_ok += int(res.success)
             scores = self._score(np.array(res.candidates), source="nlp", refined=True) if res.candidates else []
+            if len(scores):
+                j = int(np.argmin(scores))
+                self.refined.append((float(scores[j]), np.asarray(res.candidates[j], float)))
             # nan: no solve ran (e.g. no time to build its NLP): no evidence either way for the convergence test
             out.append(float(np.min(scores)) if len(scores) else (math.inf if res.solves else math.nan))
         return out
@@ -247,7 +373,7 @@ class Engine:
         self._score(np.array(self._affordable(starts[n0:] + seeded)), source="design")
         rng = np.random.default_rng(DESIGN_SEED)
         lo, hi = self.space.lo, self.space.hi
-        fixed = [lo + rng.random(lo.size) * (hi - lo) for _ in range(DESIGN_POINTS)]
+        fixed = [lo + rng.random(lo.size) * (hi - lo) for _ in range(self.effort.design_points)]
         self._score(np.array(self._affordable(fixed)), source="design")
         if not self.local:
             return False
@@ -273,7 +399,7 @@ class Engine:
         self.info.history.append(self.best.score)
         return converged
 
-    def _scan(self) -> bool:
+    def _scan(self, seed: int = SCAN_SEED) -> bool:
         """A fixed cloud of points around the incumbent, scored in one batch; the best, if it beats the
         incumbent, is refined. The settling time is discontinuous in the gains: a loop whose slow tail
         just enters the band earlier lies in a thin valley beside the basin a refinement ends in (PI on
@@ -281,7 +407,7 @@ class Engine:
         6 tau), too thin for the space-filling points and out of the NLP's reach from the basin."""
         if not self._settling or self.best.v is None or self._time_left() < 2 * SCAN_POINTS * self._per_point:
             return False  # (what the scan costs is known from the batches before it)
-        rng = np.random.default_rng(SCAN_SEED)
+        rng = np.random.default_rng(seed)
         half = np.minimum(SCAN_DECADES, 0.1 * (self.space.hi - self.space.lo))
         V = self.best.v + (2 * rng.random((SCAN_POINTS, self.best.v.size)) - 1) * half
         V = np.clip(V, self.space.lo, self.space.hi)
@@ -358,36 +484,124 @@ class Engine:
         self.info.seeded_from = name
         return out
 
-    def _round(self) -> float:
-        """One Optuna round: tell what is new, ask a batch, score it, refine the best new ones."""
-        self._tell_new()
-        n = self.n_trials or ROUND_TRIALS
-        trials, V = self._search.ask(n)
-        scores = self._score(V, source="optuna")
-        self._search.told(trials, scores)
-        self._told = len(self.pool)
+    def _restart(self) -> None:
+        """A second basin search, independent of round 0's trajectory: a fresh scrambled-Sobol set over the
+        whole box (seeded by the user's seed and the restart's number) and Optuna's batch (told everything
+        so far), scored in one batch; the best candidates outside every basin refined so far are refined;
+        then a scan around the incumbent."""
+        from scipy.stats import qmc
+
+        self.restarts += 1
+        lo, hi = self.space.lo, self.space.hi
+        sob = qmc.Sobol(lo.size, scramble=True, seed=np.random.default_rng([self.seed, self.restarts, 20]))
+        m = max(1, int(round(math.log2(max(1, self.effort.restart_points)))))
+        fresh = lo + sob.random_base2(m) * (hi - lo)
+        # (TPE's ask costs tens of ms a point with hundreds of trials told; a search without the local stage,
+        # e.g. the bandwidth objective, has only the sampler to home in on its optimum)
+        if self.effort.optuna or not self.local:
+            self._tell_new()
+            trials, V = self._search.ask(self.n_trials or ROUND_TRIALS)
+            self._search.told(trials, self._score(V, source="optuna") if len(V) else [])
+            self._told = len(self.pool)  # (the rest is told by the next _tell_new)
+        self._score(np.array(self._affordable(self._projections() + list(fresh))), source="restart")
         if self.local and self._time_left() > 0:
-            self._refine(self._distinct(max(1, self.n_starts - 1)))
-        return self.best.score
+            self._refine(self._distinct(self.effort.restart_refines))
+        if self._time_left() > 0:
+            self._scan(seed=SCAN_SEED + self.restarts)
+        self._polish()
+
+    def _projections(self) -> list[np.ndarray]:
+        """The incumbent with one gain at a time set to zero or shrunk by 10^-2 and 10^-4 (a PID's optimum may
+        be an ID; a PI's on an integrating plant a P with an integral time thousands of times the settling
+        time, where Ki = 0 exactly cancels the integrator: the search's coordinates are logarithmic in a gain
+        far from zero, so that move is long for a refinement or a scan, and a restart's refinement from the
+        projection reaches the other basin)."""
+        if self.best.v is None:
+            return []
+        out = []
+        x = self.space.params(self.best.v)
+        for i, kind in enumerate(self.space.structure.kinds):
+            if kind == "gain" and abs(self.best.v[i]) > 1e-9:
+                v = self.best.v.copy()
+                v[i] = 0.0
+                out.append(v)
+                for shrink in PROJECTION_SHRINK:
+                    y = np.array(x, dtype=float)
+                    y[i] *= shrink
+                    w = self.space.from_params(y)
+                    if np.all(np.isfinite(w)):
+                        out.append(np.clip(w, self.space.lo, self.space.hi))
+        return out
 
     def run(self) -> RunInfo:
         """Round 0, then later rounds until the search has converged (see the module; ``stop = "converged"``) or
         the budget ends; returns the record."""
         converged = self._round0()
+        self._polish()
+        self.round0_best = self.best.score
         self.info.rounds = 1
-        stale = 0
-        while not converged and self._time_left() > 0:
-            before = self.best.score
-            self._round()
-            self.info.rounds += 1
-            self.info.history.append(self.best.score)
-            stale = 0 if self.best.score < before - self._tol() else stale + 1
-            # a local stage that never ran (no time to build its NLP) has not converged: search on to the budget
-            converged = stale >= PATIENCE and (not self.local or self.info.nlp_solves > 0)
+        eff = self.effort
+        feasible = lambda: self.best.score < 1e3
+        if eff.confirm == 0:
+            # fast: round 0's own agreement; without it (or without a feasible point), Optuna rounds as before
+            converged = converged and feasible()
+            stale = 0
+            while not converged and self._time_left() > 0:
+                before = self.best.score
+                self._restart()
+                self.info.rounds += 1
+                self.info.history.append(self.best.score)
+                improved = self.best.score < before - self._tol()
+                self.restart_improved += int(improved)
+                stale = 0 if improved else stale + 1
+                converged = stale >= PATIENCE + (0 if feasible() else INFEASIBLE_EXTRA) and \
+                    (not self.local or self.info.nlp_solves > 0)
+        else:
+            # independent evidence: the incumbent survives eff.confirm restarts in a row
+            stale, converged = 0, False
+            while self._time_left() > 0:
+                before = self.best.score
+                self._restart()
+                self.info.rounds += 1
+                self.info.history.append(self.best.score)
+                improved = self.best.score < before - self._tol()
+                self.restart_improved += int(improved)
+                stale = 0 if improved else stale + 1
+                need = eff.confirm + (0 if feasible() else INFEASIBLE_EXTRA)
+                # a local stage that never ran (no time to build its NLP) has not converged: search on
+                if stale >= need and (not self.local or self.info.nlp_solves > 0):
+                    converged = True
+                    break
         self.info.stop = "converged" if converged else "budget"
         if self.storage is not None:
             self._tell_new()  # with a storage, every point this tune scored lands in the study
         return self.info
+
+    def optimality(self, best_score: float | None = None) -> dict[str, Any]:
+        """What the search knows about how close its answer is to the optimum (in the search's scores):
+        ``basins``, the distinct basins its refinements ended in (feasible ones); ``alternative``, the best
+        value found outside the incumbent's basin and ``gap`` its relative distance (None if every
+        refinement ended in the incumbent's basin); ``restarts`` and ``restart_improved`` (how many
+        independent restarts ran and how many found something better); ``round0_gap``: how much the
+        restarts improved on round 0 (0: round 0 had it)."""
+        span = np.maximum(self.space.hi - self.space.lo, 1e-12)
+        basins: list[tuple[float, np.ndarray]] = []
+        for sc, v in sorted(self.refined, key=lambda t: t[0]):
+            if sc >= 1e3:
+                continue
+            if all(np.linalg.norm((v - w) / span) > BASIN for _, w in basins):
+                basins.append((sc, v))
+        best = self.best.score if best_score is None else best_score
+        alt = None
+        if self.best.v is not None and math.isfinite(self.best.score):
+            far = [sc for sc, v, _ in self.pool if sc < 1e3 and np.linalg.norm((v - self.best.v) / span) > BASIN]
+            alt = min(far) if far else None
+        gap = None if alt is None or not (math.isfinite(best) and best > 0 and best < 1e3) else alt / best - 1.0
+        r0 = None if not (math.isfinite(self.round0_best) and self.best.score < 1e3 and self.best.score > 0) else \
+            self.round0_best / self.best.score - 1.0
+        return {"effort": self.effort.name, "basins": len(basins), "alternative": alt, "gap": gap,
+                "restarts": self.restarts, "restart_improved": self.restart_improved, "round0_gap": r0,
+                "evaluations": self.info.batch_evaluations, "refinements": self.info.starts_refined}
 
     def _tell_new(self) -> None:
         """Tell the seeded search every point scored since it was last told (one bulk call)."""
@@ -415,19 +629,22 @@ class Engine:
                 break
         return [(s, self.space.params(v)) for s, v in out]
 
-    def verify_best(self, k: int = 3) -> tuple[np.ndarray, Scored]:
-        """Full-resolution verification of the finalists in the search's order: the first that the verifier
-        finds feasible wins (the search's guards make its scores conservative, so the verifier rarely
-        disagrees); if none is, the best verified one. ``self.verified`` counts the verifications."""
+    def verify_best(self, k: int | None = None) -> tuple[np.ndarray, Scored]:
+        """Full-resolution verification of the ``k`` (``Effort.verify``) finalists in the search's order: the
+        best verified wins (the settling time is discontinuous: the search's second may verify better than
+        its first); ``fast`` stops at the first feasible one. ``self.verified`` counts the verifications."""
+        k = self.effort.verify if k is None else k
         best_x, best = None, None
         self.verified = 0
-        for x in self.finalists(k):
+        for x in self.finalists(max(k, 1)):
+            if best is not None and best.feasible and self.effort.verify <= 1:
+                break
+            if self.verified and self._time_left() + self.reserve_s <= 0 and best is not None:
+                break  # out of budget: what is verified already
             s = self.ev.score(x, full=True)
             self.verified += 1
             if s.analyses and (best is None or s.score < best.score):
                 best_x, best = x, s
-            if best is not None and best.feasible:
-                break
         x_c = getattr(self, "_contained_x", None)
         if x_c is not None and not any(np.array_equal(x_c, x) for x in self.finalists(k)):
             # the contained structure's answer (pid2 at b = c = 1 is pid's): verified too, so that the result is

@@ -212,7 +212,8 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
     res = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt,
                seed=study.seed if lp.seed is None else lp.seed,
                time_budget_s=study.time_budget_s if lp.time_budget_s is None else lp.time_budget_s,
-               n_trials=lp.n_trials, **({} if lp.n_starts is None else {"n_starts": lp.n_starts}))
+               n_trials=lp.n_trials, **({} if lp.n_starts is None else {"n_starts": lp.n_starts}),
+               effort=lp.effort or study.effort)
     inner_bw = None
     if lp.inner is not None:
         inner = evaluate_loop(study, study.get(lp.inner), controllers[lp.inner], controllers)

@@ -5,6 +5,7 @@ A study is a TOML file::
     name = "quadrotor"          # also the prefix of the study's records in the storage
     seed = 0                    # optional, default 0
     time_budget_s = 10          # optional, per loop
+    effort = "default"          # optional: fast / default / thorough (tune()'s effort; a loop may set its own)
 
     [[loop]]
     name = "pitch"
@@ -153,6 +154,8 @@ class LoopDef(BaseModel):
     time_budget_s: float | None = Field(None, gt=0, le=3600)
     n_trials: int | None = Field(None, ge=1, le=100_000)
     n_starts: int | None = Field(None, ge=1, le=20)
+    effort: Literal["fast", "default", "thorough"] | None = Field(None, description="tune()'s effort (None: the "
+                                                                  "study's)")
     note: str | None = Field(None, description="shown in the report (e.g. why a spec is relaxed)")
     robust: float | None = Field(None, gt=0, le=10, allow_inf_nan=False,
                                  description="data loops: design for the plant set spanned by the identified "
@@ -207,7 +210,8 @@ class StudyDef(BaseModel):
     description: str | None = None
     seed: int = Field(0, ge=0, lt=2**32)
     time_budget_s: float = Field(10.0, gt=0, le=3600)
-    loop: list[LoopDef] = Field(min_length=1, max_length=200)
+    effort: Literal["fast", "default", "thorough"] = "default"
+    loop: list[LoopDef] = Field(min_length=1, max_length=1000)  # (the quality suite as a study: 210 loops)
 
     @model_validator(mode="after")
     def _graph(self) -> StudyDef:
@@ -482,8 +486,11 @@ def loop_key(study: StudyDef, name: str) -> str:
     file gives a new key, so results are reused only for the study as it is now."""
     parts = []
     for lp in study.chain(name):
-        d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s"})
+        d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s", "effort"})
         entry = {k: _canon(v) for k, v in d.items()}
+        effort = lp.effort or study.effort
+        if effort != "default":  # (only then: the keys of studies that never name an effort stay as they were)
+            entry["effort"] = effort
         if lp.data is not None:  # the log's contents, not where it lies
             try:
                 entry["data_sha256"] = _digest(data_path(lp.data))

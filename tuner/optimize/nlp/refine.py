@@ -38,6 +38,10 @@ __all__ = ["RefineResult", "refine", "POINTS_PER_SAMPLE", "MAX_NLP_STEPS"]
 log = logging.getLogger(__name__)
 
 POINTS_PER_SAMPLE = 4
+POINTS_PER_SETTLE = 100  # at least this many NLP grid points up to the settling time (its resolution: 1 %)
+MAX_POINTS_PER_SAMPLE = 32
+MAX_GRID_POINTS = 2048  # the more points per sample are taken only while K * N stays within this
+SLOW_TAIL = 40.0
 CONTINUOUS_STEPS = 400
 MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
 H_WC = 0.1  # continuous loops: the NLP's fine step is at most 0.1 / (the start's fastest gain crossover)
@@ -96,33 +100,55 @@ def _target(start: Start, incumbent: float | None) -> float:
     return settle
 
 
-def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None) -> float:
+def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False
+             ) -> float:
     """What the objective needs: three target settling times (:func:`_target`) for the settling time, the
     start's own horizon (ten time constants of its slowest pole, where the verifier integrates) for the
     integral objectives."""
     settle = _target(start, incumbent)
     unit = ev.dt if ev.dt else 1.0 / w0
     if ev.spec.objective == "settling_time":
-        return 3.0 * settle if math.isfinite(settle) and settle > 0 else 60 * unit
+        if not (math.isfinite(settle) and settle > 0):
+            return 60 * unit
+        if not fine:
+            return 3.0 * settle
+        # three settling times, or as far as the start's slowest pole reaches (up to SLOW_TAIL settling times): a
+        # slow closed-loop pole of small residue (a PID's zero near an integrator or a slow plant pole) can take
+        # the response out of the band again long after it settled; a horizon that ends first lets the
+        # bisection chase settling times the verifier then finds at six times that (underdamped at dt = tau/5)
+        tail = np.nanmax(start.horizon) if np.any(np.isfinite(start.horizon)) else 0.0
+        return float(min(max(3.0 * settle, tail), SLOW_TAIL * settle))
     T = np.nanmax(start.horizon) if np.any(np.isfinite(start.horizon)) else 60 * unit
     if ev.spec.settling_time_max is not None:  # the band is constrained from the limit on: see past it
         T = max(float(T), 8.0 * ev.spec.settling_time_max)
     return float(T)
 
 
-def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None) -> int:
+def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None, K: int = 0,
+                       fine: bool = False) -> int:
     """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
     them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway)."""
     settle = _target(start, incumbent)
     samples = settle / ev.dt if math.isfinite(settle) else math.inf
-    return POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
+    base = POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
+    if not fine:
+        return base
+    # the bisection resolves the settling time to one grid step: a loop settling in a few samples needs more
+    # points per sample than the ripple does (underdamped at dt = tau/5, settling in 3.6 samples: 4 points per
+    # sample left the answer 9 % above the optimum); powers of two, so a warm process reuses its builds
+    want = POINTS_PER_SETTLE / samples if math.isfinite(samples) and samples > 0 else 0
+    n = base
+    while n < want and n < MAX_POINTS_PER_SAMPLE and K * n * 2 <= MAX_GRID_POINTS:
+        n *= 2
+    return n
 
 
-def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None) -> _Grid:
-    T = _horizon(ev, start, w0, incumbent)
+def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False
+          ) -> _Grid:
+    T = _horizon(ev, start, w0, incumbent, fine)
     if ev.dt is not None:
-        return _Grid(K=_bucket(int(math.ceil(T / ev.dt))), N=_points_per_sample(ev, start, incumbent),
-                     step=ev.dt, h=None)
+        K = _bucket(int(math.ceil(T / ev.dt)))
+        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine), step=ev.dt, h=None)
     # the fine step resolves the loop (H_WC rad of the fastest crossover per step) as well as the horizon: a
     # slow closed-loop pole of small residue (a PI zero next to a plant pole) must not stretch the step over
     # the loop's own dynamics (1/(4s+1) with pidf2: T = 204 s would give h = 0.5 s against wc = 2.7 rad/s);
@@ -333,13 +359,17 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
 
 
 def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
-           solver: str = "sqp", incumbent: float | None = None, start: Start | None = None) -> RefineResult:
+           solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False
+           ) -> RefineResult:
     """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
 
     ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
     bisection's intermediate solutions. ``incumbent``: the best settling time known to the caller; the
     refinement then looks only for solutions that settle no later (its horizon follows that target,
-    not the start's possibly much longer settling). ``start``: what the batch already said about ``v0``."""
+    not the start's possibly much longer settling). ``start``: what the batch already said about ``v0``.
+    ``fine`` (the polish of an incumbent, settling time only): a sampled loop's NLP grid resolves the settling
+    time to about 1 % (more points per sample) and reaches as far as the start's slowest pole (up to
+    ``SLOW_TAIL`` settling times); dearer per solve, so the search runs it once per incumbent."""
     res = RefineResult()
     spec = ev.spec
     x0 = space.params(v0)
@@ -350,7 +380,7 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
         return res
     start = start or Start.of(ev, x0)
     incumbent = incumbent if spec.objective == "settling_time" else None
-    grid = _grid(ev, start, space.w0, incumbent)
+    grid = _grid(ev, start, space.w0, incumbent, fine)
     if ev.dt is not None and any(build_loop(p, ctrl0).plant_ct is None for p in ev.problem.plants):
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
         grid = _Grid(K=grid.K, N=1, step=grid.step, h=None)

@@ -499,7 +499,9 @@ _BUILD_RATIO = {"seen": 1.0}
 
 
 def _estimated_nodes(key: ProblemKey, n_params: int) -> float:
-    return sum(key.K * key.N * (80.0 + 1.6 * (n + n_params + 2) ** 2) for n in key.orders)
+    # the points between samples are linear maps of the sample's state: they cost an eighth of a sample each
+    # (measured: K = 48, N = 32 built in 0.16 s where K * N full samples estimated 2.1 s)
+    return sum(key.K * (1.0 + (key.N - 1) / 8.0) * (80.0 + 1.6 * (n + n_params + 2) ** 2) for n in key.orders)
 
 
 def estimated_build_s(key: ProblemKey, n_params: int) -> float:

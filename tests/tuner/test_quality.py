@@ -1,0 +1,138 @@
+"""Issue 20: the best answer, not the first; what a result knows about its optimality; the effort setting.
+
+The hard cases of issues 18 and 20, each checked against figures derived here: the unstable PI against the
+published grid point and an independent simulation (tests/reference.py), the constrained IAE against the
+overshoot it must keep, the effort ladder against itself (more effort never worse).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import reference as ref
+
+from tuner import Spec, analyze, plant_from_expr, tune
+from tuner.cli import main
+from tuner.errors import TunerError
+
+PITCH = "4.674/(s^2+3.523*s+12.38)"
+
+
+def _independent(plant_num, plant_den, res, spec: Spec) -> dict[str, float]:
+    """Margins (dense Nyquist grid) and the step (matrix-exponential simulation) of the loop, without tuner."""
+    c = res.controller
+    dt = c.dt
+    gn, gd = ref.zoh(plant_num, plant_den, dt)
+    num, den = np.polymul(c.num, gn), np.polymul(c.den, gd)
+    assert np.all(np.abs(np.roots(np.polyadd(den, num))) < 1)
+    m = ref.nyquist_margins(num, den, dt, n=60_000)
+    t, y = ref.closed_loop_step(plant_num, plant_den, c.num, c.den, dt, samples=int(20 / dt))
+    return {"pm": m["pm"], "gm": m["gm_db"], "gml": m["gml_db"], "overshoot": (float(np.max(y)) - 1) * 100,
+            "settling": ref.settling_time(t, y, 1.0, band=spec.settling_band_pct / 100)}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_unstable_pi_meets_the_spec_on_every_seed(seed):
+    """Issue 18 part 6: PI on 1/(s - 1) at dt 0.04. A 28 x 28 grid finds Kp 19.25, Ki 20: settling 1.60 s; the
+    tuner must meet the spec at <= 1.65 s on every seed (it used to return 26 % overshoot, FAIL)."""
+    spec = Spec()
+    res = tune(plant_from_expr("1/(s-1)"), structure="pi", dt=0.04, seed=seed, diagnose=False)
+    assert res.meets_spec
+    assert res.objective <= 1.65
+    # the published grid point, as the verifier sees it: what the tuner must not be worse than
+    grid = analyze(plant_from_expr("1/(s-1)"), res.controller.__class__(
+        num=np.array([19.2476 + 0.8, -19.2476]), den=np.array([1.0, -1.0]), dt=0.04), spec)
+    assert grid.meets_spec and res.objective <= grid.metrics.settling_time_s + 0.5 * 0.04
+    ind = _independent([1.0], [1.0, -1.0], res, spec)
+    assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["gml"] <= -6 + 0.02
+    assert ind["overshoot"] <= 10 + 0.02
+    assert ind["settling"] == pytest.approx(res.objective, abs=0.04 / 10)
+
+
+@pytest.mark.slow
+def test_oscillatory_process_loop_reaches_the_long_de_optimum():
+    """studies/process.toml's `oscillatory` (1/(s^2+0.2s+1), pid, dt 0.1) under the thesis spec: <= 0.353 s
+    (it was 0.371 s; a long differential evolution reaches 0.350 s), checked independently."""
+    spec = Spec.thesis()
+    res = tune(plant_from_expr("1/(s^2+0.2s+1)"), structure="pid", dt=0.1, seed=0, diagnose=False)
+    assert res.meets_spec and res.objective <= 0.353
+    ind = _independent([1.0], [1.0, 0.2, 1.0], res, spec)
+    assert ind["pm"] >= 60 - 0.05 and ind["overshoot"] <= 10 + 0.02
+    assert ind["settling"] == pytest.approx(res.objective, abs=0.01)
+
+
+@pytest.mark.slow
+def test_constrained_iae_is_not_missed():
+    """Pitch at dt 0.04, pid, IAE with PM/GM off, Ms <= 1.4, Mks <= 20, overshoot <= 10 %: the design must be
+    near the unconstrained-overshoot one (IAE 0.071 at 11.5 %), not at 0.251 (the old answer); a differential
+    evolution on the same problem (bench/quality.py's reference method) reaches 0.0716 at 9.89 %."""
+    spec = Spec.thesis(objective="iae", phase_margin_min_deg=0, gain_margin_min_db=0, ms_max=1.4, mks_max=20)
+    res = tune(plant_from_expr(PITCH), structure="pid", dt=0.04, spec=spec, seed=0, diagnose=False)
+    assert res.meets_spec
+    assert res.objective <= 0.075
+    a = res.analyses[0]
+    assert a.metrics.overshoot_pct <= 10 and a.metrics.ms <= 1.4 and a.metrics.mks <= 20
+
+
+def test_optimality_is_reported_in_the_result_and_json():
+    res = tune(plant_from_expr("1/(s+1)^2"), structure="pi", dt=0.1, seed=0, diagnose=False)
+    o = res.solver["optimality"]
+    for k in ("effort", "basins", "alternative", "gap", "restarts", "restart_improved", "round0_gap", "summary"):
+        assert k in o
+    assert o["effort"] == "default" and o["restarts"] >= 1 and o["basins"] >= 1
+    assert res.solver["stop"] == "converged"
+    assert "optimality" in repr(res) and o["summary"] in repr(res)
+    assert json.loads(json.dumps(res.to_json()))["solver"]["optimality"]["restarts"] == o["restarts"]
+    if o["gap"] is not None:
+        assert o["gap"] >= -1e-9  # the alternative is never better than the answer (it is the best elsewhere)
+
+
+def test_fast_effort_needs_no_restart_and_is_never_better_than_default():
+    p = plant_from_expr("1/(s+1)^3")
+    fast = tune(p, structure="pid", dt=0.1, seed=0, effort="fast", diagnose=False)
+    default = tune(p, structure="pid", dt=0.1, seed=0, diagnose=False)
+    # fast converged on round 0's own agreement, default only after an independent restart found nothing better
+    assert fast.solver["stop"] == default.solver["stop"] == "converged"
+    assert fast.solver["optimality"]["restarts"] == 0 and default.solver["optimality"]["restarts"] >= 1
+    assert fast.solver["global_evaluations"] < default.solver["global_evaluations"]
+    assert default.objective <= fast.objective * (1 + 1e-3)
+
+
+def test_a_larger_budget_returns_the_same_converged_answer():
+    """The search is deterministic and converges well within the budget: more budget, the same answer."""
+    p = plant_from_expr("2/((s+1)*(0.3s+1))")
+    a = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=10, diagnose=False)
+    b = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=60, diagnose=False)
+    assert a.solver["stop"] == b.solver["stop"] == "converged"
+    assert b.objective == a.objective and b.gains == a.gains
+
+
+def test_bad_effort_is_refused_with_its_field():
+    with pytest.raises(TunerError) as e:
+        tune(plant_from_expr("1/(s+1)"), structure="pi", effort="max")
+    assert e.value.field == ("effort",) or e.value.field == "effort" or "effort" in str(e.value.field)
+
+
+def test_cli_effort_and_the_optimality_line(capsys):
+    assert main(["tune", "--plant", "1/(s+1)^2", "--dt", "0.1", "--structure", "pi", "--effort", "fast"]) == 0
+    out = capsys.readouterr().out
+    line = [x for x in out.splitlines() if x.startswith("optimality")]
+    assert len(line) == 1 and "fast effort" in line[0]
+    with pytest.raises(SystemExit) as e:
+        main(["tune", "--plant", "1/(s+1)", "--structure", "pi", "--effort", "max"])
+    assert e.value.code == 2
+    assert "--effort" in capsys.readouterr().err
+
+
+def test_thorough_is_never_worse_than_default():
+    p = plant_from_expr("1/(s^2+0.4s+1)")
+    d = tune(p, structure="pid", dt=0.1, seed=0, diagnose=False)
+    t = tune(p, structure="pid", dt=0.1, seed=0, effort="thorough", diagnose=False)
+    assert t.meets_spec and d.meets_spec
+    assert t.objective <= d.objective * (1 + 1e-3)
+    assert t.solver["optimality"]["restarts"] >= 3
+    assert math.isfinite(t.objective)
