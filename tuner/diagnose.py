@@ -29,6 +29,7 @@ import numpy as np
 
 from .problem import TuningProblem
 from .spec import Spec
+from .tolerances import EXACT_ROOT_TOL, LIMIT_RTOL, SAMPLE_COUNT_TOL
 
 __all__ = ["Reason", "diagnose", "definitional_reasons", "dc_gain"]
 
@@ -67,7 +68,7 @@ def dc_gain(plant: Any) -> float:
     """|G(0)| of the plant (continuous) or |G(1)| (discrete); inf with an integrator, 0 with a zero there."""
     zk = plant.zpk
     at = 1.0 if plant.is_discrete else 0.0
-    if np.any(np.isclose(zk.poles, at, atol=1e-12)):
+    if np.any(np.isclose(zk.poles, at, atol=EXACT_ROOT_TOL)):
         return math.inf
     return float(abs(complex(zk(np.array([at]))[0])))
 
@@ -79,7 +80,7 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
     for i, p in enumerate(problem.plants):
         where = "" if len(problem.plants) == 1 else f" (plant #{i + 1})"
         g0 = dc_gain(p)
-        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
+        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - LIMIT_RTOL):
             k = _budget_scale(problem)
             sug = {"noise_gain_max": _outward(1.0 / g0 * 1.001 / k, -1)} if k else \
                 {"mks_max": _outward(1.0 / g0 * 1.001, -1)}
@@ -89,7 +90,7 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
                               "allow at least that", sug))
         if not sp.zero_steady_state_error:
             continue
-        if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - 1e-9):
+        if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - LIMIT_RTOL):
             out.append(Reason(("control_peak",), f"control_peak <= {sp.control_peak_max:g} is below the steady-state "
                               f"input 1/G(0) = {1.0 / g0:.4g} that zero steady-state error to a unit step needs"
                               f"{where}: allow at least that, or drop zero_steady_state_error",
@@ -143,7 +144,7 @@ def _outward(x: float, sign: int) -> float:
         return x
     e = math.floor(math.log10(abs(x))) - 3
     q = x / 10.0 ** e
-    k = math.floor(q + 1e-9) if sign > 0 else math.ceil(q - 1e-9)
+    k = math.floor(q + SAMPLE_COUNT_TOL) if sign > 0 else math.ceil(q - SAMPLE_COUNT_TOL)
     return float(f"{k}e{e}")
 
 

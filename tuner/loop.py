@@ -36,6 +36,7 @@ from .controllers import ControllerTF
 from .errors import InvalidControllerError, InvalidPlantError, TunerError
 from .lti import SS, Zpk, freqresp, zoh_delayed
 from .plant import Plant, delay_in_samples
+from .tolerances import ALGEBRAIC_LOOP_TOL, ROOT_AT_DC_TOL
 
 __all__ = ["Loop", "ClosedLoop", "FineDelayLoop", "build_loop", "tustin", "MIN_CONTINUOUS_DELAY_S",
            "MAX_DELAY_SAMPLES"]
@@ -136,7 +137,7 @@ class Loop:
         """An open-loop pole at DC (s = 0, z = 1)."""
         x = 0.0 if self.dt is None else 1.0
         p = self.zpk.poles
-        return bool(np.any(np.abs(p - x) < 1e-9 * max(1.0, float(np.max(np.abs(p))) if p.size else 1.0)))
+        return bool(np.any(np.abs(p - x) < ROOT_AT_DC_TOL * max(1.0, float(np.max(np.abs(p))) if p.size else 1.0)))
 
     def nyquist_w(self) -> float | None:
         return np.pi / self.dt if self.dt else None
@@ -204,7 +205,7 @@ def _discrete_loop(g: SS, c: SS, d: int, *, ref: SS | None = None) -> ClosedLoop
     else:
         # u = (Cc xc + Dc (r - Cp x - Dp w)) / (1 + Dc Dp); ua = u + w; y = Cp x + Dp ua
         den = 1.0 + c.D * g.D
-        if abs(den) < 1e-12:
+        if abs(den) < ALGEBRAIC_LOOP_TOL:
             raise InvalidControllerError("the loop is algebraically singular (1 + C(inf) G(inf) = 0)")
         Cu = np.zeros(nz)
         Cu[ix] = -c.D * g.C / den
@@ -233,7 +234,7 @@ def _continuous_loop(g: SS, c: SS, *, ref: SS | None = None) -> ClosedLoop:
     :func:`_discrete_loop`)."""
     n, m = g.n, c.n
     den = 1.0 + c.D * g.D
-    if abs(den) < 1e-12:
+    if abs(den) < ALGEBRAIC_LOOP_TOL:
         raise InvalidControllerError("the loop is algebraically singular (1 + C(inf) G(inf) = 0)")
     nz = n + m
     ix, ic = slice(0, n), slice(n, nz)

@@ -21,6 +21,7 @@ from .optimize.design import PlantScale, initial_guess, plant_scale
 from .optimize.rules import has_filter_rule
 from .plant import Plant, check_dt
 from .spec import FILTER_N_MAX, NOISE_GAIN_MAX, Spec
+from .tolerances import SAME_DT_RTOL
 
 __all__ = ["TuningProblem", "MAX_PLANTS"]
 
@@ -146,10 +147,10 @@ def _loop_dt(plants: list[Plant], dt: float | None) -> float | None:
     for i, p in enumerate(plants):
         if not p.is_discrete:
             continue
-        if pdt is not None and abs(p.dt - pdt) > 1e-9 * pdt:
+        if pdt is not None and abs(p.dt - pdt) > SAME_DT_RTOL * pdt:
             raise InvalidPlantError(f"plants are discrete at different sample times {pdt} and {p.dt}",
                                     field=("plants", i, "dt"))
-        if dt is not None and abs(p.dt - dt) > 1e-9 * dt:
+        if dt is not None and abs(p.dt - dt) > SAME_DT_RTOL * dt:
             raise InvalidPlantError(f"plant is discrete at dt={p.dt} but dt={dt} was given; a discrete plant is "
                                     "not resampled", field="dt")
         pdt = p.dt

@@ -37,6 +37,7 @@ from scipy import linalg
 from ..errors import InvalidPlantError
 from ..loop import FineDelayLoop, Loop, _continuous_loop
 from ..lti import lifted_outputs
+from ..tolerances import ROOT_POLISH_RTOL, STABILITY_MARGIN
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
            "step_metrics", "default_horizon", "steady_state"]
@@ -100,7 +101,7 @@ def _refine_delay_roots(loop: Loop, roots: np.ndarray, count: int = 6) -> np.nda
                 break
             step = f / df
             s = s - step
-            if abs(step) < 1e-12 * max(1.0, abs(s)):
+            if abs(step) < ROOT_POLISH_RTOL * max(1.0, abs(s)):
                 break
         if np.isfinite(s) and abs(s - roots[i]) < 0.1 * max(1.0, abs(roots[i])):
             out[i] = s
@@ -128,19 +129,20 @@ def closed_loop_poles(loop: Loop) -> np.ndarray:
 def stability(loop: Loop, poles: np.ndarray | None = None) -> bool | None:
     """``True`` stable, ``False`` unstable (or marginal), ``None`` when double precision cannot tell.
 
-    Each pole must be inside by ``1e-9 * max(1, |p|)`` (its own magnitude: a pole at -1 beside one
-    at -1e10 is as stable as alone), and by the precision of the eigenvalues, ``1e3 eps ||A||`` of the
+    Each pole must be inside by ``STABILITY_MARGIN * max(1, |p|)`` (``tuner.tolerances``; its own
+    magnitude: a pole at -1 beside one at -1e10 is as stable as alone), and by the precision of the
+    eigenvalues, ``1e3 eps ||A||`` of the
     balanced closed-loop matrix. A pole within that precision of the boundary but clear of the
-    ``1e-9`` band is undecidable (``None``): the loop's dynamics span too many decades (a gain of
+    ``STABILITY_MARGIN`` band is undecidable (``None``): the loop's dynamics span too many decades (a gain of
     1e150 on 1/(s+1) with integral action puts poles at -1 and -1e150).
     """
     p = closed_loop_poles(loop) if poles is None else poles
     if p.size == 0:
         return True
     if loop.dt is None:
-        margin, own = -p.real, 1e-9 * np.maximum(1.0, np.abs(p))
+        margin, own = -p.real, STABILITY_MARGIN * np.maximum(1.0, np.abs(p))
     else:
-        margin, own = 1.0 - np.abs(p), np.full(p.size, 1e-9)
+        margin, own = 1.0 - np.abs(p), np.full(p.size, STABILITY_MARGIN)
     prec = _eig_precision(loop)
     if np.all(margin > np.maximum(own, prec)):
         return True

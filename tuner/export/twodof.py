@@ -32,6 +32,7 @@ from typing import Any
 
 from ..errors import TunerError
 from ..plant import check_dt
+from ..tolerances import SAME_DT_RTOL
 
 __all__ = ["ANTI_WINDUP", "TwoDofLaw", "two_dof_law", "default_tt", "to_c2", "to_python2", "to_text2"]
 
@@ -89,7 +90,7 @@ def two_dof_law(gains: dict[str, float], ctrl_dt: float | None, *, dt: float | N
         raise TunerError("a pid2 result needs the gains Kp, Ki, Kd, Tf, b, c", field="gains") from e
     if ctrl_dt is not None:
         dt_in = check_dt(dt)
-        if dt_in is not None and abs(dt_in - ctrl_dt) > 1e-9 * ctrl_dt:
+        if dt_in is not None and abs(dt_in - ctrl_dt) > SAME_DT_RTOL * ctrl_dt:
             raise TunerError(f"the controller is discrete at dt={ctrl_dt:g} s but dt={dt_in:g} s was given: "
                              "resampling a discrete controller is not supported; leave dt out or give its own",
                              field="dt")

@@ -34,6 +34,7 @@ from ..loop import build_loop
 from ..lti import zoh_delayed
 from ..problem import TuningProblem
 from ..spec import CROSSOVER_TOL, SSE_TOL
+from ..tolerances import ALGEBRAIC_LOOP_TOL, EXACT_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR, STABILITY_MARGIN
 from . import rules
 from .space import Space
 
@@ -154,10 +155,10 @@ class BatchEvaluator:
     def _slowest(p) -> float:
         r = np.concatenate([p.zeros, p.poles])
         if p.dt is not None:
-            r = r[(np.abs(r) > 1e-12) & (np.abs(r - 1) > 1e-9)]
+            r = r[(np.abs(r) > EXACT_ROOT_TOL) & (np.abs(r - 1) > ROOT_AT_DC_TOL)]
             r = np.log(r.astype(complex)) / p.dt
         m = np.abs(r)
-        m = m[m > 1e-9]
+        m = m[m > ROOT_MAG_FLOOR]
         return float(m.min()) / 10 if m.size else math.inf
 
     def _plant_data(self, plant) -> _PlantData:
@@ -251,13 +252,13 @@ class BatchEvaluator:
                 poles[good] = np.linalg.eigvals(A_eig[good])
         if self.dt is None and not pd.tau:
             out = np.nanmax(poles.real, axis=1)
-            tol = -1e-9 * np.maximum(1.0, np.nanmax(np.abs(poles), axis=1))
+            tol = -STABILITY_MARGIN * np.maximum(1.0, np.nanmax(np.abs(poles), axis=1))
             stable = good & (out < tol)
             sig = np.where(poles.real < 0, -poles.real, np.inf)
         else:
             h = self._fine_h(pd) if self.dt is None else self.dt
             r = np.nanmax(np.abs(poles), axis=1)
-            stable = good & (r < 1 - 1e-9)
+            stable = good & (r < 1 - STABILITY_MARGIN)
             out = r - 1
             sig = -np.log(np.clip(np.abs(poles), 1e-300, None)) / h
             sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.inf)
@@ -298,7 +299,7 @@ class BatchEvaluator:
                 np.stack([Dr, np.zeros(Bn)], axis=1) - Dc[:, None] * Dy
         else:
             dnm = 1.0 + Dc * g_D
-            dnm = np.where(np.abs(dnm) < 1e-12, np.nan, dnm)
+            dnm = np.where(np.abs(dnm) < ALGEBRAIC_LOOP_TOL, np.nan, dnm)
             Cu = np.zeros((Bn, nz))
             Cu[:, ix] = -(Dc / dnm)[:, None] * g_C[None, :]
             Cu[:, ic] = Cc / dnm[:, None]

@@ -16,6 +16,7 @@ import numpy as np
 from ..controllers import GAIN_SPAN, Structure
 from ..errors import InvalidControllerError
 from ..plant import Plant
+from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR, STABILITY_MARGIN
 
 __all__ = ["PlantScale", "plant_scale", "plant_sign", "slow_poles", "bounds", "initial_guess", "zero_variants",
            "tf_min",
@@ -67,7 +68,7 @@ def zero_variants(plant: Plant, dt: float | None, w0: float) -> list[np.ndarray]
     PI-like design; at 10 w0 in continuous time), both on the slowest pole; a damped pair at half the slowest
     pole's frequency and at half ``w0``; one zero at twice the slowest pole's frequency and at 1.5 ``w0``."""
     base = slow_poles(plant, w0)
-    p1 = base[0] if abs(base[0].imag) <= 1e-9 else complex(-abs(base[0]))
+    p1 = base[0] if abs(base[0].imag) <= REAL_ROOT_TOL else complex(-abs(base[0]))
     far = -np.inf if dt is not None else -10.0 * w0
     r1 = abs(p1)
     out = [base, np.array([p1, far], dtype=complex), np.array([p1, p1], dtype=complex)]
@@ -202,13 +203,13 @@ def slow_poles(plant: Plant, w0: float) -> np.ndarray:
     as two); made-up real poles at fractions of ``w0`` when the plant has fewer."""
     poles = np.asarray(plant.poles, dtype=complex)
     if plant.dt is not None:
-        poles = poles[np.abs(poles) > 1e-9]
+        poles = poles[np.abs(poles) > ROOT_MAG_FLOOR]
         poles = np.log(poles) / plant.dt
-    cand = sorted((p for p in poles if p.real < -1e-9 * max(1.0, abs(p))), key=abs)
-    if cand and abs(cand[0].imag) > 1e-9:
+    cand = sorted((p for p in poles if p.real < -STABILITY_MARGIN * max(1.0, abs(p))), key=abs)
+    if cand and abs(cand[0].imag) > REAL_ROOT_TOL:
         return np.array([cand[0], np.conj(cand[0])])
     fill = [-0.3 * w0, -0.9 * w0]
-    out = [p for p in cand[:2] if abs(p.imag) <= 1e-9]
+    out = [p for p in cand[:2] if abs(p.imag) <= REAL_ROOT_TOL]
     return np.array((out + fill)[:2], dtype=complex)
 
 
@@ -219,11 +220,11 @@ def plant_sign(plant: Plant) -> float:
     zk = plant.zpk
     x = 0.0 if plant.dt is None else 1.0
     scale = max(1.0, *(abs(r) for r in np.concatenate([zk.zeros, zk.poles]))) if zk.poles.size else 1.0
-    at_dc = lambda r: np.abs(r - x) <= 1e-9 * scale
+    at_dc = lambda r: np.abs(r - x) <= ROOT_AT_DC_TOL * scale
     g = zk.gain * np.prod(x - zk.zeros[~at_dc(zk.zeros)]) / np.prod(x - zk.poles[~at_dc(zk.poles)])
     poles = zk.poles
-    unstable_real = poles[(np.abs(poles.imag) < 1e-9) & ((poles.real > 1e-9) if plant.dt is None
-                                                          else (np.abs(poles) > 1 + 1e-9))]
+    unstable_real = poles[(np.abs(poles.imag) < REAL_ROOT_TOL) & ((poles.real > STABILITY_MARGIN) if plant.dt is None
+                                                          else (np.abs(poles) > 1 + STABILITY_MARGIN))]
     return (float(np.sign(np.real(g))) or 1.0) * (-1.0) ** unstable_real.size
 
 
@@ -238,8 +239,8 @@ def plant_scale(plant: Plant, dt: float | None) -> PlantScale:
     wnyq = math.pi / p.dt if p.dt else None
     roots = np.concatenate([np.roots(plant.den), np.roots(plant.num)])
     if plant.dt is not None:
-        roots = np.log(roots[np.abs(roots) > 1e-9].astype(complex)) / plant.dt
-    mags = np.abs(roots[np.abs(roots) > 1e-9])
+        roots = np.log(roots[np.abs(roots) > ROOT_MAG_FLOOR].astype(complex)) / plant.dt
+    mags = np.abs(roots[np.abs(roots) > ROOT_MAG_FLOOR])
     wref = float(np.max(mags)) if mags.size else 1.0
     whi = wnyq if wnyq else 1e3 * wref
     w = np.logspace(np.log10(min(wref, whi) * 1e-4), np.log10(whi), 800)

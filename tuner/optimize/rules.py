@@ -14,6 +14,7 @@ import numpy as np
 
 from ..controllers import Structure
 from ..spec import Check, Spec
+from ..tolerances import LIMIT_RTOL
 
 __all__ = ["filter_n", "filter_n_batch", "filter_check", "applies", "has_filter_rule", "FILTERED", "nyquist_check",
            "checks"]
@@ -57,7 +58,7 @@ def filter_n_batch(st: Structure, X: np.ndarray) -> np.ndarray:
 def filter_check(st: Structure, spec: Spec, x: Any) -> Check:
     """The verifier's check of the rule for parameters ``x``."""
     n, lim = filter_n(st, x), float(spec.filter_n_max)
-    ok = bool(n <= lim * (1 + 1e-9))
+    ok = bool(n <= lim * (1 + LIMIT_RTOL))
     return Check("filter_n", "<=", lim, n, ok, 0.0 if ok else (n - lim if math.isfinite(n) else math.inf))
 
 
@@ -67,7 +68,7 @@ def nyquist_check(st: Structure, spec: Spec, x: Any, dt: float | None) -> Check 
     if not (spec.filter_nyquist and dt is not None and "Tf" in st.params):
         return None
     tf, lim = float(x[st.params.index("Tf")]), dt / math.pi
-    ok = bool(tf >= lim * (1 - 1e-9))
+    ok = bool(tf >= lim * (1 - LIMIT_RTOL))
     return Check("filter_tf_s", ">=", lim, tf, ok, 0.0 if ok else lim - tf)
 
 
