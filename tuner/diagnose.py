@@ -25,11 +25,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
+from .design import dc_gain  # re-exported: its name here before tuner.design
 from .problem import TuningProblem
 from .spec import Spec
-from .tolerances import EXACT_ROOT_TOL, LIMIT_RTOL, SAMPLE_COUNT_TOL
+from .tolerances import LIMIT_RTOL, SAMPLE_COUNT_TOL
 
 __all__ = ["Reason", "diagnose", "definitional_reasons", "dc_gain"]
 
@@ -62,15 +61,6 @@ class Reason:
 
     def to_dict(self) -> dict[str, Any]:
         return {"constraints": list(self.constraints), "message": self.message, "suggest": dict(self.suggest)}
-
-
-def dc_gain(plant: Any) -> float:
-    """|G(0)| of the plant (continuous) or |G(1)| (discrete); inf with an integrator, 0 with a zero there."""
-    zk = plant.zpk
-    at = 1.0 if plant.is_discrete else 0.0
-    if np.any(np.isclose(zk.poles, at, atol=EXACT_ROOT_TOL)):
-        return math.inf
-    return float(abs(complex(zk(np.array([at]))[0])))
 
 
 def definitional_reasons(problem: TuningProblem) -> list[Reason]:
@@ -129,7 +119,7 @@ def _field_value(res: Any, check: str) -> float:
         return min(-a.metrics.gain_margin_lower_db for a in res.analyses)
     if check == "filter_n":
         from .controllers import get_structure
-        from .optimize.rules import filter_n
+        from .rules import filter_n
 
         st = get_structure(res.structure)
         return filter_n(st, st.vector(res.gains))

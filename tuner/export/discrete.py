@@ -159,7 +159,8 @@ def _split(b: np.ndarray, a: np.ndarray) -> Integrator | None:
     return Integrator(r=r, q=q, a=ap)
 
 
-def _check_limits(u_min: Any, u_max: Any) -> tuple[float | None, float | None]:
+def check_limits(u_min: Any, u_max: Any) -> tuple[float | None, float | None]:
+    """The output limits as floats (None: no limit), checked: finite, ``u_min < u_max``; errors name the field."""
     out = []
     for name, v in (("u_min", u_min), ("u_max", u_max)):
         if v is None:
@@ -183,7 +184,7 @@ def difference_equation(c: ControllerTF, *, dt: float | None = None, method: str
                         u_min: float | None = None, u_max: float | None = None) -> DifferenceEquation:
     """The difference equation of ``c``: as given when discrete (``dt``, if given, must be its own), else
     discretised at ``dt`` by ``method``; optional output limits with anti-windup (see the module)."""
-    lo, hi = _check_limits(u_min, u_max)
+    lo, hi = check_limits(u_min, u_max)
     if c.dt is None:
         if dt is None:
             raise TunerError("the controller is continuous: give the sample time dt to discretise it at "

@@ -33,6 +33,7 @@ from typing import Any
 from ..errors import TunerError
 from ..plant import check_dt
 from ..tolerances import SAME_DT_RTOL
+from .names import check_name
 
 __all__ = ["ANTI_WINDUP", "TwoDofLaw", "two_dof_law", "default_tt", "to_c2", "to_python2", "to_text2"]
 
@@ -78,12 +79,12 @@ def two_dof_law(gains: dict[str, float], ctrl_dt: float | None, *, dt: float | N
                 u_min: float | None, u_max: float | None, anti_windup: str = "conditional",
                 tt: float | None = None) -> TwoDofLaw:
     """The law of a pid2 with ``gains`` tuned at ``ctrl_dt`` (None: continuous), exported at ``dt``."""
-    from .discrete import METHODS, _check_limits
+    from .discrete import METHODS, check_limits
 
     if anti_windup not in ANTI_WINDUP:
         raise TunerError(f"anti_windup must be one of {list(ANTI_WINDUP)}, got {anti_windup!r}",
                          field="anti_windup")
-    lo, hi = _check_limits(u_min, u_max)
+    lo, hi = check_limits(u_min, u_max)
     try:
         kp, ki, kd, tf, b, c = (float(gains[k]) for k in ("Kp", "Ki", "Kd", "Tf", "b", "c"))
     except (KeyError, TypeError, ValueError) as e:
@@ -134,8 +135,6 @@ def _n(x: float) -> str:
 
 
 def to_text2(law: TwoDofLaw, name: str = "controller") -> str:
-    from .codegen import check_name
-
     check_name(name)
     g = law.gains
     lines = [
@@ -242,8 +241,6 @@ _STATE = (("i", "the integral term I[k-1]"), ("d", "the derivative term D[k-1]")
 
 
 def to_c2(law: TwoDofLaw, name: str = "controller") -> str:
-    from .codegen import check_name
-
     check_name(name)
     fields = [(f, w) for f, w in _STATE if f != "e1" or law.gi1]
     return (
@@ -258,8 +255,6 @@ def to_c2(law: TwoDofLaw, name: str = "controller") -> str:
 
 
 def to_python2(law: TwoDofLaw, name: str = "controller") -> str:
-    from .codegen import check_name
-
     check_name(name)
     fields = [f for f, _ in _STATE if f != "e1" or law.gi1]
     return (
