@@ -40,7 +40,7 @@ from ..lti import lifted_outputs
 from ..tolerances import ROOT_POLISH_RTOL, STABILITY_MARGIN
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
-           "step_metrics", "default_horizon", "steady_state"]
+           "step_metrics", "default_horizon", "steady_state", "lifted"]
 
 SAMPLES_PER_DT = 20
 CONTINUOUS_POINTS = 4000
@@ -221,7 +221,7 @@ def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
     return Z
 
 
-def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
+def lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
     """``Cf`` (N, n), ``Df`` (N): the continuous plant's output at ``t_k + j dt/N`` from the ZOH plant's state
     at t_k and its held input (the realisation of ``loop.plant_ct``, the coordinates of the ZOH plant; with a
     fractional delay ``phi`` the ZOH plant's extra state is the previous input, acting until ``t_k + phi``,
@@ -232,6 +232,9 @@ def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
     if key not in pct._cache:
         pct._cache[key] = lifted_outputs(pct.ss(), loop.dt, N, phi)
     return pct._cache[key]
+
+
+_lifted = lifted  # its name before it was public (the search and the NLP import it)
 
 
 def _simulate_fine_delay(fl: FineDelayLoop, K: int, inp: int) -> tuple[np.ndarray, np.ndarray]:
@@ -296,7 +299,7 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
         return StepResponse(t=ts, y=ys, u=u, t_samples=ts, y_samples=ys, y_final=yf,
                             between_samples=loop.plant_ct is not None)
     N = int(samples_per_dt)
-    Cf, Df = _lifted(loop, N)
+    Cf, Df = lifted(loop, N)
     ua = Z @ cl.Ca + cl.Da[inp]  # the plant's input over each sample
     yfine = (Z[:, :cl.n_plant] @ Cf.T + ua[:, None] * Df[None, :]).ravel()
     t = np.arange(yfine.size) * (dt / N)
