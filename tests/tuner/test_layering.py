@@ -17,9 +17,12 @@ too, only a later one). The layers, bottom first (also in the README, "Layout"):
 
 A lower layer that needs a higher-layer *object* at run time without depending on its module (``export``
 takes a ``TuneResult``, ``make_plant`` an ``IdentifyResult``) recognises it with
-:func:`tuner._lazy.is_instance_of`, which imports nothing. The only upward imports allowed are the
-conveniences in ``ALLOWED`` (a result's ``repr`` and ``.plot()``), each with its reason; core logic is never
-among them. Beyond layers, the module graph has no import cycle except those in ``ALLOWED_CYCLES``.
+:func:`tuner._lazy.is_instance_of`, which imports nothing. The only upward imports allowed are display
+conveniences, recognised by where they stand: an import of a presentation module (``CONVENIENCE_MODULES``:
+``display``, the plotting modules) inside a result's ``__repr__``/``__str__``/``_repr_html_`` or ``plot``
+method (``CONVENIENCE_METHODS``): the text or figure of a result, never core logic. ``ALLOWED`` lists any
+other upward import with its reason (none today). Beyond layers, the module graph without those convenience
+edges has no import cycle except those in ``ALLOWED_CYCLES``.
 """
 
 from __future__ import annotations
@@ -49,16 +52,15 @@ LAYER_OF = {
     **dict.fromkeys(("tuner", "tuner.cli", "api"), "interfaces"),
 }
 
-# (importer, imported): why this upward import is a convenience, not core logic
-ALLOWED = {
-    ("tuner.analysis.verify", "tuner.display"):
-        "Analysis.__repr__ / _repr_html_: a result's text is display's (display also formats TuneResult)",
-}
+# a result's text and figures: these modules, imported inside these methods, may sit in a higher layer
+CONVENIENCE_MODULES = frozenset({"tuner.display", "tuner.analysis.plots", "tuner.identify.plot"})
+CONVENIENCE_METHODS = frozenset({"__repr__", "__str__", "_repr_html_", "_repr_pretty_", "plot"})
+
+# (importer, imported): why this other upward import is a display/plots convenience, not core logic
+ALLOWED: dict[tuple[str, str], str] = {}
 
 # import cycles (as the set of their modules) that remain, each with its reason
 ALLOWED_CYCLES = {
-    frozenset({"tuner.analysis.verify", "tuner.analysis.plots", "tuner.display"}):
-        "Analysis.plot() and its repr call plots/display (function level), which draw/format an Analysis",
     frozenset({"tuner.plant", "tuner.interop", "tuner.controllers"}):
         "make_plant(control_model) converts a python-control model through interop (function level: "
         "python-control is imported only then), and interop builds plants and controllers",
@@ -91,11 +93,30 @@ def layer(mod: str) -> str:
     raise KeyError(mod)
 
 
-def imports(mod: str) -> list[tuple[str, int, bool]]:
-    """``(imported module, line, at module level)`` for every import of a ``tuner``/``api`` module in ``mod``."""
+def _enclosing_functions(tree: ast.Module) -> dict[int, str]:
+    """``id(import node)`` -> the name of the innermost function it stands in."""
+    out: dict[int, str] = {}
+
+    def visit(node: ast.AST, fn: str | None) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                visit(child, child.name)
+            else:
+                if isinstance(child, (ast.Import, ast.ImportFrom)) and fn is not None:
+                    out[id(child)] = fn
+                visit(child, fn)
+
+    visit(tree, None)
+    return out
+
+
+def imports(mod: str, *, conveniences: bool = True) -> list[tuple[str, int, bool]]:
+    """``(imported module, line, at module level)`` for every import of a ``tuner``/``api`` module in ``mod``;
+    ``conveniences=False`` leaves out the display conveniences (see the module's docstring)."""
     path = MODULES[mod]
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     top = {id(n) for n in tree.body}
+    fns = _enclosing_functions(tree)
     pkg = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
     out = []
     for node in ast.walk(tree):
@@ -109,15 +130,18 @@ def imports(mod: str) -> list[tuple[str, int, bool]]:
         else:
             continue
         for n in names:
-            if n.split(".")[0] in PACKAGES:
-                out.append((n, node.lineno, id(node) in top))
+            if n.split(".")[0] not in PACKAGES:
+                continue
+            if not conveniences and n in CONVENIENCE_MODULES and fns.get(id(node)) in CONVENIENCE_METHODS:
+                continue
+            out.append((n, node.lineno, id(node) in top))
     return out
 
 
-def graph() -> dict[str, set[str]]:
+def graph(*, conveniences: bool = True) -> dict[str, set[str]]:
     g: dict[str, set[str]] = defaultdict(set)
     for m in MODULES:
-        for n, _, _ in imports(m):
+        for n, _, _ in imports(m, conveniences=conveniences):
             if n != m:
                 g[m].add(n)
     return g
@@ -132,7 +156,7 @@ def test_every_module_has_a_layer():
 def test_no_import_of_a_higher_layer():
     bad = []
     for m in MODULES:
-        for n, line, at_top in imports(m):
+        for n, line, at_top in imports(m, conveniences=False):
             if LAYER_NAMES.index(layer(n)) > LAYER_NAMES.index(layer(m)) and (m, n) not in ALLOWED:
                 where = "module level" if at_top else "in a function"
                 bad.append(f"{_rel(MODULES[m])}:{line} ({layer(m)}) imports {n} ({layer(n)}), {where}")
@@ -188,7 +212,7 @@ def _cycles(g: dict[str, set[str]]) -> list[frozenset[str]]:
 
 
 def test_no_import_cycles_but_the_documented_ones():
-    cycles = _cycles(graph())
+    cycles = _cycles(graph(conveniences=False))
     unexpected = [sorted(c) for c in cycles if c not in ALLOWED_CYCLES]
     assert not unexpected, f"import cycles (module or function level): {unexpected}"
     stale = [sorted(c) for c in ALLOWED_CYCLES if c not in cycles]
@@ -200,12 +224,17 @@ def test_the_checks_can_fail(tmp_path, monkeypatch):
     src = tmp_path / "tuner" / "lowmod.py"
     src.parent.mkdir()
     src.write_text("from .errors import TunerError\n\ndef f():\n    from .optimize import engine\n"
-                   "    import tuner.tuning\n")
+                   "    import tuner.tuning\n\nclass R:\n    def __repr__(self):\n        from .display import x\n"
+                   "    def plot(self):\n        from .analysis import plots\n\n"
+                   "    def summary(self):\n        from .display import y\n")
     monkeypatch.setitem(MODULES, "tuner.lowmod", src)
     monkeypatch.setitem(LAYER_OF, "tuner.lowmod", "core")
     got = {(n, top) for n, _, top in imports("tuner.lowmod")}
     assert ("tuner.errors", True) in got and ("tuner.optimize.engine", False) in got
     assert ("tuner.tuning", False) in got
+    lines = {(n, line) for n, line, _ in imports("tuner.lowmod", conveniences=False)}
+    assert ("tuner.display", 14) in lines and ("tuner.display", 9) not in lines  # summary() is no repr
+    assert ("tuner.analysis.plots", 11) not in lines
     with pytest.raises(AssertionError, match="lowmod.py:4 \\(core\\) imports tuner.optimize.engine"):
         test_no_import_of_a_higher_layer()
 
