@@ -7,7 +7,7 @@ import sys
 from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["lazy_getattr"]
+__all__ = ["lazy_getattr", "is_instance_of"]
 
 
 def lazy_getattr(package: str, where: Mapping[str, str]) -> Callable[[str], Any]:
@@ -21,3 +21,13 @@ def lazy_getattr(package: str, where: Mapping[str, str]) -> Callable[[str], Any]
         return value
 
     return __getattr__
+
+
+def is_instance_of(obj: Any, module: str, name: str) -> bool:
+    """``isinstance(obj, module.name)`` without importing ``module``: a lower layer that accepts a higher layer's
+    result (``export`` takes a ``TuneResult``, ``make_plant`` an ``IdentifyResult``) recognises it without
+    depending on that layer. An instance can only exist once its class's module is loaded, so looking the class
+    up in ``sys.modules`` answers exactly as ``isinstance`` would."""
+    mod = sys.modules.get(module)
+    cls = getattr(mod, name, None) if mod is not None else None
+    return isinstance(cls, type) and isinstance(obj, cls)

@@ -26,7 +26,7 @@ def at_bounds(problem: Any, space: Any, x: np.ndarray, analyses: Any) -> list[di
     """Parameters of ``x`` on a bound of ``space`` (the search box), and the default limits that decide the
     design: ``{"param", "value", "bound" ("lower"/"upper"), "limit", "rule"}`` (``param`` None for a limit on
     the loop, e.g. the noise budget)."""
-    from .optimize import rules
+    from . import rules
     from .optimize.space import _V_SPAN
 
     st, spec = problem.structure, problem.spec

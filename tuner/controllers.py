@@ -50,6 +50,7 @@ import numpy as np
 from .errors import InvalidControllerError, TunerError
 from .lti import SS, Zpk, realize
 from .plant import MAX_ORDER, check_dt, tf_freqresp
+from .tolerances import SAME_COEFF_RTOL
 
 GAIN_SPAN = 100.0
 MAX_CONTROLLER_ORDER = 2 * MAX_ORDER  # one limit for every form (expression, coefficients): 40
@@ -388,7 +389,7 @@ class Structure:
             return ControllerTF(num=nn, den=dn, dt=dt)
         num_r, den_r = self.ref_coeffs(x, dt, np.exp)
         num_r, den_r = np.asarray(num_r, dtype=float), np.asarray(den_r, dtype=float)
-        if not np.all(np.isfinite(num_r)) or not np.allclose(den_r, den, rtol=1e-12, atol=0):
+        if not np.all(np.isfinite(num_r)) or not np.allclose(den_r, den, rtol=SAME_COEFF_RTOL, atol=0):
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid reference path",
                                          field="gains")
         real = None

@@ -25,10 +25,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
+from .design import dc_gain  # re-exported: its name here before tuner.design
 from .problem import TuningProblem
 from .spec import Spec
+from .tolerances import LIMIT_RTOL, SAMPLE_COUNT_TOL
 
 __all__ = ["Reason", "diagnose", "definitional_reasons", "dc_gain"]
 
@@ -64,15 +64,6 @@ class Reason:
         return {"constraints": list(self.constraints), "message": self.message, "suggest": dict(self.suggest)}
 
 
-def dc_gain(plant: Any) -> float:
-    """|G(0)| of the plant (continuous) or |G(1)| (discrete); inf with an integrator, 0 with a zero there."""
-    zk = plant.zpk
-    at = 1.0 if plant.is_discrete else 0.0
-    if np.any(np.isclose(zk.poles, at, atol=1e-12)):
-        return math.inf
-    return float(abs(complex(zk(np.array([at]))[0])))
-
-
 def definitional_reasons(problem: TuningProblem) -> list[Reason]:
     """Reasons that hold whatever the gains (see the module docstring)."""
     sp, st = problem.spec, problem.structure
@@ -80,7 +71,7 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
     for i, p in enumerate(problem.plants):
         where = "" if len(problem.plants) == 1 else f" (plant #{i + 1})"
         g0 = dc_gain(p)
-        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - 1e-9):
+        if sp.mks_max is not None and st.integrating and 0 < g0 < math.inf and sp.mks_max < 1.0 / g0 * (1 - LIMIT_RTOL):
             k = _budget_scale(problem)
             sug = {"noise_gain_max": _outward(1.0 / g0 * 1.001 / k, -1)} if k else \
                 {"mks_max": _outward(1.0 / g0 * 1.001, -1)}
@@ -90,7 +81,7 @@ def definitional_reasons(problem: TuningProblem) -> list[Reason]:
                               "allow at least that", sug))
         if not sp.zero_steady_state_error:
             continue
-        if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - 1e-9):
+        if sp.control_peak_max is not None and 0 < g0 < math.inf and sp.control_peak_max < 1.0 / g0 * (1 - LIMIT_RTOL):
             out.append(Reason(("control_peak",), f"control_peak <= {sp.control_peak_max:g} is below the steady-state "
                               f"input 1/G(0) = {1.0 / g0:.4g} that zero steady-state error to a unit step needs"
                               f"{where}: allow at least that, or drop zero_steady_state_error",
@@ -129,7 +120,7 @@ def _field_value(res: Any, check: str) -> float:
         return min(-a.metrics.gain_margin_lower_db for a in res.analyses)
     if check == "filter_n":
         from .controllers import get_structure
-        from .optimize.rules import filter_n
+        from .rules import filter_n
 
         st = get_structure(res.structure)
         return filter_n(st, st.vector(res.gains))
@@ -144,7 +135,7 @@ def _outward(x: float, sign: int) -> float:
         return x
     e = math.floor(math.log10(abs(x))) - 3
     q = x / 10.0 ** e
-    k = math.floor(q + 1e-9) if sign > 0 else math.ceil(q - 1e-9)
+    k = math.floor(q + SAMPLE_COUNT_TOL) if sign > 0 else math.ceil(q - SAMPLE_COUNT_TOL)
     return float(f"{k}e{e}")
 
 

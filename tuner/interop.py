@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._lazy import is_instance_of
 from .controllers import ControllerTF, controller_from_coeffs
 from .errors import InvalidControllerError, InvalidPlantError, TunerError
 from .lti import SS, Zpk, poly_from_roots, zpk_from_ss
@@ -175,9 +176,7 @@ def as_plant(plant: Any, *, delay: float | None = None) -> Plant:
         return plant
     if is_control_lti(plant):
         return plant_from_control(plant, delay=delay or 0.0)
-    from .robust import is_identification
-
-    if is_identification(plant):  # its fitted model, the delay as fitted
+    if is_instance_of(plant, "tuner.identify.result", "IdentifyResult"):  # its fitted model, the delay as fitted
         if delay:
             raise InvalidPlantError("an identification carries its fitted delay: leave delay out", field="delay")
         return plant.plant()

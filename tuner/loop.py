@@ -36,6 +36,7 @@ from .controllers import ControllerTF
 from .errors import InvalidControllerError, InvalidPlantError, TunerError
 from .lti import SS, Zpk, freqresp, zoh_delayed
 from .plant import Plant, delay_in_samples
+from .tolerances import ALGEBRAIC_LOOP_TOL, ROOT_AT_DC_TOL
 
 __all__ = ["Loop", "ClosedLoop", "FineDelayLoop", "build_loop", "tustin", "MIN_CONTINUOUS_DELAY_S",
            "MAX_DELAY_SAMPLES"]
@@ -137,7 +138,7 @@ class Loop:
         """An open-loop pole at DC (s = 0, z = 1)."""
         x = 0.0 if self.dt is None else 1.0
         p = self.zpk.poles
-        return bool(np.any(np.abs(p - x) < 1e-9 * max(1.0, float(np.max(np.abs(p))) if p.size else 1.0)))
+        return bool(np.any(np.abs(p - x) < ROOT_AT_DC_TOL * max(1.0, float(np.max(np.abs(p))) if p.size else 1.0)))
 
     def nyquist_w(self) -> float | None:
         """The Nyquist frequency ``pi/dt``, rad/s; None for a continuous loop."""
@@ -183,6 +184,35 @@ def _ref_column(B: np.ndarray, ic: slice, c: SS, De: np.ndarray, Dy: np.ndarray,
         B[ic, 0] += ref.B
 
 
+def _feedthrough(g: SS, c: SS, nz: int, ix: slice, ic: slice, ref: SS | None):
+    """The loop's output maps when the plant's input is ``u + w`` at once (no delay register): the algebraic loop
+    ``u = (Cc xc + Dc (r - Cp x - Dp w)) / (1 + Dc Dp)``, ``ua = u + w``, ``y = Cp x + Dp ua``; raises when
+    ``1 + Dc Dp`` vanishes. Returns ``Cu, Du, Ca, Da, Cy, Dy`` over the states ``[plant x, ..., controller xc]``."""
+    den = 1.0 + c.D * g.D
+    if abs(den) < ALGEBRAIC_LOOP_TOL:
+        raise InvalidControllerError("the loop is algebraically singular (1 + C(inf) G(inf) = 0)")
+    Cu = np.zeros(nz)
+    Cu[ix] = -c.D * g.C / den
+    Cu[ic] = c.C / den
+    Du = np.array([c.D if ref is None else ref.D, -c.D * g.D]) / den
+    Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
+    Cy = np.concatenate([g.C, np.zeros(nz - g.n)]) + g.D * Ca
+    Dy = g.D * Da
+    return Cu, Du, Ca, Da, Cy, Dy
+
+
+def _plant_and_controller_rows(A: np.ndarray, B: np.ndarray, g: SS, c: SS, ix: slice, ic: slice, Ca: np.ndarray,
+                               Da: np.ndarray, Cy: np.ndarray, Dy: np.ndarray, ref: SS | None) -> None:
+    """Fill the plant's rows (driven by its input ``Ca z + Da [r, w]``) and the controller's (driven by
+    ``e = r - y``, or a 2-DOF ``ref``) of the closed loop's ``A``, ``B``."""
+    A[ix, :] += np.outer(g.B, Ca)
+    A[ix, ix] += g.A
+    B[ix, :] += np.outer(g.B, Da)
+    A[ic, :] += np.outer(c.B, -Cy)
+    A[ic, ic] += c.A
+    _ref_column(B, ic, c, np.array([1.0, 0.0]) - Dy, Dy, ref)
+
+
 def _discrete_loop(g: SS, c: SS, d: int, *, ref: SS | None = None) -> ClosedLoop:
     """States [plant x (n), input register s (d: s[0] = u[k-1] ... s[d-1] = u[k-d]), controller xc (m)].
 
@@ -203,30 +233,14 @@ def _discrete_loop(g: SS, c: SS, d: int, *, ref: SS | None = None) -> ClosedLoop
         Cu = -c.D * Cy
         Cu[ic] += c.C
         Du = c.D * (np.array([1.0, 0.0]) - Dy) if ref is None else np.array([ref.D, 0.0]) - c.D * Dy
-    else:
-        # u = (Cc xc + Dc (r - Cp x - Dp w)) / (1 + Dc Dp); ua = u + w; y = Cp x + Dp ua
-        den = 1.0 + c.D * g.D
-        if abs(den) < 1e-12:
-            raise InvalidControllerError("the loop is algebraically singular (1 + C(inf) G(inf) = 0)")
-        Cu = np.zeros(nz)
-        Cu[ix] = -c.D * g.C / den
-        Cu[ic] = c.C / den
-        Du = np.array([c.D if ref is None else ref.D, -c.D * g.D]) / den
-        Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
-        Cy = np.concatenate([g.C, np.zeros(m)]) + g.D * Ca
-        Dy = g.D * Da
-    Ce, De = -Cy, np.array([1.0, 0.0]) - Dy  # e = r - y
-    A[ix, :] += np.outer(g.B, Ca)
-    A[ix, ix] += g.A
-    B[ix, :] += np.outer(g.B, Da)
-    if d > 0:  # s+ = [u + w, s[0..d-2]]
+        # s+ = [u + w, s[0..d-2]]
         A[n, :] = Cu
         B[n, :] = Du + np.array([0.0, 1.0])
         for j in range(1, d):
             A[n + j, n + j - 1] = 1.0
-    A[ic, :] += np.outer(c.B, Ce)
-    A[ic, ic] += c.A
-    _ref_column(B, ic, c, De, Dy, ref)
+    else:
+        Cu, Du, Ca, Da, Cy, Dy = _feedthrough(g, c, nz, ix, ic, ref)
+    _plant_and_controller_rows(A, B, g, c, ix, ic, Ca, Da, Cy, Dy, ref)
     return ClosedLoop(A, B, Cy, Dy, Cu, Du, Ca, Da, n_plant=n, discrete=True)
 
 
@@ -234,26 +248,12 @@ def _continuous_loop(g: SS, c: SS, *, ref: SS | None = None) -> ClosedLoop:
     """States [plant x (n), controller xc (m)] of the continuous loop without delay (``ref``: see
     :func:`_discrete_loop`)."""
     n, m = g.n, c.n
-    den = 1.0 + c.D * g.D
-    if abs(den) < 1e-12:
-        raise InvalidControllerError("the loop is algebraically singular (1 + C(inf) G(inf) = 0)")
     nz = n + m
     ix, ic = slice(0, n), slice(n, nz)
-    Cu = np.zeros(nz)
-    Cu[ix] = -c.D * g.C / den
-    Cu[ic] = c.C / den
-    Du = np.array([c.D if ref is None else ref.D, -c.D * g.D]) / den
-    Ca, Da = Cu.copy(), Du + np.array([0.0, 1.0])
-    Cy = np.concatenate([g.C, np.zeros(m)]) + g.D * Ca
-    Dy = g.D * Da
+    Cu, Du, Ca, Da, Cy, Dy = _feedthrough(g, c, nz, ix, ic, ref)
     A = np.zeros((nz, nz))
     B = np.zeros((nz, 2))
-    A[ix, :] += np.outer(g.B, Ca)
-    A[ix, ix] += g.A
-    B[ix, :] += np.outer(g.B, Da)
-    A[ic, :] += np.outer(c.B, -Cy)
-    A[ic, ic] += c.A
-    _ref_column(B, ic, c, np.array([1.0, 0.0]) - Dy, Dy, ref)
+    _plant_and_controller_rows(A, B, g, c, ix, ic, Ca, Da, Cy, Dy, ref)
     return ClosedLoop(A, B, Cy, Dy, Cu, Du, Ca, Da, n_plant=n, discrete=False)
 
 

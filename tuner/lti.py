@@ -28,10 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg
 
+from .tolerances import REAL_ROOT_TOL, SAMPLE_FRACTION_TOL
+
 __all__ = ["Zpk", "SS", "realize", "series", "zoh", "zoh_delayed", "zoh_fractional", "freqresp", "invariant_zeros",
            "zpk_from_ss", "conjugate_pairs", "poly_from_roots", "lifted_outputs"]
 
-_IMAG_TOL = 1e-9
+_IMAG_TOL = REAL_ROOT_TOL
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,9 +233,9 @@ def zoh_delayed(sys: SS, h: float, tau: float) -> tuple[np.ndarray, np.ndarray, 
     ``tau = m h + f`` (``0 <= f < h``): ``x[k+1] = Phi x[k] + Gam_old u[k-m-1] + Gam_new u[k-m]``.
     Returns ``(Phi, Gam_old, Gam_new, m, f)``.
     """
-    m = int(math.floor(tau / h + 1e-12))
+    m = int(math.floor(tau / h + SAMPLE_FRACTION_TOL))
     f = max(tau - m * h, 0.0)
-    if f < 1e-12 * h:
+    if f < SAMPLE_FRACTION_TOL * h:
         f = 0.0
     Phi, Gam = _int_expm(sys.A, sys.B, h)
     if f == 0.0:
@@ -283,7 +285,7 @@ def lifted_outputs(sys: SS, dt: float, N: int, phi: float = 0.0) -> tuple[np.nda
         return Cf, Df
     Cf, Df = np.zeros((N, n + 1)), np.zeros(N)
     h = dt / N
-    j0 = min(int(math.ceil(phi / h - 1e-12)), N)  # the first point at or after the switch
+    j0 = min(int(math.ceil(phi / h - SAMPLE_FRACTION_TOL)), N)  # the first point at or after the switch
     if n == 0:
         Cf[:j0, 0], Df[j0:] = sys.D, sys.D
         return Cf, Df

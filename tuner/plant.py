@@ -27,6 +27,7 @@ from .errors import InvalidPlantError, TunerError
 from .expr import parse_tf_expr
 from .lti import SS, Zpk, realize, zoh, zoh_fractional, zpk_from_ss
 from .lti import freqresp as lti_freqresp
+from .tolerances import EXACT_ROOT_TOL, SAME_DT_RTOL
 
 __all__ = ["Plant", "tf_freqresp", "make_plant", "make_plant_zpk", "plant_from_expr", "MAX_ORDER", "delay_in_samples",
            "check_dt", "MIN_DT_S", "MAX_DT_S", "split_delay"]
@@ -34,7 +35,7 @@ __all__ = ["Plant", "tf_freqresp", "make_plant", "make_plant_zpk", "plant_from_e
 MAX_ORDER = 20
 MIN_DT_S = 1e-6  # 1 us: faster than any digital controller this tunes; keeps pi/dt and the grids finite
 MAX_DT_S = 1e4  # the library's, the CLI's and the service's limits (one constant)
-_SAMPLE_TOL = 1e-9
+_SAMPLE_TOL = SAME_DT_RTOL
 
 
 def check_dt(dt: float | None, *, what: str = "dt") -> float | None:
@@ -159,7 +160,7 @@ class Plant:
     def dc_gain(self) -> float:
         """Steady-state gain (``inf`` with an integrator)."""
         x = 0.0 if self.dt is None else 1.0
-        if np.any(np.abs(self.zpk.poles - x) < 1e-12):
+        if np.any(np.abs(self.zpk.poles - x) < EXACT_ROOT_TOL):
             return float(np.copysign(np.inf, self.zpk.gain))
         return float(np.real(self.zpk(np.array([x]))[0]))
 
@@ -242,7 +243,7 @@ class Plant:
             return Plant(num=self.num, den=self.den, dt=None, delay_s=self.delay_s,
                          zpk=Zpk(np.zeros(0), np.zeros(0), float(sysd.D)))
         ev = self.zpk.poles
-        if np.any((np.abs(ev.imag) < 1e-12) & (ev.real <= 1e-12)):
+        if np.any((np.abs(ev.imag) < EXACT_ROOT_TOL) & (ev.real <= EXACT_ROOT_TOL)):  # no real logarithm
             return None
         M = np.zeros((n + 1, n + 1))
         M[:n, :n], M[:n, n] = sysd.A, sysd.B

@@ -5,7 +5,7 @@ combination happens here, once (a discrete structure needs ``dt``, discrete plan
 their sample time, a discrete plant's delay is whole samples of its ``dt``, each plant can form a loop
 with the structure). Errors carry ``field`` paths relative to the problem: ``("dt",)``,
 ``("structure",)``, ``("plants", i, "delay")``; the plant's scale (ultimate gain and frequency,
-:func:`tuner.optimize.design.plant_scale`) is computed here once per tune.
+:func:`tuner.design.plant_scale`) is computed here once per tune.
 """
 
 from __future__ import annotations
@@ -15,12 +15,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from .controllers import Structure, get_structure
+from .design import PlantScale, dc_gain, initial_guess, plant_scale
 from .errors import InvalidPlantError, InvalidSpecError, TunerError
 from .loop import build_loop
-from .optimize.design import PlantScale, initial_guess, plant_scale
-from .optimize.rules import has_filter_rule
 from .plant import Plant, check_dt
+from .rules import has_filter_rule
 from .spec import FILTER_N_MAX, NOISE_GAIN_MAX, Spec
+from .tolerances import SAME_DT_RTOL
 
 __all__ = ["TuningProblem", "MAX_PLANTS"]
 
@@ -102,8 +103,6 @@ def noise_scale(plants: Sequence[Plant], scale: PlantScale) -> float:
     """The gain the noise budget is relative to: the larger of the nominal plant's ultimate gain ``K0`` and
     the largest inverse DC gain ``1/|G(0)|`` of the set (a resonant plant's K0 can fall below 1/|G(0)|, the
     noise gain every controller with integral action has, Mks >= |C S|(0) = 1/|G(0)|)."""
-    from .diagnose import dc_gain
-
     inv = [1.0 / g for g in (dc_gain(p) for p in plants) if 0 < g < math.inf]
     return max([scale[0], *inv])
 
@@ -159,10 +158,10 @@ def _loop_dt(plants: list[Plant], dt: float | None) -> float | None:
     for i, p in enumerate(plants):
         if not p.is_discrete:
             continue
-        if pdt is not None and abs(p.dt - pdt) > 1e-9 * pdt:
+        if pdt is not None and abs(p.dt - pdt) > SAME_DT_RTOL * pdt:
             raise InvalidPlantError(f"plants are discrete at different sample times {pdt} and {p.dt}",
                                     field=("plants", i, "dt"))
-        if dt is not None and abs(p.dt - dt) > 1e-9 * dt:
+        if dt is not None and abs(p.dt - dt) > SAME_DT_RTOL * dt:
             raise InvalidPlantError(f"plant is discrete at dt={p.dt} but dt={dt} was given; a discrete plant is "
                                     "not resampled", field="dt")
         pdt = p.dt

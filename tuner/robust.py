@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from ._lazy import is_instance_of
 from .errors import TunerError
 
 __all__ = ["CORNERS", "MONTE_CARLO_DRAWS", "MonteCarlo", "RobustDesign", "is_identification", "plant_set",
@@ -50,12 +51,8 @@ MC_GRID_POINTS = 1000
 
 
 def is_identification(obj: Any) -> bool:
-    """``obj`` is an :class:`~tuner.identify.IdentifyResult` (checked without importing the package eagerly)."""
-    if type(obj).__name__ != "IdentifyResult":
-        return False
-    from .identify.result import IdentifyResult
-
-    return isinstance(obj, IdentifyResult)
+    """``obj`` is an :class:`~tuner.identify.IdentifyResult` (checked without importing the package)."""
+    return is_instance_of(obj, "tuner.identify.result", "IdentifyResult")
 
 
 def check_robust(k: Any) -> float:
@@ -181,7 +178,7 @@ def plant_set(res: Any, k: float | None, *, dt: float | None = None) -> tuple[li
     k = check_robust(k)
     names, v0, c = _log_covariance(res)
     sd = np.sqrt(np.maximum(np.diag(c), 0.0))
-    from .optimize.design import plant_scale
+    from .design import plant_scale
 
     try:
         w0 = plant_scale(nominal, dt)[1]

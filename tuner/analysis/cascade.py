@@ -41,6 +41,7 @@ from ..errors import InvalidPlantError
 from ..loop import _discrete_loop
 from ..lti import SS, series, zoh, zoh_fractional, zpk_from_ss
 from ..plant import MAX_ORDER, Plant, delay_in_samples, make_plant
+from ..tolerances import SAME_DT_RTOL
 from .response import StepMetrics, StepResponse, step_metrics
 
 __all__ = ["outer_plant", "outer_plants", "simulate_cascade", "CascadeResponse", "EXACT_NOTE", "HELD_NOTE"]
@@ -86,7 +87,7 @@ def outer_plant(inner: Plant, controller: ControllerTF, outer: Plant) -> Plant:
     dt = controller.dt
     if dt is None:
         raise InvalidPlantError("cascade: the inner controller must be discrete (give the inner loop a dt)")
-    if outer.is_discrete and abs(outer.dt - dt) > 1e-9 * dt:
+    if outer.is_discrete and abs(outer.dt - dt) > SAME_DT_RTOL * dt:
         raise InvalidPlantError(f"cascade: outer plant is discrete at dt={outer.dt}, the loops run at dt={dt}")
     zi = inner.zoh(dt)
     di = delay_in_samples(zi.delay_s, dt)
@@ -162,7 +163,7 @@ def simulate_cascade(
     ``y_final`` is the closed loop's exact final value (the verifier's); default: the last sample.
     """
     dt = inner_ctrl.dt
-    if dt is None or outer_ctrl.dt is None or abs(outer_ctrl.dt - dt) > 1e-9 * dt:
+    if dt is None or outer_ctrl.dt is None or abs(outer_ctrl.dt - dt) > SAME_DT_RTOL * dt:
         return None
     if inner.is_discrete or outer.is_discrete or inner.delay_s or outer.delay_s:
         return None

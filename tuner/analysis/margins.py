@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..loop import Loop
+from ..tolerances import EXACT_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR
 
 __all__ = ["Margins", "disk_margin", "frequency_grid", "margins", "sensitivity_peaks"]
 
@@ -94,10 +95,10 @@ def frequency_grid(loop: Loop, n: int = _GRID_POINTS) -> np.ndarray:
     roots = np.concatenate([zk.zeros, zk.poles])
     if loop.dt is not None:
         # roots at z = 0 (delays) have no frequency; at z = 1 (integrators) they are at DC
-        roots = roots[(np.abs(roots) > 1e-12) & (np.abs(roots - 1.0) > 1e-9)]
+        roots = roots[(np.abs(roots) > EXACT_ROOT_TOL) & (np.abs(roots - 1.0) > ROOT_AT_DC_TOL)]
         roots = np.log(roots.astype(complex)) / loop.dt
     mags = np.abs(roots)
-    mags = mags[(mags > 1e-9) & np.isfinite(mags)]  # roots at 0 up to rounding are not frequencies
+    mags = mags[(mags > ROOT_MAG_FLOOR) & np.isfinite(mags)]  # roots at 0 up to rounding are not frequencies
     asym = _asymptote_crossings(loop)  # deliberate: a gain of 1e-100 on 1/s crosses at 1e-100 rad/s
     mags = np.concatenate([mags, asym[(asym > 0) & np.isfinite(asym)]])
     wnyq = loop.nyquist_w()
@@ -126,8 +127,8 @@ def _asymptote_crossings(loop: Loop) -> np.ndarray:
     x0 = 0.0 if loop.dt is None else 1.0
     zeros, poles = zk.zeros, zk.poles
     if loop.dt is not None:  # delay poles at z = 0 have |1 - 0| = 1: they do not change |K_q|
-        poles = poles[np.abs(poles) > 1e-12]
-    tol = 1e-9
+        poles = poles[np.abs(poles) > EXACT_ROOT_TOL]
+    tol = ROOT_AT_DC_TOL
     zi, pi_ = np.abs(zeros - x0) < tol, np.abs(poles - x0) < tol
     out = []
     q = int(pi_.sum() - zi.sum())

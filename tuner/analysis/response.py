@@ -37,9 +37,10 @@ from scipy import linalg
 from ..errors import InvalidPlantError
 from ..loop import FineDelayLoop, Loop, _continuous_loop
 from ..lti import lifted_outputs
+from ..tolerances import ROOT_POLISH_RTOL, STABILITY_MARGIN
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
-           "step_metrics", "default_horizon", "steady_state"]
+           "step_metrics", "default_horizon", "steady_state", "lifted"]
 
 SAMPLES_PER_DT = 20
 CONTINUOUS_POINTS = 4000
@@ -110,7 +111,7 @@ def _refine_delay_roots(loop: Loop, roots: np.ndarray, count: int = 6) -> np.nda
                 break
             step = f / df
             s = s - step
-            if abs(step) < 1e-12 * max(1.0, abs(s)):
+            if abs(step) < ROOT_POLISH_RTOL * max(1.0, abs(s)):
                 break
         if np.isfinite(s) and abs(s - roots[i]) < 0.1 * max(1.0, abs(roots[i])):
             out[i] = s
@@ -138,19 +139,20 @@ def closed_loop_poles(loop: Loop) -> np.ndarray:
 def stability(loop: Loop, poles: np.ndarray | None = None) -> bool | None:
     """``True`` stable, ``False`` unstable (or marginal), ``None`` when double precision cannot tell.
 
-    Each pole must be inside by ``1e-9 * max(1, |p|)`` (its own magnitude: a pole at -1 beside one
-    at -1e10 is as stable as alone), and by the precision of the eigenvalues, ``1e3 eps ||A||`` of the
+    Each pole must be inside by ``STABILITY_MARGIN * max(1, |p|)`` (``tuner.tolerances``; its own
+    magnitude: a pole at -1 beside one at -1e10 is as stable as alone), and by the precision of the
+    eigenvalues, ``1e3 eps ||A||`` of the
     balanced closed-loop matrix. A pole within that precision of the boundary but clear of the
-    ``1e-9`` band is undecidable (``None``): the loop's dynamics span too many decades (a gain of
+    ``STABILITY_MARGIN`` band is undecidable (``None``): the loop's dynamics span too many decades (a gain of
     1e150 on 1/(s+1) with integral action puts poles at -1 and -1e150).
     """
     p = closed_loop_poles(loop) if poles is None else poles
     if p.size == 0:
         return True
     if loop.dt is None:
-        margin, own = -p.real, 1e-9 * np.maximum(1.0, np.abs(p))
+        margin, own = -p.real, STABILITY_MARGIN * np.maximum(1.0, np.abs(p))
     else:
-        margin, own = 1.0 - np.abs(p), np.full(p.size, 1e-9)
+        margin, own = 1.0 - np.abs(p), np.full(p.size, STABILITY_MARGIN)
     prec = _eig_precision(loop)
     if np.all(margin > np.maximum(own, prec)):
         return True
@@ -229,7 +231,7 @@ def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
     return Z
 
 
-def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
+def lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
     """``Cf`` (N, n), ``Df`` (N): the continuous plant's output at ``t_k + j dt/N`` from the ZOH plant's state
     at t_k and its held input (the realisation of ``loop.plant_ct``, the coordinates of the ZOH plant; with a
     fractional delay ``phi`` the ZOH plant's extra state is the previous input, acting until ``t_k + phi``,
@@ -240,6 +242,9 @@ def _lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
     if key not in pct._cache:
         pct._cache[key] = lifted_outputs(pct.ss(), loop.dt, N, phi)
     return pct._cache[key]
+
+
+_lifted = lifted  # its name before it was public (the search and the NLP import it)
 
 
 def _simulate_fine_delay(fl: FineDelayLoop, K: int, inp: int) -> tuple[np.ndarray, np.ndarray]:
@@ -304,7 +309,7 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
         return StepResponse(t=ts, y=ys, u=u, t_samples=ts, y_samples=ys, y_final=yf,
                             between_samples=loop.plant_ct is not None)
     N = int(samples_per_dt)
-    Cf, Df = _lifted(loop, N)
+    Cf, Df = lifted(loop, N)
     ua = Z @ cl.Ca + cl.Da[inp]  # the plant's input over each sample
     yfine = (Z[:, :cl.n_plant] @ Cf.T + ua[:, None] * Df[None, :]).ravel()
     t = np.arange(yfine.size) * (dt / N)

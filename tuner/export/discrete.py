@@ -35,6 +35,7 @@ import numpy as np
 from ..controllers import ControllerTF, controller_from_coeffs, get_structure
 from ..errors import InvalidControllerError, TunerError
 from ..plant import check_dt
+from ..tolerances import ROOT_AT_DC_TOL, SAME_DT_RTOL
 
 __all__ = ["METHODS", "DifferenceEquation", "Integrator", "difference_equation", "discretize"]
 
@@ -44,7 +45,7 @@ METHODS = {
     "structure": "the structure's own discretisation (tuner.controllers: backward Euler for the integrator and "
                  "the filtered derivative, matched pole-zero for lead/lag)",
 }
-_ONE_TOL = 1e-9  # a root at z = 1: |D(1)| below this share of sum |d_i|
+_ONE_TOL = ROOT_AT_DC_TOL  # a root at z = 1: |D(1)| below this share of sum |d_i|
 _STABLE = 1.0 - 1e-12
 
 
@@ -161,7 +162,8 @@ def _split(b: np.ndarray, a: np.ndarray) -> Integrator | None:
     return Integrator(r=r, q=q, a=ap)
 
 
-def _check_limits(u_min: Any, u_max: Any) -> tuple[float | None, float | None]:
+def check_limits(u_min: Any, u_max: Any) -> tuple[float | None, float | None]:
+    """The output limits as floats (None: no limit), checked: finite, ``u_min < u_max``; errors name the field."""
     out = []
     for name, v in (("u_min", u_min), ("u_max", u_max)):
         if v is None:
@@ -185,7 +187,7 @@ def difference_equation(c: ControllerTF, *, dt: float | None = None, method: str
                         u_min: float | None = None, u_max: float | None = None) -> DifferenceEquation:
     """The difference equation of ``c``: as given when discrete (``dt``, if given, must be its own), else
     discretised at ``dt`` by ``method``; optional output limits with anti-windup (see the module)."""
-    lo, hi = _check_limits(u_min, u_max)
+    lo, hi = check_limits(u_min, u_max)
     if c.dt is None:
         if dt is None:
             raise TunerError("the controller is continuous: give the sample time dt to discretise it at "
@@ -194,7 +196,7 @@ def difference_equation(c: ControllerTF, *, dt: float | None = None, method: str
         source, used = f"discretised at dt = {cd.dt:g} s by {METHODS[method]}", method
     else:
         dt = check_dt(dt)
-        if dt is not None and abs(dt - c.dt) > 1e-9 * c.dt:
+        if dt is not None and abs(dt - c.dt) > SAME_DT_RTOL * c.dt:
             raise TunerError(f"the controller is discrete at dt={c.dt:g} s but dt={dt:g} s was given: resampling "
                              "a discrete controller is not supported; leave dt out or give its own", field="dt")
         cd, source, used = c, "the discrete controller as given", None

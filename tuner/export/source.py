@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from .._lazy import is_instance_of
 from ..controllers import ControllerTF, controller_from_coeffs
 from ..errors import InvalidControllerError, TunerError
 from .codegen import check_name, render
@@ -42,12 +43,15 @@ def from_result(result: Mapping[str, Any]) -> tuple[ControllerTF, str | None, di
     return ctrl, structure, {str(k): v for k, v in gains.items()}
 
 
-def _parts(controller: Any) -> tuple[ControllerTF, str | None, dict[str, float] | None]:
-    from ..tuning import TuneResult
+def _is_tune_result(obj: Any) -> bool:
+    """``obj`` is a :class:`tuner.TuneResult` (export sits below the tuning layer: it does not import it)."""
+    return is_instance_of(obj, "tuner.tuning", "TuneResult")
 
+
+def _parts(controller: Any) -> tuple[ControllerTF, str | None, dict[str, float] | None]:
     if isinstance(controller, ControllerTF):
         return controller, None, None
-    if isinstance(controller, TuneResult):
+    if _is_tune_result(controller):
         return controller.controller, controller.structure, dict(controller.gains)
     if isinstance(controller, Mapping):
         return from_result(controller)
@@ -144,12 +148,10 @@ def clamp_note(controller: Any, u_min: float | None, u_max: float | None, *, fla
     """A warning when the verified control signal of a unit reference step leaves the output limits the export
     clamps to (the clamp then shapes the response, which the verifier did not see); None otherwise, or when the
     response is unknown (a bare controller). ``flag``: name the command-line flag, else the spec field."""
-    from ..tuning import TuneResult
-
     if u_min is None and u_max is None:
         return None
     hi = lo = None  # the largest and smallest u of the verified unit-step responses
-    if isinstance(controller, TuneResult):
+    if _is_tune_result(controller):
         us = [a.response.u for a in controller.analyses if a.response is not None and a.response.u.size]
         if us:
             hi, lo = max(float(np.max(u)) for u in us), min(float(np.min(u)) for u in us)

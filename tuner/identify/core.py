@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidDataError
+from ..tolerances import LIMIT_RTOL
 from .data import MIN_SAMPLES, Record, lowest_frequency_rad_s, make_record
 from .result import J_ACCEPTABLE, J_GOOD, J_POINT_MAX, FitPoints, IdentifyResult
 from .spectral import composite, frequency_response
@@ -288,7 +289,7 @@ def _check_band(req_band: tuple[float, float] | None, fit_dur: float, nyquist: f
         return
     lo, hi = req_band
     w_lowest = lowest_frequency_rad_s(fit_dur)
-    if lo < w_lowest * (1 - 1e-9):
+    if lo < w_lowest * (1 - LIMIT_RTOL):
         need = 8 * math.pi / lo / (1.0 - holdout)
         raise InvalidDataError(
             f"band starts at {lo:g} rad/s, but the fitted part of the record ({fit_dur:g} s) has too "

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidDataError
+from ..tolerances import CONSTANT_SIGNAL_RTOL
 
 __all__ = ["MAX_ABS", "MAX_SAMPLES", "MIN_ABS", "MIN_SAMPLES", "TIME_JITTER", "Record", "lowest_frequency_rad_s",
            "make_record"]
@@ -149,7 +150,7 @@ def make_record(input: Sequence[float], output: Sequence[float], *, time: Sequen
             raise InvalidDataError(f"{field} is at most {big:.6g} in magnitude: values below {MIN_ABS:g} underflow the "
                                    "spectra (their fourth powers); rescale the signal (other units)", field=field)
         spread = float(np.ptp(a))
-        if spread <= 1e-12 * big:  # relative: a signal's scale (its units) does not matter
+        if spread <= CONSTANT_SIGNAL_RTOL * big:  # relative: a signal's scale (its units) does not matter
             what = "nothing excites the plant" if field == "input" else "the output does not respond"
             raise InvalidDataError(f"{field} is constant ({a[0]:.6g}): {what}; a frequency sweep is needed",
                                    field=field)

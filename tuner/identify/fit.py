@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import IdentificationError
+from ..tolerances import SAMPLE_COUNT_TOL
 from .model import Model, Structure, section_kinds
 
 __all__ = ["W_G", "W_P", "FitOutcome", "Problem", "coherence_weight", "cost_terms", "fit_model"]
@@ -215,7 +216,7 @@ def _whole_samples(prob: Problem, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                    starts: int) -> FitOutcome:
     """Re-fit with the delay fixed at the whole multiples of ``step`` around the free optimum."""
     tau = float(x[-1])
-    k_max = math.floor(tau_max / step + 1e-9)
+    k_max = math.floor(tau_max / step + SAMPLE_COUNT_TOL)
     ks = sorted({k for k in range(math.floor(tau / step) - 1, math.ceil(tau / step) + 2) if 0 <= k <= k_max}
                 or {0})
     st = Structure(poles=prob.structure.poles, zeros=prob.structure.zeros, free_delay=False)

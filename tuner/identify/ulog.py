@@ -42,6 +42,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..errors import InvalidDataError
+from ..tolerances import SAMPLE_COUNT_TOL
 from .data import MAX_SAMPLES, MIN_SAMPLES
 
 __all__ = ["GAP_FACTOR", "MAX_ULOG_BYTES", "ULogRecords", "is_ulog", "parse_signal", "read_ulog"]
@@ -225,7 +226,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
     for a0, b in edges:
         i0 = int(np.searchsorted(tu, a0 - 1e-9))  # the grid starts on an input sample: held values are exact
         a = float(tu[i0]) if i0 < tu.size else b + 1.0
-        n = int(math.floor((b - a) / dt + 1e-9)) + 1 if a <= b else 0
+        n = int(math.floor((b - a) / dt + SAMPLE_COUNT_TOL)) + 1 if a <= b else 0
         if n < MIN_SAMPLES:
             if b > a0:
                 dropped.append((a0 - t0, b - t0))

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from ..tolerances import SAMPLE_COUNT_TOL, SAMPLE_FRACTION_TOL
 from .data import Record
 from .model import Model
 
@@ -144,15 +145,15 @@ def simulate(model: Model, u: np.ndarray, dt: float) -> np.ndarray:
 
     A, B, C, D = model.state_space()
     u = np.asarray(u, dtype=float)
-    k = math.floor(model.delay_s / dt + 1e-9)
+    k = math.floor(model.delay_s / dt + SAMPLE_COUNT_TOL)
     frac = model.delay_s - k * dt
     if k >= u.size:  # the delay outlasts the record: nothing of the input reaches the output in it
         return np.zeros(u.size)
     uk = np.concatenate([np.zeros(k), u[: u.size - k]]) if k else u
     n = A.shape[0]
     if n == 0:
-        return D[0, 0] * (uk if frac <= 1e-12 * dt else np.concatenate([[0.0], uk[:-1]]))
-    if frac <= 1e-12 * dt:
+        return D[0, 0] * (uk if frac <= SAMPLE_FRACTION_TOL * dt else np.concatenate([[0.0], uk[:-1]]))
+    if frac <= SAMPLE_FRACTION_TOL * dt:
         phi, gam = _held_integral(A, B, dt)
         sys = (phi, gam, C, D, dt)
     else:  # u(t - tau) takes u_k[j-1] for frac s after each sample, then u_k[j]

@@ -28,12 +28,13 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from ..analysis.response import MAX_SAMPLES, _lifted  # the verifier's limit is the search's (one source)
+from ..analysis.response import MAX_SAMPLES, lifted  # the verifier's limit is the search's (one source)
 from ..controllers import ControllerTF
 from ..loop import build_loop
 from ..lti import zoh_delayed
 from ..problem import TuningProblem
 from ..spec import CROSSOVER_TOL, SSE_TOL
+from ..tolerances import ALGEBRAIC_LOOP_TOL, EXACT_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR, STABILITY_MARGIN
 from . import rules
 from .space import Space
 
@@ -50,6 +51,30 @@ MIN_HORIZON_W0 = 40.0
 # MAX_SAMPLES (from tuner.analysis.response): a candidate needing more samples is judged on that many
 INFEASIBLE = 1e3
 UNSTABLE = 1e5
+
+
+@dataclass(frozen=True)
+class StackedLoops:
+    """The closed loops of a batch of candidates around one plant, stacked on the first axis (B): the state
+    ``x+ = A x + Bm [r, w]`` (or ``x' = ...`` in continuous time), the output ``y = Cy x + Dy [r, w]``, the
+    control signal ``u = Cu x + Du [r, w]`` and the plant's input ``Ca x + Da [r, w]``; the plant's states
+    are the first ``n_plant``. Passed whole between the closed-loop builder, the time metrics and the
+    simulation."""
+
+    A: np.ndarray
+    Bm: np.ndarray
+    Cy: np.ndarray
+    Dy: np.ndarray
+    Cu: np.ndarray
+    Du: np.ndarray
+    Ca: np.ndarray
+    Da: np.ndarray
+    n_plant: int
+
+    def rows(self, sel: np.ndarray) -> StackedLoops:
+        """The loops of the candidates ``sel`` (an index array)."""
+        return StackedLoops(self.A[sel], self.Bm[sel], self.Cy[sel], self.Dy[sel], self.Cu[sel], self.Du[sel],
+                            self.Ca[sel], self.Da[sel], self.n_plant)
 
 
 @dataclass
@@ -155,10 +180,10 @@ class BatchEvaluator:
     def _slowest(p) -> float:
         r = np.concatenate([p.zeros, p.poles])
         if p.dt is not None:
-            r = r[(np.abs(r) > 1e-12) & (np.abs(r - 1) > 1e-9)]
+            r = r[(np.abs(r) > EXACT_ROOT_TOL) & (np.abs(r - 1) > ROOT_AT_DC_TOL)]
             r = np.log(r.astype(complex)) / p.dt
         m = np.abs(r)
-        m = m[m > 1e-9]
+        m = m[m > ROOT_MAG_FLOOR]
         return float(m.min()) / 10 if m.size else math.inf
 
     def _plant_data(self, plant) -> _PlantData:
@@ -167,7 +192,7 @@ class BatchEvaluator:
         g = lp.loop_plant.ss()
         Cf = Df = None
         if self.dt is not None and lp.plant_ct is not None and self.N > 1:
-            Cf, Df = _lifted(lp, self.N)
+            Cf, Df = lifted(lp, self.N)
         G = lp.freqresp(self.w)
         G_nyq = lp.value_at(-1.0) if self.dt else None
         G_dc = None if lp.integrating else lp.value_at(0.0 if self.dt is None else 1.0)
@@ -240,11 +265,11 @@ class BatchEvaluator:
         L = C * pd.G[None, :]
         m: dict[str, np.ndarray] = {}
         m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs))
-        A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant = self._closed_loop(pd, num, den, num_r)
+        cl = self._closed_loop(pd, num, den, num_r)
         if self.dt is None and pd.tau:
             A_eig = self._fine_delay_dense(pd, num, den, num_r=num_r)[0]
         else:
-            A_eig = A
+            A_eig = cl.A
         with np.errstate(all="ignore"):
             good = ok & np.all(np.isfinite(A_eig), axis=(1, 2))
             poles = np.full((A_eig.shape[0], A_eig.shape[1]), np.nan, complex)
@@ -252,25 +277,25 @@ class BatchEvaluator:
                 poles[good] = np.linalg.eigvals(A_eig[good])
         if self.dt is None and not pd.tau:
             out = np.nanmax(poles.real, axis=1)
-            tol = -1e-9 * np.maximum(1.0, np.nanmax(np.abs(poles), axis=1))
+            tol = -STABILITY_MARGIN * np.maximum(1.0, np.nanmax(np.abs(poles), axis=1))
             stable = good & (out < tol)
             sig = np.where(poles.real < 0, -poles.real, np.inf)
         else:
             h = self._fine_h(pd) if self.dt is None else self.dt
             r = np.nanmax(np.abs(poles), axis=1)
-            stable = good & (r < 1 - 1e-9)
+            stable = good & (r < 1 - STABILITY_MARGIN)
             out = r - 1
             sig = -np.log(np.clip(np.abs(poles), 1e-300, None)) / h
             sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.inf)
         m["stable"] = stable
         m["outside"] = np.where(stable, 0.0, np.where(np.isfinite(out), np.maximum(out, 1e-9), 1e3))
         smin = np.min(sig, axis=1)
-        m.update(self._time_metrics(pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n_plant, stable, smin, num, den, num_r))
+        m.update(self._time_metrics(pd, cl, stable, smin, num, den, num_r))
         return m
 
     # -- closed loops ---------------------------------------------------------------------------
 
-    def _closed_loop(self, pd: _PlantData, num, den, num_r=None):
+    def _closed_loop(self, pd: _PlantData, num, den, num_r=None) -> StackedLoops:
         """The stacked closed loops (B, nz, nz) with inputs [r, w] and the maps to y, u and the plant input
         (``num_r``: a 2-DOF controller's reference path, ``u = C_r r - C y`` on shared states)."""
         Ac, Bc, Cc, Dc, Br, Dr = _realize(num, den, num_r)
@@ -299,7 +324,7 @@ class BatchEvaluator:
                 np.stack([Dr, np.zeros(Bn)], axis=1) - Dc[:, None] * Dy
         else:
             dnm = 1.0 + Dc * g_D
-            dnm = np.where(np.abs(dnm) < 1e-12, np.nan, dnm)
+            dnm = np.where(np.abs(dnm) < ALGEBRAIC_LOOP_TOL, np.nan, dnm)
             Cu = np.zeros((Bn, nz))
             Cu[:, ix] = -(Dc / dnm)[:, None] * g_C[None, :]
             Cu[:, ic] = Cc / dnm[:, None]
@@ -325,7 +350,7 @@ class BatchEvaluator:
         else:  # 2-DOF: the controller's states take Br r - B y
             Bm[:, ic, :] += Bc[:, :, None] * (-Dy)[:, None, :]
             Bm[:, ic, 0] += Br
-        return A, Bm, Cy, Dy, Cu, Du, Ca, Da, n
+        return StackedLoops(A, Bm, Cy, Dy, Cu, Du, Ca, Da, n)
 
     def _fine_h(self, pd: _PlantData) -> float:
         return pd.tau / 20.0
@@ -390,10 +415,10 @@ class BatchEvaluator:
         Kc = np.minimum(Kc, MAX_SAMPLES)
         return [(int(k), np.flatnonzero(Kc == k)) for k in np.unique(Kc)]
 
-    def _time_metrics(self, pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n, stable, smin, num, den, num_r=None
+    def _time_metrics(self, pd: _PlantData, cl: StackedLoops, stable, smin, num, den, num_r=None
                       ) -> dict[str, np.ndarray]:
         spec = self.spec
-        Bn = A.shape[0]
+        Bn = cl.A.shape[0]
         need_load = spec.objective == "iae"
         res = {k: np.full(Bn, np.nan) for k in ("overshoot_pct", "steady_state_error", "control_peak", "iae",
                                                    "itae")}
@@ -421,8 +446,7 @@ class BatchEvaluator:
                 sim, args = self._simulate_fine_delay, (pd, num[sel], den[sel], float(Tr.max()),
                                                         None if num_r is None else num_r[sel])
             else:
-                sim, args = self._simulate, (pd, A[sel], Bm[sel], Cy[sel], Dy[sel], Cu[sel], Du[sel], Ca[sel],
-                                             Da[sel], n, Tr, K)
+                sim, args = self._simulate, (pd, cl.rows(sel), Tr, K)
             y, u, t, yf = sim(*args, 0)
             with np.errstate(all="ignore"):
                 yn = y / yf[:, None]
@@ -437,8 +461,9 @@ class BatchEvaluator:
                     res["iae"][sel] = np.trapezoid(np.abs(yl), tl, axis=1)
         return res
 
-    def _simulate(self, pd, A, Bm, Cy, Dy, Cu, Du, Ca, Da, n, T, K, inp):
+    def _simulate(self, pd: _PlantData, cl: StackedLoops, T, K, inp):
         """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points)."""
+        A, Bm, Cy, Dy, Cu, Du, Ca, Da, n = cl.A, cl.Bm, cl.Cy, cl.Dy, cl.Cu, cl.Du, cl.Ca, cl.Da, cl.n_plant
         Bn, nz, _ = A.shape
         if self.dt is None:  # continuous, no delay: exact discretisation at each row's own fine step
             h = T / CONTINUOUS_STEPS
@@ -478,10 +503,10 @@ class BatchEvaluator:
         y = np.einsum("bkz,bz->bk", Z, Cy)
         u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
         # steady state of the delay-free continuous loop (e^{-s tau} = 1 at s = 0)
-        A0, B0, Cy0, Dy0, *_ = self._closed_loop(pd, num, den, num_r)
+        cl0 = self._closed_loop(pd, num, den, num_r)
         with np.errstate(all="ignore"):
-            zf = np.linalg.solve(-A0, B0[:, :, inp:inp + 1])[:, :, 0]
-        yf = np.einsum("bz,bz->b", zf, Cy0) + Dy0[:, inp]
+            zf = np.linalg.solve(-cl0.A, cl0.Bm[:, :, inp:inp + 1])[:, :, 0]
+        yf = np.einsum("bz,bz->b", zf, cl0.Cy) + cl0.Dy[:, inp]
         return y, u, np.broadcast_to(np.arange(K) * h, y.shape), yf
 
     # -- scoring --------------------------------------------------------------------------------

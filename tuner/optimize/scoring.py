@@ -22,6 +22,7 @@ from ..errors import TunerError
 from ..loop import build_loop
 from ..plant import Plant
 from ..spec import Spec
+from ..tolerances import ROOT_AT_DC_TOL
 from . import rules
 
 __all__ = ["Evaluator", "Scored", "objective_value", "violation", "INFEASIBLE"]
@@ -63,7 +64,8 @@ def objective_value(a: Analysis, spec: Spec) -> float:
         return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
     # iae: integral of |y| after a unit step load disturbance at the plant input, on the same horizon;
     # ie: |the signed integral| (= 1/Ki for a loop with integral action once settled: MIGO maximises Ki)
-    if spec.objective == "ie" and not np.any(np.abs(a.loop.controller.zpk.poles - (1.0 if a.loop.dt else 0.0)) < 1e-9):
+    at_dc = 1.0 if a.loop.dt else 0.0
+    if spec.objective == "ie" and not np.any(np.abs(a.loop.controller.zpk.poles - at_dc) < ROOT_AT_DC_TOL):
         return math.inf  # without integral action the load step is never rejected
     d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
     if spec.objective == "ie":

@@ -18,6 +18,7 @@ from ..controllers import ControllerTF
 from ..errors import TunerError
 from ..jsonio import jsonable
 from ..plant import Plant
+from ..tolerances import SAME_DT_RTOL
 from .schema import (
     InvalidStudyError,
     LoopDef,
@@ -172,7 +173,7 @@ def check_gains_file(study: StudyDef, data: Any, *, source: str = "gains") -> di
         if dt is not None and (isinstance(dt, bool) or not isinstance(dt, (int, float))):
             raise InvalidStudyError(f"{source}: loop {lp.name!r}: dt must be a number of seconds (or null), "
                                     f"got {dt!r}")
-        if (dt is None) != (lp.dt is None) or (dt is not None and abs(float(dt) - lp.dt) > 1e-12 * lp.dt):
+        if (dt is None) != (lp.dt is None) or (dt is not None and abs(float(dt) - lp.dt) > SAME_DT_RTOL * lp.dt):
             raise InvalidStudyError(f"{source}: loop {lp.name!r}: dt is {dt}, the study says {lp.dt}")
         try:
             out[lp.name] = controller_of(lp, e["gains"])

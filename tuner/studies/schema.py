@@ -58,6 +58,7 @@ from ..controllers import ControllerTF, controller_from_expr, controller_tf, get
 from ..errors import TunerError
 from ..plant import MAX_DT_S, MIN_DT_S, Plant, make_plant, plant_from_expr
 from ..spec import Spec
+from ..tolerances import SAME_DT_RTOL
 
 __all__ = ["InvalidStudyError", "PlantCoeffs", "PlantData", "LoopDef", "StudyDef", "load_study", "parse_study",
            "base_plants", "loop_key", "controller_of", "thesis_controller_of", "identified", "data_path",
@@ -235,7 +236,7 @@ class StudyDef(BaseModel):
             if lp.inner not in by:
                 raise ValueError(f"loop {lp.name!r}: inner: no loop named {lp.inner!r}")
             inner = by[lp.inner]
-            if lp.dt is None or inner.dt is None or abs(lp.dt - inner.dt) > 1e-12 * lp.dt:
+            if lp.dt is None or inner.dt is None or abs(lp.dt - inner.dt) > SAME_DT_RTOL * lp.dt:
                 raise ValueError(f"loop {lp.name!r}: dt: a cascade runs at its inner loop's dt "
                                  f"({inner.dt}), got {lp.dt}")
         self.order()  # raises on a cycle

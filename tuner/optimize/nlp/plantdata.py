@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...analysis.response import _lifted
+from ...analysis.response import lifted
 from ...loop import Loop
 
 __all__ = ["LiftedPlant", "lift"]
@@ -65,6 +65,6 @@ def lift(loop: Loop, N: int) -> LiftedPlant:
     if loop.plant_ct is None or N <= 1:
         Cf, Df = g.C[None, :].copy(), np.array([g.D])
     else:
-        Cf, Df = _lifted(loop, N)
+        Cf, Df = lifted(loop, N)
     return LiftedPlant(g.A, g.B, g.C, float(g.D), Cf, Df, np.asarray(zk.zeros, complex),
                        np.asarray(zk.poles, complex), float(zk.gain), loop.delay_samples)
