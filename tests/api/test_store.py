@@ -166,7 +166,7 @@ def test_results_survive_a_service_restart(url):
         got = c.get(f"/tunes/{posted['id']}")
         assert got.status_code == 200
         got = got.json()
-        assert got.pop("request")["options"] == {"seed": 3, "time_budget_s": 0.5}
+        assert got.pop("request")["options"] == {"seed": 3, "time_budget_s": 0.5, "effort": "default"}
         assert got == posted
         assert c.get("/tunes").json() == listed
         wait_for_workers(c)

@@ -56,6 +56,7 @@ NLP_OBJECTIVES = ("settling_time", "itae", "iae", "ie", "mks", "disk_margin")
 log = logging.getLogger(__name__)
 
 PATIENCE = 1
+EXTRA_VERIFY = 12  # finalists verified beyond the effort's when none of those is feasible
 STALE_REFINES = 2  # refinements in a row that did not improve on the best: round 0 has converged
 DESIGN_POINTS = 48  # the fixed space-filling set of round 0
 DESIGN_SEED = 20261201  # fixed: round 0 does not depend on the user's seed
@@ -645,6 +646,18 @@ class Engine:
             self.verified += 1
             if s.analyses and (best is None or s.score < best.score):
                 best_x, best = x, s
+        if best is not None and not best.feasible:
+            # none of the finalists verified feasible (the search's resolution can be fooled, e.g. by a loop whose
+            # slow tail outlasts its horizon): verify further candidates, in the search's order, until one is
+            for x in self.finalists(max(k, 1) + EXTRA_VERIFY)[max(k, 1):]:
+                if self._time_left() + self.reserve_s <= 0:
+                    break
+                s = self.ev.score(x, full=True)
+                self.verified += 1
+                if s.analyses and s.score < best.score:
+                    best_x, best = x, s
+                if best.feasible:
+                    break
         x_c = getattr(self, "_contained_x", None)
         if x_c is not None and not any(np.array_equal(x_c, x) for x in self.finalists(k)):
             # the contained structure's answer (pid2 at b = c = 1 is pid's): verified too, so that the result is
