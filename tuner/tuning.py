@@ -373,12 +373,10 @@ def tune(
     from .optimize.engine import Engine
 
     decided = definitional_reasons(problem) if diagnose else []
-    if decided:  # a limit that no gains can meet: answer at once, with the best a short search finds
-        time_budget_s = min(float(time_budget_s), SHORT_BUDGET_S)
-        deadline = t0 + time_budget_s
+    search = _searchable(problem, decided)  # a limit no gains can meet: searched without it, judged with it
     with threadpool_limits(limits=1):
         # keep a share of the budget for the final verification at full resolution
-        eng = Engine(problem, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
+        eng = Engine(search, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
                      n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s),
                      effort=effort)
         # "as robust as possible at this speed": the fastest design meeting the spec is a candidate too (the
@@ -391,6 +389,11 @@ def tune(
         run = eng.run()
         t_verify = time.perf_counter()
         best_x, best = eng.verify_best()
+        if search is not problem:  # the verifier's verdict on the asked spec (the impossible limit fails)
+            from .optimize.scoring import Evaluator
+
+            eng.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=eng.space.w0)
+            best = eng.ev.score(best_x, full=True)
         t_verify = time.perf_counter() - t_verify
         st = problem.structure
         wall = time.perf_counter() - t0
@@ -456,6 +459,23 @@ def tune(
     return res
 
 
+def _searchable(problem: TuningProblem, decided: list[Any]) -> TuningProblem:
+    """The problem the search solves: ``problem`` itself, or, when some of its limits cannot be met by any gains
+    (``decided``: :func:`tuner.diagnose.definitional_reasons`), the same with those limits set as the reasons
+    suggest, so that the result is the best design meeting everything else (and the answer comes as fast as a
+    feasible tune's) while the verifier still judges it against the asked spec."""
+    changes: dict[str, Any] = {}
+    for r in decided:  # (not zero steady-state error: without it a settling time is won by a loop settling near 0)
+        changes.update({k: v for k, v in r.suggest.items() if k != "zero_steady_state_error"})
+    if not changes:
+        return problem
+    try:
+        spec = Spec.model_validate({**problem.asked_spec.model_dump(), **changes})
+        return TuningProblem.build(list(problem.plants), structure=problem.structure, spec=spec, dt=problem.dt)
+    except TunerError:
+        return problem
+
+
 def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[np.ndarray, Any] | None:
     """The best of the diagnosis's re-tuned designs that the verifier finds meeting the asked spec (the re-tunes
     relaxed one limit; their design may meet it anyway: the first search had missed it), or None."""
@@ -473,7 +493,6 @@ def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[n
 
 ROBUSTNESS_OBJECTIVES = ("mks", "disk_margin")
 FAST_SHARE = 0.3  # of the budget: the fastest design, a candidate of the robustness objectives
-SHORT_BUDGET_S = 0.5  # a spec that no gains can meet (tuner.diagnose.definitional_reasons): the search's budget
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
 # budget, at most this share of it (the reasons by definition need no time)

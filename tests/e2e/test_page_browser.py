@@ -129,16 +129,16 @@ def test_the_exported_controller_in_c_and_as_a_difference_equation(page, server,
     expect(code).to_contain_text("double controller_update(controller_state *s, double e)", timeout=30_000)
     assert code.inner_text().strip() == exported("c", "controller").strip()
     page.click("#export button[data-format=text]")
-    expect(code).to_contain_text("u[k] = ")
+    expect(code).to_contain_text("u[k] = ", timeout=30_000)
     assert code.inner_text().strip() == exported("text", "controller").strip()
     page.fill("#export-name", "roll")
     page.press("#export-name", "Enter")
     page.click("#export button[data-format=c]")
-    expect(code).to_contain_text("double roll_update(roll_state *s, double e)")
+    expect(code).to_contain_text("double roll_update(roll_state *s, double e)", timeout=30_000)
     page.fill("#export-name", "1roll")  # not a C identifier: the route's 422, at the name field
     page.press("#export-name", "Tab")
-    expect(page.locator("#export [data-loc='query.name'] .err")).not_to_be_empty()
-    expect(code).to_have_text("")
+    expect(page.locator("#export [data-loc='query.name'] .err")).not_to_be_empty(timeout=30_000)
+    expect(code).to_have_text("", timeout=30_000)
 
 
 def test_an_unmet_spec_shows_why_and_what_would_do(page, server, sync_api):

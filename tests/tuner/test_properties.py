@@ -32,6 +32,7 @@ from tuner import (
     controller_from_coeffs,
     controller_from_expr,
     controller_tf,
+    get_structure,
     make_plant,
     plant_from_expr,
     tune,
@@ -336,7 +337,11 @@ def test_lead_lag_at_a_large_dt(structure, dt):
     must return (not raise) a stable loop, with no RuntimeWarning on the way (pytest's config makes one an
     error). Bounded by the trial count, not the clock (the budget is never what stops it)."""
     res = tune(plant_from_expr("1/(s+1)"), structure=structure, dt=dt, time_budget_s=60.0, n_trials=6, n_starts=1)
-    assert res.controller.dt == dt and all(math.isfinite(v) and v > 0 for v in res.gains.values())
+    st = get_structure(structure)
+    assert res.controller.dt == dt and all(math.isfinite(v) for v in res.gains.values())
+    # frequencies are positive; the gain's sign is the search's (no integrator: zero steady-state error is out of
+    # reach, and the least-violating design may have either sign)
+    assert all(v > 0 for k, v in res.gains.items() if st.kinds[st.params.index(k)] == "freq")
     for an in res.analyses:
         assert_honest(an)
         assert an.metrics.stable
