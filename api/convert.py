@@ -84,6 +84,16 @@ def _plant(p: PlantIn, index: int) -> Plant:
     return plant
 
 
+def request_budget(body: Any, settings: Any) -> float:
+    """The solve's time budget of a /tune-like body (its own, or the server's default), within the server's
+    maximum (422 at ``options.time_budget_s`` otherwise)."""
+    budget = body.options.time_budget_s or settings.default_budget_s
+    if budget > settings.max_budget_s:
+        raise FieldError(("body", "options", "time_budget_s"),
+                         f"time_budget_s={budget:g} is above this server's maximum of {settings.max_budget_s:g} s")
+    return budget
+
+
 def tuning_problem(body: TuneRequest, *, identification: Any = None) -> TuningProblem:
     """The validated problem of a /tune body (the one semantic validation of the request); with an
     ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`)."""

@@ -5,17 +5,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
 from tuner.jsonio import jsonable
 from tuner.problem import MAX_PLANTS
 
-from ..convert import FieldError, body_loc, tuning_problem
+from ..convert import FieldError, body_loc, request_budget, tuning_problem
 from ..deps import client_id, get_pool, get_tradeoff_job
-from ..disconnect import unless_disconnected
-from ..errors import internal_message
-from ..pool import JobFailed, JobTimeout, WorkerPool
+from ..jobrun import run_job
+from ..pool import WorkerPool
 from ..schemas import TradeoffRequest, TradeoffResponse
 from ..settings import Settings, get_settings
 from .tune import ERRORS
@@ -41,12 +40,11 @@ async def post_tradeoff(
     job: Callable[[dict[str, Any]], Any] = Depends(get_tradeoff_job),
     client: str = Depends(client_id),
 ) -> JSONResponse:
-    budget = body.options.time_budget_s or settings.default_budget_s
-    if budget > settings.max_budget_s:
-        raise FieldError(("body", "options", "time_budget_s"),
-                         f"time_budget_s={budget:g} is above this server's maximum of {settings.max_budget_s:g} s")
-    if 1 + len(body.plants or []) > min(settings.max_plants, MAX_PLANTS):
-        raise FieldError(("body", "plants"), "too many plants for one request")
+    budget = request_budget(body, settings)
+    limit = min(settings.max_plants, MAX_PLANTS)
+    if 1 + len(body.plants or []) > limit:
+        raise FieldError(("body", "plants"), f"{1 + len(body.plants or [])} plants given (plant + plants); at most "
+                         f"{limit} per request")
     if body.spec is not None and body.spec.objective != "settling_time":
         raise FieldError(("body", "spec", "objective"), "the trade-off's speed axis is the settling time: leave "
                          "spec.objective at settling_time")
@@ -59,15 +57,9 @@ async def post_tradeoff(
     problem = tuning_problem(body)
     payload = {"problem": problem, "y": body.y, "points": body.points, "seed": body.options.seed,
                "time_budget_s": budget}
-    try:
-        result = await unless_disconnected(
-            request, pool.run(job, payload, timeout_s=settings.solve_limit_s(budget), client=client))
-    except JobTimeout as e:
-        raise HTTPException(504, f"the curve did not finish within its time budget of {budget:g} s (stopped at "
-                                 f"{e.limit_s:.3g} s); retry with a larger options.time_budget_s or fewer points") \
-            from None
-    except JobFailed as e:
-        if e.kind == "tuner_error":
-            raise FieldError(body_loc(e.info.get("field") or ()), e.info["message"], type="tuner_error") from None
-        raise HTTPException(500, internal_message(e.info, "solver")) from None
+    result = await run_job(
+        request, pool, job, payload, timeout_s=settings.solve_limit_s(budget), client=client, what="solver",
+        loc=body_loc,
+        timeout_detail=lambda e: f"the curve did not finish within its time budget of {budget:g} s (stopped at "
+                                 f"{e.limit_s:.3g} s); retry with a larger options.time_budget_s or fewer points")
     return JSONResponse(jsonable(result))

@@ -14,7 +14,7 @@ from tuner.jsonio import jsonable
 from tuner.problem import MAX_PLANTS
 from tuner.robust import MONTE_CARLO_DRAWS
 
-from ..convert import FieldError, body_loc, plant_dict, tuning_problem
+from ..convert import FieldError, body_loc, plant_dict, request_budget, tuning_problem
 from ..deps import client_id, get_pool, get_store, get_tune_job
 from ..jobrun import run_job
 from ..pool import WorkerPool
@@ -71,10 +71,7 @@ async def post_tune(
     job: Callable[[dict[str, Any]], Any] = Depends(get_tune_job),
     client: str = Depends(client_id),
 ) -> JSONResponse:
-    budget = body.options.time_budget_s or settings.default_budget_s
-    if budget > settings.max_budget_s:
-        raise FieldError(("body", "options", "time_budget_s"),
-                         f"time_budget_s={budget:g} is above this server's maximum of {settings.max_budget_s:g} s")
+    budget = request_budget(body, settings)
     limit = min(settings.max_plants, MAX_PLANTS)
     extra = body.plants or []
     if 1 + len(extra) > limit:
