@@ -73,8 +73,8 @@ def at_bounds(problem: Any, space: Any, x: np.ndarray, analyses: Any) -> list[di
         if math.isfinite(mks) and mks >= lim["value"] * (1 - LIMIT_TOL):
             beyond = mks > lim["value"] * (1 + 1e-6)
             out.append({"param": None, "value": float(mks), "bound": "upper", "limit": float(lim["value"]),
-                        "beyond": beyond, "rule": f"the noise budget ({lim['rule']}) "
-                        + ("is exceeded" if beyond else "decides") + f": Mks = {mks:.4g}"})
+                        "beyond": beyond, "rule": "the noise budget " + ("is exceeded" if beyond else "decides")
+                        + f" ({lim['rule'].removeprefix('noise budget: ')}; Mks = {mks:.4g})"})
     return out
 
 
