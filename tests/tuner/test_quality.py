@@ -103,10 +103,12 @@ def test_fast_effort_needs_no_restart_and_is_never_better_than_default():
 
 
 def test_a_larger_budget_returns_the_same_converged_answer():
-    """The search is deterministic and converges well within the budget: more budget, the same answer."""
+    """The search is deterministic and converges well within the budget: more budget, the same answer. (Both
+    budgets are far above what the search uses even at -n 8 on 2 cores: the engine cuts a batch or skips an NLP
+    build by the time left, so a budget the load makes tight is a different search, not a worse-budget test.)"""
     p = plant_from_expr("2/((s+1)*(0.3s+1))")
-    a = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=10, diagnose=False)
-    b = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=60, diagnose=False)
+    a = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=120, diagnose=False)
+    b = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=600, diagnose=False)
     assert a.solver["stop"] == b.solver["stop"] == "converged"
     assert b.objective == a.objective and b.gains == a.gains
 
@@ -130,8 +132,9 @@ def test_cli_effort_and_the_optimality_line(capsys):
 
 def test_thorough_is_never_worse_than_default():
     p = plant_from_expr("1/(s^2+0.4s+1)")
-    d = tune(p, structure="pid", dt=0.1, seed=0, diagnose=False)
-    t = tune(p, structure="pid", dt=0.1, seed=0, effort="thorough", diagnose=False)
+    d = tune(p, structure="pid", dt=0.1, seed=0, diagnose=False, time_budget_s=120)
+    t = tune(p, structure="pid", dt=0.1, seed=0, effort="thorough", diagnose=False,
+             time_budget_s=120)
     assert t.meets_spec and d.meets_spec
     assert t.objective <= d.objective * (1 + 1e-3)
     assert t.solver["optimality"]["restarts"] >= 3
