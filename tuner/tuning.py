@@ -376,8 +376,10 @@ def tune(
     search = _searchable(problem, decided)  # a limit no gains can meet: searched without it, judged with it
     with threadpool_limits(limits=1):
         # keep a share of the budget for the final verification at full resolution
+        # (and, when a diagnosis may follow, its share: an infeasible spec's search would otherwise use it all)
+        reserve = (_RESERVE + (DIAGNOSIS_SHARE if diagnose else 0.0)) * float(time_budget_s)
         eng = Engine(search, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
-                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=_RESERVE * float(time_budget_s),
+                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=reserve,
                      effort=effort)
         # "as robust as possible at this speed": the fastest design meeting the spec is a candidate too (the
         # robustness objectives' landscape is flat where the settling time's is not; the fast design may win)
@@ -400,7 +402,7 @@ def tune(
         info: dict[str, Any] = {
             "method": f"optuna+casadi-{nlp_solver}" if eng.local else "optuna", "seed": int(seed),
             "stop": run.stop, "converged": run.stop == "converged", "rounds": run.rounds,
-            "budget_exhausted": time.perf_counter() > deadline - _RESERVE * float(time_budget_s),
+            "budget_exhausted": time.perf_counter() > deadline - reserve,
             "wall_time_s": wall, "global_evaluations": run.batch_evaluations, "starts_tried": run.starts_refined,
             "nlp_solves": run.nlp_solves, "nlp_iterations": run.nlp_iterations, "nlp_evaluations": run.nlp_evaluations,
             "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
