@@ -94,6 +94,18 @@ def request_budget(body: Any, settings: Any) -> float:
     return budget
 
 
+def request_plant_limit(body: Any, settings: Any) -> int:
+    """The most plants one request may tune (the server's and the library's limits); 422 at ``plants`` when the
+    body (plant + plants) gives more."""
+    from tuner.problem import MAX_PLANTS
+
+    limit = min(settings.max_plants, MAX_PLANTS)
+    n = 1 + len(body.plants or [])
+    if n > limit:
+        raise FieldError(("body", "plants"), f"{n} plants given (plant + plants); at most {limit} per request")
+    return limit
+
+
 def tuning_problem(body: TuneRequest, *, identification: Any = None) -> TuningProblem:
     """The validated problem of a /tune body (the one semantic validation of the request); with an
     ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`)."""

@@ -9,9 +9,8 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
 from tuner.jsonio import jsonable
-from tuner.problem import MAX_PLANTS
 
-from ..convert import FieldError, body_loc, request_budget, tuning_problem
+from ..convert import FieldError, body_loc, request_budget, request_plant_limit, tuning_problem
 from ..deps import client_id, get_pool, get_tradeoff_job
 from ..jobrun import run_job
 from ..pool import WorkerPool
@@ -41,10 +40,7 @@ async def post_tradeoff(
     client: str = Depends(client_id),
 ) -> JSONResponse:
     budget = request_budget(body, settings)
-    limit = min(settings.max_plants, MAX_PLANTS)
-    if 1 + len(body.plants or []) > limit:
-        raise FieldError(("body", "plants"), f"{1 + len(body.plants or [])} plants given (plant + plants); at most "
-                         f"{limit} per request")
+    request_plant_limit(body, settings)
     if body.spec is not None and body.spec.objective != "settling_time":
         raise FieldError(("body", "spec", "objective"), "the trade-off's speed axis is the settling time: leave "
                          "spec.objective at settling_time")

@@ -11,10 +11,9 @@ from fastapi.responses import JSONResponse
 
 from tuner.errors import TunerError
 from tuner.jsonio import jsonable
-from tuner.problem import MAX_PLANTS
 from tuner.robust import MONTE_CARLO_DRAWS
 
-from ..convert import FieldError, body_loc, plant_dict, request_budget, tuning_problem
+from ..convert import FieldError, body_loc, plant_dict, request_budget, request_plant_limit, tuning_problem
 from ..deps import client_id, get_pool, get_store, get_tune_job
 from ..jobrun import run_job
 from ..pool import WorkerPool
@@ -72,11 +71,7 @@ async def post_tune(
     client: str = Depends(client_id),
 ) -> JSONResponse:
     budget = request_budget(body, settings)
-    limit = min(settings.max_plants, MAX_PLANTS)
-    extra = body.plants or []
-    if 1 + len(extra) > limit:
-        raise FieldError(("body", "plants"),
-                         f"{1 + len(extra)} plants given (plant + plants); at most {limit} per request")
+    limit = request_plant_limit(body, settings)
     ident = await _identification(body, store)
     problem = tuning_problem(body, identification=ident)
     if ident is not None and len(problem.plants) > limit:

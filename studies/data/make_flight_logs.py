@@ -27,17 +27,21 @@ DURATION_S = 60.0
 LOG_HZ = 50.0
 
 
+def write_log(path: Path, axis: str, log, delay_s: float, seed: int) -> None:
+    """One axis's log as CSV (t, AXIS_cmd, AXIS), with a comment line naming the model, delay and seed."""
+    with path.open("w", newline="", encoding="utf-8") as f:
+        f.write(f"# synthetic {axis} sweep: thesis model {AXES[axis]}, delay {delay_s} s, seed {seed}\n")
+        w = csv.writer(f)
+        w.writerow(["t", f"{axis}_cmd", axis])
+        for row in zip(log.t, log.u, log.y):
+            w.writerow([f"{x:.6g}" for x in row])
+    print(f"wrote {path} ({path.stat().st_size} bytes)")
+
+
 def main() -> None:
     for axis, seed in SEEDS.items():
         log = fly(*AXES[axis], delay_s=DELAY_S, seed=seed, duration_s=DURATION_S, log_hz=LOG_HZ)
-        path = HERE / f"{axis}_sweep.csv"
-        with path.open("w", newline="", encoding="utf-8") as f:
-            f.write(f"# synthetic {axis} sweep: thesis model {AXES[axis]}, delay {DELAY_S} s, seed {seed}\n")
-            w = csv.writer(f)
-            w.writerow(["t", f"{axis}_cmd", axis])
-            for row in zip(log.t, log.u, log.y):
-                w.writerow([f"{x:.6g}" for x in row])
-        print(f"wrote {path} ({path.stat().st_size} bytes)")
+        write_log(HERE / f"{axis}_sweep.csv", axis, log, DELAY_S, seed)
 
 
 if __name__ == "__main__":

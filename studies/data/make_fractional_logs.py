@@ -12,7 +12,6 @@ is written into the study file as ``true_plant``.
 
 from __future__ import annotations
 
-import csv
 import sys
 from pathlib import Path
 
@@ -20,6 +19,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1] / "tests"))
 
 from flight import AXES, fly  # noqa: E402
+from make_flight_logs import write_log  # noqa: E402
 
 DELAYS_S = {"roll": 0.023, "pitch": 0.017, "yaw": 0.031}
 SEEDS = {"roll": 21, "pitch": 22, "yaw": 23}
@@ -31,14 +31,7 @@ def main() -> None:
     for axis, seed in SEEDS.items():
         delay = DELAYS_S[axis]
         log = fly(*AXES[axis], delay_s=delay, seed=seed, duration_s=DURATION_S, log_hz=LOG_HZ)
-        path = HERE / f"{axis}_sweep_frac.csv"
-        with path.open("w", newline="", encoding="utf-8") as f:
-            f.write(f"# synthetic {axis} sweep: thesis model {AXES[axis]}, delay {delay} s, seed {seed}\n")
-            w = csv.writer(f)
-            w.writerow(["t", f"{axis}_cmd", axis])
-            for row in zip(log.t, log.u, log.y):
-                w.writerow([f"{x:.6g}" for x in row])
-        print(f"wrote {path} ({path.stat().st_size} bytes)")
+        write_log(HERE / f"{axis}_sweep_frac.csv", axis, log, delay, seed)
 
 
 if __name__ == "__main__":
