@@ -247,12 +247,28 @@ class Engine:
         self.best = _Best()
         self._search: SeededSearch | None = None
         self._per_point = 0.0  # seconds per point of the last batch
+        # set by the first step the time left cannot afford: every later step is refused too, so that a budget only
+        # ever cuts the search's fixed sequence of steps short (a larger budget runs a longer prefix of the same
+        # search, never a different one; see :meth:`_time_left`)
+        self._exhausted = False
         self._starts: dict[bytes, Start] = {}  # what the batch said about each pooled point (refine's start)
 
     # -- bookkeeping ------------------------------------------------------------------------------
 
     def _time_left(self) -> float:
-        return self.deadline - self.reserve_s - time.perf_counter()
+        """The search's time left (the final verification's reserve excluded); <= 0 from the first step that did
+        not fit on: a step is never skipped for time while a later one runs, so what a budget decides is only
+        where the search's sequence of steps (the same for every budget, given the seed) ends."""
+        if self._exhausted:
+            return -1.0
+        left = self.deadline - self.reserve_s - time.perf_counter()
+        if left <= 0:
+            self._exhausted = True
+        return left
+
+    def _exhaust(self) -> None:
+        """A step did not fit in the time left: the search ends here (see :meth:`_time_left`)."""
+        self._exhausted = True
 
     def _score(self, V: np.ndarray, *, source: str, refined: bool = False) -> np.ndarray:
         """Batch-score coordinates, add them to the pool, track the best (non-finite points are dropped)."""
@@ -326,6 +342,8 @@ class Engine:
             return
         self._polished.add(key)
         self._refine([self.best.v], fine=True)
+        if self.best.v is not None:
+            self._polished.add(self.best.v.tobytes())  # what the polish found is polished
 
     def _refine(self, starts: list[np.ndarray], *, fine: bool = False) -> list[float]:
         """Refine each start; returns the best batch score each refinement reached."""
@@ -339,6 +357,8 @@ class Engine:
             res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                          incumbent=self.best.score if self._settling else None, start=self._starts.get(v.tobytes()),
                          fine=fine)
+            if res.status.startswith("no time left"):
+                self._exhaust()  # (an NLP build the time left cannot afford ends the search, it is not skipped)
             i = self.info
             i.starts_refined += 1
             i.nlp_solves += res.solves
@@ -406,8 +426,11 @@ class Engine:
         just enters the band earlier lies in a thin valley beside the basin a refinement ends in (PI on
         1/(20 s + 1)^2 at dt 0.1: a valley at 3 tau along a diagonal of (Kp, Ki), next to a basin at
         6 tau), too thin for the space-filling points and out of the NLP's reach from the basin."""
-        if not self._settling or self.best.v is None or self._time_left() < 2 * SCAN_POINTS * self._per_point:
-            return False  # (what the scan costs is known from the batches before it)
+        if not self._settling or self.best.v is None:
+            return False
+        if self._time_left() < 2 * SCAN_POINTS * self._per_point:  # (its cost is known from the batches before it)
+            self._exhaust()
+            return False
         rng = np.random.default_rng(seed)
         half = np.minimum(SCAN_DECADES, 0.1 * (self.space.hi - self.space.lo))
         V = self.best.v + (2 * rng.random((SCAN_POINTS, self.best.v.size)) - 1) * half
@@ -424,7 +447,10 @@ class Engine:
         """The first of ``V`` that the time left can score, at the last batch's cost per point."""
         if self._per_point <= 0:
             return V
-        return V[:max(0, int(self._time_left() / self._per_point))]
+        n = max(0, int(self._time_left() / self._per_point))
+        if n < len(V):
+            self._exhaust()  # the rest of the batch, and everything after it, is beyond the budget
+        return V[:n]
 
     def _seeded_starts(self) -> list[np.ndarray]:
         """The contained structure's own designed starts, mapped into this structure's coordinates (a ``pid``
@@ -545,7 +571,7 @@ class Engine:
         feasible = lambda: self.best.score < 1e3
         if eff.confirm == 0:
             # fast: round 0's own agreement; without it (or without a feasible point), Optuna rounds as before
-            converged = converged and feasible()
+            converged = converged and feasible() and not self._exhausted
             stale = 0
             while not converged and self._time_left() > 0:
                 before = self.best.score
@@ -555,8 +581,9 @@ class Engine:
                 improved = self.best.score < before - self._tol()
                 self.restart_improved += int(improved)
                 stale = 0 if improved else stale + 1
+                # a restart the budget cut short is no evidence
                 converged = stale >= PATIENCE + (0 if feasible() else INFEASIBLE_EXTRA) and \
-                    (not self.local or self.info.nlp_solves > 0)
+                    (not self.local or self.info.nlp_solves > 0) and not self._exhausted
         else:
             # independent evidence: the incumbent survives eff.confirm restarts in a row
             stale, converged = 0, False
@@ -568,6 +595,8 @@ class Engine:
                 improved = self.best.score < before - self._tol()
                 self.restart_improved += int(improved)
                 stale = 0 if improved else stale + 1
+                if self._exhausted:
+                    break  # a restart the budget cut short is no evidence: stop = "budget"
                 need = eff.confirm + (0 if feasible() else INFEASIBLE_EXTRA)
                 # a local stage that never ran (no time to build its NLP) has not converged: search on
                 if stale >= need and (not self.local or self.info.nlp_solves > 0):
@@ -640,7 +669,7 @@ class Engine:
         for x in self.finalists(max(k, 1)):
             if best is not None and best.feasible and self.effort.verify <= 1:
                 break
-            if self.verified and self._time_left() + self.reserve_s <= 0 and best is not None:
+            if self.verified and self.deadline - time.perf_counter() <= 0 and best is not None:
                 break  # out of budget: what is verified already
             s = self.ev.score(x, full=True)
             self.verified += 1
@@ -650,7 +679,7 @@ class Engine:
             # none of the finalists verified feasible (the search's resolution can be fooled, e.g. by a loop whose
             # slow tail outlasts its horizon): verify further candidates, in the search's order, until one is
             for x in self.finalists(max(k, 1) + EXTRA_VERIFY)[max(k, 1):]:
-                if self._time_left() + self.reserve_s <= 0:
+                if self.deadline - time.perf_counter() <= 0:
                     break
                 s = self.ev.score(x, full=True)
                 self.verified += 1

@@ -52,6 +52,7 @@ _TIGHT = 1 - 2e-4  # the NLP keeps its peak limits this much inside the spec: op
                    # verifier's dense grid must still find them inside (margins: twice the search's guard)
 _TIGHT_OS = 0.995
 NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
+POLISH_STEPS = 2.0  # a polish's first lower end: this many coarse-grid steps below the incumbent's settling time
 
 
 @dataclass
@@ -381,6 +382,10 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     start = start or Start.of(ev, x0)
     incumbent = incumbent if spec.objective == "settling_time" else None
     grid = _grid(ev, start, space.w0, incumbent, fine)
+    coarse = _grid(ev, start, space.w0, incumbent, False) if fine else grid
+    if fine and (coarse.K, coarse.N) == (grid.K, grid.N):
+        res.status = "the fine grid is the coarse one"  # nothing a polish could add to the refinement it follows
+        return res
     if ev.dt is not None and any(build_loop(p, ctrl0).plant_ct is None for p in ev.problem.plants):
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
         grid = _Grid(K=grid.K, N=1, step=grid.step, h=None)
@@ -446,14 +451,19 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
         return res
     target = _target(start, incumbent)
     near = incumbent is not None and target == incumbent and float(np.max(start.settle)) > incumbent
-    _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time, exchange, near=near)
+    # a polish starts from a refinement's end: the fine grid's optimum is within a step or two of the coarse grid's
+    lo_step = POLISH_STEPS * coarse.step / coarse.N if fine else None
+    _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time, exchange, near=near, lo_step=lo_step)
     return res
 
 
 def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, grid: _Grid, xs: np.ndarray,
-            res: RefineResult, to_search: Any, out_of_time: Any, exchange: Any, near: bool = False) -> None:
+            res: RefineResult, to_search: Any, out_of_time: Any, exchange: Any, near: bool = False,
+            lo_step: float | None = None) -> None:
     """Bisection on Ts from ``settle`` (feasible at hi, infeasible at lo); every feasible solution is a
-    candidate. ``near``: ``settle`` is an incumbent's, the optimum is probably close below it."""
+    candidate. ``near``: ``settle`` is an incumbent's, the optimum is probably close below it; ``lo_step``: it is
+    probably within this much below (a polish: the coarse grid's resolution). Either lower end is a guess, widened
+    to 0.3 hi if the bisection reaches it untested."""
     tgrid = grid.t
     hi = settle if math.isfinite(settle) and settle < tgrid[-1] else 0.9 * tgrid[-1]
     r = solve(hi, xs)
@@ -470,6 +480,8 @@ def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, gri
     # the lower end: a guess near hi when the target is an incumbent (another refinement's local optimum:
     # this one is likely to end near it), widened to 0.3 hi if the bisection reaches the guess untested
     lo, proven = (NEAR * hi, False) if near else (0.3 * hi, True)
+    if lo_step is not None and hi - lo_step > lo:
+        lo, proven = hi - lo_step, False
     tol = grid.step / grid.N  # the NLP grid's resolution (the verifier then judges between its points)
     while not out_of_time():
         if hi - lo <= tol:

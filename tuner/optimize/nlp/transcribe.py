@@ -332,70 +332,69 @@ def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden
             c.add((4 * one_plus - level ** 2 * one_minus) / scale, 0.0, cs.inf)
 
 
-def _responses(key: ProblemKey, i: int, ctrl: tuple[list, list, Any], P: dict[str, Any], r: float, w: float
-               ) -> tuple[Any, list]:
-    """The closed loop's output at N points per sample (lifted model) and the control sequence, for a unit
-    step of the reference ``r`` and of the load ``w`` at the plant input (before its delay)."""
-    a, beta, d0 = ctrl[:3]
-    if len(ctrl) > 3:
-        return _responses_2dof(key, i, ctrl, P, r, w)
-    m = len(a)
-    n, dly = key.orders[i], key.delays[i]
-    Phi, Gam, Cx, Dp, Cf, Df = (P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df"))
-    x = cs.SX.zeros(n)
-    xc = cs.SX.zeros(m)
-    buf = [cs.SX(0)] * dly
-    ys, us = [], []
-    for _ in range(key.K):
+def _step_function(key: ProblemKey, i: int, m: int, r: float, w: float, two_dof: bool) -> Any:
+    """One sample of the closed loop of plant ``i`` as a CasADi Function ``(s, Phi, Gam, C, D, Cf, Df, c) -> (s+,
+    [y_1..y_N, u])``: ``s`` the plant state, the controller state (``m``) and the delay line, ``c`` the controller's
+    canonical coefficients (``a, beta, d0`` and, 2-DOF, ``beta_r, d_r``). :func:`_responses` repeats it K times
+    with ``mapaccum`` and calls the result on the problem's symbols, which inlines the K samples in C++: the same
+    expression graph as a Python loop over the samples, built about 50 times faster."""
+    n, dly, N = key.orders[i], key.delays[i], key.N
+    s = cs.SX.sym("s", n + m + dly)
+    Phi, Gam, Cx = cs.SX.sym("Phi", n, n), cs.SX.sym("Gam", n), cs.SX.sym("C", n)
+    Dp, Cf, Df = cs.SX.sym("D"), cs.SX.sym("Cf", N, n), cs.SX.sym("Df", N)
+    nc = 2 * m + 1 + (m + 1 if two_dof else 0)
+    c = cs.SX.sym("c", nc)
+    a, beta, d0 = [c[j] for j in range(m)], [c[m + j] for j in range(m)], c[2 * m]
+    x, xc, buf = s[:n], [s[n + j] for j in range(m)], [s[n + m + j] for j in range(dly)]
+    cx = cs.dot(Cx, x) if n else cs.SX(0)
+    if not two_dof:
+        bxc = sum((beta[j] * xc[j] for j in range(m)), cs.SX(0))
         if dly == 0:
             # u = (beta xc + d0 (r - C x - D w)) / (1 + d0 D); plant input u + w
-            u = ((cs.dot(cs.vertcat(*beta), xc) if m else 0) + d0 * (r - cs.dot(Cx, x) - Dp * w)) / (1 + d0 * Dp)
+            u = (bxc + d0 * (r - cx - Dp * w)) / (1 + d0 * Dp)
             ua = u + w
-            e = r - (cs.dot(Cx, x) + Dp * ua)
+            e = r - (cx + Dp * ua)
         else:
             ua = buf[0]
-            e = r - (cs.dot(Cx, x) + Dp * ua)
-            u = (cs.dot(cs.vertcat(*beta), xc) if m else 0) + d0 * e
+            e = r - (cx + Dp * ua)
+            u = bxc + d0 * e
             buf = buf[1:] + [u + w]
-        ys.append(cs.mtimes(Cf, x) + Df * ua)
-        us.append(u)
-        x = cs.mtimes(Phi, x) + Gam * ua
-        if m:
-            xc_new = [-sum(a[j] * xc[j] for j in range(m)) + e] + [xc[j] for j in range(m - 1)]
-            xc = cs.vertcat(*xc_new)
-    return cs.vertcat(*ys), us
-
-
-def _responses_2dof(key: ProblemKey, i: int, ctrl: tuple, P: dict[str, Any], r: float, w: float
-                    ) -> tuple[Any, list]:
-    """:func:`_responses` for a 2-DOF controller ``u = C_r r - C y``: both paths on the states of the observable
-    canonical form of their common denominator (``xc+ = A xc - beta y + beta_r r``, ``u = xc[0] - d0 y + d_r r``)."""
-    a, beta, d0, beta_r, d_r = ctrl
-    m = len(a)
-    n, dly = key.orders[i], key.delays[i]
-    Phi, Gam, Cx, Dp, Cf, Df = (P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df"))
-    x = cs.SX.zeros(n)
-    xc = cs.SX.zeros(m)
-    buf = [cs.SX(0)] * dly
-    ys, us = [], []
-    for _ in range(key.K):
-        x0 = xc[0] if m else 0
+        xc_new = ([-sum((a[j] * xc[j] for j in range(m)), cs.SX(0)) + e] + xc[:m - 1]) if m else []
+    else:
+        # u = C_r r - C y on the observable canonical form of the common denominator:
+        # xc+ = A xc - beta y + beta_r r, u = xc[0] - d0 y + d_r r
+        beta_r, d_r = [c[2 * m + 1 + j] for j in range(m)], c[3 * m + 1]
+        x0 = xc[0] if m else cs.SX(0)
         if dly == 0:
-            u = (x0 + d_r * r - d0 * (cs.dot(Cx, x) + Dp * w)) / (1 + d0 * Dp)
+            u = (x0 + d_r * r - d0 * (cx + Dp * w)) / (1 + d0 * Dp)
             ua = u + w
-            y = cs.dot(Cx, x) + Dp * ua
+            y = cx + Dp * ua
         else:
             ua = buf[0]
-            y = cs.dot(Cx, x) + Dp * ua
+            y = cx + Dp * ua
             u = x0 + d_r * r - d0 * y
             buf = buf[1:] + [u + w]
-        ys.append(cs.mtimes(Cf, x) + Df * ua)
-        us.append(u)
-        x = cs.mtimes(Phi, x) + Gam * ua
-        if m:
-            xc = cs.vertcat(*[-a[j] * xc[0] + (xc[j + 1] if j + 1 < m else 0) - beta[j] * y + beta_r[j] * r
-                              for j in range(m)])
-    return cs.vertcat(*ys), us
+        xc_new = [-a[j] * xc[0] + (xc[j + 1] if j + 1 < m else 0) - beta[j] * y + beta_r[j] * r for j in range(m)]
+    out = cs.mtimes(Cf, x) + Df * ua if n else Df * ua
+    x_new = cs.mtimes(Phi, x) + Gam * ua if n else cs.SX(0, 1)
+    s_new = cs.vertcat(x_new, *xc_new, *buf)
+    return cs.Function(f"sample{i}", [s, Phi, Gam, Cx, Dp, Cf, Df, c], [s_new, cs.vertcat(out, u)])
+
+
+def _responses(key: ProblemKey, i: int, ctrl: tuple, P: dict[str, Any], r: float, w: float) -> tuple[Any, list]:
+    """The closed loop's output at N points per sample (lifted model) and the control sequence, for a unit
+    step of the reference ``r`` and of the load ``w`` at the plant input (before its delay). ``ctrl``: the
+    controller's canonical form ``(a, beta, d0)``, or for a 2-DOF controller ``u = C_r r - C y`` also the reference
+    path's ``(beta_r, d_r)`` over the same denominator."""
+    two_dof = len(ctrl) > 3
+    a = ctrl[0]
+    m = len(a)
+    coeffs = cs.vertcat(*a, *ctrl[1], ctrl[2], *((*ctrl[3], ctrl[4]) if two_dof else ()))
+    F = _step_function(key, i, m, r, w, two_dof).mapaccum(f"samples{i}", key.K, [0], [0])
+    n = key.orders[i]
+    _, out = F(cs.SX.zeros(n + m + key.delays[i]), *(P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df")),
+               coeffs)
+    return cs.vec(out[:key.N, :]), [out[key.N, :].T]
 
 
 def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str, Any]) -> None:

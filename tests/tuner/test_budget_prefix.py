@@ -1,0 +1,78 @@
+"""Issue 20: "more budget never returns a worse answer".
+
+The engine's steps are a fixed sequence given the seed; a budget only decides where that sequence ends (the first
+step the time left cannot afford ends the search: nothing is skipped for time while a later step runs). Checked on
+a clock that the test controls: each reading of it advances a fixed tick, so "time" is a count of the engine's own
+checks and every budget is exactly reproducible; the engine is then run with budgets from a few ticks to all it
+needs, and each run's scored points must be a prefix of the full run's, its best never worse than a shorter one's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tuner import Spec, plant_from_expr
+from tuner.optimize import engine as engine_mod
+from tuner.optimize.engine import Engine
+from tuner.optimize.nlp import refine as refine_mod
+from tuner.problem import TuningProblem
+
+
+class _Ticks:
+    """A stand-in for the ``time`` module: ``perf_counter`` advances ``tick`` seconds at every reading."""
+
+    def __init__(self, tick: float) -> None:
+        self.now, self.tick = 0.0, tick
+
+    def perf_counter(self) -> float:
+        self.now += self.tick
+        return self.now
+
+
+def _run(problem: TuningProblem, budget: float, monkeypatch) -> Engine:
+    clock = _Ticks(1e-3)
+    monkeypatch.setattr(engine_mod, "time", clock)
+    monkeypatch.setattr(refine_mod, "time", clock)
+    eng = Engine(problem, seed=3, deadline=clock.perf_counter() + budget, effort="default")
+    eng.run()
+    return eng
+
+
+@pytest.mark.parametrize("expr, structure, dt", [("1/(s+1)^3", "pid", 0.1), ("2/(s*(0.5*s+1))", "pi", 0.05)])
+def test_a_larger_budget_runs_a_longer_prefix_of_the_same_search(expr, structure, dt, monkeypatch):
+    problem = TuningProblem.build(plant_from_expr(expr), structure=structure, spec=Spec.thesis(), dt=dt)
+    full = _run(problem, 1e9, monkeypatch)  # every NLP it needs is built now: the budgets below cut only the search
+    assert full.info.stop == "converged"
+    n_full = len(full.pool)
+    ref = [(s, v) for s, v, _ in full.pool]
+    # the full run used this much of the test clock: budgets from a few percent of it to all of it
+    used = engine_mod.time.now
+    bests, lengths = [], []
+    # (a step whose cost, estimated from the steps before it, exceeds the time left ends the search: a budget a
+    # little over what the full run used may still end it early; ten times that does not)
+    for share in (0.02, 0.1, 0.25, 0.5, 0.8, 10.0):
+        eng = _run(problem, share * used, monkeypatch)
+        pts = [(s, v) for s, v, _ in eng.pool]
+        assert len(pts) <= n_full
+        for (s, v), (s0, v0) in zip(pts, ref):
+            assert np.array_equal(v, v0) and (s == s0 or (math.isinf(s) and math.isinf(s0))), \
+                f"budget share {share}: the search differs from the full one, not just shorter"
+        bests.append(eng.best.score)
+        lengths.append(len(pts))
+    assert lengths == sorted(lengths) and lengths[0] < n_full  # the small budgets did cut the search
+    assert all(b1 <= b0 for b0, b1 in zip(bests, bests[1:])), bests  # more budget: never a worse incumbent
+    assert bests[-1] == full.best.score and lengths[-1] == n_full
+    assert eng.info.stop == "converged"
+
+
+def test_a_search_the_budget_cut_short_does_not_claim_convergence(monkeypatch):
+    problem = TuningProblem.build(plant_from_expr("1/(s+1)^3"), structure="pid", spec=Spec.thesis(), dt=0.1)
+    full = _run(problem, 1e9, monkeypatch)
+    used = engine_mod.time.now
+    for share in (0.1, 0.3, 0.6, 0.9):
+        eng = _run(problem, share * used, monkeypatch)
+        if len(eng.pool) < len(full.pool):
+            assert eng.info.stop == "budget", share
