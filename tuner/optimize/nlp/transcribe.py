@@ -45,7 +45,6 @@ solver: deterministic, no state kept between calls) or ``"ipopt"``.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -488,13 +487,13 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
                    step=cs.Function("step", [xvar, p], [cs.vertcat(*outputs)]))
 
 
-# what a build costs, estimated before it starts: CasADi's graph and nlpsol take about 4.4 us per expression
-# node on this project's 2-core machines (1.7 s for an order-20 plant at K = 512, 466k nodes); the node count is
-# about K N (80 + 1.6 (n + n_c + 2)^2) per plant (n plant states, n_c controller parameters; the constant: a
-# step's own bookkeeping, which dominates at low order). Each build's measured time corrects the estimate for
-# the next ones (a running mean of measured/estimated, never below 1), and twice the estimate is asked for.
+# what a build costs, estimated before it starts, from its size alone (the same estimate on every machine and in
+# every process, so that what a tune decides does not depend on what ran before it): CasADi takes about 4.4 us
+# per expression node on this project's 2-core machines; the node count is about K N (80 + 1.6 (n + n_c + 2)^2)
+# per plant (n plant states, n_c controller parameters; the constant: a step's own bookkeeping, which dominates at
+# low order). The samples are built by mapaccum in C++ (:func:`_responses`): what remains is mostly CasADi's
+# derivatives, measured at 0.3-3 times this model (median 0.8); twice the estimate is asked for.
 BUILD_S_PER_NODE = 4.4e-6
-_BUILD_RATIO = {"seen": 1.0}
 
 
 def _estimated_nodes(key: ProblemKey, n_params: int) -> float:
@@ -505,7 +504,7 @@ def _estimated_nodes(key: ProblemKey, n_params: int) -> float:
 
 def estimated_build_s(key: ProblemKey, n_params: int) -> float:
     """What building the problem for ``key`` is expected to cost, s (twice the corrected estimate)."""
-    return 2.0 * BUILD_S_PER_NODE * _estimated_nodes(key, n_params) * _BUILD_RATIO["seen"]
+    return 2.0 * BUILD_S_PER_NODE * _estimated_nodes(key, n_params)
 
 
 def is_built(key: ProblemKey) -> bool:
@@ -517,9 +516,6 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
     """The cached problem for ``key`` (built on first use only; plant data are parameters)."""
     prob = _CACHE.get(key)
     if prob is None:
-        t0 = time.perf_counter()
         prob = _build(key, st, space)
-        ratio = (time.perf_counter() - t0) / max(BUILD_S_PER_NODE * _estimated_nodes(key, len(st.params)), 1e-9)
-        _BUILD_RATIO["seen"] = max(1.0, 0.6 * _BUILD_RATIO["seen"] + 0.4 * min(ratio, 20.0))
         _CACHE[key] = prob
     return prob
