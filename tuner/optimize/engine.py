@@ -18,7 +18,12 @@ so far). The search stops when
   every basin refined so far, and a scan around the incumbent), none finding anything better by more
   than the tolerance. An
   infeasible incumbent needs ``INFEASIBLE_EXTRA`` more restarts; or
-* **budget**: the time budget (minus what the final verification needs) is used up.
+* **budget**: the time budget (minus what the final verification needs) is used up. Given the seed, the search's
+  steps are one fixed sequence whatever the budget and the machine's load: the first step the time left cannot
+  afford (a batch, an NLP build, a scan, estimated from its size and the batches before it) ends the search, and
+  nothing is skipped for time while a later step runs. A larger budget therefore runs a longer prefix of the same
+  search, and its incumbent is never worse (``tests/tuner/test_budget_prefix.py``); a restart the budget cut
+  short is no evidence of convergence.
 
 ``info["stop"]`` says which; ``info.optimality`` (:meth:`Engine.optimality`) says what the search knows
 about how close its answer is: the basins its refinements ended in, the best distinct alternative and
