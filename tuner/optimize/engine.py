@@ -46,6 +46,7 @@ from .design import initial_guess, zero_variants
 from .scoring import Evaluator, Scored
 from .search import SeededSearch
 from .space import Space, make_space
+from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL
 
 __all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES", "Effort", "EFFORTS"]
 
@@ -67,6 +68,9 @@ SCAN_DECADES = 0.3  # half-width per coordinate, in the search's coordinates (de
 SCAN_SEED = 20261202
 GAIN_DECADES = (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5)  # the designed starts' gains, in decades of the guess
 PROJECTION_SHRINK = (1e-2, 1e-4)  # the projections' shrunk gains (see Engine._projections)
+RAY_STEP = 0.04
+RAY_DECADES = tuple(d * RAY_STEP for d in (-8, -6, -5, -4, -3, -2, -1, 1, 2, 3, 4, 6))  # the ray's loop gains (Engine._ray)
+RAY_ZOOMS = 2
 BASIN = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
 INFEASIBLE_EXTRA = 2  # an infeasible incumbent must survive this many more restarts before "converged"
 
@@ -105,6 +109,8 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
     zs = zero_variants(plant, dt, space.w0) if variants else [None]
     if variants:
         zs = zs + _unstable_variants(plant, dt)
+        if st.integrating:
+            zs = zs + _integrator_variants(plant, dt, space.w0)
     guesses = []
     for zeros in zs:
         with np.errstate(all="ignore"):
@@ -152,6 +158,31 @@ def _filter_variants(space: Space, guesses: list[np.ndarray]) -> list[np.ndarray
                 v = space.from_params(x)
                 out.append(np.clip(v, space.lo, space.hi))
     return out
+
+
+VANISHING_ZERO = 1e-4  # the vanishing integral's zero, as a fraction of the plant's slowest pole (or w0)
+
+
+def _integrator_variants(plant, dt: float | None, w0: float) -> list[np.ndarray]:
+    """Zero placements for a controller with an integral on a plant that already has one (K/(s(tau s + 1))): one
+    zero at VANISHING_ZERO of the loop's scale, the other on the slowest pole or far. The loop has zero steady-state
+    error without the controller's integral, and under a phase-margin limit the optimum is a P (PD) with a vanishing
+    integral: a PI zero anywhere near the crossover costs phase (the loop is type 2) and leaves a slow closed-loop
+    pole whose tail (residue about Ki / (K Kp^2)) keeps the response out of the band for many settling times; the
+    optimum is the plateau where that residue is inside the band (PI on 0.45/(s (6.1 s + 1)): Kp 0.146, Ki ~ 0,
+    34.6 s; every other placement's start, the zero at the plant's pole or near w0, settles in hundreds of
+    seconds or not at all, and the logarithmic gain coordinate makes Ki -> 0 a long move)."""
+    poles = np.asarray(plant.poles, dtype=complex)
+    at = 1.0 if plant.dt is not None else 0.0
+    if not poles.size or not np.any(np.abs(poles - at) <= ROOT_AT_DC_TOL * max(1.0, float(np.max(np.abs(poles))))):
+        return []
+    from .design import slow_poles
+
+    p1 = slow_poles(plant, w0)[0]
+    p1 = p1 if abs(p1.imag) <= REAL_ROOT_TOL * max(1.0, abs(p1)) else complex(-abs(p1))
+    eps = VANISHING_ZERO * min(abs(p1), w0)
+    far = -np.inf if dt is not None else -10.0 * w0
+    return [np.array([-eps, p1], dtype=complex), np.array([-eps, far], dtype=complex)]
 
 
 def _unstable_variants(plant, dt: float | None) -> list[np.ndarray]:
@@ -505,6 +536,7 @@ class Engine:
             self._search.told(trials, self._score(V, source="optuna") if len(V) else [])
             self._told = len(self.pool)  # (the rest is told by the next _tell_new)
         self._score(np.array(self._affordable(self._projections() + list(fresh))), source="restart")
+        self._ray()
         if self.local and self._time_left() > 0:
             self._refine(self._distinct(self.effort.restart_refines))
         if self._time_left() > 0:
@@ -533,6 +565,39 @@ class Engine:
                     if np.all(np.isfinite(w)):
                         out.append(np.clip(w, self.space.lo, self.space.hi))
         return out
+
+    def _ray(self) -> None:
+        """The incumbent with all its gains scaled together (the loop gain) by RAY_DECADES, then, while that finds
+        something better, around the best factor at a quarter of the step (RAY_ZOOMS times, between its neighbours). The settling time
+        jumps where the overshoot reaches the band: a P on 0.45/(s (6.1 s + 1)) settles in 34.6 s at Kp 0.146 and in
+        52.6 s at 0.152, falling again to 46 s at the phase-margin limit (Kp 0.23), where a refinement ends; the step
+        back across the jump is a long move for the NLP's bisection and too thin a target for the scan."""
+        if self.best.v is None or not self._settling:
+            return
+        gains = [i for i, kind in enumerate(self.space.structure.kinds) if kind == "gain"]
+        if not gains:
+            return
+        x = self.space.params(self.best.v)
+        center, D, step = 0.0, np.array(RAY_DECADES), RAY_STEP
+        for _ in range(1 + RAY_ZOOMS):
+            V, ds = [], []
+            for d in center + D:
+                y = np.array(x, dtype=float)
+                y[gains] *= 10.0 ** d
+                w = self.space.from_params(y)
+                if np.all(np.isfinite(w)):
+                    V.append(np.clip(w, self.space.lo, self.space.hi))
+                    ds.append(d)
+            V = self._affordable(V)
+            if not V:
+                return
+            before = self.best.score
+            sc = self._score(np.array(V), source="ray")
+            if len(sc) != len(V) or float(np.min(sc)) >= before:
+                return
+            center = ds[int(np.argmin(sc))]
+            step /= 4.0
+            D = step * np.array([-3.0, -2.0, -1.0, 1.0, 2.0, 3.0])  # between the best factor's neighbours
 
     def run(self) -> RunInfo:
         """Round 0, then later rounds until the search has converged (see the module; ``stop = "converged"``) or
