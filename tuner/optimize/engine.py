@@ -536,11 +536,12 @@ class Engine:
             self._search.told(trials, self._score(V, source="optuna") if len(V) else [])
             self._told = len(self.pool)  # (the rest is told by the next _tell_new)
         self._score(np.array(self._affordable(self._projections() + list(fresh))), source="restart")
-        self._ray()
         if self.local and self._time_left() > 0:
             self._refine(self._distinct(self.effort.restart_refines))
         if self._time_left() > 0:
             self._scan(seed=SCAN_SEED + self.restarts)
+        if self._time_left() > 0:
+            self._ray()
         self._polish()
 
     def _projections(self) -> list[np.ndarray]:
