@@ -583,6 +583,15 @@ class Engine:
         if not gains:
             return
         x = self.space.params(self.best.v)
+        start, tol = self.best.score, self._tol()
+        self._ray_levels(x, gains)
+        if self.best.score >= start - tol and self.best.v is not None:
+            # a step within the search's tolerance (a fraction of a sample, finer than the NLP's grid resolves):
+            # the fine polish would find nothing the ray did not (it costs a dozen NLP solves)
+            self._polished.add(self.best.v.tobytes())
+
+    def _ray_levels(self, x: np.ndarray, gains: list[int]) -> None:
+        """:meth:`_ray`'s levels from the incumbent's parameters ``x``."""
         center, D = 0.0, np.array(RAY_DECADES)
         for _ in range(1 + RAY_ZOOMS):
             V, ds = [], []
