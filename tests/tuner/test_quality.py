@@ -188,8 +188,8 @@ def _suite_case(cid: str):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("cid", ["integrating-03", "integrating-11", "integrating-00", "integrating-04", "integrating-24",
-                                 "integrating-10", "integrating-18"])
+@pytest.mark.parametrize("cid", ["integrating-03", "integrating-11", "integrating-00", "integrating-04",
+                                 "integrating-24", "integrating-10", "integrating-18"])
 def test_integrating_plants_reach_their_references(cid):
     """K/(s (tau s + 1)) under the thesis spec, default effort: within 1 % of the stored reference (long DE + CMA-ES,
     verified twice; bench/quality_reference.json). PI (03, 11): the vanishing-integral plateau (they were 24.5 and

@@ -41,12 +41,12 @@ import numpy as np
 
 from ..controllers import get_structure
 from ..problem import TuningProblem
+from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL
 from .batch import BatchEvaluator, Start
 from .design import initial_guess, zero_variants
 from .scoring import Evaluator, Scored
 from .search import SeededSearch
 from .space import Space, make_space
-from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL
 
 __all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES", "Effort", "EFFORTS"]
 
@@ -574,9 +574,10 @@ class Engine:
     def _ray(self) -> None:
         """The incumbent with all its gains scaled together (the loop gain) by RAY_DECADES, then, while that finds
         something the verifier confirms, around the best factor at a quarter of its nearest gap (RAY_ZOOMS times); a
-        step within the tolerance is not polished again. The settling time jumps where the overshoot reaches the band: a P on 0.45/(s (6.1 s + 1)) settles in 34.6 s at Kp 0.146 and in
-        52.6 s at 0.152, falling again to 46 s at the phase-margin limit (Kp 0.23), where a refinement ends; the step
-        back across the jump is a long move for the NLP's bisection and too thin a target for the scan."""
+        step within the tolerance is not polished again. The settling time jumps where the overshoot reaches the
+        band: a P on 0.45/(s (6.1 s + 1)) settles in 34.6 s at Kp 0.146 and in 52.6 s at 0.152, falling again to
+        46 s at the phase-margin limit (Kp 0.23), where a refinement ends; the step back across the jump is a long
+        move for the NLP's bisection and too thin a target for the scan."""
         if self.best.v is None or not self._settling:
             return
         gains = [i for i, kind in enumerate(self.space.structure.kinds) if kind == "gain"]

@@ -27,10 +27,10 @@ import numpy as np
 from ...analysis.margins import frequency_grid
 from ...controllers import ControllerTF
 from ...loop import build_loop
+from ...tolerances import ROOT_AT_DC_TOL
 from .. import rules
 from ..batch import GUARD, BatchEvaluator, Start
 from ..space import Space
-from ...tolerances import ROOT_AT_DC_TOL
 from .plantdata import LiftedPlant, lift
 from .transcribe import GRID_EXTRA, MS_GRID, Problem, ProblemKey, estimated_build_s, get_problem, is_built
 
