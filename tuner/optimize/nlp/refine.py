@@ -27,6 +27,7 @@ import numpy as np
 from ...analysis.margins import frequency_grid
 from ...controllers import ControllerTF
 from ...loop import build_loop
+from ...tolerances import ROOT_AT_DC_TOL
 from .. import rules
 from ..batch import GUARD, BatchEvaluator, Start
 from ..space import Space
@@ -51,6 +52,7 @@ _ABS_EPS = 1e-9
 _TIGHT = 1 - 2e-4  # the NLP keeps its peak limits this much inside the spec: optima sit on the limits, and the
                    # verifier's dense grid must still find them inside (margins: twice the search's guard)
 _TIGHT_OS = 0.995
+INTEGRAL_FLOOR = 1e-3  # a start's integral gain keeps at least this fraction of itself (see _integral_sign)
 NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
 POLISH_STEPS = 2.0  # a polish's first lower end: this many coarse-grid steps below the incumbent's settling time
 
@@ -257,6 +259,43 @@ def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: fl
     return np.clip(xs, lbx, ubx), lbx, ubx
 
 
+def _integral_sign(ev: BatchEvaluator, space: Space, prob: Problem, x0: np.ndarray, lbx: np.ndarray,
+                   ubx: np.ndarray) -> None:
+    """Bound the integral gain to the sign every stable loop has: the characteristic polynomial of ``C = n_c/(s d_c)``
+    on a strictly proper plant ``n_p/d_p`` is ``s d_c d_p + n_c n_p``; its value at s = 0 is ``Ki n_p(0)`` (times
+    ``d_c(0) > 0``) and its leading coefficient that of ``s d_c d_p``, so an integral gain of the other sign than
+    ``n_p(0)``'s (``d_p`` monic) puts a real root in
+    the right half plane (at z = 1 the same for the sampled loop, a delay's ``e^{-s tau}`` is 1 at s = 0 and vanishes
+    for large real s). The NLP cannot see that root when it is slow: a vanishing integral (a P on an integrating
+    plant) crossing zero leaves a pole that leaves the band only after the NLP's horizon, and every candidate of
+    the bisection would be unstable."""
+    st = space.structure
+    if "Ki" not in st.params or not st.integrating or st.kinds[st.params.index("Ki")] != "gain":
+        return
+    signs = set()
+    for p in ev.problem.plants:
+        zk = p.zpk
+        at = 1.0 if p.is_discrete else 0.0  # a continuous plant at dt: its ZOH's n(1) has the sign of n(0)
+        if zk.zeros.size >= zk.poles.size or np.any(np.abs(zk.zeros - at) <= ROOT_AT_DC_TOL * max(1.0, at)):
+            return  # biproper (the leading coefficient depends on Kp) or a zero at DC: no sign to take
+        with np.errstate(all="ignore"):
+            n_at = float(np.real(zk.gain * np.prod(at - zk.zeros)))  # n_p at DC, d_p monic
+        if not (math.isfinite(n_at) and n_at != 0.0):
+            return
+        signs.add(1.0 if n_at > 0 else -1.0)
+    if len(signs) != 1:
+        return
+    k = st.params.index("Ki")
+    i = prob.variables.slice("v").start + k
+    unit = float(space.units[k])
+    sign = signs.pop() * np.sign(unit)
+    floor = INTEGRAL_FLOOR * float(x0[k]) / unit if unit else 0.0  # the start's integral, in the NLP's coordinate
+    if sign > 0:
+        lbx[i] = max(lbx[i], floor, 0.0)
+    elif sign < 0:
+        ubx[i] = min(ubx[i], floor, 0.0)
+
+
 class _Solves:
     """Solves of one problem from one start, accumulating the solver's statistics in ``res``."""
 
@@ -408,6 +447,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     prob = get_problem(key, space.structure, space)
     values = _values(ev, space, grid, data, key)
     xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0), spec.crossover_rad_s)
+    _integral_sign(ev, space, prob, x0, lbx, ubx)
+    xs = np.clip(xs, lbx, ubx)
     solve = _Solves(prob, values, grid, lbx, ubx, res, solver)
 
     def out_of_time() -> bool:
