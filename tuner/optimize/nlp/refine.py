@@ -41,6 +41,7 @@ POINTS_PER_SAMPLE = 4
 POINTS_PER_SETTLE = 100  # at least this many NLP grid points up to the settling time (its resolution: 1 %)
 MAX_POINTS_PER_SAMPLE = 32
 MAX_GRID_POINTS = 2048  # the more points per sample are taken only while K * N stays within this
+RIPPLE_RAD = 0.15  # at most this much of the start's crossover phase between two NLP grid points (up to 4 a sample)
 SLOW_TAIL = 40.0
 CONTINUOUS_STEPS = 400
 MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
@@ -131,6 +132,13 @@ def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None
     settle = _target(start, incumbent)
     samples = settle / ev.dt if math.isfinite(settle) else math.inf
     base = POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
+    # a loop can settle slowly and still cross over fast (an unstable plant's slow tail after a fast rise): its
+    # overshoot peak then lies between the samples (pid_z on an unstable plant, wc dt = 0.5: the samples show
+    # 9.8 %, the response 10.2 %), and solutions the NLP keeps at the limit fail it; enough points that one
+    # step of the grid is at most RIPPLE_RAD of the crossover's phase
+    wc = max((w for w in np.atleast_1d(start.wc) if np.isfinite(w) and w > 0), default=0.0)
+    while base < POINTS_PER_SAMPLE and wc * ev.dt / base > RIPPLE_RAD and (not K or K * base * 2 <= MAX_GRID_POINTS):
+        base *= 2
     if not fine:
         return base
     # the bisection resolves the settling time to one grid step: a loop settling in a few samples needs more
