@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,19 +18,21 @@ import reference as ref
 from tuner import Spec, analyze, plant_from_expr, tune
 from tuner.cli import main
 from tuner.errors import TunerError
+from tuner.plant import Plant
 
 PITCH = "4.674/(s^2+3.523*s+12.38)"
 
 
-def _independent(plant_num, plant_den, res, spec: Spec) -> dict[str, float]:
-    """Margins (dense Nyquist grid) and the step (matrix-exponential simulation) of the loop, without tuner."""
+def _independent(plant_num, plant_den, res, spec: Spec, horizon_s: float = 20.0) -> dict[str, float]:
+    """Margins (dense Nyquist grid) and the step (matrix-exponential simulation over ``horizon_s``) of the loop,
+    without tuner."""
     c = res.controller
     dt = c.dt
     gn, gd = ref.zoh(plant_num, plant_den, dt)
     num, den = np.polymul(c.num, gn), np.polymul(c.den, gd)
     assert np.all(np.abs(np.roots(np.polyadd(den, num))) < 1)
     m = ref.nyquist_margins(num, den, dt, n=60_000)
-    t, y = ref.closed_loop_step(plant_num, plant_den, c.num, c.den, dt, samples=int(20 / dt))
+    t, y = ref.closed_loop_step(plant_num, plant_den, c.num, c.den, dt, samples=int(horizon_s / dt))
     return {"pm": m["pm"], "gm": m["gm_db"], "gml": m["gml_db"], "overshoot": (float(np.max(y)) - 1) * 100,
             "settling": ref.settling_time(t, y, 1.0, band=spec.settling_band_pct / 100)}
 
@@ -139,3 +142,32 @@ def test_thorough_is_never_worse_than_default():
     assert t.objective <= d.objective * (1 + 1e-3)
     assert t.solver["optimality"]["restarts"] >= 3
     assert math.isfinite(t.objective)
+
+
+
+BENCH = Path(__file__).resolve().parents[2] / "bench"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cid", ["unstable-05", "unstable-17"])
+def test_unstable_plants_reach_the_reference(cid):
+    """bench/quality.py's unstable cases that missed (thesis spec, seed 0): pid_z on 2.734/(0.803 s^2 + 1.467 s - 1)
+    at dt 0.04346 (unstable-05: the loop crosses over at wc dt = 0.5 yet settles in ~50 samples; the NLP held the
+    overshoot at the samples and its solutions peaked above 10 % between them: 5.89 s), pid_z on
+    1.521/(0.0156 s^2 + 0.520 s - 1) at dt 0.01418 (unstable-17: poles +1.8 and -35 rad/s; every designed start
+    overshot 12-60 %: no design met the spec). Each within 1 % of the stored reference (differential evolution
+    + CMA-ES, verified independently), and the loop checked here: margins on a dense Nyquist grid, the step
+    simulated at 20 points a sample (the peak between the samples)."""
+    cases = {c["id"]: c for c in json.loads((BENCH / "quality_suite.json").read_text())["cases"]}
+    refs = {r["id"]: r for r in json.loads((BENCH / "quality_reference.json").read_text())["references"]}
+    c, r = cases[cid], refs[cid]
+    assert r["feasible"] and r["independent_ok"]
+    spec = Spec.thesis()
+    plant = Plant(np.array(c["num"], float), np.array(c["den"], float), delay_s=float(c["delay_s"]))
+    res = tune(plant, structure=c["structure"], dt=c["dt"], spec=spec, seed=0, diagnose=False, time_budget_s=120)
+    assert res.meets_spec, f"{cid}: no design meets the spec (the reference has {r['objective']:.5g})"
+    assert res.objective <= 1.01 * r["objective"], (cid, res.objective, r["objective"], res.gains, r["gains"])
+    ind = _independent(c["num"], c["den"], res, spec, horizon_s=max(20.0, 10 * r["objective"]))
+    assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["gml"] <= -6 + 0.02
+    assert ind["overshoot"] <= 10 + 0.02
+    assert ind["settling"] == pytest.approx(res.objective, abs=c["dt"] / 10)
