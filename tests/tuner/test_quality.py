@@ -149,13 +149,15 @@ BENCH = Path(__file__).resolve().parents[2] / "bench"
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("cid", ["unstable-05", "unstable-17"])
+@pytest.mark.parametrize("cid", ["unstable-05", "unstable-17", "unstable-25"])
 def test_unstable_plants_reach_the_reference(cid):
     """bench/quality.py's unstable cases that missed (thesis spec, seed 0): pid_z on 2.734/(0.803 s^2 + 1.467 s - 1)
     at dt 0.04346 (unstable-05: the loop crosses over at wc dt = 0.5 yet settles in ~50 samples; the NLP held the
     overshoot at the samples and its solutions peaked above 10 % between them: 5.89 s), pid_z on
     1.521/(0.0156 s^2 + 0.520 s - 1) at dt 0.01418 (unstable-17: poles +1.8 and -35 rad/s; every designed start
-    overshot 12-60 %: no design met the spec). Each within 1 % of the stored reference (differential evolution
+    overshot 12-60 %: no design met the spec), PID on 3.503/(28.74 s^2 + 7.93 s - 1) at dt 0.33 (unstable-25: the
+    overshoot limit active at the polish's answer, which the NLP kept 0.5 % inside the batch's: 1.4 % above the
+    reference). Each within 1 % of the stored reference (differential evolution
     + CMA-ES, verified independently), and the loop checked here: margins on a dense Nyquist grid, the step
     simulated at 20 points a sample (the peak between the samples)."""
     cases = {c["id"]: c for c in json.loads((BENCH / "quality_suite.json").read_text())["cases"]}
