@@ -173,3 +173,22 @@ def test_unstable_plants_reach_the_reference(cid):
     assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["gml"] <= -6 + 0.02
     assert ind["overshoot"] <= 10 + 0.02
     assert ind["settling"] == pytest.approx(res.objective, abs=c["dt"] / 10)
+
+
+@pytest.mark.slow
+def test_pi_on_a_lightly_damped_plant_stays_in_its_basin():
+    """bench/quality.py's underdamped-10: PI on 4.090/(s^2 + 1.543 s + 4.925) (zeta 0.35) at dt 0.01009, thesis
+    spec. Two basins: Kp > 0 (the stored reference, differential evolution + CMA-ES: Kp 0.586, Ki 1.084, 5.697 s)
+    and Kp < 0 (5.80 s). The designed start in the first (Kp 0.50, Ki 1.13, settling 6.69 s) left it on the
+    refinement's first solve; the tune must be within 1 % of the reference, checked here independently."""
+    refs = {r["id"]: r for r in json.loads((BENCH / "quality_reference.json").read_text())["references"]}
+    r = refs["underdamped-10"]
+    assert r["feasible"] and r["independent_ok"] and r["objective"] == pytest.approx(5.697, abs=1e-3)
+    spec = Spec.thesis()
+    num, den = [4.09020001982652], [1.0, 1.5432062230171781, 4.92474199765871]
+    res = tune(Plant(np.array(num), np.array(den)), structure="pi", dt=0.01009, spec=spec, seed=0, diagnose=False,
+               time_budget_s=120)
+    assert res.meets_spec and res.objective <= 1.01 * r["objective"], (res.objective, res.gains)
+    ind = _independent(num, den, res, spec)
+    assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["overshoot"] <= 10 + 0.02
+    assert ind["settling"] == pytest.approx(res.objective, abs=0.01009 / 10)
