@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,15 +23,16 @@ from tuner.plant import Plant
 PITCH = "4.674/(s^2+3.523*s+12.38)"
 
 
-def _independent(plant_num, plant_den, res, spec: Spec) -> dict[str, float]:
-    """Margins (dense Nyquist grid) and the step (matrix-exponential simulation) of the loop, without tuner."""
+def _independent(plant_num, plant_den, res, spec: Spec, horizon_s: float = 20.0) -> dict[str, float]:
+    """Margins (dense Nyquist grid) and the step (matrix-exponential simulation over ``horizon_s``) of the loop,
+    without tuner."""
     c = res.controller
     dt = c.dt
     gn, gd = ref.zoh(plant_num, plant_den, dt)
     num, den = np.polymul(c.num, gn), np.polymul(c.den, gd)
     assert np.all(np.abs(np.roots(np.polyadd(den, num))) < 1)
     m = ref.nyquist_margins(num, den, dt, n=60_000)
-    t, y = ref.closed_loop_step(plant_num, plant_den, c.num, c.den, dt, samples=int(20 / dt))
+    t, y = ref.closed_loop_step(plant_num, plant_den, c.num, c.den, dt, samples=int(horizon_s / dt))
     return {"pm": m["pm"], "gm": m["gm_db"], "gml": m["gml_db"], "overshoot": (float(np.max(y)) - 1) * 100,
             "settling": ref.settling_time(t, y, 1.0, band=spec.settling_band_pct / 100)}
 
@@ -228,3 +230,51 @@ def test_the_nlp_keeps_a_vanishing_integral_stabilising():
     # and the refinement is of use: a candidate meets the spec at the search's resolution (it used to end with
     # every candidate's integral at or below zero: unstable, or marginal at Ki = 0)
     assert np.min(batch.evaluate(np.array([space.params(v) for v in res.candidates])).score) < 1e3
+
+BENCH = Path(__file__).resolve().parents[2] / "bench"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cid", ["unstable-05", "unstable-17", "unstable-25"])
+def test_unstable_plants_reach_the_reference(cid):
+    """bench/quality.py's unstable cases that missed (thesis spec, seed 0): pid_z on 2.734/(0.803 s^2 + 1.467 s - 1)
+    at dt 0.04346 (unstable-05: the loop crosses over at wc dt = 0.5 yet settles in ~50 samples; the NLP held the
+    overshoot at the samples and its solutions peaked above 10 % between them: 5.89 s), pid_z on
+    1.521/(0.0156 s^2 + 0.520 s - 1) at dt 0.01418 (unstable-17: poles +1.8 and -35 rad/s; every designed start
+    overshot 12-60 %: no design met the spec), PID on 3.503/(28.74 s^2 + 7.93 s - 1) at dt 0.33 (unstable-25: the
+    overshoot limit active at the polish's answer, which the NLP kept 0.5 % inside the batch's: 1.4 % above the
+    reference). Each within 1 % of the stored reference (differential evolution
+    + CMA-ES, verified independently), and the loop checked here: margins on a dense Nyquist grid, the step
+    simulated at 20 points a sample (the peak between the samples)."""
+    cases = {c["id"]: c for c in json.loads((BENCH / "quality_suite.json").read_text())["cases"]}
+    refs = {r["id"]: r for r in json.loads((BENCH / "quality_reference.json").read_text())["references"]}
+    c, r = cases[cid], refs[cid]
+    assert r["feasible"] and r["independent_ok"]
+    spec = Spec.thesis()
+    plant = Plant(np.array(c["num"], float), np.array(c["den"], float), delay_s=float(c["delay_s"]))
+    res = tune(plant, structure=c["structure"], dt=c["dt"], spec=spec, seed=0, diagnose=False, time_budget_s=120)
+    assert res.meets_spec, f"{cid}: no design meets the spec (the reference has {r['objective']:.5g})"
+    assert res.objective <= 1.01 * r["objective"], (cid, res.objective, r["objective"], res.gains, r["gains"])
+    ind = _independent(c["num"], c["den"], res, spec, horizon_s=max(20.0, 10 * r["objective"]))
+    assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["gml"] <= -6 + 0.02
+    assert ind["overshoot"] <= 10 + 0.02
+    assert ind["settling"] == pytest.approx(res.objective, abs=c["dt"] / 10)
+
+
+@pytest.mark.slow
+def test_pi_on_a_lightly_damped_plant_stays_in_its_basin():
+    """bench/quality.py's underdamped-10: PI on 4.090/(s^2 + 1.543 s + 4.925) (zeta 0.35) at dt 0.01009, thesis
+    spec. Two basins: Kp > 0 (the stored reference, differential evolution + CMA-ES: Kp 0.586, Ki 1.084, 5.697 s)
+    and Kp < 0 (5.80 s). The designed start in the first (Kp 0.50, Ki 1.13, settling 6.69 s) left it on the
+    refinement's first solve; the tune must be within 1 % of the reference, checked here independently."""
+    refs = {r["id"]: r for r in json.loads((BENCH / "quality_reference.json").read_text())["references"]}
+    r = refs["underdamped-10"]
+    assert r["feasible"] and r["independent_ok"] and r["objective"] == pytest.approx(5.697, abs=1e-3)
+    spec = Spec.thesis()
+    num, den = [4.09020001982652], [1.0, 1.5432062230171781, 4.92474199765871]
+    res = tune(Plant(np.array(num), np.array(den)), structure="pi", dt=0.01009, spec=spec, seed=0, diagnose=False,
+               time_budget_s=120)
+    assert res.meets_spec and res.objective <= 1.01 * r["objective"], (res.objective, res.gains)
+    ind = _independent(num, den, res, spec)
+    assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["overshoot"] <= 10 + 0.02
+    assert ind["settling"] == pytest.approx(res.objective, abs=0.01009 / 10)
