@@ -451,8 +451,11 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     incumbent = incumbent if spec.objective == "settling_time" else None
     grid = _grid(ev, start, space.w0, incumbent, fine)
     coarse = _grid(ev, start, space.w0, incumbent, False) if fine else grid
-    if fine and (coarse.K, coarse.N) == (grid.K, grid.N):
-        res.status = "the fine grid is the coarse one"  # nothing a polish could add to the refinement it follows
+    # a polish on the coarse grid itself would repeat the refinement it follows: only its looser overshoot margin
+    # (below) can add to it
+    same = fine and (coarse.K, coarse.N) == (grid.K, grid.N)
+    if same and not _resolves_peak(start, grid):
+        res.status = "the fine grid is the coarse one"
         return res
     if ev.dt is not None and any(build_loop(p, ctrl0).plant_ct is None for p in ev.problem.plants):
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
@@ -523,8 +526,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     near = incumbent is not None and target == incumbent and float(np.max(start.settle)) > incumbent
     # a polish starts from a refinement's end: the fine grid's optimum is within a step or two of the coarse grid's
     lo_step = POLISH_STEPS * coarse.step / coarse.N if fine else None
-    out = _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time, exchange, near=near,
-                  lo_step=lo_step)
+    out = (target, xs) if same else _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time,
+                                            exchange, near=near, lo_step=lo_step)
     if fine and out is not None and _resolves_peak(start, grid) and not out_of_time():
         hi, best = out
         if solve.overshoot(best) >= 0.999 * values["os"]:  # the overshoot limit is active: bisect on at the looser one
