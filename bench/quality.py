@@ -50,7 +50,7 @@ SUITE_SEED = 20261202
 SUITE = HERE / "quality_suite.json"
 REFERENCE = HERE / "quality_reference.json"
 RESULTS = HERE / "results"
-CLASSES = ("lag", "underdamped", "integrating", "unstable", "nmp", "delay")
+CLASSES = ("lag", "underdamped", "integrating", "unstable", "nmp", "delay", "fracdelay", "twodof")
 STRUCTURES = {  # structures that can give zero steady-state error to a step on the class
     "lag": ("pid", "pi", "pid_z"),
     "underdamped": ("pid", "pi", "pid_z"),
@@ -58,6 +58,8 @@ STRUCTURES = {  # structures that can give zero steady-state error to a step on 
     "unstable": ("pi", "pid", "pid_z"),
     "nmp": ("pi", "pid", "pid_z"),
     "delay": ("pi", "pid", "pid_z"),
+    "fracdelay": ("pi", "pid", "pid_z", "pid2"),
+    "twodof": ("pid2",),
 }
 
 
@@ -70,46 +72,73 @@ def _poly(*factors) -> list[float]:
     return [float(c) for c in out]
 
 
+def _draw(cls: str, i: int, rng: np.random.Generator) -> tuple[list[float], list[float], float, float]:
+    """One plant of class ``cls`` (index ``i`` within it): ``(num, den, tau_dom, delay_s)``, the delay before it
+    is made whole samples. The draws and their order are the suite's: changing them changes every case."""
+    K = float(10 ** rng.uniform(-0.5, 0.7))
+    T = float(10 ** rng.uniform(-1, 1.3))  # the dominant time constant, s
+    delay = 0.0
+    if cls == "lag":
+        n = 1 + i % 5
+        taus = [T] + [T * float(rng.uniform(0.15, 1.0)) for _ in range(n - 1)]
+        num, den, tau_dom = [K], _poly(*[[t, 1.0] for t in taus]), T
+    elif cls == "underdamped":
+        z, wn = float(rng.uniform(0.05, 0.4)), 1.0 / T
+        lag = float(rng.uniform(0.0, 0.5)) * T
+        facs = [[1.0, 2 * z * wn, wn * wn]] + ([[lag, 1.0]] if i % 2 else [])
+        num, den, tau_dom = [K * wn * wn], _poly(*facs), T
+    elif cls == "integrating":
+        num, den, tau_dom = [K], _poly([1.0, 0.0], [T, 1.0]), T
+    elif cls == "unstable":
+        lag = float(rng.uniform(0.0, 0.3)) * T
+        facs = [[T, -1.0]] + ([[lag, 1.0]] if i % 2 else [])
+        num, den, tau_dom = [K], _poly(*facs), T
+    elif cls == "nmp":
+        beta = float(rng.uniform(0.1, 0.5)) * T
+        num, den, tau_dom = _poly([-K * beta, K]), _poly([T, 1.0], [T * float(rng.uniform(0.2, 1.0)), 1.0]), T
+    elif cls in ("delay", "fracdelay"):
+        second = i % 2 == 1
+        facs = [[T, 1.0]] + ([[T * float(rng.uniform(0.1, 0.6)), 1.0]] if second else [])
+        num, den, tau_dom = [K], _poly(*facs), T
+        delay = float(rng.uniform(0.15, 1.6)) * T
+    else:
+        raise ValueError(cls)
+    return num, den, tau_dom, delay
+
+
+TWODOF_PLANTS = ("lag", "underdamped", "nmp", "delay", "unstable")  # the twodof class's plants, round-robin
+
+
 def generate(n_per_class: int = 35, seed: int = SUITE_SEED) -> list[dict[str, Any]]:
-    """The suite's cases (deterministic in ``seed``): plant (num, den, delay), dt, structure, class."""
-    rng = np.random.default_rng(seed)
+    """The suite's cases (deterministic in ``seed``): plant (num, den, delay), dt, structure, class.
+
+    The first six classes come from the stream ``default_rng(seed)`` (the original 210 cases, unchanged); the
+    classes added later (``fracdelay``, ``twodof``) from their own stream ``default_rng([seed, 1])``, appended
+    after them, so adding them changed no earlier case."""
     cases = []
-    for cls in CLASSES:
-        for i in range(n_per_class):
-            K = float(10 ** rng.uniform(-0.5, 0.7))
-            T = float(10 ** rng.uniform(-1, 1.3))  # the dominant time constant, s
-            delay = 0.0
-            if cls == "lag":
-                n = 1 + i % 5
-                taus = [T] + [T * float(rng.uniform(0.15, 1.0)) for _ in range(n - 1)]
-                num, den, tau_dom = [K], _poly(*[[t, 1.0] for t in taus]), T
-            elif cls == "underdamped":
-                z, wn = float(rng.uniform(0.05, 0.4)), 1.0 / T
-                lag = float(rng.uniform(0.0, 0.5)) * T
-                facs = [[1.0, 2 * z * wn, wn * wn]] + ([[lag, 1.0]] if i % 2 else [])
-                num, den, tau_dom = [K * wn * wn], _poly(*facs), T
-            elif cls == "integrating":
-                num, den, tau_dom = [K], _poly([1.0, 0.0], [T, 1.0]), T
-            elif cls == "unstable":
-                lag = float(rng.uniform(0.0, 0.3)) * T
-                facs = [[T, -1.0]] + ([[lag, 1.0]] if i % 2 else [])
-                num, den, tau_dom = [K], _poly(*facs), T
-            elif cls == "nmp":
-                beta = float(rng.uniform(0.1, 0.5)) * T
-                num, den, tau_dom = _poly([-K * beta, K]), _poly([T, 1.0], [T * float(rng.uniform(0.2, 1.0)), 1.0]), T
-            else:  # delay
-                second = i % 2 == 1
-                facs = [[T, 1.0]] + ([[T * float(rng.uniform(0.1, 0.6)), 1.0]] if second else [])
-                num, den, tau_dom = [K], _poly(*facs), T
-                delay = float(rng.uniform(0.15, 1.6)) * T
-            k = float(10 ** rng.uniform(math.log10(5), math.log10(50)))
-            dt = float(f"{tau_dom / k:.4g}")
-            if delay:
-                delay = max(1, round(delay / dt)) * dt  # whole samples
-            sts = STRUCTURES[cls]
-            cases.append({"id": f"{cls}-{i:02d}", "class": cls, "structure": sts[i % len(sts)], "num": num,
-                          "den": den, "delay_s": float(f"{delay:.10g}"), "dt": dt, "tau_dom": tau_dom,
-                          "order": len(den) - 1})
+    for stream, classes in ((np.random.default_rng(seed), CLASSES[:6]),
+                            (np.random.default_rng([seed, 1]), CLASSES[6:])):
+        rng = stream
+        for cls in classes:
+            for i in range(n_per_class):
+                # twodof: the plant generators round-robin, each at its own index (lag orders 1-5, ...)
+                gen, gi = (TWODOF_PLANTS[i % 5], i // 5) if cls == "twodof" else (cls, i)
+                num, den, tau_dom, delay = _draw(gen, gi, rng)
+                k = float(10 ** rng.uniform(math.log10(5), math.log10(50)))
+                dt = float(f"{tau_dom / k:.4g}")
+                if delay and cls == "fracdelay":
+                    # never a whole number of samples: the fraction past the whole samples kept in 0.1-0.9
+                    d = delay / dt
+                    delay = (math.floor(d) + min(max(d - math.floor(d), 0.1), 0.9)) * dt
+                elif delay:
+                    delay = max(1, round(delay / dt)) * dt  # whole samples
+                sts = STRUCTURES[cls]
+                case = {"id": f"{cls}-{i:02d}", "class": cls, "structure": sts[i % len(sts)], "num": num,
+                        "den": den, "delay_s": float(f"{delay:.10g}"), "dt": dt, "tau_dom": tau_dom,
+                        "order": len(den) - 1}
+                if cls == "twodof":
+                    case["plant_class"] = gen
+                cases.append(case)
     return cases
 
 
