@@ -48,7 +48,8 @@ from tuner.problem import TuningProblem  # noqa: E402
 
 SUITE_SEED = 20261202
 SUITE = HERE / "quality_suite.json"
-REFERENCE = HERE / "quality_reference.json"
+REFERENCE = HERE / "quality_reference.json"  # the thesis spec's references (Spec.thesis())
+REFERENCE_DEFAULTS = HERE / "quality_reference_defaults.json"  # the new defaults' (Spec(), its design limits)
 RESULTS = HERE / "results"
 CLASSES = ("lag", "underdamped", "integrating", "unstable", "nmp", "delay", "fracdelay", "twodof")
 STRUCTURES = {  # structures that can give zero steady-state error to a step on the class
@@ -155,34 +156,191 @@ def spec_of(d: dict[str, Any] | None) -> Spec:
     return Spec(**d) if d else Spec.thesis()
 
 
+def spec_choice(a: argparse.Namespace) -> tuple[Spec, str]:
+    """The spec of a command line and its name: ``--defaults`` the new defaults (``Spec()``: filter N <= 20, the
+    Nyquist filter floor, the noise budget 10 K0), ``--spec JSON`` those fields on the thesis spec's defaults
+    (``Spec(**fields)``), neither: the thesis spec (``Spec.thesis()``)."""
+    if getattr(a, "defaults", False):
+        if a.spec:
+            raise SystemExit("--defaults and --spec exclude each other")
+        return Spec(), ("the new defaults (`Spec()`: filter_n_max 20, filter_nyquist, noise_gain_max 10, the noise "
+                        "budget resolved per plant into mks_max)")
+    if a.spec:
+        return spec_of(json.loads(a.spec)), f"`Spec(**{a.spec})`"
+    return Spec.thesis(), "the thesis spec (`Spec.thesis()`: no default filter/noise limits)"
+
+
+def spec_name(spec_d: dict[str, Any]) -> str:
+    """How a stored spec (a reference file's) is named in the report."""
+    if spec_d == Spec.thesis().model_dump(mode="json"):
+        return "the thesis spec (`Spec.thesis()`: no default filter/noise limits)"
+    if spec_d == Spec().model_dump(mode="json"):
+        return ("the new defaults (`Spec()`: filter_n_max 20, filter_nyquist, noise_gain_max 10, the noise budget "
+                "resolved per plant into mks_max)")
+    return f"`Spec(**{json.dumps(spec_d)})`"
+
+
+def reference_path(a: argparse.Namespace, given: str) -> Path:
+    """A command's reference file: ``given``, else the defaults' file with ``--defaults``, else the thesis one."""
+    return Path(given) if given else (REFERENCE_DEFAULTS if getattr(a, "defaults", False) else REFERENCE)
+
+
 def problem_of(c: dict[str, Any], spec: Spec) -> TuningProblem:
     return TuningProblem.build(plant_of(c), structure=c["structure"], spec=spec, dt=c["dt"])
 
 
-# -- the independent check (tests/reference.py: nothing of tuner) ------------------------------------------
+# -- the independent check (numpy/scipy and tests/reference.py only: nothing of tuner) ---------------------
 
-def independent_check(c: dict[str, Any], cnum, cden, spec: Spec) -> dict[str, Any]:
-    """Margins, stability and the step response of the sampled-data loop, recomputed without the library."""
+def _zoh_frac(num, den, dt: float, phi: float) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH equivalent at ``dt`` of ``num/den`` delayed by ``0 < phi < dt`` (the modified z-transform), written
+    out here: over a sample the held input is the previous sample's value for ``phi`` s, then the current one, so
+    ``x+ = Phi x + Gamma1 u[k-1] + Gamma0 u[k]`` with ``Phi = e^{A dt}``, ``Gamma0 = int_0^{dt-phi} e^{As} ds B``,
+    ``Gamma1 = e^{A(dt-phi)} int_0^phi e^{As} ds B``; ``u[k-1]`` is one extra state. (num, den) in z, den monic."""
+    from scipy import linalg, signal
+
+    A, B, C, D = signal.tf2ss(np.asarray(num, float), np.asarray(den, float))
+    assert np.all(D == 0), "a strictly proper plant"
+    n = A.shape[0]
+
+    def gam(h: float) -> tuple[np.ndarray, np.ndarray]:
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n:] = A, B
+        E = linalg.expm(M * h)
+        return E[:n, :n], E[:n, n:]
+
+    Phi, _ = gam(dt)
+    E2, G0 = gam(dt - phi)
+    _, Gp = gam(phi)
+    G1 = E2 @ Gp
+    Aa = np.zeros((n + 1, n + 1))
+    Aa[:n, :n], Aa[:n, n:] = Phi, G1
+    Ba = np.r_[G0, [[1.0]]]
+    Ca = np.c_[C, [[0.0]]]
+    b, a = signal.ss2tf(Aa, Ba, Ca, np.zeros((1, 1)))
+    b = np.atleast_1d(np.squeeze(b))
+    b[np.abs(b) < 1e-14 * np.max(np.abs(b))] = 0.0
+    return np.trim_zeros(b, "f") / a[0], a / a[0]
+
+
+def zoh_delayed(num, den, dt: float, delay_s: float) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """``(gn, gd, m, phi)``: the sampled plant ``gn/gd`` in z with its whole delay ``z^-m`` folded into gd and
+    the fraction ``phi`` in the modified z-transform (``delay_s = m dt + phi``)."""
+    import reference as ref  # tests/reference.py
+
+    d = delay_s / dt
+    m = int(math.floor(d + 1e-9))
+    phi = max(0.0, delay_s - m * dt)
+    if phi < 1e-9 * dt:
+        phi = 0.0
+    gn, gd = ref.zoh(num, den, dt) if phi == 0 else _zoh_frac(num, den, dt, phi)
+    return gn, np.polymul(gd, np.r_[1.0, np.zeros(m)]), m, phi
+
+
+def _controller_ss(num_r, num, den):
+    """One realisation of ``u = (num_r/den) r - (num/den) y`` on shared states (the dual of scipy's controllable
+    form of the one-input two-output [num_r; num]/den): ``(A, B (n x 2), C, D (2,))``, inputs ``[r, -y]``."""
+    from scipy import signal
+
+    L = len(den)
+    pad = lambda p: np.r_[np.zeros(L - len(p)), np.asarray(p, float)]
+    A, B, C, D = signal.tf2ss(np.vstack([pad(num_r), pad(num)]), np.asarray(den, float))
+    return A.T, C.T, B.T, np.asarray(D, float).reshape(2)
+
+
+def step_sampled(plant_num, plant_den, num_r, num, den, dt: float, *, m: int, phi: float, n_per_sample: int = 20,
+                 samples: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """Unit-step response of the sampled-data loop with a 1- or 2-DOF controller ``u = C_r r - C y`` (``num_r`` =
+    ``num`` for a 1-DOF one), its output held and delayed by ``m dt + phi`` into the continuous plant, which is
+    integrated exactly (matrix exponential) at ``n_per_sample`` points per sample plus the instant ``phi`` into
+    every sample where the delayed held input switches. Returns (t, y) (the grid is uniform but for those
+    instants)."""
+    from scipy import linalg, signal
+
+    Ac, Bc, Cc, Dc = _controller_ss(num_r, num, den)
+    An, Bn, Cn, _ = signal.tf2ss(np.asarray(plant_num, float), np.asarray(plant_den, float))
+    nx = An.shape[0]
+    h = dt / n_per_sample
+    pts = sorted({j * h for j in range(n_per_sample)} | ({phi} if phi > 0 else set()))
+    segs = []  # (start within the sample, Ad, Bd, the new input?)
+    for j, t0 in enumerate(pts):
+        t1 = pts[j + 1] if j + 1 < len(pts) else dt
+        M = np.zeros((nx + 1, nx + 1))
+        M[:nx, :nx], M[:nx, nx:] = An, Bn
+        E = linalg.expm(M * (t1 - t0))
+        segs.append((t0, E[:nx, :nx], E[:nx, nx:], t0 >= phi - 1e-15 * dt))
+    xc = np.zeros(Ac.shape[0])
+    xp = np.zeros((nx, 1))
+    ubuf = [0.0] * (m + 1)  # u[k-m-1], ..., u[k-1]
+    ts, ys = [], []
+    for k in range(samples):
+        y = float((Cn @ xp)[0, 0])
+        e = np.array([1.0, -y])
+        u = float(Cc.reshape(-1) @ xc + Dc @ e) if Ac.size else float(Dc @ e)
+        if Ac.size:
+            xc = Ac @ xc + Bc @ e
+        ubuf.append(u)
+        u_old, u_new = ubuf[0], ubuf[1]  # u[k-m-1] until phi into the sample, then u[k-m]
+        ubuf.pop(0)
+        for t0, Ad, Bd, new in segs:
+            ts.append(k * dt + t0)
+            ys.append(float((Cn @ xp)[0, 0]))
+            xp = Ad @ xp + Bd * (u_new if new else u_old)
+    return np.asarray(ts), np.asarray(ys)
+
+
+def _gains_controller(c: dict[str, Any], gains: dict[str, float]):
+    """pid2's two paths from its gains by tests/reference.py's backward-Euler PID (nothing of tuner):
+    C = PID(Kp, Ki, Kd, Tf), C_r = PID(b Kp, Ki, c Kd, Tf); ``(num_r, num, den)`` over one monic denominator."""
+    import reference as ref  # tests/reference.py
+
+    g = dict(gains)
+    num, den = ref.pid_backward_euler(g, c["dt"])
+    num_r, den_r = ref.pid_backward_euler(g | {"Kp": g["b"] * g["Kp"], "Kd": g["c"] * g["Kd"]}, c["dt"])
+    assert np.allclose(den, den_r)
+    return num_r / den[0], num / den[0], den / den[0]
+
+
+def _rel(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    n = max(len(a), len(b))
+    a, b = np.r_[np.zeros(n - len(a)), a], np.r_[np.zeros(n - len(b)), b]
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+def independent_check(c: dict[str, Any], ctl: dict[str, Any], spec: Spec, gains: dict[str, float] | None = None,
+                      ) -> dict[str, Any]:
+    """Margins, stability, the step response of the sampled-data loop and the spec's limits, recomputed without the
+    library from the controller's coefficients ``ctl`` (``num``, ``den``; a 2-DOF one's reference path
+    ``num_r``) or, for ``pid2``, from its ``gains`` by tests/reference.py's backward-Euler PID (checked against
+    ``ctl``). The plant's sampled model with a fractional delay: :func:`zoh_delayed`. ``spec`` is the spec in
+    force (the noise budget resolved into ``mks_max``); its filter rules are checked on ``gains``."""
     import reference as ref  # tests/reference.py
 
     dt = c["dt"]
-    d = int(round(c["delay_s"] / dt))
-    gn, gd = ref.zoh(c["num"], c["den"], dt)
-    gd = np.polymul(gd, np.r_[1.0, np.zeros(d)])  # z^-d
+    out: dict[str, Any] = {}
+    cnum, cden = np.asarray(ctl["num"], float), np.asarray(ctl["den"], float)
+    cnum_r = np.asarray(ctl.get("num_r") or ctl["num"], float)
+    if c["structure"] == "pid2":
+        cnum_r, cnum, cden = _gains_controller(c, gains)
+        out["controller_rel_diff"] = max(_rel(cnum, ctl["num"]), _rel(cnum_r, ctl["num_r"]), _rel(cden, ctl["den"]))
+    gn, gd, m, phi = zoh_delayed(c["num"], c["den"], dt, c["delay_s"])
     num, den = np.polymul(cnum, gn), np.polymul(cden, gd)
     stable = bool(np.all(np.abs(np.roots(np.polyadd(den, num))) < 1 - 1e-9))
-    out: dict[str, Any] = {"stable": stable}
+    out["stable"] = stable
     if not stable:
         return out | {"ok": False}
     nm = ref.nyquist_margins(num, den, dt, n=60_000)
     pm, gm_up, gm_lo = nm["pm"], nm["gm_db"], nm["gml_db"]
     out.update(pm_deg=float(pm), gm_db=float(gm_up), gm_lower_db=float(gm_lo))
-    # the sampled-data step (tests/reference.py: the controller's difference equation, the plant exact between
-    # samples at 20 points per sample, the delay as a shift of u), long enough for the slowest closed-loop pole
+    # the sampled-data step, long enough for the slowest closed-loop pole: tests/reference.py's simulation for a
+    # 1-DOF loop with whole samples of delay, step_sampled (written here) for a 2-DOF one or a fractional delay
     poles = np.abs(np.roots(np.polyadd(den, num)))
     rho = float(np.max(poles)) if len(poles) else 0.0
     K = int(min(40_000, max(200, 12 * math.log(1e-4) / math.log(max(rho, 1e-6)))))
-    t, y = ref.closed_loop_step(c["num"], c["den"], cnum, cden, dt, delay_samples=d, samples=K)
+    if phi == 0 and c["structure"] != "pid2":
+        t, y = ref.closed_loop_step(c["num"], c["den"], cnum, cden, dt, delay_samples=m, samples=K)
+    else:
+        t, y = step_sampled(c["num"], c["den"], cnum_r, cnum, cden, dt, m=m, phi=phi, samples=K)
     yf = 1.0
     try:
         settle = ref.settling_time(t, y, yf, band=spec.settling_band_pct / 100)
@@ -193,6 +351,24 @@ def independent_check(c: dict[str, Any], cnum, cden, spec: Spec) -> dict[str, An
     ok = (pm >= spec.phase_margin_min_deg - 0.05 and (spec.gain_margin_min_db is None
           or min(gm_up, -gm_lo if math.isfinite(gm_lo) else math.inf) >= spec.gain_margin_min_db - 0.02)
           and (spec.overshoot_max_pct is None or over <= spec.overshoot_max_pct + 0.02))
+    if "controller_rel_diff" in out:
+        ok = ok and out["controller_rel_diff"] < 1e-9
+    # the default design limits: Mks on a dense grid (C on -y, the plant's sampled model above), the filter rules
+    # on the gains (N = |Kd|/(|Kp| Tf), Tf >= dt/pi)
+    if spec.mks_max is not None:
+        w = ref.dense_grid(dt, n=60_000)
+        with np.errstate(all="ignore"):
+            mks = float(np.max(np.abs(ref.eval_L(cnum, cden, w, dt) / (1 + ref.eval_L(num, den, w, dt)))))
+        out.update(mks=mks, mks_max=float(spec.mks_max))
+        ok = ok and mks <= spec.mks_max * (1 + 1e-3)
+    if gains is not None and spec.filter_n_max is not None and {"Kp", "Kd", "Tf"} <= set(gains):
+        kp, kd, tf = abs(gains["Kp"]), abs(gains["Kd"]), gains["Tf"]
+        n_f = 0.0 if kd == 0 else (kd / (kp * tf) if kp > 0 and tf > 0 else math.inf)
+        out["filter_n"] = n_f
+        ok = ok and n_f <= spec.filter_n_max * (1 + 1e-6)
+    if gains is not None and spec.filter_nyquist and "Tf" in gains:
+        out["tf_over_nyquist_floor"] = float(gains["Tf"] / (dt / math.pi))
+        ok = ok and gains["Tf"] >= dt / math.pi * (1 - 1e-6)
     return out | {"ok": bool(ok)}
 
 
@@ -211,13 +387,18 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0, 
     quarter of ``evals`` evaluations and of ``cap_s`` seconds (slow loops simulate long horizons)."""
     from scipy.optimize import differential_evolution, minimize
 
+    from tuner import rules
     from tuner.optimize.batch import BatchEvaluator
     from tuner.optimize.scoring import Evaluator
     from tuner.optimize.space import make_space
 
     t0 = time.perf_counter()
     prob = problem_of(c, spec)
-    space = make_space(prob.structure, prob.nominal, prob.dt, scale=prob.scale)
+    # the spec in force: the asked one with the default limits resolved (the noise budget as mks_max); the
+    # search's box has the Nyquist filter floor when the spec asks for it (as the tuner's), the batch scores the
+    # filter-N rule and Mks, the verification below checks all of them
+    sp = prob.spec
+    space = make_space(prob.structure, prob.nominal, prob.dt, scale=prob.scale, nyquist=sp.filter_nyquist)
     batch = BatchEvaluator(prob, space)
     lo, hi = space.lo, space.hi
     pool: list[tuple[float, np.ndarray]] = []
@@ -322,7 +503,7 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0, 
     methods["polish"] = min(best[0], best_since(before))
     stage_end[0] = math.inf
     # verify the best distinct candidates at full resolution; the first feasible one is the reference
-    ev = Evaluator(list(prob.plants), prob.structure, prob.dt, spec, w0=space.w0)
+    ev = Evaluator(list(prob.plants), prob.structure, prob.dt, sp, w0=space.w0)
     span = np.maximum(hi - lo, 1e-12)
     chosen: list[np.ndarray] = []
     ref: dict[str, Any] | None = None
@@ -334,19 +515,23 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0, 
         chosen.append(v)
         x = space.params(v)
         ctl = ev.controller(x)
-        a = analyze(plant_of(c), ctl, spec)
-        if not a.meets_spec:
+        a = analyze(plant_of(c), ctl, sp)
+        if not (a.meets_spec and all(k.ok for k in rules.checks(prob.structure, sp, x, prob.dt))):
             continue
         from tuner.optimize.scoring import objective_value
 
-        obj = float(objective_value(a, spec))
+        obj = float(objective_value(a, sp))
         if ref is None or obj < ref["objective"]:
-            ref = {"objective": obj, "gains": prob.structure.named(x), "search_score": s,
-                   "controller": {"num": [float(q) for q in ctl.num], "den": [float(q) for q in ctl.den]}}
+            cd = {"num": [float(q) for q in ctl.num], "den": [float(q) for q in ctl.den]}
+            if getattr(ctl, "num_r", None) is not None:  # a 2-DOF controller's reference path
+                cd["num_r"] = [float(q) for q in ctl.num_r]
+            ref = {"objective": obj, "gains": prob.structure.named(x), "search_score": s, "controller": cd}
     out = {"id": c["id"], "evaluations": n[0], "methods": methods, "wall_s": time.perf_counter() - t0}
+    if prob.limits:
+        out["limits"] = [dict(d) for d in prob.limits]
     if ref is None:
         return out | {"feasible": False}
-    chk = independent_check(c, ref["controller"]["num"], ref["controller"]["den"], spec)
+    chk = independent_check(c, ref["controller"], sp, gains=ref["gains"])
     if spec.objective == "settling_time" and "settling_s" in chk:
         chk["settling_agrees"] = bool(abs(chk["settling_s"] - ref["objective"]) <= 0.01 * ref["objective"]
                                       + 0.5 * c["dt"] / 20 + 1e-9)
@@ -356,14 +541,14 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0, 
 
 def cmd_reference(a: argparse.Namespace) -> None:
     cases = load_suite()
-    spec_d = json.loads(a.spec) if a.spec else {}
-    spec = spec_of(spec_d)
-    out_path = Path(a.out)
+    spec, _ = spec_choice(a)
+    out_path = reference_path(a, a.out)
     done: dict[str, Any] = {}
     if out_path.exists() and not a.fresh:
         old = json.loads(out_path.read_text())
-        if old.get("spec") == spec.model_dump(mode="json"):
-            done = {r["id"]: r for r in old["references"]}
+        if old.get("spec") != spec.model_dump(mode="json"):
+            raise SystemExit(f"{out_path} holds references for another spec: give another --out, or --fresh")
+        done = {r["id"]: r for r in old["references"]}
     only = set(a.only.split(",")) if a.only else None
     t_end = time.time() + a.cap_s if a.cap_s else math.inf
     todo = [c for c in cases if c["id"] not in done and (only is None or c["id"] in only)]
@@ -381,13 +566,21 @@ def cmd_reference(a: argparse.Namespace) -> None:
 
 
 def _write_ref(path: Path, spec: Spec, done: dict[str, Any], a: argparse.Namespace) -> None:
-    cmd = (f"nice -n 19 python bench/quality.py reference --evals {a.evals} --case-cap-s {a.case_cap_s:g}"
-           + (f" --spec '{a.spec}'" if a.spec else ""))
-    data = {"command": cmd, "spec": spec.model_dump(mode="json"), "evals_per_case": a.evals,
+    cmd = ("nice -n 19 python bench/quality.py reference" + (" --defaults" if a.defaults else "")
+           + (f" --spec '{a.spec}'" if a.spec else "") + f" --evals {a.evals} --case-cap-s {a.case_cap_s:g}"
+           + (f" --out {os.path.relpath(path, ROOT)}" if path.resolve() != reference_path(a, "").resolve() else ""))
+    data = {"command": cmd, "spec_name": spec_name(spec.model_dump(mode="json")),
+            "spec": spec.model_dump(mode="json"), "evals_per_case": a.evals,
             "method": "scipy differential_evolution x2 (popsize 15, Sobol; pid_z: a third over the equivalent "
                       "backward-Euler PID's gains) + CMA-ES restarts (wide large-population and small local) + "
-                      "Nelder-Mead polish, on tuner.optimize.batch scores; verified by tuner.analyze (best of 16 "
-                      "distinct candidates) and independently by tests/reference.py",
+                      "Nelder-Mead polish, on tuner.optimize.batch scores (pid2: all six parameters, the setpoint "
+                      "weights b, c linearly over their ranges; the search box has the Nyquist filter floor when the "
+                      "spec has it); verified by tuner.analyze against the spec in force (the noise budget resolved "
+                      "into mks_max) and the filter rules (tuner.rules.checks) (best of 16 distinct candidates) and "
+                      "independently by bench/quality.py independent_check (numpy/scipy and tests/reference.py: "
+                      "margins, step, Mks, filter N and Tf floor; fractional delays by the modified z-transform and "
+                      "a simulation with the delayed hold's switch inside the sample; pid2's two paths from its "
+                      "gains, the step from the reference path)",
             "references": [done[k] for k in sorted(done)]}
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(data, indent=1, allow_nan=True))
@@ -424,12 +617,16 @@ def ratio(t: dict[str, Any], r: dict[str, Any] | None) -> float | None:
 
 def cmd_run(a: argparse.Namespace) -> None:
     cases = load_suite()
-    refs = load_reference(Path(a.reference))
-    spec = spec_of(json.loads(a.spec) if a.spec else {})
+    spec, _ = spec_choice(a)
+    ref_path = reference_path(a, a.reference)
+    if ref_path.exists() and json.loads(ref_path.read_text())["spec"] != spec.model_dump(mode="json"):
+        raise SystemExit(f"{ref_path} holds references for another spec than the run's (--defaults / --spec / "
+                         "--reference)")
+    refs = load_reference(ref_path)
     only = set(a.only.split(",")) if a.only else None
     rows = []
     RESULTS.mkdir(exist_ok=True)
-    out = Path(a.out) if a.out else RESULTS / f"quality_{a.effort or 'baseline'}.json"
+    out = Path(a.out) if a.out else RESULTS / f"quality_{a.effort or 'baseline'}{_suffix(a)}.json"
     if a.append and out.exists():  # keep what is there, tune only the cases it lacks
         rows = json.loads(out.read_text())["rows"]
         have = {r["id"] for r in rows}
@@ -447,6 +644,11 @@ def cmd_run(a: argparse.Namespace) -> None:
         _write_run(out, a, rows)
     _write_run(out, a, rows)
     print(table(rows))
+
+
+def _suffix(a: argparse.Namespace) -> str:
+    """Run files of the new defaults: ``results/quality_<effort>_defaults.json`` (the thesis spec's: no suffix)."""
+    return "_defaults" if getattr(a, "defaults", False) else ""
 
 
 def _round_robin(c: dict[str, Any]) -> tuple[int, int]:
@@ -493,22 +695,24 @@ RUNS = ("baseline", "fast", "default", "thorough")
 def cmd_report(a: argparse.Namespace) -> None:
     """bench/QUALITY.md: every stored run against the current references (ratios recomputed here)."""
     cases = {c["id"]: c for c in load_suite()}
-    refdoc = json.loads(Path(a.reference).read_text())
+    ref_path = reference_path(a, a.reference)
+    refdoc = json.loads(ref_path.read_text())
     refs = {r["id"]: r for r in refdoc["references"]}
     ok = {k for k, r in refs.items() if r.get("feasible") and r.get("independent_ok")}
     L = ["# Quality suite: the tuner against independent reference optima", "",
          f"Suite: {len(cases)} plants (`bench/quality_suite.json`, `python bench/quality.py generate`, seed "
-         f"{SUITE_SEED}); references for {len(refs)} of them (`bench/quality_reference.json`, "
+         f"{SUITE_SEED}); references for {len(refs)} of them (`{os.path.relpath(ref_path.resolve(), ROOT)}`, "
          f"`{refdoc['command']}`), {len(ok)} feasible and verified twice (tuner.analyze and tests/reference.py); "
          f"{sum(1 for r in refs.values() if not r.get('feasible'))} with no feasible design found by the references, "
          f"{sum(1 for r in refs.values() if r.get('feasible') and not r.get('independent_ok'))} whose independent "
          "check disagreed (both excluded from the ratios).", "",
-         f"Reference method: {refdoc['method']}. Spec: the thesis spec (`Spec.thesis()`: {refdoc['spec']}).", "",
+         f"Reference method: {refdoc['method']}. Spec: {spec_name(refdoc['spec'])}: {refdoc['spec']}.", "",
          "Ratio = the tuner's verified objective / the reference's (lower is better; < 1: the tuner beat the "
          "reference). A tune that does not meet the spec counts as ratio ∞.", ""]
     runs = a.runs.split(",") if a.runs else RUNS
-    docs = {n: json.loads((RESULTS / f"quality_{n}.json").read_text()) for n in runs
-            if (RESULTS / f"quality_{n}.json").exists()}
+    sfx = _suffix(a)
+    docs = {n: json.loads((RESULTS / f"quality_{n}{sfx}.json").read_text()) for n in runs
+            if (RESULTS / f"quality_{n}{sfx}.json").exists()}
     # every run is compared on the cases all of them tuned (and that have a verified reference)
     common = set.intersection(*({r["id"] for r in d["rows"]} for d in docs.values())) & ok if docs else set()
     L += [f"Every table below is over the same {len(common)} cases: those every run tuned and that have a "
@@ -537,8 +741,9 @@ def cmd_report(a: argparse.Namespace) -> None:
                 L += [f"| {r['id']} | {r['structure']} | {r['objective']:.5g} | {refs[r['id']]['objective']:.5g} | "
                       f"{r['ratio']:.4f} | {r['stop']} |" for r in bad]
                 L.append("")
-    Path(a.out).write_text("\n".join(L) + "\n")
-    print(f"-> {a.out}")
+    out = Path(a.out) if a.out else HERE / f"QUALITY_TABLES{sfx.upper()}.md"
+    out.write_text("\n".join(L) + "\n")
+    print(f"-> {out}")
 
 
 def study_toml(cases: list[dict[str, Any]], *, name: str = "quality", budget: float = 10.0, effort: str = "default",
@@ -566,8 +771,11 @@ def main() -> None:
     g.add_argument("--per-class", type=int, default=35)
     r = sub.add_parser("reference", help="compute the reference optima (resumable: done cases are kept)")
     r.add_argument("--evals", type=int, default=20000, help="batch evaluations per case over the four searches")
+    r.add_argument("--defaults", action="store_true", help="the new defaults' references (Spec(): filter N <= 20, "
+                   "the Nyquist filter floor, the noise budget); default out bench/quality_reference_defaults.json")
     r.add_argument("--spec", default="", help="Spec fields as JSON (default: the thesis spec, Spec.thesis())")
-    r.add_argument("--out", default=str(REFERENCE))
+    r.add_argument("--out", default="", help="default bench/quality_reference.json (--defaults: "
+                   "bench/quality_reference_defaults.json)")
     r.add_argument("--only", default="", help="comma-separated case ids")
     r.add_argument("--cap-s", type=float, default=0.0, help="stop starting new cases after this many seconds")
     r.add_argument("--fresh", action="store_true", help="recompute the cases already stored")
@@ -576,15 +784,22 @@ def main() -> None:
     u = sub.add_parser("run", help="tune every case and compare with the references")
     u.add_argument("--effort", default="default")
     u.add_argument("--seed", type=int, default=0)
+    u.add_argument("--defaults", action="store_true", help="tune for the new defaults (Spec()) and compare with "
+                   "bench/quality_reference_defaults.json; default out bench/results/quality_<effort>_defaults.json")
     u.add_argument("--spec", default="")
-    u.add_argument("--reference", default=str(REFERENCE))
+    u.add_argument("--reference", default="", help="default: the spec's reference file (see --defaults)")
     u.add_argument("--only", default="")
-    u.add_argument("--out", default="", help="default bench/results/quality_<effort>.json")
+    u.add_argument("--out", default="", help="default bench/results/quality_<effort>[_defaults].json")
     u.add_argument("--budget", type=float, default=10.0)
     u.add_argument("--append", action="store_true", help="keep the stored run's rows, tune the missing cases")
     rp = sub.add_parser("report", help="bench/QUALITY.md from the stored runs and references")
-    rp.add_argument("--reference", default=str(REFERENCE))
-    rp.add_argument("--out", default=str(HERE / "QUALITY_TABLES.md"))
+    rp.add_argument("--defaults", action="store_true", help="the new defaults' runs (results/quality_<run>"
+                    "_defaults.json) against bench/quality_reference_defaults.json; default out "
+                    "bench/QUALITY_TABLES_DEFAULTS.md")
+    rp.add_argument("--reference", default="", help="default: bench/quality_reference.json (--defaults: "
+                    "bench/quality_reference_defaults.json)")
+    rp.add_argument("--out", default="", help="default bench/QUALITY_TABLES.md (--defaults: "
+                    "QUALITY_TABLES_DEFAULTS.md)")
     rp.add_argument("--runs", default="", help="comma-separated runs to compare (default: all stored)")
     s = sub.add_parser("study", help="write bench/quality_study.toml (the suite as a study)")
     s.add_argument("--out", default=str(STUDY))
