@@ -1,26 +1,46 @@
 """The quality suite: generated plants, independent reference optima, and the tuner's ratio to them.
 
-    python bench/quality.py generate                 # bench/quality_suite.json (seeded: the same file every time)
-    nice -n 19 python bench/quality.py reference     # bench/quality_reference.json (long: see --help)
-    python bench/quality.py run [--effort default]   # bench/results/quality_<effort>.json + a table
-    python bench/quality.py report                   # bench/QUALITY.md from the stored runs
+    python bench/quality.py generate                            # bench/quality_suite.json (seeded: the same file)
+    nice -n 19 python bench/quality.py reference --evals 8000 --case-cap-s 16             # thesis-spec references
+    nice -n 19 python bench/quality.py reference --defaults --evals 8000 --case-cap-s 16  # the new defaults'
+    python bench/quality.py run [--defaults] [--effort default]  # bench/results/quality_<effort>[_defaults].json
+    python bench/quality.py report [--defaults]                  # bench/QUALITY_TABLES[_DEFAULTS].md
 
-**Plants** (:func:`generate`, seed ``SUITE_SEED``): six classes, lag chains of order 1-5, underdamped
-(zeta 0.05-0.4, with a lag), integrating ``K/(s(tau s + 1))``, one right-half-plane pole, one right-half-plane
-zero, dead time 0.15-1.6 tau (whole samples); each at ``dt = tau_dom / k``, ``k`` log-uniform in 5...50, with a
-structure of ``pid, pi, pd, pid_z, lead`` that can meet the spec's zero steady-state error on that class (``pd``
-and ``lead`` have no integrator: integrating plants only).
+**Plants** (:func:`generate`, seed ``SUITE_SEED``, 35 per class, 280 in all): lag chains of order 1-5,
+underdamped (zeta 0.05-0.4, with a lag), integrating ``K/(s(tau s + 1))``, one right-half-plane pole, one
+right-half-plane zero, dead time 0.15-1.6 tau (whole samples), then two classes added later from their own random
+stream (``default_rng([seed, 1])``, appended: the first 210 cases are unchanged): ``fracdelay``, a first- or
+second-order lag with a dead time 0.15-1.6 tau that is **not** a whole number of samples (its fraction of a sample
+kept in 0.1-0.9; the plant's exact delay at ``dt``, the modified z-transform), and ``twodof``, the 2-DOF PID
+``pid2`` (Kp, Ki, Kd, Tf and the setpoint weights b, c) on plants drawn round-robin from the lag, underdamped,
+nmp, delay and unstable generators (their ranges; ``plant_class`` names which). Each case at ``dt = tau_dom / k``,
+``k`` log-uniform in 5...50, with a structure (round-robin per class, :data:`STRUCTURES`) of ``pid, pi, pd,
+pid_z, lead, pid2`` that can meet the spec's zero steady-state error on that class (``pd`` and ``lead`` have no
+integrator: integrating plants only).
 
-**References** (:func:`reference`): for each case, independent global searches on the search-resolution scorer
-(:class:`tuner.optimize.batch.BatchEvaluator`, the objective's definition; none of the engine's starts, rounds or
-NLP): scipy's differential evolution (two seeds, Sobol initialisation) and CMA-ES with increasing-population
-restarts (the ``cmaes`` package), then a bounded Nelder-Mead polish of the best; the best distinct candidates are
-verified at full resolution by ``tuner.analyze`` and the best feasible one is **also checked independently**
-(``tests/reference.py``: margins on a dense Nyquist grid of the loop built without the library, the step
-response by a matrix-exponential simulation of the sampled-data loop written there, settling and overshoot
-recomputed). A reference that fails the independent check is stored with ``"independent_ok": false`` and
-excluded from the ratios. The spec is the thesis spec (``Spec.thesis()``: ``--no-default-limits`` semantics; once
-the defaults change: ``--spec JSON`` recomputes every reference for another spec with one command).
+**References** (:func:`reference_case`), two sets, each file stating its spec and the command that made it:
+``bench/quality_reference.json`` for the thesis spec (``Spec.thesis()``: no default filter/noise limits) and
+``bench/quality_reference_defaults.json`` for the new defaults (``Spec()``: derivative filter N <= 20, the filter
+corner at most the Nyquist frequency (Tf >= dt/pi), the noise budget Mks <= 10 K0, resolved per plant into
+``mks_max`` by ``TuningProblem.build``; each reference stores the limits in force as ``limits``). For each case:
+independent global searches on the search-resolution scorer (:class:`tuner.optimize.batch.BatchEvaluator`, the
+objective's definition, for the spec in force; none of the engine's starts, rounds or NLP): scipy's differential
+evolution (two seeds, Sobol initialisation; ``pid_z``: a third over the equivalent backward-Euler PID's gains) and
+CMA-ES with increasing-population restarts (the ``cmaes`` package), then a bounded Nelder-Mead polish of the best,
+over every parameter (``pid2``: all six, b and c linearly over their ranges; with the Nyquist rule the box's
+floor of Tf is dt/pi, as the tuner's). The best distinct candidates are verified at full resolution by
+``tuner.analyze`` against the spec in force plus the filter rules (``tuner.rules.checks``), and the best feasible
+one is **also checked independently** (:func:`independent_check`: numpy/scipy and ``tests/reference.py`` only,
+nothing of tuner): margins on a dense Nyquist grid of the loop built without the library (a fractional delay by
+the modified z-transform written here, :func:`zoh_delayed`), the step response by a matrix-exponential simulation
+of the sampled-data loop (``reference.closed_loop_step``; for a fractional delay or a 2-DOF controller
+:func:`step_sampled`, which switches the delayed held input inside the sample and drives the loop through the
+reference path ``C_r``), settling and overshoot recomputed; ``pid2``'s two paths rebuilt from its gains by
+``reference.pid_backward_euler`` (C = PID(Kp, Ki, Kd, Tf), C_r = PID(b Kp, Ki, c Kd, Tf)) and compared with the
+library's; with the default limits also Mks = max |C/(1+L)| on the dense grid against the ``mks_max`` in force
+(that limit's value, 10 K0, is the library's ``plant_scale``: not recomputed), N = |Kd|/(|Kp| Tf) and Tf >= dt/pi
+from the gains. A reference that fails the independent check is stored with ``"independent_ok": false`` and
+excluded from the ratios. ``--spec JSON`` computes a set for any other spec (``--out FILE``).
 """
 
 from __future__ import annotations
