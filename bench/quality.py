@@ -550,7 +550,8 @@ def reference_case(c: dict[str, Any], spec: Spec, *, evals: int, seed: int = 0, 
             if getattr(ctl, "num_r", None) is not None:  # a 2-DOF controller's reference path
                 cd["num_r"] = [float(q) for q in ctl.num_r]
             ref = {"objective": obj, "gains": prob.structure.named(x), "search_score": s, "controller": cd}
-    out = {"id": c["id"], "evaluations": n[0], "methods": methods, "wall_s": time.perf_counter() - t0}
+    out = {"id": c["id"], "evaluations": n[0], "evals_budget": evals, "case_cap_s": cap_s, "methods": methods,
+           "wall_s": time.perf_counter() - t0}
     if prob.limits:
         out["limits"] = [dict(d) for d in prob.limits]
     if ref is None:
@@ -606,6 +607,13 @@ def _write_ref(path: Path, spec: Spec, done: dict[str, Any], a: argparse.Namespa
                       "a simulation with the delayed hold's switch inside the sample; pid2's two paths from its "
                       "gains, the step from the reference path)",
             "references": [done[k] for k in sorted(done)]}
+    caps = {}
+    for r in done.values():  # a set resumed with another cap: say which cap made which references
+        caps.setdefault(f"{r.get('evals_budget', '?')} evals, cap {r.get('case_cap_s', '?')} s", []).append(r["id"])
+    if len(caps) > 1:
+        data["mixed_budgets"] = {k: len(v) for k, v in caps.items()}
+        data["note"] = ("resumed with different budgets: each reference's evals_budget and case_cap_s say which "
+                        "made it")
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(data, indent=1, allow_nan=True))
     os.replace(tmp, path)
