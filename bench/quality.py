@@ -734,7 +734,8 @@ def cmd_report(a: argparse.Namespace) -> None:
     L = ["# Quality suite: the tuner against independent reference optima", "",
          f"Suite: {len(cases)} plants (`bench/quality_suite.json`, `python bench/quality.py generate`, seed "
          f"{SUITE_SEED}); references for {len(refs)} of them (`{os.path.relpath(ref_path.resolve(), ROOT)}`, "
-         f"`{refdoc['command']}`), {len(ok)} feasible and verified twice (tuner.analyze and tests/reference.py); "
+         f"`{refdoc['command']}`" + (f"; budgets {refdoc['mixed_budgets']}" if refdoc.get("mixed_budgets") else "")
+         + f"), {len(ok)} feasible and verified twice (tuner.analyze and tests/reference.py); "
          f"{sum(1 for r in refs.values() if not r.get('feasible'))} with no feasible design found by the references, "
          f"{sum(1 for r in refs.values() if r.get('feasible') and not r.get('independent_ok'))} whose independent "
          "check disagreed (both excluded from the ratios).", "",
