@@ -3,6 +3,8 @@
     python bench/quality.py generate                            # bench/quality_suite.json (seeded: the same file)
     nice -n 19 python bench/quality.py reference --evals 8000 --case-cap-s 16             # thesis-spec references
     nice -n 19 python bench/quality.py reference --defaults --evals 8000 --case-cap-s 16  # the new defaults'
+    python bench/quality.py adopt --from bench/quality_reference_defaults.json  # the other set's better designs
+    python bench/quality.py adopt --defaults --from bench/quality_reference.json
     python bench/quality.py run [--defaults] [--effort default]  # bench/results/quality_<effort>[_defaults].json
     python bench/quality.py report [--defaults]                  # bench/QUALITY_TABLES[_DEFAULTS].md
 
@@ -41,6 +43,12 @@ library's; with the default limits also Mks = max |C/(1+L)| on the dense grid ag
 (that limit's value, 10 K0, is the library's ``plant_scale``: not recomputed), N = |Kd|/(|Kp| Tf) and Tf >= dt/pi
 from the gains. A reference that fails the independent check is stored with ``"independent_ok": false`` and
 excluded from the ratios. ``--spec JSON`` computes a set for any other spec (``--out FILE``).
+
+**Adoption** (:func:`cmd_adopt`): the thesis spec is looser than the defaults (a design meeting the defaults meets
+it), so either set's search can find a design better than the other's own; ``adopt --from OTHER`` takes the other
+set's design for a case where it verifies better for this set's spec (the same verification and independent
+check), recording ``adopted_from`` and the set's own search result (``own_search``). The references are upper
+bounds of uneven strength (budget-capped searches; slow loops get few evaluations in the cap).
 """
 
 from __future__ import annotations
