@@ -308,6 +308,18 @@ def lifted_outputs(sys: SS, dt: float, N: int, phi: float = 0.0) -> tuple[np.nda
     return Cf, Df
 
 
+def switch_output(sys: SS, phi: float) -> np.ndarray:
+    """``Cs`` (n + 1): the output of ``x' = A x + B u(t - phi)`` at the instant ``t_k + phi`` where its delayed
+    input switches, from the state ``z_k = [x, u[k-1]]`` of :func:`zoh_fractional` (``y = Cs z_k``; the previous
+    input still acting, the left limit; for a strictly proper plant the output is continuous there). The output
+    has a corner at that instant, which a fixed grid of points between the samples misses: its peak can be there."""
+    n = sys.n
+    if n == 0:
+        return np.r_[np.zeros(0), sys.D]
+    Ephi, Gphi = _int_expm(sys.A, sys.B, phi)
+    return np.r_[sys.C @ Ephi, sys.C @ Gphi + sys.D]
+
+
 # -- frequency response and zeros ---------------------------------------------------------------
 
 def freqresp(sys: SS, x: np.ndarray) -> np.ndarray:

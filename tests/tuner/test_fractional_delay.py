@@ -142,9 +142,13 @@ def test_fixed_controller_against_fine_step(plant, delay):
     n = a.response.t_samples.size
     t, y = ref_step(*plant, delay, cnum, cden, n)
     assert abs(a.metrics.overshoot_pct - _overshoot(y)) < 0.3
-    # the verifier's fine output (20 points per sample) against the reference at the same instants
-    N = a.response.t.size // n
-    idx = np.arange(a.response.t.size) * (FINE // N)
+    # the verifier's fine output (20 points per sample and the instants where the delayed input switches, all on
+    # the reference's grid) against the reference at the same instants
+    q = a.response.t / (DT / FINE)
+    assert np.max(np.abs(q - np.rint(q))) < 1e-6
+    on_grid = abs(delay * 20 / DT - round(delay * 20 / DT)) < 1e-9  # (0.02 s: the switch is a point of the grid)
+    assert (a.response.corners is None) == on_grid and (on_grid or a.response.corners.size == n)
+    idx = np.rint(q).astype(int)
     ok = idx < y.size
     assert np.max(np.abs(a.response.y[ok] - y[idx[ok]])) < 1e-9
 
@@ -312,3 +316,56 @@ def test_robust_set_mixing_whole_and_fractional_delays():
     assert min(pms) == pms[3]
     pm, gm = ref_margins(ref_sampled_plant(*ROLL, 0.061), r.controller.num, r.controller.den)
     assert abs(pms[3] - pm) < 1e-6 and abs(r.analyses[3].metrics.gain_margin_db - gm) < 1e-6
+
+
+def _exact_step(num, den, tau, dt, cnum, cden, samples, n_per=40):
+    """The loop's unit step with the plant's delayed input switching at ``t_k + phi`` (tau = m dt + phi), each
+    stretch integrated exactly (matrix exponential); the output at ``n_per`` points a sample and at every switch."""
+    A, B, C, D = signal.tf2ss(num, den)
+    n, B, C, D = A.shape[0], B[:, 0], C[0], float(D[0, 0])
+    m = int(math.floor(tau / dt + 1e-12))
+    phi = tau - m * dt
+
+    def advance(x, u, h):
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n] = A * h, B * h
+        E = linalg.expm(M)
+        return E[:n, :n] @ x + E[:n, n] * u
+
+    b = np.r_[np.zeros(len(cden) - len(cnum)), cnum] / cden[0]
+    a = np.asarray(cden, float) / cden[0]
+    es, us, u_of = [0.0] * len(b), [0.0] * len(a), {}
+    x, T, Y = np.zeros(n), [], []
+    pts = sorted({j * dt / n_per for j in range(n_per)} | {phi})
+    for k in range(samples):
+        e = 1.0 - (C @ x + D * u_of.get(k - m - 1, 0.0))
+        es = [e] + es[:-1]
+        u = float(np.dot(b, es) - np.dot(a[1:], us[:-1]))
+        us, u_of[k] = [u] + us[:-1], u
+        xs, s0 = x, 0.0
+        for s in pts:  # before the switch the input of m + 1 samples ago, after it that of m samples ago
+            ui = u_of.get(k - m - 1, 0.0) if s <= phi else u_of.get(k - m, 0.0)
+            xs, s0 = advance(xs, ui, s - s0), s
+            T.append(k * dt + s)
+            Y.append(C @ xs + D * ui)
+        x = advance(xs, u_of.get(k - m, 0.0), dt - s0)
+    return np.array(T), np.array(Y)
+
+
+def test_the_peak_at_the_delayed_inputs_switch_is_found():
+    """Issue 20's quality suite (fracdelay-30): 0.364/(19.8 s + 1) with 27.094 s of dead time at dt 1.282 (21
+    samples and phi = 0.1725 s), under a thesis-form digital PID. The output has a corner where the delayed input
+    switches, at t_k + phi, between the verifier's 20 points a sample, and its peak is there: the verifier
+    reported 1.99570 % overshoot where the peak is 1.99619 % (a peak missed by 4e-5 of the step put another
+    design's settling time 35 s early). The switch instants are now in the verifier's grid: its overshoot is the
+    exact one, its settling time the exact simulation's."""
+    num, den, tau, dt = [0.36398775476766054], [19.824283106749043, 1.0], 27.09448253, 1.282
+    cnum, cden = [13.72140926150987, -25.174759340120648, 11.544493754255154], [1.0, -1.0, 0.0]
+    phi = tau - math.floor(tau / dt) * dt
+    assert abs(phi * 20 / dt - round(phi * 20 / dt)) > 0.1  # the switch is between the verifier's points
+    a = analyze(make_plant(num, den, delay=tau), ControllerTF(num=np.array(cnum), den=np.array(cden), dt=dt))
+    T, Y = _exact_step(num, den, tau, dt, cnum, cden, samples=200)
+    exact_os = (float(np.max(Y)) - 1.0) * 100.0
+    assert a.metrics.overshoot_pct == pytest.approx(exact_os, rel=1e-9)
+    out = np.flatnonzero(np.abs(Y - 1.0) > 0.02)
+    assert a.metrics.settling_time_s == pytest.approx(float(T[out[-1] + 1]), abs=dt / 40)

@@ -36,8 +36,8 @@ from scipy import linalg
 
 from ..errors import InvalidPlantError
 from ..loop import FineDelayLoop, Loop, _continuous_loop
-from ..lti import lifted_outputs
-from ..tolerances import ROOT_POLISH_RTOL, STABILITY_MARGIN
+from ..lti import lifted_outputs, switch_output
+from ..tolerances import ROOT_POLISH_RTOL, SAMPLE_FRACTION_TOL, STABILITY_MARGIN
 
 __all__ = ["StepResponse", "StepMetrics", "closed_loop_poles", "is_stable", "stability", "step_response",
            "step_metrics", "default_horizon", "steady_state", "lifted"]
@@ -60,6 +60,9 @@ class StepResponse:
     y_samples: np.ndarray | None
     y_final: float
     between_samples: bool  # False when only sample instants are known
+    # instants where the output has a corner other than the sample instants (a fractional delay's input switch at
+    # t_k + phi): in the grid t, and never the centre of a parabolic peak refinement
+    corners: np.ndarray | None = None
 
     def __repr__(self) -> str:
         from ..display import step_response_repr
@@ -313,8 +316,18 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
     ua = Z @ cl.Ca + cl.Da[inp]  # the plant's input over each sample
     yfine = (Z[:, :cl.n_plant] @ Cf.T + ua[:, None] * Df[None, :]).ravel()
     t = np.arange(yfine.size) * (dt / N)
-    return StepResponse(t=t, y=yfine, u=np.repeat(u, N), t_samples=ts, y_samples=ys, y_final=yf,
-                        between_samples=True)
+    ufine = np.repeat(u, N)
+    phi = loop.plant_d.zoh_fraction if loop.plant_d is not None else 0.0
+    corners = None
+    if phi > 0 and abs(phi * N / dt - round(phi * N / dt)) > SAMPLE_FRACTION_TOL:
+        # a fractional delay: the plant's input switches at t_k + phi, between the grid's points; the output has a
+        # corner there and its peak can be at it (a peak missed by 4e-5 of the step put a settling time 35 s early)
+        ysw = Z[:, :cl.n_plant] @ switch_output(loop.plant_ct.ss(), phi)
+        corners = ts + phi
+        order = np.argsort(np.r_[t, corners], kind="stable")
+        t, yfine, ufine = np.r_[t, corners][order], np.r_[yfine, ysw][order], np.r_[ufine, u][order]
+    return StepResponse(t=t, y=yfine, u=ufine, t_samples=ts, y_samples=ys, y_final=yf, between_samples=True,
+                        corners=corners)
 
 
 def _cross(t: np.ndarray, y: np.ndarray, i: int, level: float) -> float:
@@ -332,6 +345,8 @@ def _at_sample(resp: StepResponse, i: int) -> bool:
     ts = resp.t_samples
     if ts is None or len(ts) < 2 or not resp.between_samples:
         return False
+    if resp.corners is not None and np.any(np.abs(resp.corners - resp.t[i]) <= 1e-9 * max(float(ts[1] - ts[0]), 1.0)):
+        return True
     dt = float(ts[1] - ts[0])
     k = round(float(resp.t[i] - ts[0]) / dt)
     return abs(float(resp.t[i]) - (float(ts[0]) + k * dt)) <= 1e-9 * max(dt, 1.0)
