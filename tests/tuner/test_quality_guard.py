@@ -20,10 +20,12 @@ from tuner import Spec, tune
 from tuner.plant import Plant
 
 BENCH = Path(__file__).resolve().parents[2] / "bench"
-# three or four per class, over the structures; loops that settle in tens of samples (a few seconds each)
+# three or four per class, over the structures; loops that settle in tens of samples (about a second each)
 GUARD = ["lag-00", "lag-01", "lag-02", "lag-03", "underdamped-01", "underdamped-02", "underdamped-03",
          "integrating-00", "integrating-02", "integrating-04", "unstable-00", "unstable-02", "nmp-00", "nmp-01",
-         "nmp-04", "delay-00", "delay-01", "delay-03", "underdamped-00", "delay-02"]
+         "nmp-04", "delay-00", "delay-01", "delay-03", "underdamped-00", "delay-02",
+         # the vanishing-integral PI, pid_z on an unstable plant, fractional delays (pi, pid, pid_z), pid2
+         "integrating-03", "unstable-05", "fracdelay-00", "fracdelay-09", "fracdelay-10", "twodof-00", "twodof-04"]
 TOLERANCE = 1.02
 
 
