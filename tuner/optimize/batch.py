@@ -31,10 +31,17 @@ from scipy import linalg
 from ..analysis.response import MAX_SAMPLES, lifted  # the verifier's limit is the search's (one source)
 from ..controllers import ControllerTF
 from ..loop import build_loop
-from ..lti import zoh_delayed
+from ..lti import switch_output, zoh_delayed
 from ..problem import TuningProblem
 from ..spec import CROSSOVER_TOL, SSE_TOL
-from ..tolerances import ALGEBRAIC_LOOP_TOL, EXACT_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR, STABILITY_MARGIN
+from ..tolerances import (
+    ALGEBRAIC_LOOP_TOL,
+    EXACT_ROOT_TOL,
+    ROOT_AT_DC_TOL,
+    ROOT_MAG_FLOOR,
+    SAMPLE_FRACTION_TOL,
+    STABILITY_MARGIN,
+)
 from . import rules
 from .space import Space
 
@@ -104,6 +111,8 @@ class _PlantData:
     G_dc: complex | None  # at DC, when finite
     G_inf: float  # continuous: G(inf)
     fine: tuple | None = None  # continuous loops with delay: zoh_delayed(...) at the search step
+    offsets: np.ndarray | None = None  # the instants of Cf's rows within a sample, s (j dt / N, and a fractional
+                                       # delay's input switch phi, where the output has a corner)
 
 
 def _canonical(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -190,14 +199,22 @@ class BatchEvaluator:
         unit = ControllerTF(num=np.ones(1), den=np.ones(1), dt=self.dt)
         lp = build_loop(plant, unit)
         g = lp.loop_plant.ss()
-        Cf = Df = None
+        Cf = Df = offsets = None
         if self.dt is not None and lp.plant_ct is not None and self.N > 1:
             Cf, Df = lifted(lp, self.N)
+            offsets = np.arange(self.N) * (self.dt / self.N)
+            phi = lp.plant_d.zoh_fraction if lp.plant_d is not None else 0.0
+            if phi > 0 and abs(phi * self.N / self.dt - round(phi * self.N / self.dt)) > SAMPLE_FRACTION_TOL:
+                # the verifier's grid has the instant where the delayed input switches (its corner, where the peak
+                # can be): so has the search's, or its best candidates may verify later than it thinks
+                j = int(np.searchsorted(offsets, phi))
+                Cf = np.insert(Cf, j, switch_output(lp.plant_ct.ss(), phi), axis=0)
+                Df, offsets = np.insert(Df, j, 0.0), np.insert(offsets, j, phi)
         G = lp.freqresp(self.w)
         G_nyq = lp.value_at(-1.0) if self.dt else None
         G_dc = None if lp.integrating else lp.value_at(0.0 if self.dt is None else 1.0)
         return _PlantData(g.A, g.B, g.C, float(g.D), lp.delay_samples, lp.delay_s, Cf, Df, G, G_nyq, G_dc,
-                          float(g.D) if self.dt is None else 0.0)
+                          float(g.D) if self.dt is None else 0.0, offsets=offsets)
 
     # -- the controllers ------------------------------------------------------------------------
 
@@ -483,9 +500,10 @@ class BatchEvaluator:
             if pd.Cf is not None:
                 ua = np.einsum("bkz,bz->bk", Z, Ca) + Da[:, inp, None]
                 y = (np.einsum("bkn,jn->bkj", Z[:, :, :n], pd.Cf) + ua[:, :, None] * pd.Df[None, None, :])
-                y = y.reshape(Bn, K * self.N)
-                u = np.repeat(u, self.N, axis=1)
-                t = np.broadcast_to(np.arange(K * self.N) * (self.dt / self.N), y.shape)
+                nf = pd.Cf.shape[0]
+                y = y.reshape(Bn, K * nf)
+                u = np.repeat(u, nf, axis=1)
+                t = np.broadcast_to((np.arange(K)[:, None] * self.dt + pd.offsets[None, :]).ravel(), y.shape)
             else:
                 y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
         Mdc = (np.eye(nz)[None] - A) if self.dt is not None else -A
