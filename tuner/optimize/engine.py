@@ -96,6 +96,7 @@ class Effort:
     restart_refines: int  # refinements per restart (the best candidates outside every refined basin)
     verify: int  # finalists verified at full resolution; the best verified wins
     optuna: bool  # restarts also ask Optuna's seeded sampler (told every point so far) for a batch
+    detail: int = 1  # the NLP grid's detail (refine's ``detail``): thorough resolves the polish to ~0.25 %, not 1 %
 
 
 EFFORTS = {
@@ -106,7 +107,7 @@ EFFORTS = {
     "default": Effort("default", n_starts=2, design_points=DESIGN_POINTS, confirm=1, restart_points=64,
                       restart_refines=1, verify=2, optuna=False),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
-                       verify=5, optuna=True),
+                       verify=5, optuna=True, detail=2),
 }
 
 
@@ -401,7 +402,7 @@ class Engine:
             self.pool = [(s, w, True) if w is v else (s, w, r) for s, w, r in self.pool]
             res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                          incumbent=self.best.score if self._settling else None, start=self._starts.get(v.tobytes()),
-                         fine=fine)
+                         fine=fine, detail=self.effort.detail)
             if res.status.startswith("no time left"):
                 self._exhaust()  # (an NLP build the time left cannot afford ends the search, it is not skipped)
             i = self.info
@@ -534,7 +535,8 @@ class Engine:
         if left <= 0:
             return []
         sub = Engine(sub_problem, seed=self.seed, deadline=time.perf_counter() + CONTAINED_SHARE * left,
-                     solver=self.solver, local=self.local, n_starts=self.n_starts, n_trials=self.n_trials)
+                     solver=self.solver, local=self.local, n_starts=self.n_starts, n_trials=self.n_trials,
+                     effort=self.effort)
         sub.run()
         small = sub_problem.structure
         out = []

@@ -137,7 +137,7 @@ def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | Non
 
 
 def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None, K: int = 0,
-                       fine: bool = False) -> int:
+                       fine: bool = False, detail: int = 1) -> int:
     """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
     them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway)."""
     settle = _target(start, incumbent)
@@ -149,16 +149,17 @@ def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None
     # NLP keeps at the limit fail it; enough points that one step of the grid is at most RIPPLE_RAD of the
     # crossover's phase (the peak then within 0.1 % of the oscillation's amplitude)
     wc = max((w for w in np.atleast_1d(start.wc) if np.isfinite(w) and w > 0), default=0.0)
-    while base < RIPPLE_POINTS and wc * ev.dt / base > RIPPLE_RAD and (not K or K * base * 2 <= MAX_GRID_POINTS):
+    cap = MAX_GRID_POINTS * detail
+    while base < RIPPLE_POINTS and wc * ev.dt / base > RIPPLE_RAD and (not K or K * base * 2 <= cap):
         base *= 2
     if not fine:
         return base
     # the bisection resolves the settling time to one grid step: a loop settling in a few samples needs more
     # points per sample than the ripple does (underdamped at dt = tau/5, settling in 3.6 samples: 4 points per
     # sample left the answer 9 % above the optimum); powers of two, so a warm process reuses its builds
-    want = POINTS_PER_SETTLE / samples if math.isfinite(samples) and samples > 0 else 0
+    want = POINTS_PER_SETTLE * detail ** 2 / samples if math.isfinite(samples) and samples > 0 else 0
     n = base
-    while n < want and n < MAX_POINTS_PER_SAMPLE and K * n * 2 <= MAX_GRID_POINTS:
+    while n < want and n < MAX_POINTS_PER_SAMPLE and K * n * 2 <= cap:
         n *= 2
     return n
 
@@ -170,12 +171,12 @@ def _resolves_peak(start: Start, grid: _Grid) -> bool:
     return wc * grid.step / grid.N <= RIPPLE_RAD
 
 
-def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False
-          ) -> _Grid:
+def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
+          detail: int = 1) -> _Grid:
     T = _horizon(ev, start, w0, incumbent, fine)
     if ev.dt is not None:
         K = _bucket(int(math.ceil(T / ev.dt)))
-        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine), step=ev.dt, h=None)
+        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine, detail), step=ev.dt, h=None)
     # the fine step resolves the loop (H_WC rad of the fastest crossover per step) as well as the horizon: a
     # slow closed-loop pole of small residue (a PI zero next to a plant pole) must not stretch the step over
     # the loop's own dynamics (1/(4s+1) with pidf2: T = 204 s would give h = 0.5 s against wc = 2.7 rad/s);
@@ -428,8 +429,8 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
 
 
 def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
-           solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False
-           ) -> RefineResult:
+           solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False,
+           detail: int = 1) -> RefineResult:
     """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
 
     ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
@@ -438,7 +439,9 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     not the start's possibly much longer settling). ``start``: what the batch already said about ``v0``.
     ``fine`` (the polish of an incumbent, settling time only): a sampled loop's NLP grid resolves the settling
     time to about 1 % (more points per sample) and reaches as far as the start's slowest pole (up to
-    ``SLOW_TAIL`` settling times); dearer per solve, so the search runs it once per incumbent."""
+    ``SLOW_TAIL`` settling times); dearer per solve, so the search runs it once per incumbent. ``detail`` (the
+    effort's ``Effort.detail``): the grid's cap (``MAX_GRID_POINTS``) times it, the polish's points up to the
+    settling time (``POINTS_PER_SETTLE``) times its square (2: resolved to about 0.25 %)."""
     res = RefineResult()
     spec = ev.spec
     x0 = space.params(v0)
@@ -449,8 +452,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
         return res
     start = start or Start.of(ev, x0)
     incumbent = incumbent if spec.objective == "settling_time" else None
-    grid = _grid(ev, start, space.w0, incumbent, fine)
-    coarse = _grid(ev, start, space.w0, incumbent, False) if fine else grid
+    grid = _grid(ev, start, space.w0, incumbent, fine, detail)
+    coarse = _grid(ev, start, space.w0, incumbent, False, detail) if fine else grid
     # a polish on the coarse grid itself would repeat the refinement it follows: only its looser overshoot margin
     # (below) can add to it
     same = fine and (coarse.K, coarse.N) == (grid.K, grid.N)
