@@ -140,6 +140,7 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
             starts.append(space.from_params(x))
     if variants:
         starts += _filter_variants(space, guesses)
+        starts += _filter_variants(space, guesses, negative_p=True)
     return starts
 
 
@@ -147,14 +148,24 @@ FILTER_N = (10.0, 3.0)  # derivative filters of the filtered starts: Tf = Td / N
 FILTER_DECADES = (0.0, -0.5)
 
 
-def _filter_variants(space: Space, guesses: list[np.ndarray]) -> list[np.ndarray]:
+def _filter_variants(space: Space, guesses: list[np.ndarray], *, negative_p: bool = False) -> list[np.ndarray]:
     """The designed starts again with the derivative filter of textbook practice, Tf = Td / N, instead of at its
     floor: under a noise limit (Mks) the optimum's filter is slow (the pitch model with Mks <= 20, IAE: Tf =
     0.034 s at dt = 0.04, IAE 0.072, where every floor-filter start ends near 0.25), a long move in the
-    search's logarithmic Tf for a refinement."""
+    search's logarithmic Tf for a refinement. ``negative_p``: the same with the proportional gain's sign flipped
+    (the ID-like controllers of lightly damped plants: under the filter rule N = Kd / (|Kp| Tf) <= 20 the optimum
+    can have Kp < 0, a region the positive-Kp starts reach only through a long detour in Tf; underdamped pid with
+    the default limits: 1.10 s there, 4.01 s the best with Kp > 0)."""
     st = space.structure
     if "Tf" not in st.params or "Kd" not in st.params or "Kp" not in st.params:
         return []
+    if negative_p:
+        out = []
+        for v in _filter_variants(space, guesses):
+            x = space.params(v)
+            x[st.params.index("Kp")] *= -1.0
+            out.append(np.clip(space.from_params(x), space.lo, space.hi))
+        return out
     i_tf, i_kd, i_kp = st.params.index("Tf"), st.params.index("Kd"), st.params.index("Kp")
     out = []
     for decades in FILTER_DECADES:
