@@ -32,11 +32,11 @@ class _Ticks:
         return self.now
 
 
-def _run(problem: TuningProblem, budget: float, monkeypatch) -> Engine:
+def _run(problem: TuningProblem, budget: float, monkeypatch, effort: str = "default") -> Engine:
     clock = _Ticks(1e-3)
     monkeypatch.setattr(engine_mod, "time", clock)
     monkeypatch.setattr(refine_mod, "time", clock)
-    eng = Engine(problem, seed=3, deadline=clock.perf_counter() + budget, effort="default")
+    eng = Engine(problem, seed=3, deadline=clock.perf_counter() + budget, effort=effort)
     eng.run()
     return eng
 
@@ -68,11 +68,25 @@ def test_a_larger_budget_runs_a_longer_prefix_of_the_same_search(expr, structure
     assert eng.info.stop == "converged"
 
 
-def test_a_search_the_budget_cut_short_does_not_claim_convergence(monkeypatch):
-    problem = TuningProblem.build(plant_from_expr("1/(s+1)^3"), structure="pid", spec=Spec.thesis(), dt=0.1)
-    full = _run(problem, 1e9, monkeypatch)
+@pytest.mark.parametrize("structure, effort", [("pid", "default"), ("pid", "fast"), ("pid2", "fast")])
+def test_a_search_the_budget_cut_short_does_not_claim_convergence(structure, effort, monkeypatch):
+    """Every budget from 1 % to all the search needs, in fine steps: a run that scored fewer points or ran fewer NLP
+    solves than the full one was cut, and says ``budget`` (a polish the deadline cut inside its bisection, the last
+    step of a ``fast`` search, included; so is ``pid2``'s contained ``pid`` search, which a cut ends the whole
+    search: its later steps would otherwise depend on where the cut fell)."""
+    problem = TuningProblem.build(plant_from_expr("1/(s+1)^3"), structure=structure, spec=Spec.thesis(), dt=0.1)
+    full = _run(problem, 1e9, monkeypatch, effort)
     used = engine_mod.time.now
-    for share in (0.1, 0.3, 0.6, 0.9):
-        eng = _run(problem, share * used, monkeypatch)
-        if len(eng.pool) < len(full.pool):
-            assert eng.info.stop == "budget", share
+    assert full.info.stop == "converged"
+    cut, bests = 0, []
+    for share in np.linspace(0.01, 1.0, 60):
+        eng = _run(problem, share * used, monkeypatch, effort)
+        if structure != "pid2":  # (pid2 pools its contained search's best so far: a prefix of that search's)
+            for (_, v, _), (_, v0, _) in zip(eng.pool, full.pool):  # a prefix: the same search, shorter
+                assert np.array_equal(v, v0)
+        bests.append(eng.best.score)
+        if len(eng.pool) < len(full.pool) or eng.info.nlp_solves < full.info.nlp_solves:
+            cut += 1
+            assert eng.info.stop == "budget", (share, eng.info.nlp_solves, full.info.nlp_solves)
+    assert cut > 0
+    assert all(b1 <= b0 for b0, b1 in zip(bests, bests[1:])), bests  # more budget: never a worse incumbent

@@ -345,11 +345,20 @@ def _at_sample(resp: StepResponse, i: int) -> bool:
     ts = resp.t_samples
     if ts is None or len(ts) < 2 or not resp.between_samples:
         return False
-    if resp.corners is not None and np.any(np.abs(resp.corners - resp.t[i]) <= 1e-9 * max(float(ts[1] - ts[0]), 1.0)):
+    if _at_corner(resp, i):
         return True
     dt = float(ts[1] - ts[0])
     k = round(float(resp.t[i] - ts[0]) / dt)
     return abs(float(resp.t[i]) - (float(ts[0]) + k * dt)) <= 1e-9 * max(dt, 1.0)
+
+
+def _at_corner(resp: StepResponse, i: int) -> bool:
+    """Whether fine instant ``i`` is one of ``resp.corners`` (a fractional delay's input switch): the grid is not
+    equally spaced around it, and a parabola through it is no refinement."""
+    if resp.corners is None or resp.t_samples is None or len(resp.t_samples) < 2:
+        return False
+    dt = float(resp.t_samples[1] - resp.t_samples[0])
+    return bool(np.any(np.abs(resp.corners - resp.t[i]) <= 1e-9 * max(dt, 1.0)))
 
 
 def step_metrics(resp: StepResponse, *, band_pct: float = 2.0) -> StepMetrics:
@@ -363,7 +372,8 @@ def step_metrics(resp: StepResponse, *, band_pct: float = 2.0) -> StepMetrics:
     yn = y / yf
     i = int(np.argmax(yn))
     peak = yn[i]
-    if 0 < i < yn.size - 1 and not _at_sample(resp, i):  # parabolic refinement of the peak between fine instants
+    if 0 < i < yn.size - 1 and not _at_sample(resp, i) and not _at_corner(resp, i - 1) and \
+            not _at_corner(resp, i + 1):  # parabolic refinement of the peak between equally spaced fine instants
         a, b, c = yn[i - 1], yn[i], yn[i + 1]
         den = a - 2 * b + c
         if den < 0:

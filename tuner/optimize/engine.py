@@ -414,8 +414,8 @@ class Engine:
             res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                          incumbent=self.best.score if self._settling else None, start=self._starts.get(v.tobytes()),
                          fine=fine, detail=self.effort.detail)
-            if res.status.startswith("no time left"):
-                self._exhaust()  # (an NLP build the time left cannot afford ends the search, it is not skipped)
+            if res.status.startswith("no time left") or time.perf_counter() > self.deadline - self.reserve_s:
+                self._exhaust()  # (a build the time left cannot afford, or a bisection the deadline cut: the end)
             i = self.info
             i.starts_refined += 1
             i.nlp_solves += res.solves
@@ -549,6 +549,8 @@ class Engine:
                      solver=self.solver, local=self.local, n_starts=self.n_starts, n_trials=self.n_trials,
                      effort=self.effort)
         sub.run()
+        if sub.info.stop == "budget":
+            self._exhaust()  # the contained search was cut: so is this one (a budget only ever shortens the search)
         small = sub_problem.structure
         out = []
         for j, (score, x) in enumerate(sub.finalists_scored(3)):
@@ -633,11 +635,12 @@ class Engine:
         if not gains:
             return
         x = self.space.params(self.best.v)
-        start, tol = self.best.score, self._tol()
+        start, tol, v_before = self.best.score, self._tol(), self.best.v
         self._ray_levels(x, gains)
-        if self.best.score >= start - tol and self.best.v is not None:
-            # a step within the search's tolerance (a fraction of a sample, finer than the NLP's grid resolves):
-            # the fine polish would find nothing the ray did not (it costs a dozen NLP solves)
+        if self.best.v is not None and self.best.v is not v_before and self.best.score >= start - tol and \
+                v_before.tobytes() in self._polished:
+            # a step from a polished incumbent within the search's tolerance (a fraction of a sample, finer than the
+            # NLP's grid resolves): the fine polish would find nothing the ray did not (it costs a dozen NLP solves)
             self._polished.add(self.best.v.tobytes())
 
     def _ray_levels(self, x: np.ndarray, gains: list[int]) -> None:
@@ -662,14 +665,16 @@ class Engine:
             # the ray homes in on the edge of the band at the batch's resolution, where the verifier's finer one may
             # see the peak outside (and the settling much later): the best points are verified in the batch's order
             # (RAY_CHECKS at most), those it does not confirm taken back (no finalists), the first confirmed kept
-            order = [k for k in np.argsort(sc) if sc[k] < saved.score][:RAY_CHECKS]
+            better = [k for k in np.argsort(sc) if sc[k] < saved.score]
             bad, j = set(), None
-            for k in order:
+            for k in better[:RAY_CHECKS]:
                 full = self.ev.score(self.space.params(V[k]), full=True)
                 if full.feasible and full.score < saved.score:
                     j = int(k)
                     break
                 bad.add(V[k].tobytes())
+            if j is None:  # (the unchecked ones that beat the incumbent too: they would outrank it as finalists)
+                bad |= {V[k].tobytes() for k in better}
             self.pool = self.pool[:n0] + [e for e in self.pool[n0:] if e[1].tobytes() not in bad]
             if j is None:
                 self.best = saved
