@@ -221,8 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
     t.add_argument("--effort", choices=("fast", "default", "thorough"), default="default",
                    help="how hard to search: fast (the first round alone), default (plus an independent restart "
-                        "that must find nothing better), thorough (three such restarts in a row, more starts: about "
-                        "1.5x the default's time); the output's 'optimality' line says what the search knows")
+                        "that must find nothing better), thorough (three such restarts in a row, more starts, a finer "
+                        "polish: about 3x the default's time); the output's 'optimality' line says what the search "
+                        "knows")
     t.add_argument("--json", action="store_true")
     _add_plot_args(t)
     _add_spec_args(t)
