@@ -250,6 +250,22 @@ def lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
 _lifted = lifted  # its name before it was public (the search and the NLP import it)
 
 
+def lifted_with_switch(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
+    """:func:`lifted` with, for a fractional delay ``phi`` off the grid, one more row at ``t_k + phi`` where the
+    plant's delayed input switches (the output's corner, where its peak can be; :func:`tuner.lti.switch_output`):
+    ``(Cf, Df, offsets, phi)``, ``offsets`` the rows' instants within a sample, ``phi`` None without a switch row.
+    The verifier's step response and the search's batch both use it."""
+    Cf, Df = lifted(loop, N)
+    dt = loop.dt
+    offsets = np.arange(N) * (dt / N)
+    phi = loop.plant_d.zoh_fraction if loop.plant_d is not None else 0.0
+    if not (phi > 0 and abs(phi * N / dt - round(phi * N / dt)) > SAMPLE_FRACTION_TOL):
+        return Cf, Df, offsets, None
+    j = int(np.searchsorted(offsets, phi))
+    return (np.insert(Cf, j, switch_output(loop.plant_ct.ss(), phi), axis=0), np.insert(Df, j, 0.0),
+            np.insert(offsets, j, phi), phi)
+
+
 def _simulate_fine_delay(fl: FineDelayLoop, K: int, inp: int) -> tuple[np.ndarray, np.ndarray]:
     """Output and controller output of the sampled delay model over K steps, with a ring buffer."""
     g, c, m = fl.plant, fl.ctrl, fl.m
@@ -312,20 +328,14 @@ def step_response(loop: Loop, *, horizon_s: float | None = None, samples_per_dt:
         return StepResponse(t=ts, y=ys, u=u, t_samples=ts, y_samples=ys, y_final=yf,
                             between_samples=loop.plant_ct is not None)
     N = int(samples_per_dt)
-    Cf, Df = lifted(loop, N)
+    # (a fractional delay's input switch is a row too: a peak there missed by 4e-5 of the step put a settling time
+    # 35 s early)
+    Cf, Df, offsets, phi = lifted_with_switch(loop, N)
     ua = Z @ cl.Ca + cl.Da[inp]  # the plant's input over each sample
     yfine = (Z[:, :cl.n_plant] @ Cf.T + ua[:, None] * Df[None, :]).ravel()
-    t = np.arange(yfine.size) * (dt / N)
-    ufine = np.repeat(u, N)
-    phi = loop.plant_d.zoh_fraction if loop.plant_d is not None else 0.0
-    corners = None
-    if phi > 0 and abs(phi * N / dt - round(phi * N / dt)) > SAMPLE_FRACTION_TOL:
-        # a fractional delay: the plant's input switches at t_k + phi, between the grid's points; the output has a
-        # corner there and its peak can be at it (a peak missed by 4e-5 of the step put a settling time 35 s early)
-        ysw = Z[:, :cl.n_plant] @ switch_output(loop.plant_ct.ss(), phi)
-        corners = ts + phi
-        order = np.argsort(np.r_[t, corners], kind="stable")
-        t, yfine, ufine = np.r_[t, corners][order], np.r_[yfine, ysw][order], np.r_[ufine, u][order]
+    t = (ts[:, None] + offsets[None, :]).ravel()
+    ufine = np.repeat(u, offsets.size)
+    corners = None if phi is None else ts + phi
     return StepResponse(t=t, y=yfine, u=ufine, t_samples=ts, y_samples=ys, y_final=yf, between_samples=True,
                         corners=corners)
 

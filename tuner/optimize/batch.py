@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 from scipy import linalg
 
-from ..analysis.response import MAX_SAMPLES, lifted  # the verifier's limit is the search's (one source)
+from ..analysis.response import MAX_SAMPLES, lifted_with_switch  # the verifier's (one source)
 from ..controllers import ControllerTF
 from ..loop import build_loop
-from ..lti import switch_output, zoh_delayed
+from ..lti import zoh_delayed
 from ..problem import TuningProblem
 from ..spec import CROSSOVER_TOL, SSE_TOL
 from ..tolerances import (
@@ -39,7 +39,6 @@ from ..tolerances import (
     EXACT_ROOT_TOL,
     ROOT_AT_DC_TOL,
     ROOT_MAG_FLOOR,
-    SAMPLE_FRACTION_TOL,
     STABILITY_MARGIN,
 )
 from . import rules
@@ -201,15 +200,9 @@ class BatchEvaluator:
         g = lp.loop_plant.ss()
         Cf = Df = offsets = None
         if self.dt is not None and lp.plant_ct is not None and self.N > 1:
-            Cf, Df = lifted(lp, self.N)
-            offsets = np.arange(self.N) * (self.dt / self.N)
-            phi = lp.plant_d.zoh_fraction if lp.plant_d is not None else 0.0
-            if phi > 0 and abs(phi * self.N / self.dt - round(phi * self.N / self.dt)) > SAMPLE_FRACTION_TOL:
-                # the verifier's grid has the instant where the delayed input switches (its corner, where the peak
-                # can be): so has the search's, or its best candidates may verify later than it thinks
-                j = int(np.searchsorted(offsets, phi))
-                Cf = np.insert(Cf, j, switch_output(lp.plant_ct.ss(), phi), axis=0)
-                Df, offsets = np.insert(Df, j, 0.0), np.insert(offsets, j, phi)
+            # the verifier's rows, a fractional delay's input switch included (else the search's best candidates
+            # may verify later than it thinks)
+            Cf, Df, offsets, _ = lifted_with_switch(lp, self.N)
         G = lp.freqresp(self.w)
         G_nyq = lp.value_at(-1.0) if self.dt else None
         G_dc = None if lp.integrating else lp.value_at(0.0 if self.dt is None else 1.0)
