@@ -270,3 +270,34 @@ def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
     assert _drawn_early(study, yaw, {"gains": {**result["gains"], "K": 2.0}}, plots) is None  # other gains
     (plots / "yaw_bode.png").unlink()
     assert _drawn_early(study, yaw, result, plots) is None  # a figure is missing
+
+
+def test_a_done_loop_is_not_read_again(tmp_path):
+    """statuses() before every claim must not re-read the loops already done (a study of n loops would
+    cost O(n^2) reads): once a loop is seen done, later calls read only the loops that are not, and the
+    cached status is the one the storage holds."""
+    f, _ = _study_file(tmp_path)
+    study = load_study(f)
+    url = f"sqlite:///{tmp_path / 'study.db'}"
+    a = Coordinator(study, open_storage(url), worker="A")
+    obs = Coordinator(study, open_storage(url), observe_only=True)
+    for name in ("roll", "yaw", "fopdt"):
+        claim = a.claim(study.get(name), a.statuses()[name])
+        assert claim is not None and claim.complete({"loop": name, "gains": {"K": 1.0}})
+    reads: list[int] = []
+    real = obs.storage.get_all_trials
+    obs.storage.get_all_trials = lambda sid, **kw: reads.append(sid) or real(sid, **kw)  # type: ignore[method-assign]
+    first = obs.statuses()
+    assert {n for n, s in first.items() if s.state == "done"} == {"roll", "yaw", "fopdt"}
+    assert len(reads) == 3  # the three done loops' claim studies (the others have none yet)
+    reads.clear()
+    again = obs.statuses()
+    assert reads == [] and again == first  # nothing re-read; the same statuses
+    claim = a.claim(study.get("lag4"), a.statuses()["lag4"])  # a running loop is read every time
+    assert claim is not None
+    assert obs.statuses()["lag4"].state == "running" and len(reads) == 1
+    assert claim.complete({"loop": "lag4", "gains": {"K": 2.0}})
+    reads.clear()
+    assert obs.statuses()["lag4"].result == {"loop": "lag4", "gains": {"K": 2.0}} and len(reads) == 1
+    reads.clear()
+    assert obs.statuses()["y"].state == "free" and reads == []  # roll is done: y is free, nothing re-read

@@ -150,6 +150,7 @@ class Coordinator:
         self.observe_only = observe_only
         self.keys = {lp.name: loop_key(study, lp.name) for lp in study.loop}
         self._first_seen: dict[tuple[str, int], float] = {}
+        self._done: dict[str, LoopStatus] = {}  # loops seen done (final: see statuses)
 
     def prefix(self, lp: LoopDef) -> str:
         """The name prefix of the loop ``lp``'s claim studies in the storage (study, loop, the loop's key)."""
@@ -217,11 +218,22 @@ class Coordinator:
         return LoopStatus("running", e)
 
     def statuses(self) -> dict[str, LoopStatus]:
-        """What the storage says about every loop (:class:`LoopStatus` by loop name)."""
+        """What the storage says about every loop (:class:`LoopStatus` by loop name).
+
+        A loop once seen done is not read again: its COMPLETE trial can neither be failed nor replaced
+        (the loop's key is fixed for this coordinator), so its status is final. A worker reads the storage
+        before every claim; without this, a study of n loops cost O(n) reads per claim, O(n^2) in all."""
         out: dict[str, LoopStatus] = {}
-        names = [s.study_name for s in self.storage.get_all_studies()]
+        names: list[str] | None = None
         for lp in self.study.order():
-            out[lp.name] = self.status(lp, out, names)
+            st = self._done.get(lp.name)
+            if st is None:
+                if names is None:  # one listing of the storage's studies per call, only if a loop needs it
+                    names = [s.study_name for s in self.storage.get_all_studies()]
+                st = self.status(lp, out, names)
+                if st.state == "done":
+                    self._done[lp.name] = st
+            out[lp.name] = st
         return out
 
     def claim(self, lp: LoopDef, st: LoopStatus) -> Claim | None:
