@@ -28,6 +28,7 @@ import reference as ref
 from quadrotor import DT, PITCH, ROLL
 from scipy import linalg, signal
 
+from tuner.analysis.response import step_response
 from tuner.analysis.verify import analyze
 from tuner.controllers import STRUCTURES, ControllerTF, get_structure
 from tuner.loop import build_loop
@@ -40,6 +41,7 @@ from tuner.optimize.nlp.refine import refine
 from tuner.optimize.space import make_space
 from tuner.plant import make_plant, plant_from_expr
 from tuner.problem import TuningProblem
+from tuner.spec import Spec
 from tuner.tuning import tune
 
 BUDGET = 120.0
@@ -338,3 +340,61 @@ def test_second_tune_does_not_rebuild(monkeypatch):
     # is answered at once, after a short search)
     tune(plant, structure="pid", dt=DT, seed=0, time_budget_s=BUDGET)
     assert transcribe.BUILDS["count"] > c1
+
+
+# PID on an unstable plant at wc dt = 1.0, settling over 240 samples (bench/quality.py's unstable-13)
+FAST_CROSS_SLOW_TAIL = (([0.6477009424993394], [6.444179644262706e-05, 0.10765766050280373, -1.0]), 0.008538)
+
+
+def _unstable_pid(x0):
+    (num, den), dt = FAST_CROSS_SLOW_TAIL
+    plant = make_plant(num, den)
+    problem = TuningProblem.build(plant, structure="pid", dt=dt, spec=Spec.thesis())
+    space = make_space(problem.structure, plant, dt, scale=problem.scale)
+    ev = BatchEvaluator(problem, space)
+    return plant, dt, problem, space, ev, refine_mod.Start.of(ev, np.asarray(x0, float))
+
+
+def test_head_grid_step_response_is_the_verifiers():
+    """A head grid (N points a sample over the first samples, fewer after them) simulates the same loop: at each of
+    its points the NLP's step response is the verifier's, at the same instants; its trapezoid weights integrate
+    over the whole horizon."""
+    x0 = np.array([17.84, 13.09, 0.0244, 0.00058])
+    plant, dt, problem, space, ev, start = _unstable_pid(x0)
+    grid = refine_mod._Grid(K=96, N=8, step=dt, h=None, head=16, tail_N=2)
+    t = grid.t
+    assert t.size == 16 * 8 + 80 * 2 and np.all(np.diff(t) > 0)
+    assert grid.spacing(15.5 * dt) == pytest.approx(dt / 8) and grid.spacing(16 * dt) == pytest.approx(dt / 2)
+    assert np.sum(refine_mod._time_weights(grid, "iae")) == pytest.approx(t[-1])
+    ctrl0 = problem.structure.tf(x0, dt)
+    data = refine_mod._plant_data(ev, start, ctrl0, grid, space.w0)
+    key = transcribe.ProblemKey(structure="pid", continuous=False, orders=tuple(lf.n for lf in data.lifted),
+                                zeros=tuple(lf.zeros.size for lf in data.lifted),
+                                poles=tuple(lf.poles.size for lf in data.lifted), delays=(0,), K=grid.K, N=grid.N,
+                                phase_cross=tuple(data.has_pc), control_peak=True, objective="settling_time",
+                                head=grid.head, tail_N=grid.tail_N)
+    assert key.points == t.size
+    nlp = transcribe.get_problem(key, space.structure, space)
+    values = refine_mod._values(ev, space, grid, data, key)
+    xs, _, _ = refine_mod._box(nlp, space, x0, data, values["band"], refine_mod._wmax(ev, space.w0))
+    y_nlp = np.asarray(nlp.step(xs, nlp.params.pack({**values, "mask": np.zeros(t.size)}))).ravel()
+    r = step_response(build_loop(plant, ctrl0), horizon_s=float(t[-1]) + dt, samples_per_dt=8)
+    assert np.max(np.abs(y_nlp - np.interp(t, r.t, r.y))) < 1e-9
+
+
+def test_polish_resolves_the_peak_of_a_fast_crossover_with_a_slow_tail():
+    """The loop crosses over at wc dt = 1.0 and settles over 240 samples: under MAX_GRID_POINTS a uniform grid has
+    one point a sample and misses its peak, so the polish's looser overshoot limit was never tried (2.039 s, the
+    optimum 1.861 s with the overshoot at its limit). The head grid resolves the peak over the first samples; the
+    polish from the old answer reaches 1.88 s, and the batch (the judge) finds it within the overshoot limit."""
+    x0 = np.array([17.844420901583025, 13.089155150474955, 0.024370599461504792, 0.0005763735168064338])
+    _, dt, _, space, ev, start = _unstable_pid(x0)
+    assert start.settle[0] == pytest.approx(2.0388, abs=1e-3)
+    grid = refine_mod._grid(ev, start, space.w0, float(start.settle[0]), fine=True)
+    assert grid.N == 1 and not refine_mod._resolves_peak(start, grid), "precondition: the uniform grid is coarse"
+    head = refine_mod._head_grid(start, grid)
+    assert head is not None and head.head < head.K and refine_mod._resolves_peak(start, head)
+    res = refine(ev, space, space.from_params(x0), incumbent=float(start.settle[0]), start=start, fine=True,
+                 deadline=time.perf_counter() + BUDGET)
+    b = ev.evaluate(np.array([space.params(v) for v in res.candidates]))
+    assert np.min(b.score) < 1.9 and np.all(b.feasible[b.score < 1.9])

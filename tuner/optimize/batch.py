@@ -150,12 +150,13 @@ class Start:
     wc: np.ndarray
     wp: np.ndarray
     horizon: np.ndarray
+    overshoot: np.ndarray  # %
 
     @classmethod
     def row(cls, r: BatchResult, j: int) -> Start:
         """Row ``j`` of a :class:`~tuner.optimize.batch.BatchResult`."""
         return cls(*(np.array([float(m[k][j]) for m in r.per_plant]) for k in ("settling_time_s", "wc", "wp",
-                                                                                  "horizon_s")))
+                                                                                  "horizon_s", "overshoot_pct")))
 
     @classmethod
     def of(cls, batch: BatchEvaluator, x0: np.ndarray) -> Start:

@@ -5,7 +5,8 @@ name through the problem's :class:`~tuner.optimize.nlp.layout.Layout`) and leave
 solution coordinates). What the NLP says about margins or settling is not reported anywhere:
 the caller re-verifies the solution.
 
-Steps: :func:`_grid` (horizon and time grid from the start), :func:`_plant_data` (lifted plant
+Steps: :func:`_grid` (horizon and time grid from the start; a polish at the overshoot limit whose uniform grid
+misses the peak: :func:`_head_grid`, dense over the first samples only), :func:`_plant_data` (lifted plant
 models, factored forms and crossover estimates from the start's analysis), :func:`_values` (the
 spec's numbers, the frequency grid with the plant's response on it, the time weights), :func:`_box`
 (start and bounds), then :class:`_Solves` runs the solves: for the settling time a bisection on the
@@ -44,6 +45,12 @@ MAX_POINTS_PER_SAMPLE = 32
 MAX_GRID_POINTS = 2048  # the more points per sample are taken only while K * N stays within this
 RIPPLE_RAD = 0.08  # at most this much of the start's crossover phase between two NLP grid points ...
 RIPPLE_POINTS = 8  # ... with up to this many points a sample
+# a polish from an incumbent at the overshoot limit whose uniform grid is too coarse for the peak (its points a sample
+# capped by MAX_GRID_POINTS over a long horizon, or by RIPPLE_POINTS) runs on a head grid: RIPPLE_RAD between its
+# points (up to MAX_POINTS_PER_SAMPLE a sample) over the first samples, as many as cover this much of the start's
+# crossover phase (about five of its periods: the overshoot's peak and the ripple between samples are there, the
+# crossover's modes have decayed by then), the uniform grid's own points after them (:func:`_head_grid`)
+HEAD_RAD = 32.0
 SLOW_TAIL = 40.0
 CONTINUOUS_STEPS = 400
 MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
@@ -58,11 +65,11 @@ INTEGRAL_FLOOR = 1e-3  # a start's integral gain keeps at least this fraction of
 NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
 POLISH_STEPS = 2.0  # a polish's first lower end: this many coarse-grid steps below the incumbent's settling time
 FIRST = 0.95  # the first solve from a start (no better incumbent) asks for this fraction of its settling time
-# the fine polish, where its grid resolves the overshoot's peak (:func:`_resolves_peak`) and the overshoot limit is
-# active at its answer, bisects on with the limit only this much inside the batch's: the settling time can fall
-# steeply with the overshoot allowed (PID on an unstable plant, poles +0.26 and -0.53 rad/s at dt 0.33: 22.54 s at
-# the 0.995 tightening, 22.27 s at 0.9995, the optimum with the batch's own limit 22.22 s); a candidate whose peak the
-# grid still misses fails the batch and is dropped
+# the fine polish, where its grid resolves the overshoot's peak (:func:`_resolves_peak`; a head grid where a uniform
+# one cannot, :func:`_head_grid`) and the overshoot limit is active at its answer, bisects on with the limit only this
+# much inside the batch's: the settling time can fall steeply with the overshoot allowed (PID on an unstable plant,
+# poles +0.26 and -0.53 rad/s at dt 0.33: 22.54 s at the 0.995 tightening, 22.27 s at 0.9995, the optimum with the
+# batch's own limit 22.22 s); a candidate whose peak the grid still misses fails the batch and is dropped
 _TIGHT_OS_FINE = 0.9995
 
 
@@ -81,16 +88,26 @@ class RefineResult:
 
 @dataclass(frozen=True)
 class _Grid:
-    """The NLP's time discretisation: K steps of ``step`` s, N points per step."""
+    """The NLP's time discretisation: K steps of ``step`` s, N points per step (``head`` > 0: over the first
+    ``head`` steps only, ``tail_N`` points per step after them)."""
 
     K: int
     N: int
     step: float  # dt, or the fine step h of a continuous loop
     h: float | None  # continuous loops: the simulation step (divides every delay)
+    head: int = 0
+    tail_N: int = 1
 
     @property
     def t(self) -> np.ndarray:
-        return np.arange(self.K * self.N) / self.N * self.step
+        if not self.head:
+            return np.arange(self.K * self.N) / self.N * self.step
+        return np.concatenate([np.arange(self.head * self.N) / self.N * self.step,
+                               np.arange(self.head * self.tail_N, self.K * self.tail_N) / self.tail_N * self.step])
+
+    def spacing(self, t: float) -> float:
+        """The distance between the grid's points at time ``t``."""
+        return self.step / (self.N if not self.head or t < self.head * self.step else self.tail_N)
 
 
 def _bucket(k: int) -> int:
@@ -166,9 +183,43 @@ def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None
 
 def _resolves_peak(start: Start, grid: _Grid) -> bool:
     """Whether the grid's points are at most RIPPLE_RAD of the start's crossover phase apart (the overshoot's peak
-    then within 0.1 % of the oscillation's amplitude above the grid's highest point)."""
+    then within 0.1 % of the oscillation's amplitude above the grid's highest point); a head grid's: over its head."""
     wc = max((w for w in np.atleast_1d(start.wc) if np.isfinite(w) and w > 0), default=math.inf)
     return wc * grid.step / grid.N <= RIPPLE_RAD
+
+
+def _head_grid(start: Start, grid: _Grid) -> _Grid | None:
+    """A sampled loop's grid that resolves the overshoot's peak (:func:`_resolves_peak`) where the uniform ``grid``
+    does not: enough points a sample over a head of HEAD_RAD of the crossover's phase (about HEAD_RAD / RIPPLE_RAD
+    points, 400 to 1600 whatever the horizon), ``grid``'s own after it; None if ``grid`` resolves the peak or more
+    than MAX_POINTS_PER_SAMPLE would be needed.
+
+    A loop that crosses over fast for its sample time yet settles slowly (PID on an unstable plant at wc dt = 1.0,
+    its slow tail in the band after 240 samples) peaks within its first ten samples; the polish's horizon (the tail's
+    slow pole: 1536 samples) leaves it one point a sample under MAX_GRID_POINTS, so the polish could not loosen the
+    overshoot limit (its candidates at 9.895 % peaked at 9.901 % between the points, above the batch's 9.9) and
+    stopped at 2.039 s where the optimum, at the limit, is 1.861 s; the head grid reaches 1.880 s. The tail needs no
+    more points: it is the slow modes', the ripple has decayed, and the settling time's resolution is the uniform
+    grid's."""
+    wc = max((w for w in np.atleast_1d(start.wc) if np.isfinite(w) and w > 0), default=0.0)
+    if grid.h is not None or grid.head or not 0 < wc < math.inf or _resolves_peak(start, grid):
+        return None
+    n = grid.N
+    while wc * grid.step / n > RIPPLE_RAD:
+        n *= 2
+        if n > MAX_POINTS_PER_SAMPLE:
+            return None
+    head = 2 ** math.ceil(math.log2(max(HEAD_RAD / (wc * grid.step), MIN_SAMPLES)))
+    if head >= grid.K:
+        return _Grid(K=grid.K, N=n, step=grid.step, h=None)
+    return _Grid(K=grid.K, N=n, step=grid.step, h=None, head=head, tail_N=grid.N)
+
+
+def _at_overshoot_limit(ev: BatchEvaluator, start: Start) -> bool:
+    """Whether the start's overshoot (the batch's) is within 1 % of the NLP's limit: the limit is likely to be
+    active at the polish's answer too."""
+    limit = ev.spec.overshoot_max_pct * GUARD["overshoot"] * _TIGHT_OS
+    return bool(np.any(np.asarray(start.overshoot) >= 0.99 * limit))
 
 
 def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
@@ -225,8 +276,12 @@ def _wmax(ev: BatchEvaluator, w0: float) -> float:
 def _time_weights(grid: _Grid, objective: str) -> np.ndarray:
     """Trapezoid weights of the verifier's integrals on the NLP's time grid (times t for the ITAE)."""
     t = grid.t
-    w = np.full(t.size, grid.step / grid.N)
-    w[0] = w[-1] = 0.5 * grid.step / grid.N
+    if grid.head:
+        d = np.diff(t)
+        w = np.concatenate([d, [0.0]]) / 2 + np.concatenate([[0.0], d]) / 2
+    else:
+        w = np.full(t.size, grid.step / grid.N)
+        w[0] = w[-1] = 0.5 * grid.step / grid.N
     return w * t if objective == "itae" else w
 
 
@@ -334,8 +389,7 @@ class _Solves:
     def settles_at(self, x: np.ndarray) -> float:
         """The settling time of solution ``x`` on the NLP's own time grid (every plant; the envelope's band):
         the first grid time from which every output stays in the band; ``inf`` if the last point is out."""
-        Y = np.asarray(self.prob.step(x, self.prob.params.pack({**self.values, "mask": np.zeros(self.tgrid.size)})))
-        Y = Y.reshape(-1, self.tgrid.size)
+        Y = self._step(x)
         out = np.any(np.abs(Y - 1.0) > self.values["band"], axis=0)
         if not out.any():
             return 0.0
@@ -344,8 +398,15 @@ class _Solves:
 
     def overshoot(self, x: np.ndarray) -> float:
         """The overshoot of solution ``x`` on the NLP's grid (every plant's worst), as a fraction."""
+        return float(np.max(self._step(x))) - 1.0
+
+    def peak_time(self, x: np.ndarray) -> float:
+        """When solution ``x`` peaks on the NLP's grid (every plant's worst)."""
+        return float(self.tgrid[int(np.argmax(np.max(self._step(x), axis=0)))])
+
+    def _step(self, x: np.ndarray) -> np.ndarray:
         Y = np.asarray(self.prob.step(x, self.prob.params.pack({**self.values, "mask": np.zeros(self.tgrid.size)})))
-        return float(np.max(Y)) - 1.0
+        return Y.reshape(-1, self.tgrid.size)
 
     def __call__(self, ts: float, x_init: np.ndarray) -> tuple[float, np.ndarray] | None:
         """Solve with the settling envelope from ``ts`` on (``inf``: none): (slack or objective, x); the first
@@ -439,7 +500,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     not the start's possibly much longer settling). ``start``: what the batch already said about ``v0``.
     ``fine`` (the polish of an incumbent, settling time only): a sampled loop's NLP grid resolves the settling
     time to about 1 % (more points per sample) and reaches as far as the start's slowest pole (up to
-    ``SLOW_TAIL`` settling times); dearer per solve, so the search runs it once per incumbent. ``detail`` (the
+    ``SLOW_TAIL`` settling times); dearer per solve, so the search runs it once per incumbent; where the overshoot
+    limit holds the incumbent and the grid misses its peak, on a head grid (:func:`_head_grid`). ``detail`` (the
     effort's ``Effort.detail``): the grid's cap (``MAX_GRID_POINTS``) times it, the polish's points up to the
     settling time (``POINTS_PER_SETTLE``) times its square (2: resolved to about 0.25 %)."""
     res = RefineResult()
@@ -453,16 +515,20 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     start = start or Start.of(ev, x0)
     incumbent = incumbent if spec.objective == "settling_time" else None
     grid = _grid(ev, start, space.w0, incumbent, fine, detail)
+    # the polish's looser overshoot limit (below) needs the peak resolved
+    headed = _head_grid(start, grid) if fine and spec.objective == "settling_time" and \
+        _at_overshoot_limit(ev, start) else None
+    grid = headed or grid
     coarse = _grid(ev, start, space.w0, incumbent, False, detail) if fine else grid
     # a polish on the coarse grid itself would repeat the refinement it follows: only its looser overshoot margin
     # (below) can add to it
-    same = fine and (coarse.K, coarse.N) == (grid.K, grid.N)
+    same = fine and (coarse.K, coarse.N, coarse.head) == (grid.K, grid.N, grid.head)
     if same and not _resolves_peak(start, grid):
         res.status = "the fine grid is the coarse one"
         return res
     if ev.dt is not None and any(build_loop(p, ctrl0).plant_ct is None for p in ev.problem.plants):
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
-        grid = _Grid(K=grid.K, N=1, step=grid.step, h=None)
+        grid, headed = _Grid(K=grid.K, N=1, step=grid.step, h=None), None
     data = _plant_data(ev, start, ctrl0, grid, space.w0)
     key = ProblemKey(structure=space.structure.name, continuous=ev.dt is None,
                      orders=tuple(lf.n for lf in data.lifted), zeros=tuple(lf.zeros.size for lf in data.lifted),
@@ -474,7 +540,8 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
                      mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
                      filter_n=rules.applies(space.structure, spec),
-                     settling_max=spec.settling_time_max is not None and spec.objective != "settling_time")
+                     settling_max=spec.settling_time_max is not None and spec.objective != "settling_time",
+                     head=grid.head, tail_N=grid.tail_N)
     if deadline is not None and not is_built(key) and \
             time.perf_counter() + estimated_build_s(key, len(space.structure.params)) > deadline:
         res.status = "no time left to build this NLP"  # its cost is known before it starts
@@ -533,9 +600,17 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
                                             exchange, near=near, lo_step=lo_step)
     if fine and out is not None and _resolves_peak(start, grid) and not out_of_time():
         hi, best = out
-        if solve.overshoot(best) >= 0.999 * values["os"]:  # the overshoot limit is active: bisect on at the looser one
+        # the overshoot limit is active (and, on a head grid, the peak within the head): bisect on at the looser one
+        if solve.overshoot(best) >= 0.999 * values["os"] and \
+                (not grid.head or solve.peak_time(best) < grid.head * grid.step):
             values["os"] *= _TIGHT_OS_FINE / _TIGHT_OS
             _bisect(solve, ev, space, hi, grid, best, res, to_search, out_of_time, exchange, near=True)
+    elif out is None and headed is not None and not out_of_time() and \
+            (not grid.head or solve.peak_time(xs) < grid.head * grid.step):
+        # the coarse grid missed the peak this one resolves: the incumbent can be above the tight limit here (pid_z at
+        # wc dt = 0.5: 9.869 % against 9.851 %), and only the looser one leaves it room
+        values["os"] *= _TIGHT_OS_FINE / _TIGHT_OS
+        _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time, exchange, near=True)
     return res
 
 
@@ -578,9 +653,8 @@ def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, gri
     lo, proven = (NEAR * hi, False) if near else (0.3 * hi, True)
     if lo_step is not None and hi - lo_step > lo:
         lo, proven = hi - lo_step, False
-    tol = grid.step / grid.N  # the NLP grid's resolution (the verifier then judges between its points)
     while not out_of_time():
-        if hi - lo <= tol:
+        if hi - lo <= grid.spacing(hi):  # the NLP grid's resolution (the verifier then judges between its points)
             if proven:
                 break
             lo, proven = 0.3 * hi, True

@@ -1,10 +1,10 @@
 """The tuning NLP in CasADi, built once per problem *structure* and re-used.
 
 Structure key = (controller structure, continuous or discrete, plant sizes and delay per plant,
-horizon K, points per sample N, which constraints exist, the objective, the solver). Plant data,
-dt, the spec's numbers, the frequency grid and the time grid enter as parameters, so re-solving
-from another start, or for another plant of the same sizes, does not rebuild anything (``BUILDS``
-counts real builds).
+horizon K, points per sample N (optionally only over the first ``head`` samples, ``tail_N`` after them),
+which constraints exist, the objective, the solver). Plant data, dt, the spec's numbers, the frequency
+grid and the time grid enter as parameters, so re-solving from another start, or for another plant of
+the same sizes, does not rebuild anything (``BUILDS`` counts real builds).
 
 Decision variables: the structure's coordinates ``v`` (see :mod:`tuner.optimize.space`; gains
 linear in their plant-based unit, frequencies logarithmic), the band slack, and per plant the
@@ -21,7 +21,8 @@ Constraints, per plant:
   ``|C S| <= Mks``, ``2|1 + L| >= alpha |1 - L|`` (disk margin), as requested; the grid has spare
   slots that :mod:`~tuner.optimize.nlp.refine` fills with the frequencies where the verifier finds a
   peak the grid missed (an exchange method), so the limits hold on the verifier's dense grid;
-* the unit step response between samples (lifted ZOH model, exact at N points per sample; a 2-DOF
+* the unit step response between samples (lifted ZOH model, exact at N points per sample, or at N over the
+  first ``head`` samples and ``tail_N`` after them, where a slow tail needs no more; a 2-DOF
   controller's reference path drives it, its feedback part the load response and every frequency-domain row):
   ``y <= 1 + overshoot`` and, for the settling-time objective, the envelope ``|y_i - 1| <= b - slack``
   for every ``t_i >= Ts`` (a 0/1 parameter ``mask``, so moving ``Ts`` never rebuilds); optionally
@@ -81,7 +82,7 @@ class ProblemKey:
     poles: tuple[int, ...]  # number of plant poles per plant
     delays: tuple[int, ...]  # delay in samples per plant
     K: int
-    N: int
+    N: int  # points per sample (over the first ``head`` samples where ``head`` > 0)
     phase_cross: tuple[bool, ...]  # per plant: a phase crossover below Nyquist
     control_peak: bool
     objective: str
@@ -94,6 +95,13 @@ class ProblemKey:
     dm: bool = False
     filter_n: bool = False  # the derivative-filter rule N = Td/Tf <= nmax (Spec.filter_n_max)
     settling_max: bool = False  # a settling-time limit with another objective: the band from the mask on
+    head: int = 0  # > 0: only the first ``head`` samples have N points, the later ones ``tail_N`` (N a multiple)
+    tail_N: int = 1
+
+    @property
+    def points(self) -> int:
+        """The number of points of the step response's time grid (per plant)."""
+        return self.K * self.N if not self.head else self.head * self.N + (self.K - self.head) * self.tail_N
 
     @property
     def grid(self) -> bool:
@@ -117,7 +125,7 @@ class Problem:
     ubg: np.ndarray
     params: Layout  # the parameter vector p
     variables: Layout  # the decision vector x
-    step: Any = None  # casadi Function (x, p) -> the reference-step outputs of every plant, stacked (K N each)
+    step: Any = None  # casadi Function (x, p) -> the reference-step outputs of every plant, stacked (key.points each)
 
 
 # the spec's numbers and the steps, in the parameter vector (see refine for their values)
@@ -133,7 +141,7 @@ def parameter_layout(key: ProblemKey, nv: int) -> Layout:
                    (f"Df{i}", (key.N,)), (f"zr{i}", (key.zeros[i],)), (f"zi{i}", (key.zeros[i],)),
                    (f"pr{i}", (key.poles[i],)), (f"pi{i}", (key.poles[i],)), (f"k{i}", ()), (f"tau{i}", ()),
                    (f"Gre{i}", (ng,)), (f"Gim{i}", (ng,))]
-    blocks += [("wgrid", (ng,)), ("tw", (key.K * key.N,)), ("mask", (key.K * key.N,))]
+    blocks += [("wgrid", (ng,)), ("tw", (key.points,)), ("mask", (key.points,))]
     return Layout(tuple(blocks))
 
 
@@ -331,13 +339,13 @@ def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden
             c.add((4 * one_plus - level ** 2 * one_minus) / scale, 0.0, cs.inf)
 
 
-def _step_function(key: ProblemKey, i: int, m: int, r: float, w: float, two_dof: bool) -> Any:
+def _step_function(key: ProblemKey, i: int, m: int, r: float, w: float, two_dof: bool, N: int) -> Any:
     """One sample of the closed loop of plant ``i`` as a CasADi Function ``(s, Phi, Gam, C, D, Cf, Df, c) -> (s+,
     [y_1..y_N, u])``: ``s`` the plant state, the controller state (``m``) and the delay line, ``c`` the controller's
-    canonical coefficients (``a, beta, d0`` and, 2-DOF, ``beta_r, d_r``). :func:`_responses` repeats it K times
-    with ``mapaccum`` and calls the result on the problem's symbols, which inlines the K samples in C++: the same
-    expression graph as a Python loop over the samples, built about 50 times faster."""
-    n, dly, N = key.orders[i], key.delays[i], key.N
+    canonical coefficients (``a, beta, d0`` and, 2-DOF, ``beta_r, d_r``); ``N`` points a sample. :func:`_responses`
+    repeats it K times with ``mapaccum`` and calls the result on the problem's symbols, which inlines the K samples in
+    C++: the same expression graph as a Python loop over the samples, built about 50 times faster."""
+    n, dly = key.orders[i], key.delays[i]
     s = cs.SX.sym("s", n + m + dly)
     Phi, Gam, Cx = cs.SX.sym("Phi", n, n), cs.SX.sym("Gam", n), cs.SX.sym("C", n)
     Dp, Cf, Df = cs.SX.sym("D"), cs.SX.sym("Cf", N, n), cs.SX.sym("Df", N)
@@ -377,11 +385,12 @@ def _step_function(key: ProblemKey, i: int, m: int, r: float, w: float, two_dof:
     out = cs.mtimes(Cf, x) + Df * ua if n else Df * ua
     x_new = cs.mtimes(Phi, x) + Gam * ua if n else cs.SX(0, 1)
     s_new = cs.vertcat(x_new, *xc_new, *buf)
-    return cs.Function(f"sample{i}", [s, Phi, Gam, Cx, Dp, Cf, Df, c], [s_new, cs.vertcat(out, u)])
+    return cs.Function(f"sample{i}_{N}", [s, Phi, Gam, Cx, Dp, Cf, Df, c], [s_new, cs.vertcat(out, u)])
 
 
 def _responses(key: ProblemKey, i: int, ctrl: tuple, P: dict[str, Any], r: float, w: float) -> tuple[Any, list]:
-    """The closed loop's output at N points per sample (lifted model) and the control sequence, for a unit
+    """The closed loop's output at N points per sample (lifted model; a head grid: ``tail_N`` of them, every
+    ``N / tail_N``-th row of the lifted model, after the first ``head`` samples) and the control sequence, for a unit
     step of the reference ``r`` and of the load ``w`` at the plant input (before its delay). ``ctrl``: the
     controller's canonical form ``(a, beta, d0)``, or for a 2-DOF controller ``u = C_r r - C y`` also the reference
     path's ``(beta_r, d_r)`` over the same denominator."""
@@ -389,11 +398,21 @@ def _responses(key: ProblemKey, i: int, ctrl: tuple, P: dict[str, Any], r: float
     a = ctrl[0]
     m = len(a)
     coeffs = cs.vertcat(*a, *ctrl[1], ctrl[2], *((*ctrl[3], ctrl[4]) if two_dof else ()))
-    F = _step_function(key, i, m, r, w, two_dof).mapaccum(f"samples{i}", key.K, [0], [0])
     n = key.orders[i]
-    _, out = F(cs.SX.zeros(n + m + key.delays[i]), *(P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df")),
-               coeffs)
-    return cs.vec(out[:key.N, :]), [out[key.N, :].T]
+    s0 = cs.SX.zeros(n + m + key.delays[i])
+    plant = [P[f"{b}{i}"] for b in ("Phi", "Gam", "C", "D", "Cf", "Df")]
+    parts = [(key.N, key.head or key.K, plant)]
+    if key.head:
+        every = key.N // key.tail_N
+        parts.append((key.tail_N, key.K - key.head, plant[:4] + [plant[4][::every, :], plant[5][::every]]))
+    ys, us = [], []
+    for N, K, data in parts:
+        F = _step_function(key, i, m, r, w, two_dof, N).mapaccum(f"samples{i}_{N}", K, [0], [0])
+        states, out = F(s0, *data, coeffs)
+        s0 = states[:, -1]
+        ys.append(cs.vec(out[:N, :]))
+        us.append(out[N, :].T)
+    return cs.vertcat(*ys), [cs.vertcat(*us)]
 
 
 def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str, Any]) -> None:
@@ -501,7 +520,9 @@ BUILD_S_PER_NODE = 4.4e-6
 def _estimated_nodes(key: ProblemKey, n_params: int) -> float:
     # the points between samples are linear maps of the sample's state: they cost an eighth of a sample each
     # (measured: K = 48, N = 32 built in 0.16 s where K * N full samples estimated 2.1 s)
-    return sum(key.K * (1.0 + (key.N - 1) / 8.0) * (80.0 + 1.6 * (n + n_params + 2) ** 2) for n in key.orders)
+    head = key.head or key.K
+    samples = head * (1.0 + (key.N - 1) / 8.0) + (key.K - head) * (1.0 + (key.tail_N - 1) / 8.0)
+    return sum(samples * (80.0 + 1.6 * (n + n_params + 2) ** 2) for n in key.orders)
 
 
 def estimated_build_s(key: ProblemKey, n_params: int) -> float:
