@@ -398,3 +398,32 @@ def test_polish_resolves_the_peak_of_a_fast_crossover_with_a_slow_tail():
                  deadline=time.perf_counter() + BUDGET)
     b = ev.evaluate(np.array([space.params(v) for v in res.candidates]))
     assert np.min(b.score) < 1.9 and np.all(b.feasible[b.score < 1.9])
+
+
+def test_polish_grid_is_dense_where_the_settling_time_is_decided(monkeypatch):
+    """A PID on an integrating plant settles in 3.5 samples, but its slow zero's tail makes the polish's horizon 192
+    samples: a uniform fine grid under MAX_GRID_POINTS had 8 points a sample everywhere (1536 points). The settle-head
+    grid has the fine rule's 32 a sample over the first 16 samples (past SETTLE_HEAD settling times) and 4 after them:
+    fewer points in all, four times the detail where the bisection decides, and the polish reaches at least what the
+    uniform grid's reaches (bench/quality.py's integrating-02)."""
+    plant = make_plant([0.3384051889376903], [0.8064168585526714, 1.0, 0.0])
+    dt = 0.02776
+    problem = TuningProblem.build(plant, structure="pid", dt=dt, spec=Spec.thesis())
+    space = make_space(problem.structure, plant, dt, scale=problem.scale)
+    ev = BatchEvaluator(problem, space)
+    x0 = np.array([32.8393, 16.343, 41.4358, 2.776e-05])
+    start = refine_mod.Start.of(ev, x0)
+    inc = float(start.settle[0])
+    uniform = refine_mod._grid(ev, start, space.w0, inc, fine=True)
+    head = refine_mod._settle_head(ev, start, inc, uniform, 1)
+    assert (uniform.K, uniform.N, uniform.head) == (192, 8, 0)
+    assert head.head * dt >= refine_mod.SETTLE_HEAD * inc and head.N == 32 and head.tail_N == 4
+    assert head.t.size < uniform.t.size and abs(head.t[-1] - uniform.t[-1]) < dt  # the same horizon
+    reached = {}
+    for name, at in (("uniform", 1e9), ("head", refine_mod.SETTLE_HEAD)):
+        monkeypatch.setattr(refine_mod, "SETTLE_HEAD", at)
+        res = refine(ev, space, space.from_params(x0), incumbent=inc, start=start, fine=True,
+                     deadline=time.perf_counter() + BUDGET)
+        b = ev.evaluate(np.array([space.params(v) for v in res.candidates]))
+        reached[name] = float(np.min(b.score))
+    assert reached["head"] <= reached["uniform"] and reached["head"] <= inc * (1 + 1e-5)

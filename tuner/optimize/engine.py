@@ -308,7 +308,8 @@ class Engine:
         # ever cuts the search's fixed sequence of steps short (a larger budget runs a longer prefix of the same
         # search, never a different one; see :meth:`_time_left`)
         self._exhausted = False
-        self._starts: dict[bytes, Start] = {}  # what the batch said about each pooled point (refine's start)
+        # what the batch said about each pooled point (refine's start): its batch result and row, read when refined
+        self._starts: dict[bytes, tuple[Any, int]] = {}
 
     # -- bookkeeping ------------------------------------------------------------------------------
 
@@ -354,10 +355,15 @@ class Engine:
         for j, (v, s) in enumerate(zip(V, r.score)):
             v = np.asarray(v, float)
             self.pool.append((float(s), v, refined))
-            self._starts[v.tobytes()] = Start.row(r, j)
+            self._starts[v.tobytes()] = (r, j)
             if s < self.best.score:
                 self.best = _Best(float(s), v)
         return r.score
+
+    def _start(self, v: np.ndarray) -> Start | None:
+        """What the batch said about the pooled point ``v`` (None if it was not scored here)."""
+        row = self._starts.get(v.tobytes())
+        return None if row is None else Start.row(*row)
 
     @property
     def _settling(self) -> bool:
@@ -412,7 +418,7 @@ class Engine:
                 break
             self.pool = [(s, w, True) if w is v else (s, w, r) for s, w, r in self.pool]
             res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
-                         incumbent=self.best.score if self._settling else None, start=self._starts.get(v.tobytes()),
+                         incumbent=self.best.score if self._settling else None, start=self._start(v),
                          fine=fine, detail=self.effort.detail)
             if res.status.startswith("no time left") or time.perf_counter() > self.deadline - self.reserve_s:
                 self._exhaust()  # (a build the time left cannot afford, or a bisection the deadline cut: the end)
