@@ -339,43 +339,42 @@ def tune(
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
     t0 = time.perf_counter()
     deadline = t0 + float(time_budget_s)
-    from .robust import check_draws, is_identification, plant_set
-
-    ident, design = None, None
-    if is_identification(plant_or_plants):
-        if delay is not None:
-            raise TunerError("an identification carries its fitted delay: leave delay out", field="delay")
-        ident = plant_or_plants
-        plant_or_plants, design = plant_set(ident, robust, dt=dt)
-        n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
-    elif robust is not None or monte_carlo is not None:
-        raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
-                         field="robust" if robust is not None else "monte_carlo")
-    if isinstance(plant_or_plants, TuningProblem):
-        if structure is not None or spec is not None or dt is not None or delay is not None:
-            raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
-                             "again", field="structure")
-        problem = plant_or_plants
-    else:
-        if structure is None:
-            raise TunerError("give the controller structure, e.g. structure='pid'", field="structure")
-        from .interop import as_plants
-
-        problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec,
-                                      dt=dt)
-    from threadpoolctl import threadpool_limits
-
     if local:
         import casadi  # noqa: F401 - loaded before the limit, so that its OpenMP runtime is limited too
+    # one BLAS/OpenMP thread for the whole tune, the plant's discretisation included (its matrices are tiny: a 3x3
+    # expm costs 10 us on one thread and 3-12 ms with OpenBLAS's default pool of two); scoped, so the caller's own
+    # threading is left as it was
+    with _one_thread():
+        from .robust import check_draws, is_identification, plant_set
 
-    # one BLAS/OpenMP thread for the solve (its matrices are tiny: a 3x3 expm costs 16 us on one thread and
-    # milliseconds with the default pool); scoped, so the caller's own threading is left as it was
-    from .diagnose import definitional_reasons
-    from .optimize.engine import Engine
+        ident, design = None, None
+        if is_identification(plant_or_plants):
+            if delay is not None:
+                raise TunerError("an identification carries its fitted delay: leave delay out", field="delay")
+            ident = plant_or_plants
+            plant_or_plants, design = plant_set(ident, robust, dt=dt)
+            n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
+        elif robust is not None or monte_carlo is not None:
+            raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
+                             field="robust" if robust is not None else "monte_carlo")
+        if isinstance(plant_or_plants, TuningProblem):
+            if structure is not None or spec is not None or dt is not None or delay is not None:
+                raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
+                                 "again", field="structure")
+            problem = plant_or_plants
+        else:
+            if structure is None:
+                raise TunerError("give the controller structure, e.g. structure='pid'", field="structure")
+            from .interop import as_plants
 
-    decided = definitional_reasons(problem) if diagnose else []
-    search = _searchable(problem, decided)  # a limit no gains can meet: searched without it, judged with it
-    with threadpool_limits(limits=1):
+            problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec,
+                                          dt=dt)
+
+        from .diagnose import definitional_reasons
+        from .optimize.engine import Engine
+
+        decided = definitional_reasons(problem) if diagnose else []
+        search = _searchable(problem, decided)  # a limit no gains can meet: searched without it, judged with it
         # keep a share of the budget for the final verification at full resolution
         # (and, when a diagnosis may follow, its share: an infeasible spec's search would otherwise use it all)
         reserve = (_RESERVE + (DIAGNOSIS_SHARE if diagnose else 0.0)) * float(time_budget_s)
@@ -453,13 +452,29 @@ def tune(
                 info["found_by_diagnosis"] = True
             res.solver["wall_time_s"] = time.perf_counter() - t0
             res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
-    if ident is not None:
-        if n_mc:
-            from .robust import monte_carlo as _mc
+        if ident is not None:
+            if n_mc:
+                from .robust import monte_carlo as _mc
 
-            design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=int(seed)))
-        res = replace(res, robust=design)
-    return res
+                design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=int(seed)))
+            res = replace(res, robust=design)
+        return res
+
+
+_POOLS: dict[str, Any] = {"controller": None, "builds": -1}
+
+
+def _one_thread() -> Any:
+    """A scope with one BLAS/OpenMP thread. threadpoolctl's controller (the scan of the process's loaded libraries: a
+    few milliseconds, most of a warm tune's fixed cost) is made once and again only after an NLP build, which loads
+    CasADi's solver plugins and the libraries they bring."""
+    from threadpoolctl import ThreadpoolController
+
+    from .optimize.nlp.transcribe import BUILDS
+
+    if _POOLS["controller"] is None or _POOLS["builds"] != BUILDS["count"]:
+        _POOLS["controller"], _POOLS["builds"] = ThreadpoolController(), BUILDS["count"]
+    return _POOLS["controller"].limit(limits=1)
 
 
 def _searchable(problem: TuningProblem, decided: list[Any]) -> TuningProblem:
