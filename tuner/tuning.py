@@ -293,7 +293,8 @@ def tune(
         How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
         (converged when two refinements agree), ``"default"`` adds a restart independent of the first round
         that must find nothing better, ``"thorough"`` three such restarts in a row, more starts and points
-        and a polish at twice the grid detail (about 3x the default's time); measured costs in
+        and a sharper polish (twice the grid detail, the settling time between the grid's points, each step
+        confirmed by the verifier; about 3x the default's time); measured costs in
         bench/QUALITY.md. ``solver["optimality"]`` says
         what the search knows about how close its answer is.
 

@@ -38,6 +38,7 @@ from tuner.optimize.nlp import refine as refine_mod
 from tuner.optimize.nlp import transcribe
 from tuner.optimize.nlp.plantdata import lift
 from tuner.optimize.nlp.refine import refine
+from tuner.optimize.scoring import Evaluator
 from tuner.optimize.space import make_space
 from tuner.plant import make_plant, plant_from_expr
 from tuner.problem import TuningProblem
@@ -264,6 +265,75 @@ def test_refine_improves_on_the_initial_guess(roll_refined):
     assert min(good) < start.metrics.settling_time_s
     if start.meets_spec:
         assert min(good) < 0.9 * start.metrics.settling_time_s
+
+
+_SOLVE = refine_mod._Solves.__call__
+
+
+def _polish_solves(monkeypatch, batch, space, candidates, detail):
+    """The fine polish (``refine(fine=True)`` at ``detail``) of the batch's best of ``candidates``: every solve it made,
+    as (the solves, the Ts asked, the result)."""
+    scores = batch.evaluate(np.array([space.params(c) for c in candidates])).score
+    v, incumbent = candidates[int(np.argmin(scores))], float(np.min(scores))
+    seen: list = []
+
+    def recording(self, ts, x):
+        r = _SOLVE(self, ts, x)
+        if r is not None:
+            seen.append((self, ts, r))
+        return r
+
+    monkeypatch.setattr(refine_mod._Solves, "__call__", recording)
+    out = refine(batch, space, v, deadline=time.perf_counter() + BUDGET, incumbent=incumbent, fine=True, detail=detail)
+    assert out.candidates, out.status
+    return seen
+
+
+def test_sharp_polish_constrains_the_output_at_ts_between_grid_points(roll_refined, monkeypatch):
+    """The polish at ``detail`` 2 (effort thorough) interpolates the settling envelope's first row at Ts, as the
+    verifier interpolates its settling time: every solve keeps the output, linearly interpolated at its Ts between
+    two grid points, inside the band less the slack (at detail 1 the envelope starts at the next grid point, and
+    the output at Ts is outside), and the bisection asks for settling times between the grid's points."""
+    plant, st, space, x0, res = roll_refined
+    batch, _ = _batch(plant, "pid_z")
+
+    def polish(detail):
+        rows = []
+        for solves, ts, (slack, x) in _polish_solves(monkeypatch, batch, space, res.candidates, detail):
+            t = solves.tgrid
+            off = float(np.min(np.abs(t - ts))) / (t[1] - t[0])  # the distance to the grid, in grid steps
+            excess = abs(float(np.interp(ts, t, solves._outputs(x)[0])) - 1.0) - (solves.values["band"] - slack)
+            rows.append((solves.interp, off, excess))
+        return rows
+
+    sharp = polish(2)
+    assert all(interp for interp, _, _ in sharp)
+    assert sum(off > 0.05 for _, off, _ in sharp) >= 3  # settling times between the grid's points
+    assert max(excess for _, _, excess in sharp) <= 1e-7
+    plain = polish(1)
+    assert not any(interp for interp, _, _ in plain)
+    assert max(excess for _, off, excess in plain if off > 0.05) > 1e-4
+
+
+def test_sharp_polish_bisects_on_only_from_what_the_verifier_confirms(monkeypatch):
+    """At the band's edge the sharp polish leaves no slack for what its grid does not see: a PI on a lag with a
+    fractional delay (the suite's fracdelay-04), 2.0000 % on the NLP's grid at 0.3270 s, peaks at 2.0007 % at the
+    delay's input switch and settles at 0.404 s. Every solution its bisection takes as feasible settles, by the
+    full verifier, no later than asked (a grid step's tolerance)."""
+    plant = make_plant([0.36741548115569433], [0.15883447505105652, 1.0], delay=0.0936233203)
+    dt, spec = 0.01106, Spec.thesis()
+    problem = TuningProblem.build(plant, structure="pi", dt=dt, spec=spec)
+    space = make_space(problem.structure, plant, dt, scale=problem.scale)
+    batch, st = BatchEvaluator(problem, space), problem.structure
+    res = refine(batch, space, space.from_params(st.vector(initial_guess(st, plant, dt))),
+                 deadline=time.perf_counter() + BUDGET)
+    taken = [(ts, space.params(r[1][solves.prob.variables.slice("v")], linear_gains=True), solves.tgrid[1])
+             for solves, ts, r in _polish_solves(monkeypatch, batch, space, res.candidates, 2) if r[0] >= 0]
+    verifier = Evaluator([plant], st, dt, spec)
+    for ts, x, step in taken:
+        s = verifier.score(x, full=True)
+        assert s.feasible and s.score <= ts + step, (ts, s.score)
+    assert len(taken) >= 3  # (the bisection went on below the refused 0.3270 s: 0.3271 s)
 
 
 # -- the problem cache ---------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 """The quality guard: a fixed slice of bench/quality.py's suite, each default tune within 2 % of its stored
-reference optimum (quality, not time).
+reference optimum (quality, not time); and a few loops whose optimum sits at an edge (the overshoot at the band,
+the overshoot limit, settling within a sample), each ``effort="thorough"`` tune within 0.5 % of it.
 
 The references (bench/quality_reference.json) were computed once by independent global searches
 (differential evolution, CMA-ES, Nelder-Mead polish; none of the engine's starts or rounds) and verified by
@@ -27,6 +28,12 @@ GUARD = ["lag-00", "lag-01", "lag-02", "lag-03", "underdamped-01", "underdamped-
          # the vanishing-integral PI, pid_z on an unstable plant, fractional delays (pi, pid, pid_z), pid2
          "integrating-03", "unstable-05", "fracdelay-00", "fracdelay-09", "fracdelay-10", "twodof-00", "twodof-04"]
 TOLERANCE = 1.02
+# effort="thorough" on optima at an edge the NLP's grid does not hold: the overshoot at the 2 % band, the band entered
+# between the grid's points (underdamped-00 pid, integrating-28 pd: 1.0052, 1.0056 before the sharp polish), within
+# the first sample (lag-30 pid: 1.0050), the overshoot limit on an unstable plant, peaking at a sample instant
+# (unstable-30 pi: 1.0092)
+THOROUGH = ["underdamped-00", "integrating-28", "lag-30", "unstable-30"]
+THOROUGH_TOLERANCE = 1.005
 
 
 def _load():
@@ -41,16 +48,27 @@ CASES, REFS = _load()
 SPEC = Spec.thesis()
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("cid", GUARD)
-def test_default_tune_is_within_two_percent_of_the_reference(cid):
+def _check(cid: str, tolerance: float, **kw) -> None:
     c, r = CASES[cid], REFS[cid]
     assert r["feasible"] and r["independent_ok"], f"{cid}: the guard's reference must be verified twice"
     plant = Plant(np.array(c["num"], float), np.array(c["den"], float), delay_s=float(c["delay_s"]))
     # a budget the search never reaches (it converges in seconds), so that the machine's load cannot cut it
-    res = tune(plant, structure=c["structure"], dt=c["dt"], seed=0, spec=SPEC, diagnose=False, time_budget_s=120)
+    res = tune(plant, structure=c["structure"], dt=c["dt"], seed=0, spec=SPEC, diagnose=False, time_budget_s=120,
+               **kw)
     assert res.meets_spec, f"{cid}: no design that meets the spec (the reference has {r['objective']:.5g})"
     ratio = res.objective / r["objective"]
-    assert math.isfinite(ratio) and ratio <= TOLERANCE, (
+    assert math.isfinite(ratio) and ratio <= tolerance, (
         f"{cid} ({c['structure']}): {res.objective:.5g} is {100 * (ratio - 1):.2f} % above the reference "
         f"{r['objective']:.5g} (gains {res.gains}; reference {r['gains']})")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cid", GUARD)
+def test_default_tune_is_within_two_percent_of_the_reference(cid):
+    _check(cid, TOLERANCE)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cid", THOROUGH)
+def test_thorough_tune_is_within_half_a_percent_of_the_reference(cid):
+    _check(cid, THOROUGH_TOLERANCE, effort="thorough")

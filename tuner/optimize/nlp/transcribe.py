@@ -25,7 +25,8 @@ Constraints, per plant:
   first ``head`` samples and ``tail_N`` after them, where a slow tail needs no more; a 2-DOF
   controller's reference path drives it, its feedback part the load response and every frequency-domain row):
   ``y <= 1 + overshoot`` and, for the settling-time objective, the envelope ``|y_i - 1| <= b - slack``
-  for every ``t_i >= Ts`` (a 0/1 parameter ``mask``, so moving ``Ts`` never rebuilds); optionally
+  for every ``t_i >= Ts`` (a 0/1 parameter ``mask``, so moving ``Ts`` never rebuilds; with ``interp`` also at
+  ``Ts`` itself between grid points, the output interpolated there); optionally
   ``|u_k| <= control_peak_max``.
 
 Objectives, each the verifier's own definition on the same grid (exact, not a proxy):
@@ -98,6 +99,7 @@ class ProblemKey:
     settling_max: bool = False  # a settling-time limit with another objective: the band from the mask on
     head: int = 0  # > 0: only the first ``head`` samples have N points, the later ones ``tail_N`` (N a multiple)
     tail_N: int = 1
+    interp: bool = False  # the envelope's first row is the output interpolated at Ts between two grid points (theta)
 
     @property
     def points(self) -> int:
@@ -143,6 +145,8 @@ def parameter_layout(key: ProblemKey, nv: int) -> Layout:
                    (f"pr{i}", (key.poles[i],)), (f"pi{i}", (key.poles[i],)), (f"k{i}", ()), (f"tau{i}", ()),
                    (f"Gre{i}", (ng,)), (f"Gim{i}", (ng,))]
     blocks += [("wgrid", (ng,)), ("tw", (key.points,)), ("mask", (key.points,))]
+    if key.interp:
+        blocks += [("theta", (key.points,))]
     return Layout(tuple(blocks))
 
 
@@ -419,8 +423,12 @@ def _responses(key: ProblemKey, i: int, ctrl: tuple, P: dict[str, Any], r: float
 def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str, Any]) -> None:
     """Upper: y_i - 1 <= overshoot before Ts, <= band - slack from Ts on (the band is the tighter one);
     lower: 1 - y_i <= band - slack from Ts on. ``mask`` is 1 from Ts on. Other objectives: the overshoot
-    only (their mask is 0)."""
+    only (their mask is 0). ``key.interp``: Ts between two grid points, the first of the envelope's rows is the
+    output linearly interpolated at Ts (as the verifier interpolates its settling time), so that Ts is not
+    quantised to the grid (``theta``: the fraction of the step from the grid point before Ts, 0 elsewhere)."""
     mask = P["mask"]
+    if key.interp:  # row i holds y_i + theta_i (y_i+1 - y_i): the grid point before Ts moved to Ts (theta 0 elsewhere)
+        y = y + P["theta"] * (cs.vertcat(y[1:], y[-1]) - y)
     c.add(y - 1 - (1 - mask) * P["os"] - mask * (P["band"] - slack), -cs.inf, 0.0)
     if key.objective == "settling_time" or key.settling_max:
         # before Ts (mask 0) the row is -1 <= 0, never active: a row 0 <= 0 there would be an active constraint
