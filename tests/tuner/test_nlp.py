@@ -302,7 +302,7 @@ def test_sharp_polish_constrains_the_output_at_ts_between_grid_points(roll_refin
         for solves, ts, (slack, x) in _polish_solves(monkeypatch, batch, space, res.candidates, detail):
             t = solves.tgrid
             off = float(np.min(np.abs(t - ts))) / (t[1] - t[0])  # the distance to the grid, in grid steps
-            excess = abs(float(np.interp(ts, t, solves._outputs(x)[0])) - 1.0) - (solves.values["band"] - slack)
+            excess = abs(float(np.interp(ts, t, solves._step(x)[0])) - 1.0) - (solves.values["band"] - slack)
             rows.append((solves.interp, off, excess))
         return rows
 

@@ -53,7 +53,8 @@ RIPPLE_POINTS = 8  # ... with up to this many points a sample
 # crossover phase (about five of its periods: the overshoot's peak and the ripple between samples are there, the
 # crossover's modes have decayed by then), the uniform grid's own points after them (:func:`_head_grid`)
 HEAD_RAD = 32.0
-SETTLE_HEAD = 1.5  # a polish's fine grid is dense up to this many target settling times (then the coarse grid's own)
+SETTLE_HEAD = 1.5  # a polish's fine grid is dense up to this many target settling times (then a slow loop's own points
+                   # a sample: POINTS_PER_SAMPLE, 2 or 1 by the settling time in samples; see _settle_head)
 SLOW_TAIL = 40.0
 CONTINUOUS_STEPS = 400
 MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
@@ -229,12 +230,13 @@ def _settle_head(ev: BatchEvaluator, start: Start, incumbent: float | None, grid
     """A polish's fine grid for a sampled loop, dense only where the detail is needed: over the first SETTLE_HEAD
     target settling times (a power of two of samples; the bisection resolves the settling time there, and the
     overshoot peaks there), at the fine rule's points a sample (POINTS_PER_SETTLE detail^2 up to the settling time,
-    the ripple's); after the head, over the rest of a long horizon that catches a slow tail's return to the band's
-    edge, the points a sample of a loop that settles as slowly (POINTS_PER_SAMPLE, 2 or 1: the fast modes have decayed
-    there, and the tail changes over many samples). The cap (MAX_GRID_POINTS detail) then holds the head's detail, not
-    the tail's length: an integrating plant's PID, settling in 5 samples with its slow zero's tail at 190, had 8 points
-    a sample over 192 samples (1536 points), and has 32 over the first 16 and 2 after them (864). ``grid`` itself where
-    that saves nothing."""
+    the ripple's), as many as the cap (MAX_GRID_POINTS detail) allows for the whole grid; after the head, over the
+    rest of a long horizon that catches a slow tail's return to the band's edge, the points a sample of a loop that
+    settles as slowly (POINTS_PER_SAMPLE, 2 or 1, without the ripple's doubling: the fast modes have decayed there,
+    and the tail changes over many samples). An integrating plant's PID settling in 3.5 samples, its slow zero's tail
+    reaching 192 samples, had 8 points a sample over all 192 (1536 points) and has 32 over the first 16 and 4 after
+    them (1216). Used only where it has fewer points than ``grid`` (so a polish never costs more than it did): where
+    the tail keeps ``grid``'s own points a sample, a denser head would add points and ``grid`` itself is returned."""
     settle = _target(start, incumbent)
     if ev.dt is None or grid.head or not (math.isfinite(settle) and settle > 0):
         return grid
