@@ -442,7 +442,10 @@ def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
         # a coordinate are small (a pid at dt near its optimum: "Search_Direction_Becomes_Too_Small")
         # tol_du: the stationarity a solve stops at (CasADi's default 1e-6); the bisection asks only the slack's
         # sign and the batch judges every candidate, and the limited-memory Hessian's last digits cost a fifth of the
-        # iterations (on every fourth suite case: 21 % fewer, 3-7 % less CPU a tune, one ratio moved by 0.5 %)
+        # iterations (on every fourth suite case: 21 % fewer, 3-7 % less CPU a tune). Where a filter time constant is
+        # nearly free the solve ends elsewhere and the search follows: with 1e-6, PI on 1/(20s+1)^2 at dt 0.1 ends at
+        # 64.9 s against 53.6 s (tests/tuner/test_effort_limits.py), with 1e-4 bench/quality.py's nmp-19 (default)
+        # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
         opts = {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
                 "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False, "print_iteration": False,
                 "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
