@@ -46,7 +46,9 @@ variable                       default                     meaning
 ``TUNER_START_METHOD``         ``forkserver``              how solver processes start (or ``spawn``)
 ``TUNER_WORKER_MEMORY_MB``     ``4096``                    address-space cap of one solver process; a
                                                            solve that needs more fails (500) instead of
-                                                           exhausting the machine
+                                                           exhausting the machine; a quarter of it holds
+                                                           the solver's NLP build cache (the library's own
+                                                           bound: ``TUNER_NLP_CACHE_MB``, 2048)
 =============================  ==========================  ==============================================
 """
 

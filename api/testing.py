@@ -93,6 +93,13 @@ def wait_for_workers(client: Any, *, timeout_s: float = 120.0, headers: dict[str
     raise TimeoutError("solver processes did not start")
 
 
+def nlp_cache_job(payload: Any) -> float:
+    """The solver's bound on its NLP build cache, MB."""
+    from tuner.optimize.nlp import transcribe
+
+    return transcribe.CACHE_MB
+
+
 def hog_job(payload: Any) -> None:
     """Asks for far more memory than any solve should (8 GiB at once)."""
     block = bytearray(8 * 1024**3)

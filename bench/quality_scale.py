@@ -4,8 +4,9 @@
 
 Each worker is a separate ``tuner study run`` process that shares nothing with the other but the storage URL and
 the study file (as a worker on a second host would). The same slice of the suite (every ``--every``-th case,
-over all classes and structures) is run first by one worker, then, under a fresh study name, by two; the walls
-and their ratio go to bench/results/quality_scale.json. Nothing here asserts a timing.
+over all classes and structures) is run first by one worker, then, under a fresh study name, by two (``--rounds``
+times, alternating); the walls and their ratios go to bench/results/quality_scale.json. Nothing here asserts a
+timing.
 """
 
 from __future__ import annotations
@@ -13,12 +14,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -27,8 +30,11 @@ sys.path[:0] = [str(ROOT), str(HERE)]
 import quality  # noqa: E402
 
 
-def _workers(study: Path, url: str, n: int, out: Path) -> tuple[float, list[float], dict[str, int]]:
-    """Wall of the whole run, CPU seconds of each worker (os.wait4), loops tuned by each worker."""
+def _workers(study: Path, url: str, n: int, out: Path
+             ) -> tuple[float, list[float], dict[str, int], dict[str, float], dict[str, list[Any]]]:
+    """Wall of the whole run, CPU seconds of each worker (os.wait4), loops tuned by each worker, the walls of its
+    loops' tunes added up (what is left of the worker's wall went to claims, storage and waiting), each loop's
+    worker and tune wall."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     t0 = time.perf_counter()
     procs = [subprocess.Popen([sys.executable, "-m", "tuner.cli", "study", "run", str(study), "--storage", url,
@@ -44,9 +50,14 @@ def _workers(study: Path, url: str, n: int, out: Path) -> tuple[float, list[floa
     wall = time.perf_counter() - t0
     doc = json.loads((out / "w0" / "results.json").read_text())
     per: dict[str, int] = {}
-    for r in doc["loops"].values():
-        per[str(r.get("worker"))] = per.get(str(r.get("worker")), 0) + 1
-    return wall, cpu, per
+    tuning: dict[str, float] = {}
+    loops: dict[str, list[Any]] = {}
+    for name, r in doc["loops"].items():
+        w = str(r.get("worker"))
+        loops[name] = [w, r.get("wall_time_s")]
+        per[w] = per.get(w, 0) + 1
+        tuning[w] = tuning.get(w, 0.0) + float(r.get("wall_time_s") or 0.0)
+    return wall, cpu, per, tuning, loops
 
 
 def main() -> None:
@@ -55,35 +66,47 @@ def main() -> None:
     ap.add_argument("--url", default="postgresql+psycopg://postgres@127.0.0.1:5432/test")
     ap.add_argument("--effort", default="default")
     ap.add_argument("--budget", type=float, default=10.0)
+    ap.add_argument("--rounds", type=int, default=1, help="1 then 2 workers, this many times (the median ratio)")
     a = ap.parse_args()
     from tuner.studies.runner import delete_study_records, open_storage
 
     cases = quality.load_suite()[::a.every]
     storage = open_storage(a.url)  # Optuna's tables exist before the workers start
-    walls, cpus, split = {}, {}, {}
+    runs: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for n in (1, 2):
-            name = f"quality_scale_{n}_{uuid.uuid4().hex[:8]}"
-            f = Path(tmp) / f"{name}.toml"
-            f.write_text(quality.study_toml(cases, name=name, budget=a.budget, effort=a.effort))
-            try:
-                walls[n], cpus[n], split[n] = _workers(f, a.url, n, Path(tmp) / name)
-            finally:
-                delete_study_records(storage, name)
-            print(f"{n} worker(s): {walls[n]:.1f} s for {len(cases)} loops; CPU s per worker "
-                  f"{[round(c, 1) for c in cpus[n]]}; loops per worker {sorted(split[n].values())}", flush=True)
+        for rnd in range(a.rounds):
+            for n in (1, 2):  # alternating: a slower or faster spell of the shared machine falls on both
+                name = f"quality_scale_{n}_{uuid.uuid4().hex[:8]}"
+                f = Path(tmp) / f"{name}.toml"
+                f.write_text(quality.study_toml(cases, name=name, budget=a.budget, effort=a.effort))
+                try:
+                    wall, cpu, split, tuning, loops = _workers(f, a.url, n, Path(tmp) / name)
+                finally:
+                    delete_study_records(storage, name)
+                runs.append({"round": rnd, "workers": n, "wall_s": wall, "cpu_s_per_worker": cpu,
+                             "loops_per_worker": split, "tuning_s_per_worker": tuning,
+                             "loop_worker_and_tune_s": loops})
+                print(f"round {rnd + 1}, {n} worker(s): {wall:.1f} s for {len(cases)} loops; CPU s per worker "
+                      f"{[round(c, 1) for c in cpu]}; loops per worker {sorted(split.values())}; "
+                      f"tuning s per worker {sorted(round(t, 1) for t in tuning.values())}", flush=True)
     load = os.getloadavg()
+    by = {(r["round"], r["workers"]): r for r in runs}
+    speedups = [by[(k, 1)]["wall_s"] / by[(k, 2)]["wall_s"] for k in range(a.rounds)]
+    # what the wall ratio would be with a free core per worker: the one worker's CPU over the busier of the two
+    cpu_bound = [sum(by[(k, 1)]["cpu_s_per_worker"]) / max(by[(k, 2)]["cpu_s_per_worker"]) for k in range(a.rounds)]
+    # the loops' own tunes: the two workers' added up over the one worker's (1: the second core costs the tunes
+    # nothing; what is above 1 is what a tune loses when both cores are busy and to builds the other worker made)
+    tune_sum = [sum(by[(k, 2)]["tuning_s_per_worker"].values()) / max(1e-9, sum(by[(k, 1)]["tuning_s_per_worker"]
+                                                                               .values())) for k in range(a.rounds)]
     doc = {"command": "python bench/quality_scale.py " + " ".join(sys.argv[1:]), "loops": len(cases),
-           "cases": [c["id"] for c in cases], "walls_s": walls, "speedup": walls[1] / walls[2],
-           "cpu_s_per_worker": cpus, "loops_per_worker": split,
-           # what the wall ratio would be with a free core per worker: the one worker's CPU over the busier
-           # of the two (the load of others on the shared machine does not enter)
-           "cpu_bound_speedup": sum(cpus[1]) / max(cpus[2]),
-           "load_average_end": load, "cores": os.cpu_count()}
+           "cases": [c["id"] for c in cases], "runs": runs, "speedup_per_round": speedups,
+           "speedup": statistics.median(speedups), "cpu_bound_speedup_per_round": cpu_bound,
+           "two_workers_tune_s_over_one": tune_sum, "load_average_end": load, "cores": os.cpu_count()}
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / "quality_scale.json").write_text(json.dumps(doc, indent=1))
-    print(f"speed-up 2 vs 1 workers: {doc['speedup']:.2f}x wall (load average at the end {load[0]:.1f}); "
-          f"CPU-bound {doc['cpu_bound_speedup']:.2f}x")
+    print(f"speed-up 2 vs 1 workers: {', '.join(f'{x:.2f}x' for x in speedups)} (median {doc['speedup']:.2f}x; "
+          f"load average at the end {load[0]:.1f}); CPU-bound {', '.join(f'{x:.2f}x' for x in cpu_bound)}; two "
+          f"workers' tunes over one's {', '.join(f'{x:.3f}' for x in tune_sum)}")
 
 
 if __name__ == "__main__":

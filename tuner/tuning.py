@@ -15,6 +15,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
@@ -345,7 +346,9 @@ def tune(
     # one BLAS/OpenMP thread for the whole tune, the plant's discretisation included (its matrices are tiny: a 3x3
     # expm costs 10 us on one thread and 3-12 ms with OpenBLAS's default pool of two); scoped, so the caller's own
     # threading is left as it was
-    with _one_thread():
+    if local:  # the NLPs this tune builds stay in the build cache until it ends
+        from .optimize.nlp.transcribe import working_set
+    with _one_thread(), (working_set() if local else nullcontext()):
         from .robust import check_draws, is_identification, plant_set
 
         ident, design = None, None

@@ -227,6 +227,26 @@ def test_memory_hungry_solve_fails_alone_and_the_next_request_is_served(app, cli
     assert pid not in app.state.pool.pids()  # the process that hit the cap was replaced
 
 
+def test_a_solvers_nlp_cache_stays_within_a_quarter_of_its_memory_cap(monkeypatch):
+    """A solver lives for many jobs, each plant building problems of its own: the build cache is bounded well inside
+    the address-space cap (unbounded, a hundred or so plants reached it)."""
+    import asyncio
+
+    from api.pool import WorkerPool
+
+    monkeypatch.delenv("TUNER_NLP_CACHE_MB", raising=False)
+
+    async def main() -> float:
+        pool = WorkerPool(size=1, queue_size=0, memory_mb=2048)
+        await pool.start()
+        try:
+            return await pool.run(testing.nlp_cache_job, None, timeout_s=60)
+        finally:
+            await pool.close()
+
+    assert asyncio.run(main()) == 512
+
+
 SERVICE_THEN_KILLED = textwrap.dedent("""
     import asyncio, sys
     from api import testing

@@ -301,3 +301,59 @@ def test_a_done_loop_is_not_read_again(tmp_path):
     assert obs.statuses()["lag4"].result == {"loop": "lag4", "gains": {"K": 2.0}} and len(reads) == 1
     reads.clear()
     assert obs.statuses()["y"].state == "free" and reads == []  # roll is done: y is free, nothing re-read
+
+
+def test_each_worker_takes_a_stretch_of_consecutive_loops(tmp_path, monkeypatch):
+    """Neighbouring loops share the NLPs a tune builds: a worker continues after its last loop, and one that has to
+    move on starts in the middle of the longest stretch of free loops (at its start if no worker runs into it)."""
+    from tuner.studies.runner import LoopStatus
+
+    body = "\n".join(f'[[loop]]\nname = "l{i}"\nplant = "1/(s+{i + 1})"\ndt = 0.1\nstructure = "pi"\n'
+                     for i in range(10))
+    f = tmp_path / "ten.toml"
+    f.write_text(f'name = "ten"\nseed = 0\n\n{body}')
+    study = load_study(str(f))
+    coord = Coordinator(study, storage=None, worker="A")  # type: ignore[arg-type]  (candidates reads no storage)
+
+    def pick(states: str, last: int | None = None) -> str:  # one letter per loop: free, running, done, blocked
+        coord._last = last
+        names = {"f": "free", "r": "running", "d": "done", "b": "blocked"}
+        got = coord.candidates({f"l{i}": LoopStatus(names[c], 0) for i, c in enumerate(states)})
+        assert sorted(lp.name for lp in got) == sorted(f"l{i}" for i, c in enumerate(states) if c == "f")
+        return got[0].name if got else ""
+
+    assert pick("ffffffffff") == "l0"  # the first worker starts at the beginning
+    assert pick("rfffffffff") == "l5"  # the second halves what the first runs into
+    assert pick("ddffffrfff", last=1) == "l2"  # a worker continues after its own last loop
+    assert pick("ddrfffffff", last=1) == "l6"  # ... unless another took it: the middle of what that one runs into
+    assert pick("ddrffffrdd", last=9) == "l5"  # the middle of the longest stretch, l3-l6, entered from l2
+    assert pick("ddffdrffdd", last=9) == "l2"  # ties: the first; no worker runs into l2-l3, so its start
+    # an outer loop waiting for its inner one belongs to the stretch (a cascade's pairs stay together)
+    assert pick("rfbfbfbfbd") == "l5"  # the middle of l1-l8 is l5 (free)
+    assert pick("rfbfbbbfbd") == "l7"  # ... l5 blocked: the first free loop after it
+    assert pick("dddddddddd") == ""
+    # through the storage (work() itself, its tunes stubbed): a worker that loses a claim it read as free goes to
+    # the middle of what the winner runs into, and the winner continues after its own loop
+    import threading
+
+    from tuner.studies import runner
+
+    url = f"sqlite:///{tmp_path / 'ten.db'}"
+    a, b = Coordinator(study, open_storage(url), worker="A"), Coordinator(study, open_storage(url), worker="B")
+    stale = b.statuses()  # B reads every loop free ...
+    held = a.claim(study.get("l0"), a.statuses()["l0"])  # ... then A takes l0
+    assert held is not None
+    reads = iter([stale])
+    real = b.statuses
+    b.statuses = lambda: next(reads, None) or real()  # type: ignore[method-assign]
+    done = {"Kp": 1.0, "Ki": 1.0}
+    monkeypatch.setattr(runner, "run_claimed", lambda coord, claim, sts: claim.complete({"gains": done}) and {})
+    got: list[str] = []
+    stop = threading.Event()
+    runner.work(b, on_claim=lambda name: got.append(name) or stop.set(), stop=stop, poll_s=0.01)
+    assert got == ["l5"]
+    assert held.complete({"gains": done})
+    assert a.candidates(a.statuses())[0].name == "l1"  # A continues after l0
+    held = a.claim(study.get("l8"), a.statuses()["l8"])  # a claim sets where its worker continues
+    assert held is not None and held.complete({"gains": done})
+    assert a.candidates(a.statuses())[0].name == "l9"

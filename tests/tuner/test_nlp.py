@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import OrderedDict
 
 import casadi as cs
 import control as ct
@@ -357,7 +358,7 @@ def _batch(plant, st, spec=None):
 def test_problem_is_built_once_per_structure(monkeypatch):
     """One build per problem structure: another start or another plant of the same sizes only changes the
     parameters. (The horizon is pinned to 64 samples here so that both starts share it.)"""
-    monkeypatch.setattr(transcribe, "_CACHE", {})  # a clean cache: counts do not depend on test order
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())  # a clean cache: counts do not depend on test order
     monkeypatch.setattr(refine_mod, "_bucket", lambda k: 64)
     got: list = []
     real = refine_mod.get_problem
@@ -394,9 +395,63 @@ def test_problem_is_built_once_per_structure(monkeypatch):
     assert built == 1 and p4 is not p1 and p4.key.structure == "pid"
 
 
+def test_the_build_cache_keeps_the_most_recently_used_problems_within_its_memory_bound(monkeypatch):
+    """A long-lived process (a study worker, a service solver) meets a new problem shape with nearly every plant: the
+    cache drops the least recently used problems beyond ``CACHE_MB`` (estimated from their size) and always keeps
+    the newest, however large."""
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    built: list = []
+    monkeypatch.setattr(transcribe, "_build", lambda key, st, space: built.append(key) or object())
+    st = get_structure("pid")
+
+    def key(delay: int, K: int = 64) -> transcribe.ProblemKey:  # the delay changes the key, not the size
+        return transcribe.ProblemKey(structure="pid", continuous=True, orders=(2,), zeros=(0,), poles=(2,),
+                                     delays=(delay,), K=K, N=4, phase_cross=(True,), control_peak=False,
+                                     objective="settling_time")
+
+    size = transcribe.BYTES_PER_NODE * transcribe._estimated_nodes(key(0), len(st.params))
+    monkeypatch.setattr(transcribe, "CACHE_MB", 2.5 * size / 2**20)  # room for two
+    p0, p1 = transcribe.get_problem(key(0), st, None), transcribe.get_problem(key(1), st, None)
+    assert transcribe.get_problem(key(0), st, None) is p0  # a hit: key 0 is now the most recently used
+    transcribe.get_problem(key(2), st, None)
+    assert [transcribe.is_built(key(d)) for d in (0, 1, 2)] == [True, False, True]  # key 1 was the least recent
+    assert transcribe.get_problem(key(1), st, None) is not p1 and built.count(key(1)) == 2  # built again
+    big = key(0, K=4096)
+    transcribe.get_problem(big, st, None)
+    assert list(transcribe._CACHE) == [big]  # over the bound alone, and kept
+    # a tune keeps every problem it used until it ends (it comes back to them), then the bound applies again
+    with transcribe.working_set():
+        for d in (3, 4, 5):
+            transcribe.get_problem(key(d), st, None)
+        with transcribe.working_set():  # a nested tune (a diagnosis) does not end the outer one's scope
+            transcribe.get_problem(key(6), st, None)
+        assert all(transcribe.is_built(key(d)) for d in (3, 4, 5, 6))
+    assert list(transcribe._CACHE) == [key(5), key(6)]
+
+
+def test_a_tune_keeps_the_problems_it_builds_until_it_ends(monkeypatch):
+    """tune() is one working_set scope: with no room in the cache at all, every problem the tune builds is still
+    there while it runs, and the bound applies again once it returns."""
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    monkeypatch.setattr(transcribe, "CACHE_MB", 0.0)
+    seen: list[tuple[int, int]] = []
+    real = transcribe._build
+
+    def build(key, st, space):
+        seen.append((transcribe._PINNED["depth"], len(transcribe._CACHE)))
+        return real(key, st, space)
+
+    monkeypatch.setattr(transcribe, "_build", build)
+    tune(make_plant([1.0], [1.0, 1.0]), structure="pi", dt=0.1, seed=0, time_budget_s=5.0)
+    assert len(seen) >= 2, "precondition: the tune built more than one problem"
+    assert all(depth >= 1 for depth, _ in seen)
+    assert [n for _, n in seen] == list(range(len(seen)))  # none dropped while the tune ran
+    assert len(transcribe._CACHE) == 1 and transcribe._PINNED["depth"] == 0  # then only the newest stays
+
+
 @pytest.mark.slow
 def test_second_tune_does_not_rebuild(monkeypatch):
-    monkeypatch.setattr(transcribe, "_CACHE", {})
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
     plant = plant_from_expr(ROLL)
     c0 = transcribe.BUILDS["count"]
     r1 = tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET)

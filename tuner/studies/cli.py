@@ -84,9 +84,12 @@ def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pi
             os._exit(3)
 
         threading.Thread(target=watchdog, daemon=True).start()
+    from threadpoolctl import threadpool_limits
+
     study = load_study(path)
-    work(Coordinator(study, open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)), wakeup=wakeup,
-         on_done=_early_plotter(study, plots_dir))
+    with threadpool_limits(limits=1):  # inherited when forked; a spawned worker (not Linux) sets it itself
+        work(Coordinator(study, open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)), wakeup=wakeup,
+             on_done=_early_plotter(study, plots_dir))
 
 
 def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
@@ -310,6 +313,8 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
 
 
 def _cmd_study_run(a: argparse.Namespace) -> int:
+    from threadpoolctl import threadpool_limits
+
     from .runner import default_storage_url, redact
     from .schema import load_study
 
@@ -322,14 +327,23 @@ def _cmd_study_run(a: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     url = a.storage or default_storage_url(str(out))
     t0 = time.perf_counter()
-    statuses = run_study(study, a.file, url, workers=a.workers, heartbeat_s=a.heartbeat, grace_s=a.grace,
-                         progress=True, plots_dir=None if a.no_plots else out / "plots")
-    missing = [n for n, s in statuses.items() if s.state != "done"]
-    if missing:
-        print(f"tuner: study {study.name!r} not finished: {', '.join(missing)} (workers stopped)", file=sys.stderr)
-        return 1
-    doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots,
-                        jobs=a.workers)
+    # one worker = one core, as the service's solvers (api._preload): the parallelism is the workers (and the
+    # report's processes). Left at OpenBLAS's default pool of two, the verifier's linear algebra between tunes
+    # wakes threads that spin on the core the other worker tunes on: on the 280-loop suite two workers' tunes took
+    # 38 % longer than one's, 15 % with one thread each (bench/quality_scale.py, one run each; bench/QUALITY.md,
+    # "Scale-out"). The study file's plants have loaded numpy's and scipy's OpenBLAS by now (CasADi brings none)
+    with threadpool_limits(limits=1):
+        # the live progress only where someone watches it (a terminal): elsewhere rich draws nothing until the end,
+        # and its thread would read the storage twice a second for nothing; the summary table comes at the end
+        statuses = run_study(study, a.file, url, workers=a.workers, heartbeat_s=a.heartbeat, grace_s=a.grace,
+                             progress=sys.stderr.isatty(), plots_dir=None if a.no_plots else out / "plots")
+        missing = [n for n, s in statuses.items() if s.state != "done"]
+        if missing:
+            print(f"tuner: study {study.name!r} not finished: {', '.join(missing)} (workers stopped)",
+                  file=sys.stderr)
+            return 1
+        doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots,
+                            jobs=a.workers)
     _print_summary(doc, time.perf_counter() - t0, out)
     return 0 if doc["meets_spec"] else 1
 

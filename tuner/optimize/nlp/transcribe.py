@@ -47,6 +47,12 @@ solver: deterministic, no state kept between calls) or ``"ipopt"``.
 from __future__ import annotations
 
 import math
+import os
+import threading
+import warnings
+from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,7 +63,7 @@ from ...controllers import Structure
 from ..space import Space
 from .layout import Layout
 
-__all__ = ["ProblemKey", "Problem", "get_problem", "estimated_build_s", "is_built",
+__all__ = ["ProblemKey", "Problem", "get_problem", "working_set", "estimated_build_s", "is_built",
            "parameter_layout", "variable_layout", "BUILDS", "MS_GRID",
            "GRID_EXTRA", "SOLVERS"]
 
@@ -69,7 +75,37 @@ MAX_SQP_ITER = 150  # per solve: a feasible bisection step takes 3-25; a long mo
                     # valleys takes 50-150 (PI on 1/(20s+1)^2 at dt 0.1: from the 5.9 tau basin to the 2.69 tau
                     # valley; at 40 such solves stopped early and the bisection took them for infeasible)
 SQP_TOL_DU = 1e-4
-_CACHE: dict[ProblemKey, Problem] = {}
+# the build cache: every problem the running tune has used (a tune comes back to its problems: the coarse and
+# fine grids of each refine, the bisection's; see working_set), and beyond those the most recently used ones up to
+# about CACHE_MB of memory. A built problem holds its expression graphs and CasADi's derivative functions, up to
+# BYTES_PER_NODE per node of _estimated_nodes (measured 165-212 over the first 40 loops of every fourth quality-suite
+# case: 20 MB for a typical loop's problem, three a tune). Unbounded, a study worker held 8.5 GB after 250 loops of
+# the suite, and a service solver would reach its 4 GB address-space cap (api/settings.py; api.worker gives the
+# cache a quarter of it) after a hundred or so different plants. What later tunes reuse (the suite's loops of one
+# class and structure share horizons) needs about 2 GB: replaying the suite's requests in halves of 140 loops
+# (bench/build_cache_replay.py), the builds took 88.1 s and 98.1 s with nothing dropped, 93.0 s and 100.4 s at 2 GB,
+# 119.2 s and 105.2 s at 1 GB, 178.2 s and 123.1 s keeping nothing between tunes (a two-segment policy, which keeps
+# what was used twice apart from what was used once: 99.6 s and 103.3 s at 2 GB)
+CACHE_MB = 2048.0
+
+
+def _cache_mb_from_env() -> float:
+    v = os.environ.get("TUNER_NLP_CACHE_MB", "")
+    try:
+        mb = float(v) if v.strip() else CACHE_MB
+    except ValueError:
+        mb = math.nan
+    if not mb >= 0:  # nan, negative
+        warnings.warn(f"TUNER_NLP_CACHE_MB={v!r} is not a number of megabytes >= 0: using {CACHE_MB:g}", stacklevel=2)
+        return CACHE_MB
+    return mb
+
+
+CACHE_MB = _cache_mb_from_env()
+BYTES_PER_NODE = 210.0
+_CACHE: OrderedDict[ProblemKey, tuple[Problem, float]] = OrderedDict()  # key -> (problem, estimated bytes)
+_PINNED: dict[str, Any] = {"depth": 0, "keys": set()}  # the running tune's problems (working_set)
+_LOCK = threading.RLock()  # the cache's bookkeeping (tunes in threads: all of them are one scope, see working_set)
 
 
 @dataclass(frozen=True)
@@ -447,8 +483,8 @@ def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
         # 64.9 s against 53.6 s (tests/tuner/test_effort_limits.py), with 1e-4 bench/quality.py's nmp-19 (default)
         # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
         opts = {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
-                "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False, "print_iteration": False,
-                "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
+                "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False,
+                "print_iteration": False, "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
                 "qpsol_options": {"error_on_fail": False}}
         return cs.nlpsol(f"tune_{key.structure}", "sqpmethod", nlp, opts)
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
@@ -553,8 +589,42 @@ def is_built(key: ProblemKey) -> bool:
 
 def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
     """The cached problem for ``key`` (built on first use only; plant data are parameters)."""
-    prob = _CACHE.get(key)
-    if prob is None:
-        prob = _build(key, st, space)
-        _CACHE[key] = prob
+    with _LOCK:
+        if _PINNED["depth"]:
+            _PINNED["keys"].add(key)
+        hit = _CACHE.get(key)
+        if hit is not None:
+            _CACHE.move_to_end(key)
+            return hit[0]
+    prob = _build(key, st, space)
+    with _LOCK:
+        _CACHE[key] = (prob, BYTES_PER_NODE * _estimated_nodes(key, len(st.params)))
+        _trim()
     return prob
+
+
+def _trim() -> None:
+    """Drop the least recently used problems beyond ``CACHE_MB``; the running tune's and the newest stay."""
+    total = sum(b for _, b in _CACHE.values())
+    for k in list(_CACHE)[:-1]:
+        if total <= CACHE_MB * 2**20:
+            break
+        if k not in _PINNED["keys"]:
+            total -= _CACHE.pop(k, (None, 0.0))[1]
+
+
+@contextmanager
+def working_set() -> Iterator[None]:
+    """A tune's scope (re-entrant: a tune's diagnosis tunes again inside it): the problems used in it are not
+    dropped from the build cache before it ends. Tunes running in threads of one process share the scope: what
+    they used stays until none of them runs."""
+    with _LOCK:
+        _PINNED["depth"] += 1
+    try:
+        yield
+    finally:
+        with _LOCK:
+            _PINNED["depth"] -= 1
+            if not _PINNED["depth"]:
+                _PINNED["keys"] = set()
+                _trim()
