@@ -30,7 +30,6 @@ from __future__ import annotations
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -127,17 +126,12 @@ def init_worker(service_pid: int, memory_mb: int | None, warm: tuple[str, ...] =
     if warm:
         warm_up(warm)
     # the NLP build cache within a quarter of the cap: a solver lives for max_tasks_per_worker jobs, each plant
-    # bringing problems of its own (the module is loaded by the solvers' warm-up; if not, it reads the variable)
+    # bringing problems of its own (the module is already loaded where the forkserver or the warm-up imported the
+    # tuning stack)
     if memory_mb:
-        cache = sys.modules.get("tuner.optimize.nlp.transcribe")
-        if cache is not None:
-            cache.CACHE_MB = min(cache.CACHE_MB, memory_mb / 4)
-        else:
-            try:
-                mb = min(float(os.environ.get("TUNER_NLP_CACHE_MB") or "inf"), memory_mb / 4)
-            except ValueError:
-                mb = memory_mb / 4
-            os.environ["TUNER_NLP_CACHE_MB"] = f"{mb:g}"
+        from tuner.optimize.nlp import transcribe
+
+        transcribe.CACHE_MB = min(transcribe.CACHE_MB, memory_mb / 4)
 
 
 def _out_of_memory(e: BaseException) -> bool:

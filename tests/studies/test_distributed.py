@@ -316,7 +316,7 @@ def test_each_worker_takes_a_stretch_of_consecutive_loops(tmp_path, monkeypatch)
     coord = Coordinator(study, storage=None, worker="A")  # type: ignore[arg-type]  (candidates reads no storage)
 
     def pick(states: str, last: int | None = None) -> str:  # one letter per loop: free, running, done, blocked
-        coord._last = last
+        coord._last = None if last is None else f"l{last}"
         names = {"f": "free", "r": "running", "d": "done", "b": "blocked"}
         got = coord.candidates({f"l{i}": LoopStatus(names[c], 0) for i, c in enumerate(states)})
         assert sorted(lp.name for lp in got) == sorted(f"l{i}" for i, c in enumerate(states) if c == "f")

@@ -151,7 +151,7 @@ class Coordinator:
         self.keys = {lp.name: loop_key(study, lp.name) for lp in study.loop}
         self._first_seen: dict[tuple[str, int], float] = {}
         self._done: dict[str, LoopStatus] = {}  # loops seen done (final: see statuses)
-        self._last: int | None = None  # the position in study.order() of the loop this worker claimed last
+        self._last: str | None = None  # the loop this worker claimed last
 
     def prefix(self, lp: LoopDef) -> str:
         """The name prefix of the loop ``lp``'s claim studies in the storage (study, loop, the loop's key)."""
@@ -254,9 +254,9 @@ class Coordinator:
         free = [i for i, lp in enumerate(loops) if statuses[lp.name].state == "free"]
         if not free:
             return []
-        if self._last is not None and self._last + 1 < len(loops) and \
-                statuses[loops[self._last + 1].name].state == "free":
-            pick = self._last + 1
+        after = next((i + 1 for i, lp in enumerate(loops) if lp.name == self._last), None)
+        if after in free:
+            pick = after
         else:
             runs: list[list[int]] = []  # stretches of loops still to tune (free, or waiting for an inner loop)
             for i, lp in enumerate(loops):
@@ -292,7 +292,7 @@ class Coordinator:
         except UpdateFinishedTrialError:
             return None
         self.storage.set_trial_user_attr(trial_id, "worker", self.worker)
-        self._last = [x.name for x in self.study.order()].index(lp.name)
+        self._last = lp.name
         return Claim(self, lp, st.epoch, optuna.Study(name, self.storage), trial_id, attempt=st.attempt)
 
 
