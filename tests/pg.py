@@ -9,7 +9,7 @@ import pytest
 PG_USERS = ("postgres", "root")
 PG_HOSTPORT = "127.0.0.1:5432"
 
-__all__ = ["PG_HOSTPORT", "pg_base_url", "require_pg_base_url"]
+__all__ = ["PG_HOSTPORT", "pg_admin_engine", "pg_base_url", "require_pg_base_url"]
 
 
 def pg_base_url() -> str | None:
@@ -38,3 +38,11 @@ def require_pg_base_url() -> str:
             pytest.fail(f"PostgreSQL is not reachable on {PG_HOSTPORT} (CI starts it)")
         pytest.skip(f"PostgreSQL is not reachable on {PG_HOSTPORT}")
     return url
+
+
+def pg_admin_engine(url: str):
+    """An engine for a test's own set-up and clean-up (CREATE/DROP SCHEMA): a statement that would wait on a lock
+    held by a connection the test leaked fails after 30 s, naming it, instead of waiting for good."""
+    from sqlalchemy import create_engine
+
+    return create_engine(url, connect_args={"connect_timeout": 10, "options": "-c lock_timeout=30000"})

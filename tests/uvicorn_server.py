@@ -68,6 +68,7 @@ class Server:
                 self.proc.wait(30)
             except subprocess.TimeoutExpired:
                 clean = False
+                self.proc.kill()  # it ignored SIGTERM: a failure, but not one left running after the test
         self.proc.wait(10)
         end = time.monotonic() + 10
         while True:  # anything left in the group (solver processes) after 10 s is a leak

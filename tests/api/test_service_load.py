@@ -18,7 +18,7 @@ import pytest
 from fastapi import Request
 from fastapi.testclient import TestClient
 from netproxy import TcpProxy
-from pg import PG_HOSTPORT, require_pg_base_url
+from pg import PG_HOSTPORT, pg_admin_engine, require_pg_base_url
 from pydantic import SecretStr
 from quadrotor import DT, ROLL, YAW
 
@@ -202,11 +202,11 @@ def test_service_starts_without_its_database_and_recovers_sqlite(tmp_path, caplo
 def test_postgres_outage_at_start_up_then_recovery(caplog):
     """PostgreSQL behind a TCP proxy that is closed at start-up, opened, closed and opened again
     (the machine's server itself is never stopped)."""
-    from sqlalchemy import create_engine, text
+    from sqlalchemy import text
 
     base = require_pg_base_url()
     schema = f"tuner_test_{uuid.uuid4().hex[:12]}"
-    admin = create_engine(base)
+    admin = pg_admin_engine(base)
     with admin.begin() as conn:
         conn.execute(text(f'CREATE SCHEMA "{schema}"'))
     host, port = PG_HOSTPORT.split(":")

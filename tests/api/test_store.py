@@ -12,7 +12,7 @@ import uuid
 
 import pytest
 from fastapi.testclient import TestClient
-from pg import require_pg_base_url
+from pg import pg_admin_engine, require_pg_base_url
 from quadrotor import DT, ROLL
 
 from api.deps import get_store
@@ -25,11 +25,11 @@ from api.testing import wait_for_workers
 @pytest.fixture
 def pg_url():
     """A URL whose connections use a fresh schema (``search_path``), dropped afterwards."""
-    from sqlalchemy import create_engine, text
+    from sqlalchemy import text
 
     base = require_pg_base_url()
     schema = f"tuner_test_{uuid.uuid4().hex[:12]}"
-    admin = create_engine(base)
+    admin = pg_admin_engine(base)
     with admin.begin() as c:
         c.execute(text(f'CREATE SCHEMA "{schema}"'))
     try:

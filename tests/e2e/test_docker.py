@@ -76,6 +76,7 @@ def test_dockerfile_shape():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # a pip install into a fresh environment (bounded by its own 900 s below), then the start
 def test_install_and_start_as_the_image_would(tmp_path):
     # the build context: what the COPY lines take
     src = tmp_path / "src"

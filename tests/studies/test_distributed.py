@@ -107,11 +107,26 @@ def _completed(rows) -> list[tuple[int, str, str | None]]:
 def _run(f: Path, url: str, out: Path) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "tuner.cli", "study", "run", str(f), "--storage", url, "--out", str(out),
            "--heartbeat", "1", "--grace", "4", "--no-plots"]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # its output goes to a file, which the test reads at the end (and which stays there to read, whatever happens)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.parent / f"{out.name}.log", "w") as log:
+        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+
+
+def _finish(p: subprocess.Popen, out: Path, timeout: float) -> str:
+    """Wait for the worker writing to ``out``; what it printed (a worker still running at ``timeout`` fails the test
+    with the end of its output)."""
+    try:
+        p.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the worker did not finish in {timeout} s; its output ends:\n"
+                    f"{(out.parent / f'{out.name}.log').read_text()[-3000:]}")
+    return (out.parent / f"{out.name}.log").read_text()
 
 
 @pytest.mark.postgres
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # its own waits are bounded (worker starts, the survivor's run, a re-run)
 def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
     f, name = _study_file(tmp_path)
     study = load_study(f)
@@ -140,7 +155,7 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         assert killed_loop is not None, "worker A never held a loop while B was working"
         assert a.returncode == -signal.SIGKILL
 
-        out_b, _ = b.communicate(timeout=300)
+        out_b = _finish(b, tmp_path / "b", 300)
         assert b.returncode == 0, out_b
 
         claims = _claims(coord)
@@ -165,7 +180,7 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         # re-running the finished study reuses its results at once: no new claim anywhere
         c = _run(f, pg_url, tmp_path / "c")
         procs.append(c)
-        out_c, _ = c.communicate(timeout=120)
+        out_c = _finish(c, tmp_path / "c", 120)
         assert c.returncode == 0, out_c
         assert _claims(coord) == claims
         again = json.loads((tmp_path / "c" / "results.json").read_text())
@@ -357,3 +372,82 @@ def test_each_worker_takes_a_stretch_of_consecutive_loops(tmp_path, monkeypatch)
     held = a.claim(study.get("l8"), a.statuses()["l8"])  # a claim sets where its worker continues
     assert held is not None and held.complete({"gains": done})
     assert a.candidates(a.statuses())[0].name == "l9"
+
+
+@pytest.mark.postgres
+def test_a_worker_stuck_inside_a_transaction_does_not_block_the_others(pg_url, monkeypatch):
+    """A session of the storage that sits idle in a transaction holding a trial's row lock (a worker stopped or
+    blocked mid-transaction) is ended by the server, and the worker failing that trial goes on instead of waiting
+    for it for good."""
+    import threading
+
+    from optuna.study import StudyDirection
+    from sqlalchemy import text
+
+    from tuner.studies import runner
+
+    monkeypatch.setattr(runner, "IDLE_IN_TRANSACTION_S", 1.0)
+    storage = open_storage(pg_url)
+    name = f"stuck_{uuid.uuid4().hex[:12]}"
+    sid = storage.create_new_study([StudyDirection.MINIMIZE], f"{name}:loop")
+    tid = storage.create_new_trial(sid)
+    stuck = storage.engine.connect()
+    try:
+        assert stuck.execute(text("SHOW idle_in_transaction_session_timeout")).scalar() == "1s"
+        stuck.execute(text("SELECT trial_id FROM trials WHERE trial_id = :t FOR UPDATE"), {"t": tid})  # ... and stops
+        done = threading.Event()
+
+        def fail_it() -> None:
+            storage.set_trial_state_values(tid, TrialState.FAIL)
+            done.set()
+
+        other = threading.Thread(target=fail_it, daemon=True)
+        other.start()
+        other.join(timeout=60)
+        assert done.is_set(), "the update waited on the stuck session's lock"
+        assert storage.get_trial(tid).state == TrialState.FAIL
+    finally:
+        stuck.invalidate()  # the server ended it
+        stuck.close()
+        delete_study_records(storage, name)
+        storage.engine.dispose()
+
+
+def test_wakeup_is_seen_across_processes_and_waits_out_its_timeout_without_one():
+    """Workers of one machine wake each other through a count in shared memory that waiters only read (no lock a
+    killed worker could leave held is ever waited on without a timeout)."""
+    import multiprocessing as mp
+
+    from tuner.studies.runner import Wakeup
+
+    ctx = mp.get_context("fork")
+    w = Wakeup(ctx)
+    seen = w.seen()
+    t0 = time.monotonic()
+    w.wait(seen, 0.2)  # nothing came: back after its timeout, the count unchanged
+    assert time.monotonic() - t0 >= 0.2 and w.seen() == seen
+    p = ctx.Process(target=w.notify)
+    t0 = time.monotonic()
+    p.start()
+    w.wait(seen, 200.0)
+    assert time.monotonic() - t0 < 200.0 and w.seen() != seen  # woken by the other process, not by the timeout
+    p.join(30)
+    assert p.exitcode == 0
+    # a notifier killed while it held the count's lock: the others still notify (without it) and wait
+    holder = ctx.Process(target=_hold_the_lock_and_hang, args=(w,))
+    holder.start()
+    deadline = time.monotonic() + 60
+    while w._gen.get_lock().acquire(timeout=0.01) and time.monotonic() < deadline:  # until the holder has it
+        w._gen.get_lock().release()
+        time.sleep(0.01)
+    os.kill(holder.pid, signal.SIGKILL)
+    holder.join(30)
+    seen = w.seen()
+    w.notify()
+    w.wait(seen, 200.0)
+    assert w.seen() != seen
+
+
+def _hold_the_lock_and_hang(w) -> None:
+    w._gen.get_lock().acquire()
+    time.sleep(600)

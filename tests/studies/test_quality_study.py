@@ -46,11 +46,26 @@ def _run(f: Path, url: str, out: Path) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "tuner.cli", "study", "run", str(f), "--storage", url, "--out", str(out),
            "--heartbeat", "1", "--grace", "4", "--no-plots"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT)
+    # its output goes to a file, which the test reads at the end (and which stays there to read, whatever happens)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.parent / f"{out.name}.log", "w") as log:
+        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
+
+
+def _finish(p: subprocess.Popen, out: Path, timeout: float) -> str:
+    """Wait for the worker writing to ``out``; what it printed (a worker still running at ``timeout`` fails the test
+    with the end of its output)."""
+    try:
+        p.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the worker did not finish in {timeout} s; its output ends:\n"
+                    f"{(out.parent / f'{out.name}.log').read_text()[-3000:]}")
+    return (out.parent / f"{out.name}.log").read_text()
 
 
 @pytest.mark.postgres
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # its own waits are bounded (worker starts, the survivor's run, a re-run)
 def test_suite_study_two_separate_workers_one_killed(tmp_path):
     import quality
 
@@ -79,7 +94,7 @@ def test_suite_study_two_separate_workers_one_killed(tmp_path):
             else:
                 time.sleep(0.05)
         assert killed is not None, "worker A never held a loop while B was working"
-        out_b, _ = b.communicate(timeout=600)
+        out_b = _finish(b, tmp_path / "b", 400)
         assert b.returncode in (0, 1), out_b  # 1: a loop of the suite may not meet its spec
         claims = _claims(coord)
         for loop, rows in claims.items():  # none lost, none repeated

@@ -90,3 +90,15 @@ def test_a_search_the_budget_cut_short_does_not_claim_convergence(structure, eff
             assert eng.info.stop == "budget", (share, eng.info.nlp_solves, full.info.nlp_solves)
     assert cut > 0
     assert all(b1 <= b0 for b0, b1 in zip(bests, bests[1:])), bests  # more budget: never a worse incumbent
+
+
+def test_a_search_ends_at_its_round_cap_whatever_its_budget_and_does_not_claim_convergence(monkeypatch):
+    """A time budget far beyond need (here: a simulated clock) does not let a search whose restarts never agree run
+    for ever: it ends after ``MAX_ROUNDS`` rounds, unconfirmed."""
+    problem = TuningProblem.build(plant_from_expr("1/(s+1)^3"), structure="pid", spec=Spec.thesis(), dt=0.1)
+    full = _run(problem, 1e9, monkeypatch, "thorough")
+    assert full.info.stop == "converged" and full.info.rounds > 2
+    monkeypatch.setattr(engine_mod, "MAX_ROUNDS", 2)
+    capped = _run(problem, 1e9, monkeypatch, "thorough")
+    assert capped.info.rounds == 2 and capped.info.stop == "budget"
+    assert capped.best.score >= full.best.score  # the same search, stopped earlier

@@ -121,9 +121,15 @@ def _run_together(procs):
     running = {k: subprocess.Popen(exe + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                for k, (exe, args) in procs.items()}
     done = {}
-    for k, p in running.items():
-        out, err = p.communicate(timeout=300)
-        done[k] = subprocess.CompletedProcess(p.args, p.returncode, out, err)
+    try:
+        for k, p in running.items():
+            out, err = p.communicate(timeout=120)
+            done[k] = subprocess.CompletedProcess(p.args, p.returncode, out, err)
+    finally:  # none left running past the test (a timeout above fails it)
+        for p in running.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait()
     return done
 
 

@@ -82,6 +82,11 @@ RAY_ZOOMS = 2
 RAY_CHECKS = 3  # ray points verified at full resolution per level, at most (Engine._ray)
 BASIN = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
 INFEASIBLE_EXTRA = 2  # an infeasible incumbent must survive this many more restarts before "converged"
+# a search ends after this many rounds whatever its budget, with stop = "budget" (not confirmed): the convergence test
+# ends every search of the quality suite within 14 rounds (its 280 cases, every effort), so this only bounds a search
+# whose time budget would not end it (a budget far beyond need, a test's simulated clock) on a path where the
+# restarts never agree
+MAX_ROUNDS = 200
 
 
 @dataclass(frozen=True)
@@ -706,7 +711,7 @@ class Engine:
             # fast: round 0's own agreement; without it (or without a feasible point), Optuna rounds as before
             converged = converged and feasible() and not self._exhausted
             stale = 0
-            while not converged and self._time_left() > 0:
+            while not converged and self._time_left() > 0 and self.info.rounds < MAX_ROUNDS:
                 before = self.best.score
                 self._restart()
                 self.info.rounds += 1
@@ -720,7 +725,7 @@ class Engine:
         else:
             # independent evidence: the incumbent survives eff.confirm restarts in a row
             stale, converged = 0, False
-            while self._time_left() > 0:
+            while self._time_left() > 0 and self.info.rounds < MAX_ROUNDS:
                 before = self.best.score
                 self._restart()
                 self.info.rounds += 1

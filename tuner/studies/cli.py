@@ -250,10 +250,14 @@ def _evaluate_all(study: Any, ctrls: dict[str, Any], plots_dir: Path | None, job
     drawn = drawn or {}
     from concurrent.futures import ProcessPoolExecutor
 
+    from .._process import set_parent_death_signal
+
     tuned: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     todo = [lp for lp in study.order() if lp.name in ctrls]
-    ex = ProcessPoolExecutor(min(jobs, len(todo)), mp_context=_context()) if jobs > 1 and len(todo) > 1 else None
+    # the report's processes end with this one (like the study's workers): an idle one waits on its queue for good
+    ex = ProcessPoolExecutor(min(jobs, len(todo)), mp_context=_context(), initializer=set_parent_death_signal) \
+        if jobs > 1 and len(todo) > 1 else None
     try:
         while todo:
             wave = [lp for lp in todo if lp.inner is None or lp.inner in tuned]

@@ -83,16 +83,35 @@ def redact(url: str) -> str:
     return re.sub(r"(//[^:/@]+):[^@/]*@", r"\1:***@", url)
 
 
+IDLE_IN_TRANSACTION_S = 60.0  # PostgreSQL: a session idle inside a transaction this long is ended (open_storage)
+
+
+def _engine_kwargs(url: str) -> dict[str, Any]:
+    """SQLAlchemy's engine settings for the storage at ``url``."""
+    if url.startswith("sqlite"):
+        return {"connect_args": {"timeout": 60}}
+    if url.startswith("postgresql"):
+        # a worker that stops inside a transaction (stopped, swapped out, blocked on its own output) would hold its
+        # row locks for as long as it is stuck, and every worker that fails or claims that trial would wait on them:
+        # the server ends such a session after IDLE_IN_TRANSACTION_S (Optuna's transactions are single statements'
+        # worth of work, never idle for long). The stuck worker's own next statement then fails (a storage error
+        # that ends that worker; its loop is re-queued like a dead worker's); the others go on
+        from sqlalchemy.engine import make_url
+
+        options = f"-c idle_in_transaction_session_timeout={int(IDLE_IN_TRANSACTION_S * 1000)}"
+        given = make_url(url).query.get("options")  # the URL's own (e.g. ?options=-csearch_path%3Dstudies) stay
+        if given:
+            options = f"{given if isinstance(given, str) else ' '.join(given)} {options}"
+        return {"pool_pre_ping": True, "connect_args": {"connect_timeout": 10, "options": options}}
+    return {}
+
+
 def open_storage(url: str, *, heartbeat_s: int = HEARTBEAT_S, grace_s: int = GRACE_S) -> RDBStorage:
     """An Optuna RDB storage with heartbeats. ``postgresql://`` uses psycopg 3."""
     if url.startswith(("postgresql://", "postgres://")):
         url = "postgresql+psycopg://" + url.split("://", 1)[1]
-    engine: dict[str, Any] = {}
-    if url.startswith("sqlite"):
-        engine = {"connect_args": {"timeout": 60}}
-    elif url.startswith("postgresql"):
-        engine = {"pool_pre_ping": True, "connect_args": {"connect_timeout": 10}}
     try:
+        engine = _engine_kwargs(url)
         with warnings.catch_warnings():  # heartbeat_interval is marked experimental; it is what we build on
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             key, retry = _retry_callback()  # a dead worker's loop is re-queued by Optuna itself
@@ -363,27 +382,42 @@ def run_claimed(coord: Coordinator, claim: Claim, statuses: dict[str, LoopStatus
 
 
 class Wakeup:
-    """Workers of one machine wake each other when a loop is done (a generation count under a
-    condition variable, shared by the processes it is handed to at their start)."""
+    """Workers of one machine wake each other when a loop is done: a generation count in shared memory,
+    handed to the processes at their start, that a waiting worker watches.
+
+    A waiter only reads the count (every ``TICK_S``), under no lock: with a ``multiprocessing.Condition``,
+    a worker killed while it waited (SIGKILL, the OOM killer) left the next ``notify_all`` blocked for
+    good, holding the lock every other worker of the machine then blocked on. A notify increments the
+    count under its lock, taken with a timeout: were that lock left held by a worker killed inside
+    those few instructions, the increment is made without it, and two such increments racing may leave
+    the count where a waiter last saw it. That costs the waiter nothing but the wait: it is bounded by
+    the poll interval, after which the worker reads the storage anyway."""
+
+    TICK_S = 0.02
 
     def __init__(self, ctx: Any) -> None:
-        self._cond = ctx.Condition()
-        self._gen = ctx.Value("q", 0, lock=False)
+        self._gen = ctx.Value("q", 0)  # with its own (process-shared) lock; read through get_obj(), without it
 
     def seen(self) -> int:
-        """The current wake-up count (a later, larger one means a wake-up came since)."""
-        return int(self._gen.value)
+        """The current wake-up count (a later, different one means a wake-up came since)."""
+        return int(self._gen.get_obj().value)
 
     def notify(self) -> None:
         """Wake the waiting workers (a loop was finished or released)."""
-        with self._cond:
-            self._gen.value += 1
-            self._cond.notify_all()
+        lock = self._gen.get_lock()
+        if lock.acquire(timeout=1.0):
+            try:
+                self._gen.get_obj().value += 1
+            finally:
+                lock.release()
+        else:  # its holder died holding it
+            self._gen.get_obj().value += 1
 
     def wait(self, seen: int, timeout_s: float) -> None:
         """Until something changed since ``seen`` (or ``timeout_s``: other machines' workers do not notify)."""
-        with self._cond:
-            self._cond.wait_for(lambda: self._gen.value != seen, timeout_s)
+        end = time.monotonic() + timeout_s
+        while self._gen.get_obj().value == seen and (left := end - time.monotonic()) > 0:
+            time.sleep(min(self.TICK_S, left))
 
 
 def work(coord: Coordinator, *, poll_s: float = 0.5, stop: threading.Event | None = None,
