@@ -12,7 +12,6 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 import uuid
 from pathlib import Path
@@ -21,6 +20,7 @@ import pytest
 from optuna.trial import TrialState
 from pg import require_pg_base_url
 from quadrotor import ROLL, YAW
+from study_workers import finish_worker, start_worker
 
 from tuner.cli import main
 from tuner.studies.runner import Coordinator, delete_study_records, open_storage
@@ -104,26 +104,6 @@ def _completed(rows) -> list[tuple[int, str, str | None]]:
     return [r for r in rows if r[1] == TrialState.COMPLETE.name]
 
 
-def _run(f: Path, url: str, out: Path) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "tuner.cli", "study", "run", str(f), "--storage", url, "--out", str(out),
-           "--heartbeat", "1", "--grace", "4", "--no-plots"]
-    # its output goes to a file, which the test reads at the end (and which stays there to read, whatever happens)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out.parent / f"{out.name}.log", "w") as log:
-        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
-
-
-def _finish(p: subprocess.Popen, out: Path, timeout: float) -> str:
-    """Wait for the worker writing to ``out``; what it printed (a worker still running at ``timeout`` fails the test
-    with the end of its output)."""
-    try:
-        p.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"the worker did not finish in {timeout} s; its output ends:\n"
-                    f"{(out.parent / f'{out.name}.log').read_text()[-3000:]}")
-    return (out.parent / f"{out.name}.log").read_text()
-
-
 @pytest.mark.postgres
 @pytest.mark.slow
 @pytest.mark.timeout(900)  # its own waits are bounded (worker starts, the survivor's run, a re-run)
@@ -134,8 +114,8 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
     coord = Coordinator(study, storage, observe_only=True)
     procs: list[subprocess.Popen] = []
     try:
-        a = _run(f, pg_url, tmp_path / "a")
-        b = _run(f, pg_url, tmp_path / "b")
+        a = start_worker(f, pg_url, tmp_path / "a")
+        b = start_worker(f, pg_url, tmp_path / "b")
         procs += [a, b]
         wid_a = f"{socket.gethostname()}:{a.pid}"
         wid_b = f"{socket.gethostname()}:{b.pid}"
@@ -155,7 +135,7 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         assert killed_loop is not None, "worker A never held a loop while B was working"
         assert a.returncode == -signal.SIGKILL
 
-        out_b = _finish(b, tmp_path / "b", 300)
+        out_b = finish_worker(b, tmp_path / "b", 300)
         assert b.returncode == 0, out_b
 
         claims = _claims(coord)
@@ -178,9 +158,9 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         assert (doc["loops"][killed_loop]["epoch"], doc["loops"][killed_loop]["attempt"]) == (killed_epoch, 1)
 
         # re-running the finished study reuses its results at once: no new claim anywhere
-        c = _run(f, pg_url, tmp_path / "c")
+        c = start_worker(f, pg_url, tmp_path / "c")
         procs.append(c)
-        out_c = _finish(c, tmp_path / "c", 120)
+        out_c = finish_worker(c, tmp_path / "c", 120)
         assert c.returncode == 0, out_c
         assert _claims(coord) == claims
         again = json.loads((tmp_path / "c" / "results.json").read_text())

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 from optuna.trial import TrialState
 from pg import require_pg_base_url
+from study_workers import finish_worker, start_worker
 
 from tuner.studies.runner import Coordinator, delete_study_records, open_storage
 from tuner.studies.schema import load_study
@@ -42,27 +43,6 @@ def _claims(coord: Coordinator) -> dict[str, list[tuple[int, str, str | None]]]:
     return out
 
 
-def _run(f: Path, url: str, out: Path) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "tuner.cli", "study", "run", str(f), "--storage", url, "--out", str(out),
-           "--heartbeat", "1", "--grace", "4", "--no-plots"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    # its output goes to a file, which the test reads at the end (and which stays there to read, whatever happens)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out.parent / f"{out.name}.log", "w") as log:
-        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
-
-
-def _finish(p: subprocess.Popen, out: Path, timeout: float) -> str:
-    """Wait for the worker writing to ``out``; what it printed (a worker still running at ``timeout`` fails the test
-    with the end of its output)."""
-    try:
-        p.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"the worker did not finish in {timeout} s; its output ends:\n"
-                    f"{(out.parent / f'{out.name}.log').read_text()[-3000:]}")
-    return (out.parent / f"{out.name}.log").read_text()
-
-
 @pytest.mark.postgres
 @pytest.mark.slow
 @pytest.mark.timeout(900)  # its own waits are bounded (worker starts, the survivor's run, a re-run)
@@ -79,7 +59,7 @@ def test_suite_study_two_separate_workers_one_killed(tmp_path):
     coord = Coordinator(study, storage, observe_only=True)
     procs: list[subprocess.Popen] = []
     try:
-        a, b = _run(f, url, tmp_path / "a"), _run(f, url, tmp_path / "b")
+        a, b = start_worker(f, url, tmp_path / "a"), start_worker(f, url, tmp_path / "b")
         procs += [a, b]
         wid_a, wid_b = f"{socket.gethostname()}:{a.pid}", f"{socket.gethostname()}:{b.pid}"
         killed = None
@@ -94,7 +74,7 @@ def test_suite_study_two_separate_workers_one_killed(tmp_path):
             else:
                 time.sleep(0.05)
         assert killed is not None, "worker A never held a loop while B was working"
-        out_b = _finish(b, tmp_path / "b", 400)
+        out_b = finish_worker(b, tmp_path / "b", 400)
         assert b.returncode in (0, 1), out_b  # 1: a loop of the suite may not meet its spec
         claims = _claims(coord)
         for loop, rows in claims.items():  # none lost, none repeated
