@@ -75,6 +75,28 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
                    help="the pure thesis spec: lift the three default limits (flags above still apply)")
 
 
+def _add_vehicle_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("vehicle (the firmware rate laws px4_rate and ardupilot_rate)")
+    g.add_argument("--params", metavar="FILE",
+                   help="what the vehicle fixes: loop rate, filter cutoffs, integrator limit, PX4's K, and its current "
+                   "gains; a QGroundControl .params or a ULog .ulg (PX4), a Mission Planner .parm (ArduPilot)")
+    g.add_argument("--axis", choices=("roll", "pitch", "yaw"), default="roll", help="the axis whose rate law (roll)")
+
+
+def _read_vehicle(a: argparse.Namespace, structure: str | None) -> Any:
+    """The vehicle of ``--params`` (None without it), for the law ``structure``."""
+    if a.params is None:
+        return None
+    from .firmware.bind import FIRMWARE_OF
+    from .firmware.params import read_params
+
+    if structure not in FIRMWARE_OF:
+        raise TunerError(f"--params: sets a firmware rate law's vehicle; give --structure px4_rate or ardupilot_rate "
+                         f"(got {structure!r})")
+    with field("--params"):
+        return read_params(a.params, axis=a.axis, firmware=FIRMWARE_OF[structure])
+
+
 def _add_plot_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="write the plot of the loop (every plant), png or svg by the "
                    "suffix: the step response with u(t), Bode with the margins, Nyquist with 1/Ms")
@@ -187,10 +209,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser = _with_exit_codes(sub.add_parser)
 
     a = sub.add_parser("analyze", help="verify a controller on a plant: margins, step metrics, spec checks")
-    a.add_argument("--plant", required=True, help="plant expression in s, or in z with --dt")
+    a.add_argument("--plant", help="plant expression in s, or in z with --dt")
+    a.add_argument("--identified", metavar="ID.json",
+                   help="instead of --plant: the model identified from a log (the JSON of 'tuner identify --json'); "
+                   "the loop is then also evaluated on the measured frequency response")
     a.add_argument("--dt", type=float, default=None, help="sample time of the controller (and of a z plant)")
     a.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds")
-    a.add_argument("--controller", required=True, help="controller expression (in z with --dt, else in s)")
+    a.add_argument("--controller", help="controller expression (in z with --dt, else in s)")
+    a.add_argument("--structure", choices=("px4_rate", "ardupilot_rate"),
+                   help="instead of --controller: the firmware rate law with the vehicle's current gains (--params)")
+    _add_vehicle_args(a)
     a.add_argument("--json", action="store_true", help="print JSON instead of a table")
     a.add_argument("--check", action="store_true",
                    help="kept for compatibility: the exit code is 1 whenever the spec is not met")
@@ -216,7 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="p, pi, pd, pid, pid2 (2-DOF PID: u = Kp(b r - y) + Ki/s (r - y) + Kd s/(Tf s+1)(c r - y), "
                         "b in [0, 2], c in [0, 1]; c = 0 puts D on the measurement), pid_z (digital, needs --dt), "
                         "pid_mf2 (PID with a second-order measurement filter; 'pidf2' is its deprecated name), "
-                        "lead, lag, leadlag")
+                        "lead, lag, leadlag; the autopilots' rate laws px4_rate and ardupilot_rate (computed as the "
+                        "firmware does; the tuner chooses P, I, D, FF; --params gives the vehicle)")
+    _add_vehicle_args(t)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
     t.add_argument("--effort", choices=("fast", "default", "thorough"), default="default",
@@ -349,24 +379,93 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
                              "--mt, --control-peak, ...")
     spec = _spec_from_args(a)
     plot_fmt = _plot_format(a)
+    if (a.plant is None) == (a.identified is None):
+        raise TunerError("give --plant (a model) or --identified ID.json (a model identified from a log), not both")
+    if (a.controller is None) == (a.structure is None):
+        raise TunerError("give --controller (an expression) or --structure px4_rate|ardupilot_rate with --params "
+                         "(the law the vehicle flies, with its current gains), not both")
+    if a.structure is not None and a.params is None:
+        raise TunerError(f"--structure {a.structure}: needs --params FILE (the vehicle's parameters: its current "
+                         "gains, loop rate and filters)")
+    if a.params is not None and a.structure is None:
+        raise TunerError("--params: give --structure px4_rate or ardupilot_rate (the law the parameters belong to)")
     with field("--dt"):  # name the right argument (an s-plant ignores dt, so it would surface at --controller)
         check_dt(a.dt)
-    with field("--plant"):
-        plant = plant_from_expr(a.plant, dt=a.dt, delay=a.delay)
-    with field("--controller"):
-        ctrl = controller_from_expr(a.controller, dt=a.dt)
+    vehicle, dt = _read_vehicle(a, a.structure), a.dt
+    if vehicle is not None:
+        from .firmware.bind import bind_law
+
+        st, dt, now = bind_law(a.structure, vehicle, a.dt)
+    if a.identified is not None:
+        if a.delay:
+            raise TunerError("--delay: an identified model carries its fitted delay: leave --delay out")
+        plant = _load_identified(a.identified)
+        label = f"identified model ({a.identified})"
+    else:
+        with field("--plant"):
+            plant = plant_from_expr(a.plant, dt=dt, delay=a.delay)
+        label = f"plant {plant.describe()}"
+    if vehicle is not None:
+        ctrl = st.tf(now, dt)
+    else:
+        with field("--controller"):
+            ctrl = controller_from_expr(a.controller, dt=a.dt)
     res = analyze(plant, ctrl, spec)
     out = res.to_dict()
+    if vehicle is not None:
+        from .firmware.bind import vehicle_dict
+
+        out = {"structure": st.name, "gains": now, "controller": ctrl.to_dict(), **out,
+               "vehicle": vehicle_dict(vehicle)}
     if a.json:
         print(json.dumps(jsonable(out), indent=2))
     else:
-        print_table(f"plant {plant.describe()}", analysis_rows(out["metrics"]), out["checks"])
+        if vehicle is not None:
+            print(f"the loop the vehicle flies: {st.name}, " + ", ".join(f"{k} = {v:.6g}" for k, v in now.items())
+                  + f", dt = {dt:g} s (from {vehicle.source})")
+        print_table(label, analysis_rows(out["metrics"]), out["checks"])
+        if res.measured is not None:
+            _print_measured(res.measured)
         verdict = "meets the spec" if res.meets_spec else "does NOT meet the spec: " + ", ".join(
             f"{c.name} = {fmt(c.achieved)} (required {c.op} {fmt(c.required)})" for c in res.failing
         )
         print(f"controller {verdict}")
     _write_plot(res, a, plot_fmt, spec)
     return EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
+
+
+def _print_measured(m: Any) -> None:
+    """The loop on the measured frequency response next to the model's (analyze/tune with --identified)."""
+    lo, hi = m.band_rad_s
+    rows = []
+    for name, key, rng in (("phase margin, deg", "phase_margin_deg", "phase_margin_range"),
+                           ("gain margin, dB", "gain_margin_db", "gain_margin_range"), ("Ms", "ms", "ms_range")):
+        a, b = getattr(m.measured, rng)
+        rows.append((name, f"{fmt(getattr(m.model, key))}", f"{fmt(getattr(m.measured, key))}"
+                     + (f" ({fmt(a)}..{fmt(b)})" if a == a else "")))
+    print(f"on the measured response ({lo:.3g}-{hi:.3g} rad/s, {m.points} coherent points): figure, model, "
+          "measured (its error range)")
+    for r in rows:
+        print(f"  {r[0]:<18} {r[1]:>10}   {r[2]}")
+    for w in m.warnings:
+        print(f"warning: {w}")
+    for n in m.notes:
+        print(f"note: {n}")
+
+
+def _print_current(res: Any, out: dict[str, Any]) -> None:
+    """The vehicle's current tune next to the proposed one (tune with --params)."""
+    cur = out["current"]
+    print(f"vehicle: {res.vehicle.get('firmware')} {res.vehicle.get('axis')} rate loop at "
+          f"{fmt(res.vehicle.get('loop_hz'))} Hz (from {res.vehicle.get('source')})")
+    print("  current  " + ", ".join(f"{k} = {v:.6g}" for k, v in cur["gains"].items()))
+    print("  proposed " + ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items()))
+    keys = [k for k in out["metrics"] if k in cur["metrics"]]
+    print(f"  {'metric':<28} {'current':>12} {'proposed':>12}")
+    for k in keys:
+        print(f"  {k:<28} {fmt(cur['metrics'][k]):>12} {fmt(out['metrics'][k]):>12}")
+    print("  current tune " + ("meets the spec" if cur["meets_spec"] else "does NOT meet the spec: failing "
+                               + ", ".join(c["name"] for c in cur["checks"] if not c["ok"])))
 
 
 def _weights_note(gains: dict[str, float]) -> str:
@@ -405,6 +504,9 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     if not (0 <= a.seed < 2**32):  # Optuna's sampler seeds numpy, which rejects anything else
         raise TunerError("--seed: must be an integer from 0 to 2**32 - 1")
     extra = {} if a.identified is None else {"robust": a.robust, "monte_carlo": a.monte_carlo}
+    vehicle = _read_vehicle(a, a.structure)
+    if vehicle is not None:
+        extra["vehicle"] = vehicle
     res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget,
                effort=a.effort, **extra)
     out = res.to_json()
@@ -428,6 +530,10 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         d = an.to_dict()
         title = "nominal plant" if i == 0 else f"plant #{i + 1}"
         print_table(title, analysis_rows(d["metrics"]), d["checks"])
+    if res.analyses[0].measured is not None:
+        _print_measured(res.analyses[0].measured)
+    if res.current:
+        _print_current(res, out)
     s = res.solver
     print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
@@ -530,7 +636,7 @@ _COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune, "tradeoff": _cmd_tradeo
 _ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
               "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec",
               "effort": "--effort", "points": "--points", "x": "--x", "y": "--y", "robust": "--robust",
-              "monte_carlo": "--monte-carlo"}
+              "monte_carlo": "--monte-carlo", "params": "--params", "vehicle": "--params"}
 
 
 def _argument_of(f: tuple[str | int, ...]) -> str | None:

@@ -45,9 +45,12 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import math
+
 import numpy as np
 
 from .errors import InvalidControllerError, TunerError
+from .firmware import laws
 from .lti import SS, Zpk, realize
 from .plant import MAX_ORDER, check_dt, tf_freqresp
 from .tolerances import SAME_COEFF_RTOL
@@ -341,11 +344,63 @@ class Structure:
     realize2: Callable[[Sequence[float], float | None], tuple] | None = field(default=None, repr=False)
     #: per parameter of kind "weight": its range (lo, hi)
     weight_ranges: tuple[tuple[str, float, float], ...] = ()
+    #: a firmware law (``px4_rate``, ``ardupilot_rate``): what the vehicle fixes, ``(name, value)``; never searched,
+    #: carried in every result's gains (so ``get_structure(name).tf(gains, dt)`` rebuilds the exact law)
+    fixed: tuple[tuple[str, float], ...] = ()
+    #: a firmware law's coefficient functions ``(coeffs, ref_coeffs)``, each ``f(x, dt, fixed_dict)``
+    law: tuple[Callable, Callable] | None = field(default=None, repr=False)
+    #: every parameter is >= 0 (the firmware's own parameter ranges)
+    nonneg: bool = False
+    #: the integral gain's name (None: no integral action, or a form without one named gain)
+    integral: str | None = None
+    #: the firmware this structure's parameters belong to ("px4", "ardupilot"), None for the generic forms
+    firmware: str | None = None
 
     @property
     def two_dof(self) -> bool:
         """Whether the structure acts on the reference and the measurement separately (pid2)."""
         return self.ref_coeffs is not None
+
+    @property
+    def fixed_values(self) -> dict[str, float]:
+        """What the vehicle fixes (a firmware law), by name; empty for the generic structures."""
+        return dict(self.fixed)
+
+    @property
+    def key(self) -> str:
+        """The structure's identity for caches: its name, with the fixed values of a firmware law."""
+        if not self.fixed:
+            return self.name
+        return self.name + "(" + ",".join(f"{k}={v!r}" for k, v in self.fixed) + ")"
+
+    def with_fixed(self, values: Mapping[str, float]) -> Structure:
+        """This firmware law with some of its fixed values replaced (validated), e.g. a vehicle's ``K``."""
+        if not self.fixed:
+            if values:
+                raise InvalidControllerError(f"{self.name} has no fixed parameters; got {sorted(values)}",
+                                             field="gains")
+            return self
+        names = dict(self.fixed)
+        unknown = set(values) - set(names)
+        if unknown:
+            raise InvalidControllerError(f"{self.name} fixes {sorted(names)}; unknown {sorted(unknown)}",
+                                         field="gains")
+        new = dict(names)
+        for k, v in values.items():
+            try:
+                f = float(v)
+            except (TypeError, ValueError) as e:
+                raise InvalidControllerError(f"{self.name}: {k} must be a number, got {v!r}",
+                                             field=("gains", k)) from e
+            low = 0.0 if k != "K" else None
+            if not math.isfinite(f) or (low is not None and f < low) or (k == "K" and f <= 0):
+                raise InvalidControllerError(f"{self.name}: {k} must be finite and "
+                                             + ("> 0" if k == "K" else ">= 0") + f", got {v!r}",
+                                             field=("gains", k))
+            new[k] = f
+        if new == names:
+            return self
+        return _firmware_structure(self, tuple((k, new[k]) for k, _ in self.fixed))
 
     def weight_range(self, p: str) -> tuple[float, float]:
         """The (lower, upper) range of the setpoint weight ``p`` (pid2's ``b``, ``c``)."""
@@ -359,6 +414,12 @@ class Structure:
     def tf(self, values: Mapping[str, float] | Sequence[float], dt: float | None) -> ControllerTF:
         """The controller's transfer function for parameter ``values`` (by name or in order), continuous or at
         ``dt``; validated (kinds, signs, a proper result)."""
+        if self.fixed and isinstance(values, Mapping):
+            fx = {k: values[k] for k, _ in self.fixed if k in values}
+            if fx:
+                st = self.with_fixed(fx)
+                if st is not self:
+                    return st.tf({k: v for k, v in values.items() if k not in fx}, dt)
         x = self.vector(values)
         dt = check_dt(dt)
         if self.discrete_only and dt is None:
@@ -401,6 +462,7 @@ class Structure:
     def vector(self, values: Mapping[str, float] | Sequence[float]) -> np.ndarray:
         """``values`` (a mapping by name, or a sequence in :attr:`params` order) as a validated array."""
         if isinstance(values, Mapping):
+            values = {k: v for k, v in values.items() if k not in dict(self.fixed)}
             unknown = set(values) - set(self.params)
             missing = [p for p in self.params if p not in values]
             if unknown or missing:
@@ -427,30 +489,55 @@ class Structure:
             if kind == "time" and v < 0:
                 raise InvalidControllerError(f"{self.name}: {p} is a time constant and must be >= 0, got {v}",
                                              field=("gains", p))
+            if self.nonneg and v < 0:
+                raise InvalidControllerError(f"{self.name}: {p} must be >= 0 (the firmware's range), got {v}",
+                                             field=("gains", p))
             if kind == "weight" and v < 0:
                 raise InvalidControllerError(f"{self.name}: {p} is a setpoint weight and must be >= 0, got {v}",
                                              field=("gains", p))
         return x
 
     def named(self, x: Sequence[float]) -> dict[str, float]:
-        """The parameter vector ``x`` as ``{name: value}``."""
-        return {p: float(v) for p, v in zip(self.params, x)}
+        """The parameter vector ``x`` as ``{name: value}`` (a firmware law: its fixed values after them)."""
+        return {**{p: float(v) for p, v in zip(self.params, x)}, **dict(self.fixed)}
+
+
+def _law_coeffs(x, dt, exp, *, law, fixed):
+    return law(x, dt, fixed)
+
+
+def _firmware_structure(base: Structure, fixed: tuple[tuple[str, float], ...]) -> Structure:
+    """``base`` (a firmware law) with its coefficient functions bound to ``fixed``."""
+    import dataclasses
+    from functools import partial
+
+    fx = dict(fixed)
+    return dataclasses.replace(base, fixed=fixed, coeffs=partial(_law_coeffs, law=base.law[0], fixed=fx),
+                               ref_coeffs=partial(_law_coeffs, law=base.law[1], fixed=fx))
+
+
+def _firmware(name: str, law: tuple[Callable, Callable], fixed: tuple[tuple[str, float], ...], firmware: str
+              ) -> Structure:
+    st = Structure(name, ("P", "I", "D", "FF"), ("gain", "gain", "gain", "gain"), _p, discrete_only=True,
+                   integrating=True, gain_units=(0, 1, -1, 0), ref_coeffs=_p, law=law, nonneg=True, integral="I",
+                   firmware=firmware)
+    return _firmware_structure(st, fixed)
 
 
 STRUCTURES: dict[str, Structure] = {
     s.name: s
     for s in (
         Structure("p", ("Kp",), ("gain",), _p),
-        Structure("pi", ("Kp", "Ki"), ("gain", "gain"), _pi, integrating=True, gain_units=(0, 1)),
+        Structure("pi", ("Kp", "Ki"), ("gain", "gain"), _pi, integrating=True, gain_units=(0, 1), integral="Ki"),
         Structure("pd", ("Kp", "Kd", "Tf"), ("gain", "gain", "time"), _pd, gain_units=(0, -1, 0)),
         Structure("pid", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid, integrating=True,
-                  gain_units=(0, 1, -1, 0)),
+                  gain_units=(0, 1, -1, 0), integral="Ki"),
         Structure("pid_z", ("K", "a1", "a2"), ("gain", "coef", "coef"), _pid_z, discrete_only=True, integrating=True),
         Structure("pid2", ("Kp", "Ki", "Kd", "Tf", "b", "c"), ("gain", "gain", "gain", "time", "weight", "weight"),
-                  _pid2, integrating=True, gain_units=(0, 1, -1, 0, 0, 0), ref_coeffs=_pid2_ref,
+                  _pid2, integrating=True, gain_units=(0, 1, -1, 0, 0, 0), ref_coeffs=_pid2_ref, integral="Ki",
                   realize2=_pid2_realization, weight_ranges=(("b", 0.0, 2.0), ("c", 0.0, 1.0))),
         Structure("pid_mf2", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid_mf2, integrating=True,
-                  gain_units=(0, 1, -1, 0), positive_time=True),
+                  gain_units=(0, 1, -1, 0), positive_time=True, integral="Ki"),
         Structure("lead", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wz", "wp"),)),
         Structure("lag", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wp", "wz"),)),
         Structure(
@@ -460,6 +547,9 @@ STRUCTURES: dict[str, Structure] = {
             _leadlag,
             orderings=(("wz1", "wp1"), ("wp2", "wz2")),
         ),
+        _firmware("px4_rate", (laws.px4_coeffs, laws.px4_ref_coeffs), laws.PX4_FIXED, "px4"),
+        _firmware("ardupilot_rate", (laws.ardupilot_coeffs, laws.ardupilot_ref_coeffs), laws.ARDUPILOT_FIXED,
+                  "ardupilot"),
     )
 }
 
@@ -489,7 +579,7 @@ def get_structure(name: str) -> Structure:
     >>> get_structure("pid").params
     ('Kp', 'Ki', 'Kd', 'Tf')
     >>> sorted(STRUCTURES)
-    ['lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z']
+    ['ardupilot_rate', 'lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z', 'px4_rate']
     >>> get_structure("pdi")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...

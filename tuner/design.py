@@ -62,6 +62,8 @@ def bounds(st: Structure, plant: Plant, dt: float | None, *, scale: PlantScale |
     for i, (p, kind) in enumerate(zip(st.params, st.kinds)):  # 2-DOF setpoint weights: the structure's range
         if kind == "weight":
             lo[i], hi[i] = st.weight_range(p)
+        elif st.nonneg:  # a firmware law's gains are >= 0 (its parameters' ranges)
+            lo[i] = 0.0
     return np.array(lo), np.array(hi)
 
 
@@ -105,6 +107,13 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
         g2 = initial_guess(STRUCTURES["pid"], plant, dt, scale=scale, zeros=zeros, spec=spec)
         return {**g2, "b": PID2_START_B, "c": PID2_START_C}
     k0, w0 = scale or plant_scale(plant, dt)
+    fw = None
+    if st.firmware is not None:  # a firmware law: pid's start, its gains in the law's units, no feed-forward
+        from .controllers import STRUCTURES
+
+        g2 = initial_guess(STRUCTURES["pid"], plant, dt, scale=scale, zeros=zeros, spec=spec)
+        k = st.fixed_values.get("K", 1.0)
+        fw = {"P": g2["Kp"] / k, "I": g2["Ki"] / k, "D": g2["Kd"] / k, "FF": 0.0}
     nyq = bool(getattr(spec, "filter_nyquist", False))
     n_max = getattr(spec, "filter_n_max", None)
     sgn = plant_sign(plant)
@@ -137,6 +146,8 @@ def initial_guess(st: Structure, plant: Plant, dt: float | None, *, scale: Plant
         g.update(a1=float(a1), a2=float(a2))
     if n_max and st.name in ("pd", "pid", "pid2", "pid_mf2", "pidf2") and g["Kp"] != 0:
         g["Tf"] = max(g["Tf"], 1.001 * abs(g["Kd"] / g["Kp"]) / n_max)  # the filter rule: N = Td/Tf <= n_max
+    if fw is not None:
+        g.update({p: abs(v) for p, v in fw.items()})
     x = np.array([g[p] for p in st.params], dtype=float)
     c1 = st.tf(x, dt)
     p_eff = plant if (dt is None or plant.is_discrete) else plant.zoh(dt)

@@ -94,6 +94,11 @@ class TuneResult:
     at_bounds: tuple[dict[str, Any], ...] = ()  # parameters on a search bound or a default limit (tuner.bounds)
     limits: tuple[dict[str, Any], ...] = ()  # the default design limits in force (field, value, rule)
     robust: Any = None  # tuner.robust.RobustDesign: a design from an identification (plant set, Monte Carlo)
+    #: a firmware law tuned for a vehicle (``vehicle=``): what its parameters fixed (tuner.firmware.bind.vehicle_dict)
+    vehicle: dict[str, Any] | None = None
+    #: the vehicle's current gains (``vehicle["current_gains"]`` with the law's fixed values) analysed on every
+    #: plant, next to the proposed design's ``analyses`` (empty without a vehicle)
+    current: tuple[Analysis, ...] = ()
 
     @property
     def meets_spec(self) -> bool:
@@ -213,6 +218,17 @@ class TuneResult:
             out["plants"] = [a.to_dict() for a in self.analyses]
         if self.robust is not None:
             out["robust"] = self.robust.to_dict()
+        if "measured" in nominal:
+            out["measured"] = nominal["measured"]
+        if self.vehicle is not None:
+            out["vehicle"] = dict(self.vehicle)
+        if self.current:
+            cur = self.current[0].to_dict()
+            out["current"] = {"gains": dict(self.vehicle["current_gains_law"]) if self.vehicle else {},
+                              "metrics": cur["metrics"], "checks": cur["checks"],
+                              "meets_spec": all(a.meets_spec for a in self.current)}
+            if "measured" in cur:
+                out["current"]["measured"] = cur["measured"]
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -239,6 +255,7 @@ def tune(
     robust: float | None = None,
     monte_carlo: int | None = None,
     effort: str = "default",
+    vehicle: Any = None,
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
@@ -253,7 +270,8 @@ def tune(
     structure : str
         One of :data:`tuner.controllers.STRUCTURES`: ``p``, ``pi``, ``pd``, ``pid``, ``pid_z`` (discrete only),
         ``pid2`` (2-DOF PID with setpoint weights ``b``, ``c``), ``pid_mf2`` (``pidf2``, its deprecated name),
-        ``lead``, ``lag``, ``leadlag``.
+        ``lead``, ``lag``, ``leadlag``, and the autopilots' rate laws ``px4_rate`` and ``ardupilot_rate``
+        (discrete; computed as the firmware computes them, :mod:`tuner.firmware.laws`).
     spec : Spec, optional
         Defaults to ``Spec()``: the thesis spec (PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state
         error, minimum 2 % settling time) with the default design limits (derivative filter N <= 20, Tf >= dt/pi,
@@ -298,6 +316,12 @@ def tune(
         confirmed by the verifier; about 3x the default's time); measured costs in
         bench/QUALITY.md. ``solver["optimality"]`` says
         what the search knows about how close its answer is.
+    vehicle : tuner.firmware.VehicleParams, optional
+        With ``px4_rate`` or ``ardupilot_rate``: what the vehicle fixes (loop rate, filters, PX4's ``K``, the
+        integrator limit; :func:`tuner.firmware.read_params` reads them from a ``.params``, ``.parm`` or ULog
+        file). The loop's ``dt`` defaults to the vehicle's loop rate (a contradicting ``dt`` is refused); the
+        tuner chooses ``P``, ``I``, ``D``, ``FF``; the vehicle's current gains are analysed too
+        (``result.current``), next to the proposed ones.
 
     Returns
     -------
@@ -361,6 +385,18 @@ def tune(
         elif robust is not None or monte_carlo is not None:
             raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
                              field="robust" if robust is not None else "monte_carlo")
+        current_gains = None
+        if vehicle is not None:
+            from .firmware.bind import bind_law
+
+            if isinstance(plant_or_plants, TuningProblem):  # its structure bound already: the current gains
+                _, _, current_gains = bind_law(plant_or_plants.structure, vehicle, plant_or_plants.dt,
+                                               field="vehicle")
+            else:
+                if structure is None:
+                    raise TunerError("give the firmware law, structure='px4_rate' or 'ardupilot_rate'",
+                                     field="structure")
+                structure, dt, current_gains = bind_law(structure, vehicle, dt, field="vehicle")
         if isinstance(plant_or_plants, TuningProblem):
             if structure is not None or spec is not None or dt is not None or delay is not None:
                 raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
@@ -456,6 +492,10 @@ def tune(
                 info["found_by_diagnosis"] = True
             res.solver["wall_time_s"] = time.perf_counter() - t0
             res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
+        if ident is not None:  # the nominal loop on the measured response too, next to the model's
+            res = _with_measured(res, ident)
+        if current_gains is not None:
+            res = _with_current(res, problem, vehicle, current_gains, ident)
         if ident is not None:
             if n_mc:
                 from .robust import monte_carlo as _mc
@@ -463,6 +503,29 @@ def tune(
                 design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=int(seed)))
             res = replace(res, robust=design)
         return res
+
+
+def _with_measured(res: TuneResult, ident: Any) -> TuneResult:
+    """``res`` with its nominal analysis' loop also on the identification's measured frequency response."""
+    from .analysis.measured import measured_comparison
+
+    a0 = res.analyses[0]
+    return replace(res, analyses=(replace(a0, measured=measured_comparison(ident, a0)), *res.analyses[1:]))
+
+
+def _with_current(res: TuneResult, problem: TuningProblem, vehicle: Any, gains: dict[str, float],
+                  ident: Any = None) -> TuneResult:
+    """``res`` with the vehicle's record and its current gains analysed on every plant (the same spec)."""
+    from .analysis.verify import analyze
+    from .firmware.bind import vehicle_dict
+
+    ctrl = problem.structure.tf(gains, problem.dt)
+    current = tuple(analyze(p, ctrl, problem.spec) for p in problem.plants)
+    if ident is not None:
+        from .analysis.measured import measured_comparison
+
+        current = (replace(current[0], measured=measured_comparison(ident, current[0])), *current[1:])
+    return replace(res, vehicle={**vehicle_dict(vehicle), "current_gains_law": dict(gains)}, current=current)
 
 
 _POOLS: dict[str, Any] = {"controller": None, "builds": -1}

@@ -43,7 +43,7 @@ LAYER_OF = {
     **dict.fromkeys(("tuner.errors", "tuner.tolerances", "tuner._lazy", "tuner._process", "tuner.jsonio",
                      "tuner.fileio", "tuner.objectives", "tuner.spec", "tuner.expr", "tuner.lti", "tuner.plant",
                      "tuner.controllers", "tuner.loop", "tuner.interop", "tuner.design", "tuner.rules",
-                     "tuner.problem", "tuner.identify"), "core"),
+                     "tuner.problem", "tuner.identify", "tuner.firmware"), "core"),
     **dict.fromkeys(("tuner.analysis", "tuner.export"), "analysis"),
     "tuner.optimize": "optimize",
     **dict.fromkeys(("tuner.tuning", "tuner.diagnose", "tuner.tradeoff", "tuner.robust", "tuner.bounds",

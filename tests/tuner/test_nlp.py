@@ -214,6 +214,15 @@ def _textbook(name, x, dt, w):
         sv = 2 / dt * (z - 1) / (z + 1)  # the filter by Tustin; the PID with a one-sample derivative
         pid = x["Kp"] + x["Ki"] * dt * z / (z - 1) + x["Kd"] * (z - 1) / (dt * z)
         return pid / (tf**2 * sv**2 + math.sqrt(2) * tf * sv + 1)
+    if name in ("px4_rate", "ardupilot_rate"):  # the laws' feedback paths, firmware.md (and tuner.firmware.laws)
+        def lp(f):  # first-order low-pass a z/(z - (1 - a)), a = dt/(dt + 1/(2 pi f)); 1 when off
+            a = dt / (dt + 1 / (2 * math.pi * f)) if f > 0 else 1.0
+            return a * z / (z - (1 - a))
+
+        dterm = lambda f: lp(f) * (z - 1) / (dt * z)  # noqa: E731 - the filtered backward difference
+        if name == "px4_rate":  # K [P + I dt/(z - 1) + D d/dt(filtered)], forward-Euler integrator
+            return x["K"] * (x["P"] + x["I"] * dt / (z - 1) + x["D"] * dterm(x["dgyro_hz"]))
+        return (x["P"] + x["I"] * dt * z / (z - 1) + x["D"] * dterm(x["fltd_hz"])) * lp(x["flte_hz"])
     assert name == "leadlag"
     return first(x["K"], x["wz1"], x["wp1"]) * first(1.0, x["wz2"], x["wp2"])
 

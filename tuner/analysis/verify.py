@@ -126,6 +126,9 @@ class Analysis:
     poles: np.ndarray
     response: StepResponse | None = field(repr=False)
     margins: Margins | None = field(default=None, repr=False)  # incl. the phase-crossover frequency
+    #: on an identified plant: the loop on the measured frequency response next to the model's
+    #: (:class:`tuner.analysis.measured.MeasuredComparison`), else None
+    measured: Any = field(default=None, repr=False)
 
     @property
     def meets_spec(self) -> bool:
@@ -180,11 +183,14 @@ class Analysis:
 
     def to_dict(self) -> dict[str, Any]:
         """``metrics`` (a dict), ``checks`` (dicts) and ``meets_spec``; :func:`tuner.jsonio.jsonable` for JSON."""
-        return {
+        out = {
             "metrics": asdict(self.metrics),
             "checks": [c.to_dict() for c in self.checks],
             "meets_spec": self.meets_spec,
         }
+        if self.measured is not None:
+            out["measured"] = self.measured.to_dict()
+        return out
 
 
 def analyze_loop(
@@ -296,8 +302,10 @@ def analyze(
     >>> [c.name for c in a.failing]
     ['settling_time_s']
     """
+    from .._lazy import is_instance_of
     from ..interop import as_controller, as_plant
 
+    ident = plant if is_instance_of(plant, "tuner.identify.result", "IdentifyResult") else None
     try:
         plant = as_plant(plant, delay=delay)
     except TunerError as e:
@@ -315,7 +323,14 @@ def analyze(
         raise InvalidControllerError(
             "the loop's dynamics span too many decades for double precision to tell whether it is stable"
             f"{span}: rescale the controller gain or the plant's time scale", field="controller")
-    return analyze_loop(loop, spec, horizon_s=horizon_s, poles=poles)
+    res = analyze_loop(loop, spec, horizon_s=horizon_s, poles=poles)
+    if ident is not None:  # the loop on the measured response too, next to the model's
+        from dataclasses import replace
+
+        from .measured import measured_comparison
+
+        res = replace(res, measured=measured_comparison(ident, res))
+    return res
 
 
 def _check_controller_dt(controller: Any, dt: Any) -> None:

@@ -91,7 +91,8 @@ class Space:
         if not linear_gains:
             return self.lo, self.hi
         g = np.array([k == "gain" for k in self.structure.kinds])
-        return np.where(g, -GAIN_SPAN, self.lo), np.where(g, GAIN_SPAN, self.hi)
+        g_lo = 0.0 if self.structure.nonneg else -GAIN_SPAN  # a firmware law's gains are >= 0
+        return np.where(g, g_lo, self.lo), np.where(g, GAIN_SPAN, self.hi)
 
     def params(self, v: np.ndarray, *, linear_gains: bool = False) -> np.ndarray:
         """Numeric :meth:`to_params`; a coordinate far outside the box (an NLP iterate) may overflow to an
@@ -117,7 +118,7 @@ def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: P
     lo, hi, names = [], [], []
     for i, (p, kind) in enumerate(zip(structure.params, structure.kinds)):
         if kind == "gain":
-            lo.append(-_V_SPAN), hi.append(_V_SPAN)
+            lo.append(0.0 if structure.nonneg else -_V_SPAN), hi.append(_V_SPAN)
             names.append(f"asinh_{p}")
         elif kind in ("freq", "time"):
             if ratio_of[i] is not None:

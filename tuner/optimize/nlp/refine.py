@@ -328,7 +328,8 @@ def _time_weights(grid: _Grid, objective: str) -> np.ndarray:
 def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key: ProblemKey) -> dict[str, Any]:
     """Every parameter block but the settling mask, by name."""
     spec = ev.spec
-    kiu = next((u for p, u in zip(space.structure.params, space.units) if p in ("Ki", "ki")), space.k0 * space.w0)
+    kiu = next((u for p, u in zip(space.structure.params, space.units) if p == space.structure.integral),
+               space.k0 * space.w0)
     values: dict[str, Any] = {
         "dt": ev.dt or grid.h, "h": grid.step, "band": spec.settling_band_pct / 100.0 * GUARD["band"],
         "os": min(spec.overshoot_max_pct / 100.0 * GUARD["overshoot"] * _TIGHT_OS, 10.0),
@@ -390,7 +391,8 @@ def _integral_sign(ev: BatchEvaluator, space: Space, prob: Problem, x0: np.ndarr
     plant) crossing zero leaves a pole that leaves the band only after the NLP's horizon, and every candidate of
     the bisection would be unstable."""
     st = space.structure
-    if "Ki" not in st.params or not st.integrating or st.kinds[st.params.index("Ki")] != "gain":
+    ki = st.integral  # the integral gain's name ("Ki"; a firmware law's "I", scaled by its K > 0)
+    if ki is None or ki not in st.params or not st.integrating or st.kinds[st.params.index(ki)] != "gain":
         return
     signs = set()
     for p in ev.problem.plants:
@@ -405,7 +407,7 @@ def _integral_sign(ev: BatchEvaluator, space: Space, prob: Problem, x0: np.ndarr
         signs.add(1.0 if n_at > 0 else -1.0)
     if len(signs) != 1:
         return
-    k = st.params.index("Ki")
+    k = st.params.index(ki)
     i = prob.variables.slice("v").start + k
     unit = float(space.units[k])
     sign = signs.pop() * np.sign(unit)
@@ -608,7 +610,7 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
         grid, headed = _Grid(K=grid.K, N=1, step=grid.step, h=None), None
     data = _plant_data(ev, start, ctrl0, grid, space.w0)
-    key = ProblemKey(structure=space.structure.name, continuous=ev.dt is None,
+    key = ProblemKey(structure=space.structure.key, continuous=ev.dt is None,
                      orders=tuple(lf.n for lf in data.lifted), zeros=tuple(lf.zeros.size for lf in data.lifted),
                      poles=tuple(lf.poles.size for lf in data.lifted),
                      delays=tuple(lf.delay_samples for lf in data.lifted), K=grid.K, N=grid.N,

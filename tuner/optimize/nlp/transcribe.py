@@ -486,13 +486,13 @@ def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
                 "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False,
                 "print_iteration": False, "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
                 "qpsol_options": {"error_on_fail": False}}
-        return cs.nlpsol(f"tune_{key.structure}", "sqpmethod", nlp, opts)
+        return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "sqpmethod", nlp, opts)
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
             "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 5,
             "ipopt.mu_strategy": "adaptive", "ipopt.warm_start_init_point": "yes",
             "ipopt.warm_start_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
             "ipopt.max_wall_time": 30.0, "show_eval_warnings": False}  # a safety net only: budgets between solves
-    return cs.nlpsol(f"tune_{key.structure}", "ipopt", nlp, opts)
+    return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "ipopt", nlp, opts)
 
 
 def _objective(key: ProblemKey, terms: list[Any], cnum: list, cden: list, P: dict[str, Any], X: dict[str, Any]) -> Any:

@@ -1,0 +1,79 @@
+"""A firmware law bound to a vehicle: what ``--params`` fixes (loop rate, filters, K, integrator limit) applied
+to ``px4_rate`` / ``ardupilot_rate``, and the vehicle's current gains as that law's parameters."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..errors import TunerError
+from ..tolerances import SAME_DT_RTOL
+
+__all__ = ["FIRMWARE_OF", "bind_law", "vehicle_dict"]
+
+#: the firmware each law's parameters belong to
+FIRMWARE_OF = {"px4_rate": "px4", "ardupilot_rate": "ardupilot"}
+_FILES = {"px4": "PX4 parameters (a QGroundControl .params file, or a ULog .ulg, whose parameters are read)",
+          "ardupilot": "ArduPilot parameters (a Mission Planner .parm file)"}
+
+
+def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "params"
+             ) -> tuple[Any, float, dict[str, float]]:
+    """``(structure bound to the vehicle, the loop's dt, the vehicle's current gains as the law's parameters)``.
+
+    ``structure``: a :class:`~tuner.controllers.Structure` or its name (``px4_rate`` or ``ardupilot_rate``);
+    ``vehicle``: a :class:`~tuner.firmware.params.VehicleParams`; ``dt``: the loop's sample time if given, which
+    must agree with the vehicle's loop rate. Raises :class:`~tuner.errors.TunerError` naming the field:
+    a structure that is no firmware law, parameters of the other firmware, a contradicting ``dt``.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> from tuner.firmware.bind import bind_law
+    >>> v = SimpleNamespace(firmware="px4", loop_hz=400.0, fixed={"K": 1.0, "dgyro_hz": 30.0, "int_lim": 0.3},
+    ...                     gains={"P": 0.15, "I": 0.2, "D": 0.003, "FF": 0.0}, source="x.params")
+    >>> st, dt, now = bind_law("px4_rate", v, None)
+    >>> st.fixed_values["dgyro_hz"], dt, now["P"], now["K"]
+    (30.0, 0.0025, 0.15, 1.0)
+    """
+    from ..controllers import Structure, get_structure
+
+    st = structure if isinstance(structure, Structure) else get_structure(structure)
+    want = FIRMWARE_OF.get(st.name)
+    if want is None:
+        raise TunerError(f"--params / vehicle parameters set a firmware rate law: give structure px4_rate or "
+                         f"ardupilot_rate (got {st.name!r})", field="structure")
+    fw = getattr(vehicle, "firmware", None)
+    src = getattr(vehicle, "source", "the parameters")
+    if fw != want:
+        raise TunerError(f"{src} holds {fw or 'unknown'} parameters, but {st.name} is {want}'s law: give "
+                         f"{_FILES[want]}", field=field)
+    loop_hz = getattr(vehicle, "loop_hz", None)
+    vdt = 1.0 / float(loop_hz) if loop_hz else None
+    if dt is not None and vdt is not None and abs(dt - vdt) > SAME_DT_RTOL * vdt:
+        raise TunerError(f"dt = {dt:g} s contradicts the vehicle's loop rate {float(loop_hz):g} Hz "
+                         f"(dt = {vdt:g} s, from {src}): leave dt out, or give the rate the vehicle runs",
+                         field="dt")
+    loop_dt = dt if dt is not None else vdt
+    if loop_dt is None or not math.isfinite(loop_dt) or loop_dt <= 0:
+        raise TunerError(f"{src} does not give the loop rate: give dt (the rate loop's sample time)", field="dt")
+    st = st.with_fixed({k: v for k, v in dict(getattr(vehicle, "fixed", {}) or {}).items()
+                        if k in st.fixed_values})
+    now = {**{p: float(v) for p, v in dict(getattr(vehicle, "gains", {}) or {}).items() if p in st.params},
+           **st.fixed_values}
+    missing = [p for p in st.params if p not in now]
+    if missing:
+        raise TunerError(f"{src} lacks the current {', '.join(missing)} of the {st.name} law", field=field)
+    return st, float(loop_dt), now
+
+
+def vehicle_dict(vehicle: Any) -> dict[str, Any]:
+    """What a result records of the vehicle (for the export's header and the current-vs-proposed report)."""
+    keys = ("firmware", "axis", "loop_hz", "gyro_cutoff_hz", "att_p", "rate_max_dps", "source")
+    out = {k: getattr(vehicle, k, None) for k in keys}
+    out["current_gains"] = {k: float(v) for k, v in dict(getattr(vehicle, "gains", {}) or {}).items()}
+    out["fixed"] = {k: float(v) for k, v in dict(getattr(vehicle, "fixed", {}) or {}).items()}
+    notes = getattr(vehicle, "notes", ())
+    if notes:
+        out["notes"] = list(notes)
+    return out
