@@ -40,7 +40,7 @@ def px4_law(r: np.ndarray, w: np.ndarray, g: dict, dt: float) -> np.ndarray:
 def ardupilot_law(target: np.ndarray, w: np.ndarray, g: dict, dt: float) -> np.ndarray:
     """ArduPilot's AC_PID::update_all plus the FF it sends to the mixer, per sample (no limit reached)."""
     at, ae, ad = _alpha(g["fltt_hz"], dt), _alpha(g["flte_hz"], dt), _alpha(g["fltd_hz"], dt)
-    T = E = D = I = 0.0
+    T = E = D = integ = 0.0
     e_prev = 0.0
     u = np.zeros(target.size)
     for k in range(target.size):
@@ -48,8 +48,8 @@ def ardupilot_law(target: np.ndarray, w: np.ndarray, g: dict, dt: float) -> np.n
         E += ae * ((T - w[k]) - E)
         D += ad * ((E - e_prev) / dt - D)
         e_prev = E
-        I += g["I"] * E * dt  # updated before the output
-        u[k] = g["P"] * E + g["D"] * D + I + g["FF"] * T
+        integ += g["I"] * E * dt  # updated before the output
+        u[k] = g["P"] * E + g["D"] * D + integ + g["FF"] * T
     return u
 
 

@@ -219,7 +219,7 @@ def _textbook(name, x, dt, w):
             a = dt / (dt + 1 / (2 * math.pi * f)) if f > 0 else 1.0
             return a * z / (z - (1 - a))
 
-        dterm = lambda f: lp(f) * (z - 1) / (dt * z)  # noqa: E731 - the filtered backward difference
+        dterm = lambda f: lp(f) * (z - 1) / (dt * z)
         if name == "px4_rate":  # K [P + I dt/(z - 1) + D d/dt(filtered)], forward-Euler integrator
             return x["K"] * (x["P"] + x["I"] * dt / (z - 1) + x["D"] * dterm(x["dgyro_hz"]))
         return (x["P"] + x["I"] * dt * z / (z - 1) + x["D"] * dterm(x["fltd_hz"])) * lp(x["flte_hz"])
