@@ -29,6 +29,7 @@ from .schema import (
     loop_key,
     thesis_controller_of,
     true_plant_of,
+    vehicle_of,
 )
 
 __all__ = ["LoopEval", "loop_plants", "evaluate_loop", "evaluate_gains", "evaluate_thesis", "tune_loop",
@@ -210,7 +211,9 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
     from ..tuning import tune
 
     plants = loop_plants(study, lp, controllers)
-    res = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt,
+    vehicle = vehicle_of(lp)
+    res = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, **({} if vehicle is None else
+                                                                         {"vehicle": vehicle}),
                seed=study.seed if lp.seed is None else lp.seed,
                time_budget_s=study.time_budget_s if lp.time_budget_s is None else lp.time_budget_s,
                n_trials=lp.n_trials, **({} if lp.n_starts is None else {"n_starts": lp.n_starts}),
@@ -224,6 +227,10 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
     out = {"loop": lp.name, "key": loop_key(study, lp.name), "structure": lp.structure,
            "gains": dict(res.gains), "dt": lp.dt, **ev.to_dict(), "solver": dict(res.solver),
            "spec": lp.spec.model_dump(), "plant": [p.describe() for p in plants]}
+    if res.vehicle is not None:  # the vehicle's current tune next to the proposed one
+        d = res.to_dict()
+        out["vehicle"] = d["vehicle"]
+        out["current"] = d["current"]
     if lp.data is not None:
         out["identification"] = identification_summary(lp)
         out.update(uncertainty_checks(lp, res.controller, seed=study.seed if lp.seed is None else lp.seed))

@@ -62,7 +62,7 @@ from ..tolerances import SAME_DT_RTOL
 
 __all__ = ["InvalidStudyError", "PlantCoeffs", "PlantData", "LoopDef", "StudyDef", "load_study", "parse_study",
            "base_plants", "loop_key", "controller_of", "thesis_controller_of", "identified", "data_path",
-           "true_plant_of"]
+           "true_plant_of", "params_path", "vehicle_of"]
 
 _NAME = r"^[A-Za-z0-9_.-]+$"
 
@@ -168,6 +168,11 @@ class LoopDef(BaseModel):
                                          "synthetic log's truth), on which the report also judges the loop")
     variant_of: str | None = Field(None, description="name of the loop this one varies (another spec on the same "
                                    "plant): the report says what the change costs")
+    params: str | None = Field(None, min_length=1, description="px4_rate / ardupilot_rate: the vehicle's parameters "
+                               "(a QGroundControl .params or a ULog .ulg for PX4, a .parm for ArduPilot), relative "
+                               "to the study file: loop rate, filters, K, integrator limit and the current gains")
+    axis: Literal["roll", "pitch", "yaw"] = Field("roll", description="with params: the axis whose rate law")
+    _params_path: Path | None = PrivateAttr(None)
 
     @field_validator("structure")
     @classmethod
@@ -187,8 +192,11 @@ class LoopDef(BaseModel):
             for name in ("robust", "monte_carlo", "true_plant"):
                 if getattr(self, name) is not None:
                     raise ValueError(f"{name}: only for a plant given as data (a flight log to identify)")
-        if self.structure == "pid_z" and self.dt is None:
-            raise ValueError("structure pid_z is discrete: give dt")
+        if get_structure(self.structure).discrete_only and self.dt is None:
+            raise ValueError(f"structure {self.structure} is discrete: give dt")
+        if self.params is not None and get_structure(self.structure).firmware is None:
+            raise ValueError(f"params: the vehicle's parameters set a firmware rate law; give structure px4_rate or "
+                             f"ardupilot_rate (got {self.structure!r})")
         if self.plant_dt is not None and self.delay:  # a plant in s takes any delay, exactly (also sampled)
             n = self.delay / self.plant_dt
             if abs(n - round(n)) > 1e-6 * max(1.0, n):
@@ -328,8 +336,12 @@ def load_study(path: str | Path) -> StudyDef:
             if lp.data.verify is not None:
                 v = Path(lp.data.verify)
                 lp.data._verify_path = v if v.is_absolute() else p.resolve().parent / v
+        if lp.params is not None:
+            f = Path(lp.params)
+            lp._params_path = f if f.is_absolute() else p.resolve().parent / f
     for lp in study.loop:  # build every plant and printed controller once, so errors surface early
         try:
+            vehicle_of(lp)
             base_plants(lp)
             thesis_controller_of(lp)
             true_plant_of(lp)
@@ -461,8 +473,47 @@ def true_plant_of(lp: LoopDef) -> Plant | None:
 
 
 def controller_of(lp: LoopDef, gains: dict[str, float]) -> ControllerTF:
-    """The loop's controller for ``gains`` (its structure at its ``dt``)."""
-    return controller_tf(lp.structure, gains, dt=lp.dt)
+    """The loop's controller for ``gains`` (its structure at its ``dt``; a firmware law with ``params``: bound to that
+    vehicle, unless the gains carry the law's fixed values themselves)."""
+    v = vehicle_of(lp)
+    if v is None:
+        return controller_tf(lp.structure, gains, dt=lp.dt)
+    from ..firmware.bind import bind_law
+
+    st, dt, _ = bind_law(lp.structure, v, lp.dt)
+    return st.tf(gains, dt)
+
+
+def params_path(lp: LoopDef) -> Path | None:
+    """Where a loop's vehicle parameters are (relative to the study file, or to the working directory)."""
+    if lp.params is None:
+        return None
+    return lp._params_path if lp._params_path is not None else Path(lp.params)
+
+
+def vehicle_of(lp: LoopDef) -> Any:
+    """The :class:`~tuner.firmware.params.VehicleParams` of a loop with ``params`` (None without), read once per
+    file content."""
+    path = params_path(lp)
+    if path is None:
+        return None
+    try:
+        digest = _digest(path)
+    except OSError as e:
+        raise InvalidStudyError(f"params: {e.filename or path}: cannot read: {e.strerror or e}") from None
+    from ..firmware.bind import FIRMWARE_OF
+
+    return _vehicle_cached(str(path), digest, lp.axis, FIRMWARE_OF[lp.structure])
+
+
+@lru_cache(maxsize=32)
+def _vehicle_cached(path: str, digest: str, axis: str, firmware: str) -> Any:
+    from ..firmware.params import read_params
+
+    try:
+        return read_params(path, axis=axis, firmware=firmware)
+    except TunerError as e:
+        raise InvalidStudyError(f"params: {e}") from None
 
 
 def thesis_controller_of(lp: LoopDef) -> ControllerTF | None:
@@ -487,11 +538,18 @@ def loop_key(study: StudyDef, name: str) -> str:
     file gives a new key, so results are reused only for the study as it is now."""
     parts = []
     for lp in study.chain(name):
-        d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s", "effort"})
+        d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s", "effort", "params",
+                                                "axis"})
         entry = {k: _canon(v) for k, v in d.items()}
         effort = lp.effort or study.effort
         if effort != "default":  # (only then: the keys of studies that never name an effort stay as they were)
             entry["effort"] = effort
+        if lp.params is not None:  # the vehicle's parameters by contents (only then: other keys stay as they were)
+            try:
+                entry["params_sha256"] = _digest(params_path(lp))
+            except OSError:
+                entry["params_sha256"] = None
+            entry["axis"] = lp.axis
         if lp.data is not None:  # the log's contents, not where it lies
             try:
                 entry["data_sha256"] = _digest(data_path(lp.data))
