@@ -20,7 +20,8 @@ from tuner.spec import Spec
 
 from .schemas import AnalyzeRequest, ControllerIn, PlantIn, TuneRequest
 
-__all__ = ["FieldError", "error_type", "body_loc", "tuning_problem", "analysis_inputs", "plant_dict"]
+__all__ = ["FieldError", "error_type", "body_loc", "tuning_problem", "analysis_inputs", "plant_dict", "vehicle_of",
+           "bound_structure"]
 
 Loc = tuple[str | int, ...]
 
@@ -106,40 +107,107 @@ def request_plant_limit(body: Any, settings: Any) -> int:
     return limit
 
 
-def tuning_problem(body: TuneRequest, *, identification: Any = None) -> TuningProblem:
+def _vehicle_loc(e: TunerError) -> Loc:
+    """Where a vehicle's error lies in the body: its parameters, or the field it contradicts."""
+    if e.field in (("vehicle",), ("params",)) or e.field[:1] == ("params",):
+        return ("body", "vehicle")
+    return body_loc(e.field)
+
+
+def vehicle_of(body: Any, identification_record: Any = None) -> Any:
+    """The :class:`~tuner.firmware.params.VehicleParams` of a /tune or /analyze body's ``vehicle`` (None without one):
+    parsed from its ``params`` text, or from the parameters stored with the identification it names."""
+    v = getattr(body, "vehicle", None)
+    if v is None:
+        return None
+    from tuner.firmware.bind import FIRMWARE_OF
+    from tuner.firmware.params import vehicle_from_text
+
+    structure = body.structure if hasattr(body, "structure") else getattr(body.controller, "structure", None)
+    if structure not in FIRMWARE_OF:
+        raise FieldError(("body", "vehicle"), f"vehicle sets a firmware rate law's fixed values; the structure is "
+                         f"{structure!r}: use px4_rate or ardupilot_rate")
+    firmware = FIRMWARE_OF[structure]
+    if v.from_identification:
+        params = None if identification_record is None else (identification_record.result or {}).get(
+            "log_parameters")
+        if not params:
+            raise FieldError(("body", "vehicle", "from_identification"), "the identification named by "
+                             "identification_id was not made from a ULog with stored parameters: give "
+                             "vehicle.params (the text of the vehicle's .params or .parm file)")
+        text, fmt, source = params, "ulog", "the ULog's parameters"
+    else:
+        text, fmt, source = v.params, None, "vehicle.params"
+    try:
+        return vehicle_from_text(text, fmt=fmt, axis=v.axis, firmware=firmware, source=source)
+    except TunerError as e:
+        raise FieldError(("body", "vehicle", "params" if v.params is not None else "from_identification"), str(e),
+                         type=error_type(e)) from None
+
+
+def bound_structure(body: Any, vehicle: Any) -> tuple[Any, float | None]:
+    """The body's structure (a firmware law bound to ``vehicle``'s fixed values) and the loop's dt (the vehicle's
+    loop rate unless the body gives dt, which must agree)."""
+    if vehicle is None:
+        return body.structure, body.dt
+    from tuner.firmware.bind import bind_law
+
+    try:
+        st, dt, _ = bind_law(body.structure, vehicle, body.dt, field="vehicle")
+    except TunerError as e:
+        raise FieldError.of(e, _vehicle_loc(e)) from None
+    return st, dt
+
+
+def tuning_problem(body: TuneRequest, *, identification: Any = None, vehicle: Any = None) -> TuningProblem:
     """The validated problem of a /tune body (the one semantic validation of the request); with an
-    ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`)."""
+    ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`); with a
+    ``vehicle`` (:func:`vehicle_of`), the firmware law bound to it at its loop rate."""
+    structure, dt = bound_structure(body, vehicle)
     if identification is not None:
         from tuner.robust import plant_set
 
         try:
-            plants = plant_set(identification, body.robust, dt=body.dt)[0]
+            plants = plant_set(identification, body.robust, dt=dt)[0]
         except TunerError as e:
             raise FieldError.of(e, ("body", "robust") if e.field == ("robust",) else body_loc(e.field)) from None
     else:
         plants = [_plant(p, i) for i, p in enumerate([body.plant, *(body.plants or [])])]
     try:
-        return TuningProblem.build(plants, structure=body.structure, spec=body.spec, dt=body.dt)
+        return TuningProblem.build(plants, structure=structure, spec=body.spec, dt=dt)
     except TunerError as e:
         raise FieldError.of(e, body_loc(e.field)) from None
 
 
-def _controller(c: ControllerIn, dt: float | None) -> ControllerTF:
+def _controller(c: ControllerIn, dt: float | None, vehicle: Any = None) -> ControllerTF:
     if c.expr is not None:
         return controller_from_expr(c.expr, dt=dt)
     if c.structure is not None:
+        if vehicle is not None:  # a firmware law on this vehicle: the gains not given are its current ones
+            from tuner.firmware.bind import bind_law
+
+            st, dt, now = bind_law(c.structure, vehicle, dt, field="vehicle")
+            return st.tf({**now, **(c.gains or {})}, dt)
         return controller_tf(c.structure, c.gains or {}, dt=dt)
     return controller_from_coeffs(c.num, c.den, dt=dt)
 
 
 def analysis_inputs(body: AnalyzeRequest) -> tuple[Plant, ControllerTF, Spec]:
-    """Plant, controller (at ``dt``, else at a discrete plant's dt) and spec of an /analyze body, validated
-    as one loop."""
+    """Plant, controller (at ``dt``, else at a discrete plant's dt, else the vehicle's loop rate) and spec of an
+    /analyze body, validated as one loop."""
+    vehicle = vehicle_of(body)
     plant = _plant(body.plant, 0)
     dt = body.dt if body.dt is not None else plant.dt
+    if dt is None and vehicle is not None and getattr(vehicle, "loop_hz", None):
+        dt = 1.0 / float(vehicle.loop_hz)
     try:
-        ctrl = _controller(body.controller, dt)
+        ctrl = _controller(body.controller, dt, vehicle)
+    except FieldError:
+        raise
     except TunerError as e:
+        if e.field[:1] == ("vehicle",) or e.field[:1] == ("structure",):
+            raise FieldError.of(e, ("body", "vehicle") if e.field[:1] == ("vehicle",) else
+                                ("body", "controller", "structure")) from None
         loc = ("body", "dt") if e.field == ("dt",) else ("body", "controller", *e.field)
         raise FieldError.of(e, loc) from None
     try:

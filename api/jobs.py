@@ -35,17 +35,18 @@ def _controller(d: dict[str, Any]):
 def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload``: ``problem`` (a validated :class:`tuner.problem.TuningProblem`), ``seed``, ``time_budget_s``,
     ``effort``; with ``identification`` (an IdentifyResult), ``robust`` and ``monte_carlo`` too (the problem's plants
-    are its set)."""
+    are its set); ``vehicle`` (a VehicleParams, the problem's structure bound to it): its current tune analysed."""
     from tuner.tuning import tune
 
     effort = payload.get("effort", "default")
+    vehicle = {} if payload.get("vehicle") is None else {"vehicle": payload["vehicle"]}
     if payload.get("identification") is not None:
         p = payload["problem"]
         return tune(payload["identification"], structure=p.structure, spec=p.spec, dt=p.dt, seed=payload["seed"],
                     time_budget_s=payload["time_budget_s"], robust=payload.get("robust"),
-                    monte_carlo=payload.get("monte_carlo"), effort=effort).to_json()
+                    monte_carlo=payload.get("monte_carlo"), effort=effort, **vehicle).to_json()
     return tune(payload["problem"], seed=payload["seed"], time_budget_s=payload["time_budget_s"],
-                effort=effort).to_json()
+                effort=effort, **vehicle).to_json()
 
 
 def tradeoff_job(payload: dict[str, Any]) -> dict[str, Any]:

@@ -22,7 +22,7 @@ __all__ = [
     "PlantIn", "ControllerIn", "TuneOptions", "TuneRequest", "AnalyzeRequest", "TuneResponse", "TuneRecordOut",
     "TuneList", "TuneSummaryOut", "AnalyzeResponse", "HealthOut", "ErrorOut", "ValidationErrorOut",
     "TradeoffRequest", "TradeoffResponse", "AtBoundOut", "LimitOut",
-    "ROLL_EXAMPLE", "ROLL_ANALYZE_EXAMPLE", "MAX_EXPR_CHARS", "MAX_COEFF",
+    "ROLL_EXAMPLE", "ROLL_ANALYZE_EXAMPLE", "MAX_EXPR_CHARS", "MAX_COEFF", "VehicleIn", "MAX_PARAMS_CHARS",
 ]
 
 MAX_EXPR_CHARS = 1000
@@ -106,6 +106,28 @@ class ControllerIn(_In):
         return self
 
 
+MAX_PARAMS_CHARS = 2_000_000  # a vehicle's parameter file (a full PX4 .params is about 60 kB)
+
+
+class VehicleIn(_In):
+    """What the vehicle fixes for a firmware rate law (``px4_rate``, ``ardupilot_rate``): loop rate, filters, PX4's K,
+    the integrator limit, and its current gains, analysed next to the proposed ones."""
+
+    params: str | None = Field(None, min_length=1, max_length=MAX_PARAMS_CHARS,
+                               description="the text of the vehicle's parameter file: a QGroundControl .params "
+                                           "(PX4) or a Mission Planner .parm (ArduPilot)")
+    from_identification: bool = Field(False, description="instead of params: the parameters stored in the ULog the "
+                                      "identification (identification_id) was made from")
+    axis: Literal["roll", "pitch", "yaw"] = Field("roll", description="the axis whose rate law")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> VehicleIn:
+        if (self.params is None) == (not self.from_identification):
+            raise ValueError("give params (the text of a .params or .parm file) or from_identification: true, "
+                             "not both")
+        return self
+
+
 class TuneOptions(_In):
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seeds the global search: same seed, same gains")
     time_budget_s: float | None = Field(
@@ -141,6 +163,9 @@ class TuneRequest(_In):
                                      "Ki/s (r - y) + Kd s/(Tf s+1)(c r - y); pidf2 is the deprecated name of pid_mf2")
     spec: Spec | None = Field(None, description="defaults: PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, ...")
     options: TuneOptions = Field(default_factory=TuneOptions)
+    vehicle: VehicleIn | None = Field(None, description="px4_rate / ardupilot_rate: the vehicle's parameters (loop "
+                                      "rate, filters, K, integrator limit, current gains); dt defaults to its loop "
+                                      "rate; the response adds `vehicle` and `current` (its current tune analysed)")
 
 
 class TradeoffRequest(TuneRequest):
@@ -160,6 +185,9 @@ class AnalyzeRequest(_In):
     dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
     controller: ControllerIn
     spec: Spec | None = None
+    vehicle: VehicleIn | None = Field(None, description="with controller {structure: px4_rate or ardupilot_rate, "
+                                      "gains}: the vehicle's parameters (its fixed values; gains left out are its "
+                                      "current ones, so gains {} analyses the loop it flies)")
 
 
 # -- responses ---------------------------------------------------------------------------

@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 
 from tuner.jsonio import jsonable
 
-from ..convert import FieldError, body_loc, request_budget, request_plant_limit, tuning_problem
+from ..convert import FieldError, body_loc, request_budget, request_plant_limit, tuning_problem, vehicle_of
 from ..deps import client_id, get_pool, get_tradeoff_job
 from ..jobrun import run_job
 from ..pool import WorkerPool
@@ -50,7 +50,7 @@ async def post_tradeoff(
                              "identification there, or give its model as plant")
     if body.plant is None:
         raise FieldError(("body", "plant"), "give the plant: {\"expr\": \"...\"} or {\"num\": [...], \"den\": [...]}")
-    problem = tuning_problem(body)
+    problem = tuning_problem(body, vehicle=vehicle_of(body))  # a firmware law bound to its vehicle
     payload = {"problem": problem, "y": body.y, "points": body.points, "seed": body.options.seed,
                "time_budget_s": budget}
     result = await run_job(

@@ -13,7 +13,15 @@ from tuner.errors import TunerError
 from tuner.jsonio import jsonable
 from tuner.robust import MONTE_CARLO_DRAWS
 
-from ..convert import FieldError, body_loc, plant_dict, request_budget, request_plant_limit, tuning_problem
+from ..convert import (
+    FieldError,
+    body_loc,
+    plant_dict,
+    request_budget,
+    request_plant_limit,
+    tuning_problem,
+    vehicle_of,
+)
 from ..deps import client_id, get_pool, get_store, get_tune_job
 from ..jobrun import run_job
 from ..pool import WorkerPool
@@ -72,13 +80,15 @@ async def post_tune(
 ) -> JSONResponse:
     budget = request_budget(body, settings)
     limit = request_plant_limit(body, settings)
-    ident = await _identification(body, store)
-    problem = tuning_problem(body, identification=ident)
+    ident, record = await _identification(body, store)
+    vehicle = vehicle_of(body, record)
+    problem = tuning_problem(body, identification=ident, vehicle=vehicle)
     if ident is not None and len(problem.plants) > limit:
         raise FieldError(("body", "robust"), f"the identified model's robust set has {len(problem.plants)} plants; "
                          f"this server tunes at most {limit} per request: fit fewer parameters, or tune the nominal "
                          "model (robust null)")
-    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget, "effort": body.options.effort}
+    payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget, "effort": body.options.effort,
+               "vehicle": vehicle}
     timeout_s = settings.solve_limit_s(budget)
     if ident is not None:
         n_mc = body.monte_carlo if body.monte_carlo is not None else (MONTE_CARLO_DRAWS if body.robust else 0)
@@ -102,6 +112,8 @@ async def post_tune(
     if ident is None:  # a plain request is stored as before
         for k in ("identification_id", "robust", "monte_carlo"):
             request.pop(k, None)
+    if vehicle is None:
+        request.pop("vehicle", None)
     request.update(spec=problem.spec.model_dump(mode="json"), dt=problem.dt)
     request["options"]["time_budget_s"] = budget
     record = await run_in_threadpool(store.add, request=request, plants=[plant_dict(p) for p in problem.plants],
@@ -109,9 +121,10 @@ async def post_tune(
     return JSONResponse(jsonable({"id": record.id, "created_at": record.created_at.isoformat(), **result}))
 
 
-async def _identification(body: TuneRequest, store: Store) -> Any:
-    """The stored identification a body names (``identification_id``), as an IdentifyResult; checks that the body
-    gives exactly one of plant and identification_id, and robust/monte_carlo only with the latter."""
+async def _identification(body: TuneRequest, store: Store) -> tuple[Any, Any]:
+    """The stored identification a body names (``identification_id``), as an IdentifyResult, and its record (both
+    None without one); checks that the body gives exactly one of plant and identification_id, and
+    robust/monte_carlo only with the latter."""
     if (body.plant is None) == (body.identification_id is None):
         raise FieldError(("body", "plant"), "give plant (a model) or identification_id (a stored identification, "
                          "POST /identify), not both" if body.plant is not None else "Field required: give plant (a "
@@ -121,7 +134,7 @@ async def _identification(body: TuneRequest, store: Store) -> Any:
             if getattr(body, name) is not None:
                 raise FieldError(("body", name), f"{name} needs identification_id: the uncertainty of an identified "
                                  "model (POST /identify)")
-        return None
+        return None, None
     if body.plants:
         raise FieldError(("body", "plants"), "plants with identification_id: the plant set comes from the "
                          "identification (robust); leave plants out")
@@ -132,6 +145,6 @@ async def _identification(body: TuneRequest, store: Store) -> Any:
     from tuner.identify.result import IdentifyResult
 
     try:
-        return IdentifyResult.from_dict(rec.result)
+        return IdentifyResult.from_dict(rec.result), rec
     except (TunerError, KeyError, TypeError, ValueError) as e:
         raise FieldError(("body", "identification_id"), f"the stored identification cannot be read: {e}") from None

@@ -172,11 +172,14 @@ def measured_comparison(ident: Any, analysis: Any, *, coherence_min: float | Non
         notes.append(f"the log was identified at {float(ident.rate_hz):g} Hz and the loop runs at {1 / dt:g} Hz: "
                      "the measured response holds the log's sampling, not the loop's")
     warnings = []
-    for name, m_v, (a, b), mod, unit in (
-            ("phase margin", meas.phase_margin_deg, meas.phase_margin_range, model.phase_margin_deg, " deg"),
-            ("gain margin", meas.gain_margin_db, meas.gain_margin_range, model.gain_margin_db, " dB"),
-            ("Ms", meas.ms, meas.ms_range, model.ms, "")):
-        if math.isnan(m_v) and not math.isnan(mod):
+    full = analysis.metrics  # the model's loop over every frequency (the verifier's)
+    for name, m_v, (a, b), mod, whole, unit in (
+            ("phase margin", meas.phase_margin_deg, meas.phase_margin_range, model.phase_margin_deg,
+             full.phase_margin_deg, " deg"),
+            ("gain margin", meas.gain_margin_db, meas.gain_margin_range, model.gain_margin_db, full.gain_margin_db,
+             " dB"),
+            ("Ms", meas.ms, meas.ms_range, model.ms, full.ms, "")):
+        if math.isnan(m_v) and math.isfinite(whole):
             notes.append(f"{name}: the model's crossing lies outside the coherent data ({lo:.3g}-{hi:.3g} rad/s): "
                          "not measured")
         elif not math.isnan(m_v) and not math.isnan(mod) and not (a <= mod <= b):
