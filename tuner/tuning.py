@@ -492,6 +492,9 @@ def tune(
                 info["found_by_diagnosis"] = True
             res.solver["wall_time_s"] = time.perf_counter() - t0
             res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
+        note = _integral_note(res, problem)
+        if note:
+            res.solver.setdefault("notes", []).append(note)
         if ident is not None:  # the nominal loop on the measured response too, next to the model's
             res = _with_measured(res, ident)
         if current_gains is not None:
@@ -503,6 +506,34 @@ def tune(
                 design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=int(seed)))
             res = replace(res, robust=design)
         return res
+
+
+#: an integral gain below this fraction of the loop's scale K0 w0 is "no integral action" (the search box's gains start
+#: at 1e-3 of their unit: tuner.optimize.space.DECADES_BELOW)
+INTEGRAL_NONE = 1e-3
+
+
+def _integral_note(res: TuneResult, problem: TuningProblem) -> str | None:
+    """A note when a structure with integral action ends with almost none (the settling-time optimum of a plant that
+    integrates itself needs none): what it costs on a vehicle, and how to keep it."""
+    st = problem.structure
+    if not st.integrating or st.integral is None or st.integral not in res.gains:
+        return None
+    c = res.controller
+    one = 1.0 if c.dt is not None else 0.0
+    q, rem = np.polydiv(c.den, [1.0, -one])
+    qv = float(np.polyval(q, one))
+    if abs(float(rem[-1])) > 1e-9 * float(np.max(np.abs(c.den))) or qv == 0:
+        return None
+    ki = float(np.polyval(c.num, one)) / qv / (c.dt or 1.0)  # lim (z - 1) C(z)/dt, or lim s C(s)
+    unit = problem.scale[0] * problem.scale[1]
+    if not (math.isfinite(ki) and abs(ki) < INTEGRAL_NONE * unit):
+        return None
+    return (f"no integral action: {st.integral} = {res.gains[st.integral]:.3g} (the loop's integral gain {ki:.3g}, "
+            f"below {INTEGRAL_NONE:g} of its scale K0 w0 = {unit:.3g}); the {problem.spec.objective} optimum on this "
+            "plant does not need it, but a constant load at the plant input (a CG offset, a weak motor, a steady "
+            "wind) is then never rejected: it leaves a steady error. To keep integral action tune for the load "
+            "response (objective iae), which needs it")
 
 
 def _with_measured(res: TuneResult, ident: Any) -> TuneResult:
