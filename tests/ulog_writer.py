@@ -41,9 +41,11 @@ def _msg(kind: str, payload: bytes) -> bytes:
 
 
 def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 0,
-               dropouts: Sequence[tuple[int, int]] = (), info: dict[str, str] | None = None) -> Path:
+               dropouts: Sequence[tuple[int, int]] = (), info: dict[str, str] | None = None,
+               params: dict[str, float | int] | None = None) -> Path:
     """Write ``topics`` to ``path``; ``dropouts`` are ``(timestamp_us, duration_ms)`` written after the last
-    data message at or before that time."""
+    data message at or before that time; ``params`` as parameter (``P``) messages in the definitions section (an
+    ``int`` as int32_t, a ``float`` as float)."""
     out = bytearray(b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", start_us))
     out += _msg("B", bytes(8) + bytes(8) + struct.pack("<3Q", 0, 0, 0))
     formats: dict[str, str] = {}
@@ -55,6 +57,10 @@ def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 0,
     for k, v in (info or {"sys_name": "tuner-tests"}).items():
         key = f"char[{len(v)}] {k}".encode()
         out += _msg("I", bytes([len(key)]) + key + v.encode())
+    for k, v in (params or {}).items():
+        typ, val = ("int32_t", struct.pack("<i", v)) if isinstance(v, int) else ("float", struct.pack("<f", v))
+        key = f"{typ} {k}".encode()
+        out += _msg("P", bytes([len(key)]) + key + val)
     events = []
     for i, tp in enumerate(topics):
         tp.msg_id = i

@@ -1,0 +1,256 @@
+"""A vehicle's parameters: what it fixes for its rate law (loop rate, filters, PX4's K, the integrator limit) and
+its current gains, read from the files ground stations save and logs store.
+
+* QGroundControl ``.params`` (PX4): tab-separated ``vehicle-id  component-id  NAME  value  type`` lines (type 9 =
+  float, 6 = int32), ``#`` comments;
+* Mission Planner ``.parm`` (ArduPilot): ``NAME,value`` lines (a space or a tab also separates), ``#`` comments;
+* a PX4 ULog (``.ulg``): the parameters stored in its definitions section (pyulog's ``initial_parameters``; only
+  the header is parsed).
+
+Text files go through the bounded reader (:func:`tuner.fileio.read_text`, :data:`MAX_PARAMS_BYTES`); a ULog is
+size-checked before it is opened. Every error is a :class:`~tuner.errors.TunerError` whose ``field`` is the
+caller's (``"params"`` by default): a missing file, a file of neither format, a parameter the law needs that the
+file lacks (named), ArduPilot parameters given for PX4's law (or the reverse), a value that is not a finite number.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import TunerError
+from .laws import ARDUPILOT_FIXED, PX4_FIXED
+from .names import AXES, law_names
+
+__all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_params", "vehicle_from_text",
+           "vehicle_from_raw", "detect_firmware"]
+
+MAX_PARAMS_BYTES = 4 << 20  # a full PX4 .params is about 60 kB
+MAX_PARAMS_ULOG_BYTES = 2_000_000_000  # the identification's ULog limit (only the header is parsed)
+_ULOG_MAGIC = b"ULog\x01\x12\x35"
+_FILES = {"px4": "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)",
+          "ardupilot": "ArduPilot parameters (a Mission Planner .parm file)"}
+_DEFAULT_LOOP_HZ = {"px4": 400.0, "ardupilot": 400.0}  # IMU_GYRO_RATEMAX, SCHED_LOOP_RATE defaults (firmware.md)
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """What a vehicle fixes for its rate law on one axis, and its current gains.
+
+    ``gains`` are the current ``P``, ``I``, ``D``, ``FF`` in the firmware's units; ``fixed`` what the law fixes
+    (PX4: ``K``, ``dgyro_hz``, ``int_lim``; ArduPilot: ``fltt_hz``, ``flte_hz``, ``fltd_hz``, ``imax``);
+    ``gyro_cutoff_hz`` is the gyro low-pass upstream of the logged rate (part of the plant, informational);
+    ``notes`` say which values were missing and taken from the firmware's defaults.
+
+    Examples
+    --------
+    >>> from tuner.firmware import vehicle_from_text
+    >>> v = vehicle_from_text("ATC_RAT_RLL_P,0.12\\nATC_RAT_RLL_I,0.1\\nATC_RAT_RLL_D,0.003\\nSCHED_LOOP_RATE,400",
+    ...                       axis="roll")
+    >>> v.firmware, v.dt, v.gains["P"], v.fixed["fltt_hz"]
+    ('ardupilot', 0.0025, 0.12, 20.0)
+    """
+
+    firmware: str
+    axis: str
+    loop_hz: float | None
+    gains: dict[str, float]
+    fixed: dict[str, float]
+    gyro_cutoff_hz: float | None = None
+    att_p: float | None = None
+    rate_max_dps: float | None = None
+    source: str = "parameters"
+    raw: Mapping[str, float] = field(default_factory=dict, repr=False)
+    notes: tuple[str, ...] = ()
+
+    @property
+    def dt(self) -> float | None:
+        """The rate loop's sample time, s (``1/loop_hz``)."""
+        return None if not self.loop_hz else 1.0 / self.loop_hz
+
+
+def _num(text: str, name: str, where: str, fld: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise TunerError(f"{where}: {name} = {text!r} is not a number", field=fld) from None
+    if not math.isfinite(v):
+        raise TunerError(f"{where}: {name} = {text!r} is not a finite number", field=fld)
+    return v
+
+
+def parse_params_text(text: str, fmt: str | None = None, *, source: str = "parameters", field: str = "params"
+                      ) -> tuple[dict[str, float], str]:
+    """``({NAME: value}, format)`` of a parameter file's text; ``fmt`` is ``"qgc"`` (QGroundControl ``.params``),
+    ``"parm"`` (Mission Planner) or None (told by the lines: five tab-separated columns are QGroundControl's).
+
+    Examples
+    --------
+    >>> from tuner.firmware.params import parse_params_text
+    >>> parse_params_text("# Onboard parameters\\n1\\t1\\tMC_ROLLRATE_P\\t0.15\\t9\\n")
+    ({'MC_ROLLRATE_P': 0.15}, 'qgc')
+    >>> parse_params_text("ATC_RAT_RLL_P,0.135\\nATC_RAT_RLL_I 0.135\\n")
+    ({'ATC_RAT_RLL_P': 0.135, 'ATC_RAT_RLL_I': 0.135}, 'parm')
+    """
+    lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
+    lines = [(i, ln) for i, ln in lines if ln and not ln.startswith("#")]
+    if fmt is None:
+        fmt = "qgc" if lines and len(lines[0][1].split("\t")) == 5 else "parm"
+    out: dict[str, float] = {}
+    for i, ln in lines:
+        where = f"{source} line {i}"
+        if fmt == "qgc":
+            cols = ln.split("\t")
+            if len(cols) != 5:
+                raise TunerError(f"{where}: a QGroundControl .params line has 5 tab-separated columns (vehicle-id, "
+                                 f"component-id, NAME, value, type), got {len(cols)}", field=field)
+            name, value = cols[2].strip(), cols[3].strip()
+        else:
+            cols = ln.replace(",", " ").replace("\t", " ").split()
+            if len(cols) != 2:
+                raise TunerError(f"{where}: a .parm line is NAME,value, got {ln[:60]!r}", field=field)
+            name, value = cols
+        if not name.replace("_", "").isalnum() or len(name) > 64:
+            raise TunerError(f"{where}: {name[:64]!r} is not a parameter name", field=field)
+        out[name] = _num(value, name, where, field)
+    if not out:
+        raise TunerError(f"{source}: no parameters in it (lines NAME,value for ArduPilot, or QGroundControl's "
+                         "tab-separated vehicle-id component-id NAME value type)", field=field)
+    return out, fmt
+
+
+def detect_firmware(raw: Mapping[str, float]) -> str | None:
+    """``"px4"``, ``"ardupilot"`` or None, from the parameter names (rate-law names first, then typical ones)."""
+    px4 = any(k.startswith(("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "IMU_GYRO_", "SYS_AUTOSTART"))
+              for k in raw)
+    ardu = any(k.startswith(("ATC_RAT_", "ATC_ANG_", "SCHED_LOOP_RATE", "INS_GYRO_FILTER", "FRAME_CLASS"))
+               for k in raw)
+    if px4 == ardu:
+        return None
+    return "px4" if px4 else "ardupilot"
+
+
+def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: str | None = None,
+                     source: str = "parameters", fmt: str | None = None, field: str = "params") -> VehicleParams:
+    """The :class:`VehicleParams` of ``axis`` from ``{NAME: value}``; ``firmware`` (``"px4"``, ``"ardupilot"``)
+    is what the caller's law needs (None: told by the names); ``fmt`` is the file's format, for the messages."""
+    if axis not in AXES:
+        raise TunerError(f"axis must be one of {', '.join(AXES)}, got {axis!r}", field="axis")
+    found = detect_firmware(raw)
+    if firmware is not None and fmt == "parm" and firmware == "px4":
+        raise TunerError(f"{source}: a .parm file is ArduPilot's; px4_rate needs {_FILES['px4']}", field=field)
+    if firmware is not None and found is not None and found != firmware:
+        law = "px4_rate" if firmware == "px4" else "ardupilot_rate"
+        raise TunerError(f"{source} holds {found} parameters; {law} needs {_FILES[firmware]}", field=field)
+    fw = firmware or found
+    if fw is None:
+        raise TunerError(f"{source}: neither PX4's (MC_ROLLRATE_P, ...) nor ArduPilot's (ATC_RAT_RLL_P, ...) rate "
+                         "parameters are in it: give the vehicle's parameter file", field=field)
+    names = law_names(fw, axis)
+    missing = [names[k] for k in ("P", "I", "D") if names[k] not in raw]
+    if missing:
+        raise TunerError(f"{source} has no {', '.join(missing)} (the {axis} rate law's gains): give the vehicle's "
+                         f"full parameter file ({_FILES[fw]})", field=field)
+    notes = []
+
+    def get(key: str, default: float | None) -> float | None:
+        name = names.get(key)
+        if name is not None and name in raw:
+            return float(raw[name])
+        if default is not None and name is not None:
+            notes.append(f"{name} not in {source}: the firmware's default {default:g} assumed")
+        return default
+
+    gains = {"P": get("P", None), "I": get("I", None), "D": get("D", None), "FF": get("FF", 0.0)}
+    defaults = dict(PX4_FIXED if fw == "px4" else ARDUPILOT_FIXED)
+    fixed = {k: get(k, v) for k, v in defaults.items()}
+    loop_hz = get("loop_hz", _DEFAULT_LOOP_HZ[fw])
+    if loop_hz is not None and not loop_hz > 0:
+        raise TunerError(f"{source}: {names['loop_hz']} = {loop_hz:g}: the loop rate must be > 0 Hz", field=field)
+    for k, v in fixed.items():
+        if v is not None and (v < 0 or (k == "K" and v <= 0)):
+            raise TunerError(f"{source}: {names[k]} = {v:g} must be " + ("> 0" if k == "K" else ">= 0"), field=field)
+    for k, v in gains.items():
+        if v is not None and v < 0:
+            raise TunerError(f"{source}: {names[k]} = {v:g}: the rate law's gains are >= 0", field=field)
+    if fw == "px4" and axis == "yaw" and raw.get("MC_YAW_TQ_CUTOFF", 2.0) > 0:
+        notes.append("PX4 filters the yaw torque setpoint (MC_YAW_TQ_CUTOFF) after the rate law: the identified "
+                     "plant must start at the filtered torque, or the filter is left out of the loop")
+    return VehicleParams(firmware=fw, axis=axis, loop_hz=loop_hz, gains=gains, fixed=fixed,
+                         gyro_cutoff_hz=get("gyro_hz", None), att_p=get("att_p", None),
+                         rate_max_dps=get("rate_max_dps", None) if "rate_max_dps" in names else None,
+                         source=source, raw=dict(raw), notes=tuple(notes))
+
+
+def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", firmware: str | None = None,
+                      fmt: str | None = None, source: str = "parameters", field: str = "params") -> VehicleParams:
+    """:func:`vehicle_from_raw` of a parameter file's text (``fmt``: ``"qgc"``, ``"parm"``, None to tell), or of a
+    ``{NAME: value}`` mapping already read (``fmt="ulog"``: a log's stored parameters)."""
+    if isinstance(text, Mapping):
+        raw = {str(k): _num(str(v), str(k), source, field) for k, v in text.items()}
+        return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
+    raw, fmt = parse_params_text(text, None if fmt == "ulog" else fmt, source=source, field=field)
+    return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
+
+
+def _ulog_parameters(path: Path, field: str) -> dict[str, float]:
+    from pyulog import ULog
+
+    try:
+        size = path.stat().st_size
+    except OSError as e:
+        raise TunerError(f"{path}: cannot read: {e.strerror or e}", field=field) from None
+    if size > MAX_PARAMS_ULOG_BYTES:
+        raise TunerError(f"{path}: {size} bytes; a ULog is read up to {MAX_PARAMS_ULOG_BYTES} bytes", field=field)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            ul = ULog(str(path), message_name_filter_list=[], parse_header_only=True)
+    except Exception as e:  # pyulog raises its own and struct errors for a file it cannot parse
+        raise TunerError(f"{path}: not a readable ULog file ({type(e).__name__}: {e})", field=field) from None
+    params = {str(k): float(v) for k, v in dict(ul.initial_parameters).items()
+              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    if not params:
+        raise TunerError(f"{path}: the log stores no parameters (a ULog logged with parameters, or the vehicle's "
+                         ".params file)", field=field)
+    return params
+
+
+def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = None, field: str = "params"
+                ) -> VehicleParams:
+    """The :class:`VehicleParams` of ``axis`` in the file at ``path``: a QGroundControl ``.params`` or a ULog (PX4),
+    a Mission Planner ``.parm`` (ArduPilot); ``firmware`` is what the caller's law needs (None: told by the names).
+
+    Raises :class:`~tuner.errors.TunerError` with ``field`` (see the module's docstring).
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from tuner.firmware import read_params
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "quad.params"
+    >>> _ = p.write_text("1\\t1\\tMC_ROLLRATE_P\\t0.18\\t9\\n1\\t1\\tMC_ROLLRATE_I\\t0.2\\t9\\n"
+    ...                  "1\\t1\\tMC_ROLLRATE_D\\t0.004\\t9\\n1\\t1\\tIMU_GYRO_RATEMAX\\t800\\t6\\n")
+    >>> v = read_params(p, axis="roll")
+    >>> v.firmware, v.loop_hz, v.gains["D"], v.fixed["K"]
+    ('px4', 800.0, 0.004, 1.0)
+    """
+    from ..fileio import read_text
+
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            head = f.read(len(_ULOG_MAGIC))
+    except OSError as e:
+        raise TunerError(f"{p}: cannot read: {e.strerror or e}", field=field) from None
+    if head == _ULOG_MAGIC:
+        return vehicle_from_raw(_ulog_parameters(p, field), axis=axis, firmware=firmware,
+                                source=f"{p.name} (ULog parameters)", fmt="ulog", field=field)
+    text = read_text(p, limit=MAX_PARAMS_BYTES, field=field,
+                     hint="give a QGroundControl .params, a Mission Planner .parm or a ULog .ulg")
+    fmt = {".params": "qgc", ".parm": "parm"}.get(p.suffix.lower())
+    if fmt == "parm" and firmware == "px4":
+        raise TunerError(f"{p}: a .parm file is ArduPilot's; px4_rate needs {_FILES['px4']}", field=field)
+    return vehicle_from_text(text, axis=axis, firmware=firmware, fmt=fmt, source=p.name, field=field)
