@@ -28,8 +28,11 @@ _DOC = ("The stored controller as it runs on the target, in direct form II trans
         "A 2-DOF `pid2` result takes r and y: `double N_update(N_state *s, double r, double y)` (Python "
         "`update(r, y)`), D on c r - y (c = 0: on the measurement), anti-windup by `anti_windup` (conditional "
         "integration or back-calculation with tracking time `tt`). The header of the text says all of this. "
+        "`px4` and `ardupilot` give a `px4_rate` / `ardupilot_rate` result as the parameter file its ground station "
+        "loads (QGroundControl `.params`, Mission Planner `.parm`) for `axis` (default the vehicle's, else roll), "
+        "every value inside the firmware's documented range or a 422. "
         "422 (with `loc`) for a bad format, name, dt, method or limits.")
-_SUFFIX = {"c": "c", "python": "py", "text": "txt"}
+_SUFFIX = {"c": "c", "python": "py", "text": "txt", "px4": "params", "ardupilot": "parm"}
 _QUERY = {"name", "dt", "method", "u_min", "u_max", "format", "anti_windup", "tt"}
 
 
@@ -37,7 +40,10 @@ _QUERY = {"name", "dt", "method", "u_min", "u_max", "format", "anti_windup", "tt
             responses={**NOT_FOUND, 200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
 async def export_tune(
     tune_id: str = TuneId,
-    format: Literal["c", "python", "text"] = Query(..., description="c, python or text"),
+    format: Literal["c", "python", "text", "px4", "ardupilot"] = Query(
+        ..., description="c, python or text; px4 or ardupilot: a rate law's parameter file"),
+    axis: Literal["roll", "pitch", "yaw"] | None = Query(None, description="px4/ardupilot: the axis (default: the "
+                                                          "tune's vehicle's, else roll)"),
     name: str = Query("controller", min_length=1, max_length=56, description="a C identifier: N_state, N_init, "
                       "N_update, and the Python class"),
     dt: float | None = Query(None, description="sample time, s: needed for a continuous result"),
@@ -59,6 +65,8 @@ async def export_tune(
     except TunerError as e:
         raise FieldError(("query", "name"), str(e), type=error_type(e)) from None
     rec = await _record(store, tune_id)
+    if format in ("px4", "ardupilot"):
+        return _param_file(rec.result, format, axis, {"dt": dt, "u_min": u_min, "u_max": u_max, "tt": tt})
     try:
         de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)
         text = render(de, format, name)
@@ -73,3 +81,17 @@ async def export_tune(
         text = f"{ {'c': '// ', 'python': '# '}.get(format, '')}WARNING: {note}\n{text}"
         headers["X-Tuner-Warning"] = note
     return PlainTextResponse(text, headers=headers)
+
+
+def _param_file(result: dict, format: str, axis: str | None, unused: dict) -> PlainTextResponse:
+    from tuner.export.paramfile import param_file
+
+    for k, v in unused.items():
+        if v is not None:
+            raise FieldError(("query", k), f"{k}: not for format {format} (a parameter file holds the law's gains)")
+    try:
+        text, filename = param_file(result, format, axis=axis)
+    except TunerError as e:
+        f = str(e.field[0]) if e.field else "format"
+        raise FieldError(("query", "axis" if f == "axis" else "format"), str(e), type=error_type(e)) from None
+    return PlainTextResponse(text, headers={"Content-Disposition": f'attachment; filename="{filename}"'})

@@ -139,3 +139,29 @@ def test_pid2_result_exports_with_r_and_y_and_back_calculation(client, tmp_path)
     bad = client.get(f"/tunes/{rid}/export", params={"format": "c", "u_max": 1, "anti_windup": "back_calculation",
                                                       "tt": 0.001})
     assert bad.status_code == 422 and bad.json()["detail"][0]["loc"] == ["query", "tt"]
+
+
+def test_parameter_file_of_a_stored_rate_law(client, tmp_path):
+    """format px4 / ardupilot: the file the ground station loads, read back by the project's reader; a result of
+    another structure, or a value outside the firmware's range, is a 422 naming the query field."""
+    from tuner.firmware import read_params
+
+    g = {"P": 0.13, "I": 0.2, "D": 0.002, "FF": 0.01, "K": 1.0, "dgyro_hz": 20.0, "int_lim": 0.3}
+    c = controller_tf("px4_rate", g, dt=0.0025)
+    rid = client.app.state.store.add(request={}, plants=[], result={"structure": "px4_rate", "gains": g,
+                                                                    "controller": c.to_dict(), "meets_spec": True}).id
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4", "axis": "pitch"})
+    assert r.status_code == 200, r.text
+    assert 'filename="px4_rate_pitch.params"' in r.headers["content-disposition"]
+    p = tmp_path / "x.params"
+    p.write_text(r.text)
+    assert read_params(p, axis="pitch", firmware="px4").gains == pytest.approx({k: g[k] for k in "P I D FF".split()})
+    r = client.get(f"/tunes/{rid}/export", params={"format": "ardupilot"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "format"]
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4", "u_max": 1})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "u_max"]
+    bad = dict(g, P=0.9)
+    rid = client.app.state.store.add(request={}, plants=[], result={"structure": "px4_rate", "gains": bad,
+                                                                    "controller": c.to_dict()}).id
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4"})
+    assert r.status_code == 422 and "MC_ROLLRATE_P = 0.9" in r.json()["detail"][0]["msg"]

@@ -46,7 +46,13 @@ def add_parser(sub: Any) -> None:
     src.add_argument("--result", metavar="FILE.json", help="a result: the output of 'tuner tune --json' or the "
                      "answer of GET /tunes/{id}")
     p.add_argument("--dt", type=float, default=None, help="sample time, s (of a z controller; to discretise an s one)")
-    p.add_argument("--format", required=True, choices=["c", "python", "text"], help="what to write")
+    p.add_argument("--format", required=True, choices=["c", "python", "text", "px4", "ardupilot"],
+                   help="what to write: code (c, python, text), or the parameter file the ground station loads for a "
+                        "px4_rate (px4: QGroundControl .params) or ardupilot_rate (ardupilot: .parm) result")
+    p.add_argument("--axis", choices=("roll", "pitch", "yaw"), default=None,
+                   help="px4/ardupilot: the axis whose parameters (default: the result's vehicle's, else roll)")
+    p.add_argument("--att-p", type=float, default=None, metavar="P",
+                   help="px4/ardupilot: the attitude loop's P of a cascade, written too (MC_ROLL_P, ATC_ANG_RLL_P)")
     p.add_argument("--name", default="controller", metavar="N", help="C identifier for N_state, N_init, "
                    "N_update (and the Python class) (controller)")
     p.add_argument("--method", default="tustin", choices=["tustin", "zoh", "structure"],
@@ -82,10 +88,34 @@ def _source(a: argparse.Namespace) -> Any:
     return controller_from_expr(a.controller, dt=a.dt if var != "s" else None)
 
 
+def _cmd_param_file(a: argparse.Namespace) -> str:
+    from .paramfile import param_file
+
+    if a.result is None:
+        raise TunerError(f"--format {a.format}: needs --result FILE.json (a {a.format} rate-law tune's result)")
+    for flag, v in (("--dt", a.dt), ("--u-min", a.u_min), ("--u-max", a.u_max), ("--tt", a.tt)):
+        if v is not None:
+            raise TunerError(f"{flag}: not for --format {a.format} (a parameter file holds the law's gains only)")
+    src = _load(a.result)
+    if not isinstance(src, dict):
+        raise TunerError(f"--result {a.result}: not a result (a JSON object)")
+    try:
+        return param_file(src, a.format, axis=a.axis, att_p=a.att_p)[0]
+    except TunerError as e:
+        opt = {"axis": "--axis", "format": "--format"}.get(str(e.field[0]) if e.field else "")
+        if opt is not None:
+            raise TunerError(f"{opt}: {e}") from e
+        raise TunerError(f"--result {a.result}: {e}", field=("result", *e.field)) from e
+
+
 def _cmd_export(a: argparse.Namespace) -> int:
     from .codegen import check_name, render
     from .source import clamp_note, equation_of
 
+    if a.format in ("px4", "ardupilot"):
+        return _write(a, _cmd_param_file(a))
+    if a.axis is not None or a.att_p is not None:
+        raise TunerError(f"{'--axis' if a.axis is not None else '--att-p'}: only for --format px4 or ardupilot")
     try:
         check_name(a.name)
         src = _source(a)
@@ -108,6 +138,10 @@ def _cmd_export(a: argparse.Namespace) -> int:
         if opt is None:
             raise
         raise TunerError(f"{opt}: {e}") from e
+    return _write(a, text)
+
+
+def _write(a: argparse.Namespace, text: str) -> int:
     if a.out is None:
         print(text, end="")
         return 0
