@@ -155,7 +155,7 @@ def test_parameter_file_of_a_stored_rate_law(client, tmp_path):
     assert 'filename="px4_rate_pitch.params"' in r.headers["content-disposition"]
     p = tmp_path / "x.params"
     p.write_text(r.text)
-    assert read_params(p, axis="pitch", firmware="px4").gains == pytest.approx({k: g[k] for k in "P I D FF".split()})
+    assert read_params(p, axis="pitch", firmware="px4").gains == pytest.approx({k: g[k] for k in ["P", "I", "D", "FF"]})
     r = client.get(f"/tunes/{rid}/export", params={"format": "ardupilot"})
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "format"]
     r = client.get(f"/tunes/{rid}/export", params={"format": "px4", "u_max": 1})
