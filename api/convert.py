@@ -21,7 +21,7 @@ from tuner.spec import Spec
 from .schemas import AnalyzeRequest, ControllerIn, PlantIn, TuneRequest
 
 __all__ = ["FieldError", "error_type", "body_loc", "tuning_problem", "analysis_inputs", "plant_dict", "vehicle_of",
-           "bound_structure"]
+           "bound_structure", "law_gains"]
 
 Loc = tuple[str | int, ...]
 
@@ -190,6 +190,18 @@ def _controller(c: ControllerIn, dt: float | None, vehicle: Any = None) -> Contr
             return st.tf({**now, **(c.gains or {})}, dt)
         return controller_tf(c.structure, c.gains or {}, dt=dt)
     return controller_from_coeffs(c.num, c.den, dt=dt)
+
+
+def law_gains(body: AnalyzeRequest, vehicle: Any, dt: float | None) -> dict[str, float]:
+    """The gains of an /analyze body's structure as the law runs them: a firmware law on a vehicle has the
+    vehicle's current gains for those the body leaves out, and its fixed values."""
+    gains = dict(body.controller.gains or {})
+    if vehicle is None:
+        return gains
+    from tuner.firmware.bind import bind_law
+
+    _, _, now = bind_law(body.controller.structure, vehicle, dt, field="vehicle")
+    return {**now, **gains}
 
 
 def analysis_inputs(body: AnalyzeRequest) -> tuple[Plant, ControllerTF, Spec]:

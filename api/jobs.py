@@ -39,7 +39,7 @@ def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
     from tuner.tuning import tune
 
     effort = payload.get("effort", "default")
-    vehicle = {} if payload.get("vehicle") is None else {"vehicle": payload["vehicle"]}
+    vehicle = {k: payload[k] for k in ("vehicle", "actuator") if payload.get(k) is not None}
     if payload.get("identification") is not None:
         p = payload["problem"]
         return tune(payload["identification"], structure=p.structure, spec=p.spec, dt=p.dt, seed=payload["seed"],
@@ -58,11 +58,14 @@ def tradeoff_job(payload: dict[str, Any]) -> dict[str, Any]:
 
 
 def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload``: ``plant``, ``controller`` (library objects, validated as one loop), ``spec``."""
+    """``payload``: ``plant``, ``controller`` (library objects, validated as one loop), ``spec``; ``actuator`` (with
+    the law's ``structure`` and ``gains``): the saturated step too."""
     from tuner.analysis import analyze
     from tuner.jsonio import jsonable
 
-    return jsonable(analyze(payload["plant"], payload["controller"], payload["spec"]).to_dict())
+    return jsonable(analyze(payload["plant"], payload["controller"], payload["spec"],
+                            actuator=payload.get("actuator"), structure=payload.get("structure"),
+                            gains=payload.get("gains")).to_dict())
 
 
 def plot_job(payload: dict[str, Any]) -> bytes:

@@ -23,6 +23,7 @@ __all__ = [
     "TuneList", "TuneSummaryOut", "AnalyzeResponse", "HealthOut", "ErrorOut", "ValidationErrorOut",
     "TradeoffRequest", "TradeoffResponse", "AtBoundOut", "LimitOut",
     "ROLL_EXAMPLE", "ROLL_ANALYZE_EXAMPLE", "MAX_EXPR_CHARS", "MAX_COEFF", "VehicleIn", "MAX_PARAMS_CHARS",
+    "ActuatorIn",
 ]
 
 MAX_EXPR_CHARS = 1000
@@ -128,6 +129,32 @@ class VehicleIn(_In):
         return self
 
 
+class ActuatorIn(_In):
+    """The actuator's limits and a reference step's amplitude: that step is simulated with the output clamped and
+    the integrator handled as the law does (``saturated_step`` in the answer, its overshoot and settling checked)."""
+
+    u_max: float | None = Field(None, allow_inf_nan=False, description="upper output limit (alone: |u| <= u_max)")
+    u_min: float | None = Field(None, allow_inf_nan=False, description="lower output limit")
+    step_size: float = Field(1.0, allow_inf_nan=False, description="amplitude of the reference step (non-zero)")
+
+    @model_validator(mode="after")
+    def _limits(self) -> ActuatorIn:
+        if self.u_min is None and self.u_max is None:
+            raise ValueError("give the actuator's limit: u_max (and u_min; u_max alone is symmetric)")
+        hi = self.u_max if self.u_max is not None else -self.u_min
+        lo = self.u_min if self.u_min is not None else -hi
+        if not lo < hi:
+            raise ValueError(f"u_min ({lo:g}) must be below u_max ({hi:g})")
+        if self.step_size == 0:
+            raise ValueError("step_size must be non-zero")
+        return self
+
+    def to_actuator(self) -> Any:
+        from tuner.analysis.saturation import Actuator
+
+        return Actuator.of(u_min=self.u_min, u_max=self.u_max, step_size=self.step_size)
+
+
 class TuneOptions(_In):
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seeds the global search: same seed, same gains")
     time_budget_s: float | None = Field(
@@ -163,6 +190,8 @@ class TuneRequest(_In):
                                      "Ki/s (r - y) + Kd s/(Tf s+1)(c r - y); pidf2 is the deprecated name of pid_mf2")
     spec: Spec | None = Field(None, description="defaults: PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, ...")
     options: TuneOptions = Field(default_factory=TuneOptions)
+    actuator: ActuatorIn | None = Field(None, description="the actuator's limits: a step of step_size is also "
+                                        "simulated with the output clamped, as the law runs it (needs dt)")
     vehicle: VehicleIn | None = Field(None, description="px4_rate / ardupilot_rate: the vehicle's parameters (loop "
                                       "rate, filters, K, integrator limit, current gains); dt defaults to its loop "
                                       "rate; the response adds `vehicle` and `current` (its current tune analysed)")
@@ -185,6 +214,8 @@ class AnalyzeRequest(_In):
     dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
     controller: ControllerIn
     spec: Spec | None = None
+    actuator: ActuatorIn | None = Field(None, description="the actuator's limits: a step of step_size is also "
+                                        "simulated with the output clamped, as the law runs it (needs dt)")
     vehicle: VehicleIn | None = Field(None, description="with controller {structure: px4_rate or ardupilot_rate, "
                                       "gains}: the vehicle's parameters (its fixed values; gains left out are its "
                                       "current ones, so gains {} analyses the loop it flies)")

@@ -83,6 +83,28 @@ def _add_vehicle_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--axis", choices=("roll", "pitch", "yaw"), default="roll", help="the axis whose rate law (roll)")
 
 
+def _add_actuator_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("actuator limits (the step the actuator allows, simulated as the law runs it)")
+    g.add_argument("--u-max", type=float, default=None, metavar="U", help="upper output limit (alone: |u| <= U)")
+    g.add_argument("--u-min", type=float, default=None, metavar="U", help="lower output limit")
+    g.add_argument("--step-size", type=float, default=None, metavar="A",
+                   help="amplitude of the reference step simulated with the limits (1)")
+
+
+def _actuator(a: argparse.Namespace) -> Any:
+    """The Actuator of --u-min/--u-max/--step-size (None without a limit)."""
+    if a.u_min is None and a.u_max is None:
+        if a.step_size is not None:
+            raise TunerError("--step-size: give the actuator's limit too (--u-max, and --u-min)")
+        return None
+    from .analysis.saturation import Actuator
+
+    try:
+        return Actuator.of(u_min=a.u_min, u_max=a.u_max, step_size=a.step_size)
+    except TunerError as e:
+        raise TunerError(f"--{str(e.field[0]).replace('_', '-')}: {e}") from None
+
+
 def _read_vehicle(a: argparse.Namespace, structure: str | None) -> Any:
     """The vehicle of ``--params`` (None without it), for the law ``structure``."""
     if a.params is None:
@@ -219,6 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--structure", choices=("px4_rate", "ardupilot_rate"),
                    help="instead of --controller: the firmware rate law with the vehicle's current gains (--params)")
     _add_vehicle_args(a)
+    _add_actuator_args(a)
     a.add_argument("--json", action="store_true", help="print JSON instead of a table")
     a.add_argument("--check", action="store_true",
                    help="kept for compatibility: the exit code is 1 whenever the spec is not met")
@@ -247,6 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "lead, lag, leadlag; the autopilots' rate laws px4_rate and ardupilot_rate (computed as the "
                         "firmware does; the tuner chooses P, I, D, FF; --params gives the vehicle)")
     _add_vehicle_args(t)
+    _add_actuator_args(t)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
     t.add_argument("--effort", choices=("fast", "default", "thorough"), default="default",
@@ -410,7 +434,12 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     else:
         with field("--controller"):
             ctrl = controller_from_expr(a.controller, dt=a.dt)
-    res = analyze(plant, ctrl, spec)
+    act = _actuator(a)
+    if act is not None and ctrl.dt is None:
+        raise TunerError("--u-max: the saturated step runs the law at its sample time: give --dt and the controller "
+                         "in z")
+    res = analyze(plant, ctrl, spec, actuator=act, **({"structure": st.name, "gains": now} if vehicle is not None
+                                                      else {}))
     out = res.to_dict()
     if vehicle is not None:
         from .firmware.bind import vehicle_dict
@@ -424,6 +453,8 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
             print(f"the loop the vehicle flies: {st.name}, " + ", ".join(f"{k} = {v:.6g}" for k, v in now.items())
                   + f", dt = {dt:g} s (from {vehicle.source})")
         print_table(label, analysis_rows(out["metrics"]), out["checks"])
+        if res.saturated is not None:
+            _print_saturated(res.saturated)
         if res.measured is not None:
             _print_measured(res.measured)
         verdict = "meets the spec" if res.meets_spec else "does NOT meet the spec: " + ", ".join(
@@ -450,6 +481,17 @@ def _print_measured(m: Any) -> None:
     for w in m.warnings:
         print(f"warning: {w}")
     for n in m.notes:
+        print(f"note: {n}")
+
+
+def _print_saturated(s: Any) -> None:
+    """The step the actuator allows (--u-max with --step-size)."""
+    m, act = s.metrics, s.actuator
+    print(f"step of {act.step_size:g} with {act.u_min:g} <= u <= {act.u_max:g} ({s.law}): saturated "
+          f"{100 * s.saturated_fraction:.1f} % of the step (up to settling; {s.saturated_time_s:.3g} s); "
+          f"overshoot {fmt(m.overshoot_pct)} %, settling {fmt(m.settling_time_s)} s, rise {fmt(m.rise_time_s)} s, "
+          f"peak |u| {fmt(m.control_peak)}")
+    for n in s.notes:
         print(f"note: {n}")
 
 
@@ -507,6 +549,9 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     vehicle = _read_vehicle(a, a.structure)
     if vehicle is not None:
         extra["vehicle"] = vehicle
+    act = _actuator(a)
+    if act is not None:
+        extra["actuator"] = act
     res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget,
                effort=a.effort, **extra)
     out = res.to_json()
@@ -530,6 +575,8 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         d = an.to_dict()
         title = "nominal plant" if i == 0 else f"plant #{i + 1}"
         print_table(title, analysis_rows(d["metrics"]), d["checks"])
+    if res.analyses[0].saturated is not None:
+        _print_saturated(res.analyses[0].saturated)
     if res.analyses[0].measured is not None:
         _print_measured(res.analyses[0].measured)
     if res.current:
@@ -636,7 +683,7 @@ _COMMANDS = {"analyze": _cmd_analyze, "tune": _cmd_tune, "tradeoff": _cmd_tradeo
 _ARGUMENTS = {"controller": "--controller", "gains": "--controller", "dt": "--dt", "delay": "--delay",
               "structure": "--structure", "time_budget_s": "--budget", "seed": "--seed", "spec": "spec",
               "effort": "--effort", "points": "--points", "x": "--x", "y": "--y", "robust": "--robust",
-              "monte_carlo": "--monte-carlo", "params": "--params", "vehicle": "--params"}
+              "monte_carlo": "--monte-carlo", "params": "--params", "vehicle": "--params", "actuator": "--u-max"}
 
 
 def _argument_of(f: tuple[str | int, ...]) -> str | None:

@@ -220,6 +220,8 @@ class TuneResult:
             out["robust"] = self.robust.to_dict()
         if "measured" in nominal:
             out["measured"] = nominal["measured"]
+        if "saturated_step" in nominal:
+            out["saturated_step"] = nominal["saturated_step"]
         if self.vehicle is not None:
             out["vehicle"] = dict(self.vehicle)
         if self.current:
@@ -227,8 +229,9 @@ class TuneResult:
             out["current"] = {"gains": dict(self.vehicle["current_gains_law"]) if self.vehicle else {},
                               "metrics": cur["metrics"], "checks": cur["checks"],
                               "meets_spec": all(a.meets_spec for a in self.current)}
-            if "measured" in cur:
-                out["current"]["measured"] = cur["measured"]
+            for k in ("measured", "saturated_step"):
+                if k in cur:
+                    out["current"][k] = cur[k]
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -256,6 +259,7 @@ def tune(
     monte_carlo: int | None = None,
     effort: str = "default",
     vehicle: Any = None,
+    actuator: Any = None,
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
@@ -322,6 +326,11 @@ def tune(
         file). The loop's ``dt`` defaults to the vehicle's loop rate (a contradicting ``dt`` is refused); the
         tuner chooses ``P``, ``I``, ``D``, ``FF``; the vehicle's current gains are analysed too
         (``result.current``), next to the proposed ones.
+    actuator : tuner.analysis.saturation.Actuator, optional
+        The actuator's limits and a step amplitude: the verifier also runs that step with the output clamped and
+        the integrator handled as the law does, on every plant (``analyses[i].saturated``, JSON
+        ``saturated_step``), and its overshoot and settling are checked (they count in ``meets_spec``). The
+        search itself designs the linear loop. Needs a sample time.
 
     Returns
     -------
@@ -410,6 +419,14 @@ def tune(
             problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec,
                                           dt=dt)
 
+        if actuator is not None:
+            from .analysis.saturation import Actuator
+
+            if not isinstance(actuator, Actuator):
+                raise TunerError("actuator must be a tuner.analysis.saturation.Actuator (Actuator.of(u_max=..., "
+                                 "step_size=...))", field="actuator")
+            if problem.dt is None:
+                raise TunerError("the saturated step runs the law at its sample time: give dt", field="dt")
         from .diagnose import definitional_reasons
         from .optimize.engine import Engine
 
@@ -497,8 +514,20 @@ def tune(
             res.solver.setdefault("notes", []).append(note)
         if ident is not None:  # the nominal loop on the measured response too, next to the model's
             res = _with_measured(res, ident)
+        if actuator is not None:  # the step the actuator allows, as the law runs it (every plant)
+            res = replace(res, analyses=tuple(a.with_saturation(actuator, problem.spec, structure=st.name,
+                                                                gains=res.gains) for a in res.analyses))
+            sat = [c for a in res.analyses for c in a.failing if c.name.startswith("saturated_")]
+            if sat:
+                s0 = res.analyses[0].saturated
+                frac = 100 * s0.saturated_fraction if s0 is not None else math.nan
+                res.solver.setdefault("notes", []).append(
+                    f"the linear design meets its spec, but a step of {actuator.step_size:g} with "
+                    f"{actuator.u_min:g} <= u <= {actuator.u_max:g} saturates {frac:.0f} % of the samples and fails "
+                    f"{', '.join(sorted({c.name for c in sat}))}: a smaller step, wider limits, or a slower design "
+                    "(a settling-time limit, a lower control peak) fits the actuator")
         if current_gains is not None:
-            res = _with_current(res, problem, vehicle, current_gains, ident)
+            res = _with_current(res, problem, vehicle, current_gains, ident, actuator)
         if ident is not None:
             if n_mc:
                 from .robust import monte_carlo as _mc
@@ -545,13 +574,14 @@ def _with_measured(res: TuneResult, ident: Any) -> TuneResult:
 
 
 def _with_current(res: TuneResult, problem: TuningProblem, vehicle: Any, gains: dict[str, float],
-                  ident: Any = None) -> TuneResult:
+                  ident: Any = None, actuator: Any = None) -> TuneResult:
     """``res`` with the vehicle's record and its current gains analysed on every plant (the same spec)."""
     from .analysis.verify import analyze
     from .firmware.bind import vehicle_dict
 
     ctrl = problem.structure.tf(gains, problem.dt)
-    current = tuple(analyze(p, ctrl, problem.spec) for p in problem.plants)
+    current = tuple(analyze(p, ctrl, problem.spec, actuator=actuator, structure=problem.structure.name, gains=gains)
+                    for p in problem.plants)
     if ident is not None:
         from .analysis.measured import measured_comparison
 

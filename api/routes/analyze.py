@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 
 from tuner.jsonio import jsonable
 
-from ..convert import analysis_inputs, body_loc
+from ..convert import FieldError, analysis_inputs, body_loc, law_gains, vehicle_of
 from ..deps import client_id, get_analyze_job, get_pool
 from ..jobrun import run_job
 from ..pool import WorkerPool
@@ -44,8 +44,16 @@ async def post_analyze(
 ) -> JSONResponse:
     plant, ctrl, spec = analysis_inputs(body)
     payload = {"plant": plant, "controller": ctrl, "spec": spec}
+    if body.actuator is not None:
+        if ctrl.dt is None:
+            raise FieldError(("body", "dt"), "actuator: the saturated step runs the law at its sample time: give dt "
+                             "and the controller in z")
+        c = body.controller
+        gains = law_gains(body, vehicle_of(body), ctrl.dt) if c.structure is not None else None
+        payload.update(actuator=body.actuator.to_actuator(), structure=c.structure, gains=gains)
     out = await run_job(
         request, pool, job, payload, timeout_s=settings.analyze_timeout_s, client=client, what="analysis",
         loc=body_loc, default_field=("controller",),
         timeout_detail=lambda e: f"the analysis took longer than {settings.analyze_timeout_s:g} s and was stopped")
     return JSONResponse(jsonable({**out, "controller": ctrl.to_dict()}))
+

@@ -87,8 +87,10 @@ async def post_tune(
         raise FieldError(("body", "robust"), f"the identified model's robust set has {len(problem.plants)} plants; "
                          f"this server tunes at most {limit} per request: fit fewer parameters, or tune the nominal "
                          "model (robust null)")
+    if body.actuator is not None and problem.dt is None:
+        raise FieldError(("body", "dt"), "actuator: the saturated step runs the law at its sample time: give dt")
     payload = {"problem": problem, "seed": body.options.seed, "time_budget_s": budget, "effort": body.options.effort,
-               "vehicle": vehicle}
+               "vehicle": vehicle, "actuator": None if body.actuator is None else body.actuator.to_actuator()}
     timeout_s = settings.solve_limit_s(budget)
     if ident is not None:
         n_mc = body.monte_carlo if body.monte_carlo is not None else (MONTE_CARLO_DRAWS if body.robust else 0)
@@ -112,8 +114,9 @@ async def post_tune(
     if ident is None:  # a plain request is stored as before
         for k in ("identification_id", "robust", "monte_carlo"):
             request.pop(k, None)
-    if vehicle is None:
-        request.pop("vehicle", None)
+    for k, v in (("vehicle", vehicle), ("actuator", body.actuator)):
+        if v is None:  # a request without them is stored as before
+            request.pop(k, None)
     request.update(spec=problem.spec.model_dump(mode="json"), dt=problem.dt)
     request["options"]["time_budget_s"] = budget
     record = await run_in_threadpool(store.add, request=request, plants=[plant_dict(p) for p in problem.plants],

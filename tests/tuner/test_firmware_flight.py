@@ -165,3 +165,23 @@ def test_the_tuned_law_flies_as_claimed(name):
     assert res.metrics.settling_time_s == pytest.approx(ts, rel=0.05)
     overshoot = 100 * (y.max() - 1.0)
     assert res.metrics.overshoot_pct == pytest.approx(overshoot, abs=0.5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["px4_rate", "ardupilot_rate"])
+def test_the_saturated_step_is_the_laws(name):
+    """An 8 rad/s step with |u| <= 0.4 (the proportional kick alone asks for about 1): the tuner's saturated step
+    (tuner.analysis.saturation) against the laws above with their own clamps, flown between samples."""
+    import control as ct
+
+    from tuner.analysis.saturation import Actuator
+
+    act = Actuator.of(u_max=0.4, step_size=8.0)
+    res = tune(ct.tf(NUM, DEN), structure=name, dt=DT, delay=DT * DELAY_SAMPLES, time_budget_s=10, actuator=act)
+    s = res.analyses[0].saturated
+    assert s is not None and s.saturated_fraction > 0.05  # it does saturate
+    t, y, u = fly(name, res.gains, amplitude=8.0, u_min=-0.4, u_max=0.4, t_end=float(s.response.t[-1]))
+    assert np.max(np.abs(u)) == pytest.approx(0.4)
+    ts = settling_time(t, y, 8.0)
+    assert s.metrics.settling_time_s == pytest.approx(ts, rel=0.05)
+    assert s.metrics.overshoot_pct == pytest.approx(100 * (y.max() - 8.0) / 8.0, abs=1.5)

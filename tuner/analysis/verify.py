@@ -129,6 +129,9 @@ class Analysis:
     #: on an identified plant: the loop on the measured frequency response next to the model's
     #: (:class:`tuner.analysis.measured.MeasuredComparison`), else None
     measured: Any = field(default=None, repr=False)
+    #: with actuator limits: the reference step of their amplitude, the output clamped and the integrator handled
+    #: as the law does (:class:`tuner.analysis.saturation.SaturatedStep`), else None
+    saturated: Any = field(default=None, repr=False)
 
     @property
     def meets_spec(self) -> bool:
@@ -190,7 +193,36 @@ class Analysis:
         }
         if self.measured is not None:
             out["measured"] = self.measured.to_dict()
+        if self.saturated is not None:
+            out["saturated_step"] = self.saturated.to_dict()
         return out
+
+    def with_saturation(self, actuator: Any, spec: Spec | None = None, *, structure: str | None = None,
+                        gains: dict[str, float] | None = None) -> Analysis:
+        """This analysis with the saturated step of ``actuator`` (:func:`tuner.analysis.saturation.saturated_step`)
+        and its checks: the overshoot limit, and settling (within ``settling_time_max`` when the spec has one), on
+        the step the actuator allows. A loop that is unstable has none (its linear verdict stands)."""
+        if not self.metrics.stable:
+            return self
+        from dataclasses import replace
+
+        from .saturation import saturated_step
+
+        spec = spec if spec is not None else Spec()
+        st = saturated_step(self.loop, actuator, structure=structure, gains=gains)
+        m = st.metrics
+        checks = list(self.checks)
+        os_ok = bool(m.overshoot_pct <= spec.overshoot_max_pct)
+        checks.append(Check("saturated_overshoot_pct", "<=", spec.overshoot_max_pct, m.overshoot_pct, os_ok,
+                            0.0 if os_ok else (m.overshoot_pct - spec.overshoot_max_pct
+                                               if math.isfinite(m.overshoot_pct) else math.inf)))
+        lim = spec.settling_time_max
+        ts = m.settling_time_s
+        ok = bool(ts <= lim) if lim is not None else bool(math.isfinite(ts))
+        checks.append(Check("saturated_settling_time_s", "<=" if lim is not None else "<",
+                            lim if lim is not None else math.inf, ts, ok,
+                            0.0 if ok else (ts - lim if lim is not None and math.isfinite(ts) else math.inf)))
+        return replace(self, saturated=st, checks=checks)
 
 
 def analyze_loop(
@@ -231,7 +263,8 @@ def analyze_loop(
 
 def analyze(
     plant: Any, controller: Any, spec: Spec | None = None, *, delay: float | None = None,
-    horizon_s: float | None = None, dt: float | None = None,
+    horizon_s: float | None = None, dt: float | None = None, actuator: Any = None, structure: str | None = None,
+    gains: dict[str, float] | None = None,
 ) -> Analysis:
     """Verify ``controller`` on ``plant``: stability, margins, step metrics, spec checks.
 
@@ -261,6 +294,15 @@ def analyze(
         :class:`ControllerTF` built with ``dt=``, a python-control model's ``dt``), so ``dt`` states it: it
         must agree, else :class:`TunerError` with ``field == ("dt",)`` (a continuous controller with ``dt``
         given: discretise it first, e.g. ``control.c2d(C, dt, "tustin")``). ``None``: the controller's own.
+    actuator : tuner.analysis.saturation.Actuator, optional
+        The actuator's limits and a step amplitude: the result then also holds the step with the output clamped
+        and the integrator handled as the law does (``saturated``, JSON ``saturated_step``), and its checks
+        (``saturated_overshoot_pct``, ``saturated_settling_time_s``). Needs a sampled-data loop.
+    structure : str, optional
+        With ``actuator``: the law the controller is (``px4_rate``, ``ardupilot_rate``, ``pid2``), run as the
+        firmware (or tuner's export) runs it; other controllers run as their exported difference equation.
+    gains : dict, optional
+        With ``structure``: its gains (a firmware law's fixed values among them).
 
     Returns
     -------
@@ -324,6 +366,8 @@ def analyze(
             "the loop's dynamics span too many decades for double precision to tell whether it is stable"
             f"{span}: rescale the controller gain or the plant's time scale", field="controller")
     res = analyze_loop(loop, spec, horizon_s=horizon_s, poles=poles)
+    if actuator is not None:
+        res = res.with_saturation(actuator, spec, structure=structure, gains=gains)
     if ident is not None:  # the loop on the measured response too, next to the model's
         from dataclasses import replace
 

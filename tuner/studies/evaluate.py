@@ -212,8 +212,10 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
 
     plants = loop_plants(study, lp, controllers)
     vehicle = vehicle_of(lp)
-    res = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, **({} if vehicle is None else
-                                                                         {"vehicle": vehicle}),
+    extra = {} if vehicle is None else {"vehicle": vehicle}
+    if lp.actuator is not None:
+        extra["actuator"] = lp.actuator.to_actuator()
+    res = tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, **extra,
                seed=study.seed if lp.seed is None else lp.seed,
                time_budget_s=study.time_budget_s if lp.time_budget_s is None else lp.time_budget_s,
                n_trials=lp.n_trials, **({} if lp.n_starts is None else {"n_starts": lp.n_starts}),
@@ -227,6 +229,8 @@ def tune_loop(study: StudyDef, lp: LoopDef, controllers: Mapping[str, Controller
     out = {"loop": lp.name, "key": loop_key(study, lp.name), "structure": lp.structure,
            "gains": dict(res.gains), "dt": lp.dt, **ev.to_dict(), "solver": dict(res.solver),
            "spec": lp.spec.model_dump(), "plant": [p.describe() for p in plants]}
+    if res.analyses[0].saturated is not None:  # the step the actuator allows
+        out["saturated_step"] = res.analyses[0].saturated.to_dict()
     if res.vehicle is not None:  # the vehicle's current tune next to the proposed one
         d = res.to_dict()
         out["vehicle"] = d["vehicle"]

@@ -90,6 +90,24 @@ class TruePlant(BaseModel):
     delay: float = Field(0.0, ge=0, allow_inf_nan=False, description="input delay, s")
 
 
+class ActuatorDef(BaseModel):
+    """The actuator's limits and a reference step's amplitude (the saturated step, as the law runs it)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    u_max: float | None = Field(None, allow_inf_nan=False, description="upper output limit (alone: symmetric)")
+    u_min: float | None = Field(None, allow_inf_nan=False, description="lower output limit")
+    step_size: float = Field(1.0, allow_inf_nan=False, description="amplitude of the reference step")
+
+    def to_actuator(self) -> Any:
+        """The library's :class:`~tuner.analysis.saturation.Actuator` (validated there)."""
+        from ..analysis.saturation import Actuator
+
+        try:
+            return Actuator.of(u_min=self.u_min, u_max=self.u_max, step_size=self.step_size)
+        except TunerError as e:
+            raise InvalidStudyError(f"actuator: {e}") from None
+
+
 class PlantData(BaseModel):
     """A plant given as a flight log: the options of :func:`tuner.identify` and where the columns are."""
 
@@ -172,6 +190,8 @@ class LoopDef(BaseModel):
                                "(a QGroundControl .params or a ULog .ulg for PX4, a .parm for ArduPilot), relative "
                                "to the study file: loop rate, filters, K, integrator limit and the current gains")
     axis: Literal["roll", "pitch", "yaw"] = Field("roll", description="with params: the axis whose rate law")
+    actuator: ActuatorDef | None = Field(None, description="the actuator's limits: a step of step_size simulated with "
+                                         "the output clamped, as the law runs it (needs dt)")
     _params_path: Path | None = PrivateAttr(None)
 
     @field_validator("structure")
@@ -194,6 +214,10 @@ class LoopDef(BaseModel):
                     raise ValueError(f"{name}: only for a plant given as data (a flight log to identify)")
         if get_structure(self.structure).discrete_only and self.dt is None:
             raise ValueError(f"structure {self.structure} is discrete: give dt")
+        if self.actuator is not None:
+            if self.dt is None:
+                raise ValueError("actuator: the saturated step runs the law at its sample time: give dt")
+            self.actuator.to_actuator()
         if self.params is not None and get_structure(self.structure).firmware is None:
             raise ValueError(f"params: the vehicle's parameters set a firmware rate law; give structure px4_rate or "
                              f"ardupilot_rate (got {self.structure!r})")
@@ -539,11 +563,13 @@ def loop_key(study: StudyDef, name: str) -> str:
     parts = []
     for lp in study.chain(name):
         d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s", "effort", "params",
-                                                "axis"})
+                                                "axis", "actuator"})
         entry = {k: _canon(v) for k, v in d.items()}
         effort = lp.effort or study.effort
         if effort != "default":  # (only then: the keys of studies that never name an effort stay as they were)
             entry["effort"] = effort
+        if lp.actuator is not None:  # (only then: the keys of loops without one stay as they were)
+            entry["actuator"] = lp.actuator.model_dump(mode="json")
         if lp.params is not None:  # the vehicle's parameters by contents (only then: other keys stay as they were)
             try:
                 entry["params_sha256"] = _digest(params_path(lp))
