@@ -94,18 +94,32 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
     from tuner.errors import TunerError
     from tuner.identify.ulog import read_ulog
 
+    cols = {"input": ulog["input"], "output": ulog["output"]}
+    if ulog.get("reference"):
+        cols["reference"] = ulog["reference"]
     try:
-        recs = read_ulog(bytes(ulog["data"]), {"input": ulog["input"], "output": ulog["output"]},
-                         rate_hz=payload.get("rate_hz"))
+        recs = read_ulog(bytes(ulog["data"]), cols, rate_hz=payload.get("rate_hz"))
     except TunerError as e:
         role = e.field[0] if e.field else "data"
         e.field = ("ulog", "data" if role == "file" else role, *e.field[1:])
         raise
+    from tuner.identify.feedback import known_controller, signs_of
+
     opts = {k: v for k, v in payload.items() if k not in ("ulog", "rate_hz", "time")}
     one = len(recs.inputs) == 1
-    res = identify(recs.inputs[0] if one else recs.inputs, recs.outputs[0] if one else recs.outputs,
-                   rate_hz=recs.rate_hz, **opts)
+    if recs.references is not None:
+        opts["reference"] = recs.references[0] if one else recs.references
+    try:
+        res = identify(recs.inputs[0] if one else recs.inputs, recs.outputs[0] if one else recs.outputs,
+                       rate_hz=recs.rate_hz, closed_loop_signs=signs_of(ulog["input"], recs.parameters),
+                       controller=known_controller(recs.parameters, ulog["input"], 1.0 / recs.rate_hz), **opts)
+    except TunerError as e:
+        if e.field[:1] == ("reference",):
+            e.field = ("ulog", "reference", *e.field[1:])
+        raise
     out = jsonable(res.to_dict())
+    if recs.parameters:
+        out["_parameters"] = dict(recs.parameters)
     out["_samples"] = {"inputs": [r.tolist() for r in recs.inputs], "outputs": [r.tolist() for r in recs.outputs],
                        "rate_hz": recs.rate_hz}
     return out

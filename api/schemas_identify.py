@@ -86,6 +86,10 @@ class IdentifyOptions(_In):
                             "is not the top of the sweep, else the fitted record; nothing with verify), a fraction "
                             "held out at the end, or 0 (no check)")
     coherence_min: float = Field(0.6, gt=0, lt=1, allow_inf_nan=False)
+    hold: Literal["auto", "zoh", "none"] = Field(
+        "auto", description="how the plant saw the input between samples: zoh (a controller's output, held: the "
+                            "model put back at the rate with a zero-order hold reproduces the measured response), none "
+                            "(a sampled continuous signal, e.g. a stick); auto: zoh for a ulog, none for samples")
     n_points: int = Field(25, ge=8, le=200, description="log-spaced fit frequencies in the band")
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seeds the fit's random starts")
 
@@ -111,6 +115,9 @@ class ULogUpload(_In):
                        "(held between its samples), e.g. vehicle_torque_setpoint.xyz[0]")
     output: str = Field(min_length=3, max_length=200, description="TOPIC[:INSTANCE].FIELD of the plant output "
                         "(interpolated linearly), e.g. vehicle_angular_velocity.xyz[0]")
+    reference: str | None = Field(None, min_length=3, max_length=200, description="data flown under feedback: "
+                                  "TOPIC[:INSTANCE].FIELD of the exogenous signal (an injected excitation, or the rate "
+                                  "setpoint flown in a rate mode, e.g. vehicle_rates_setpoint.roll), held")
 
 
 class IdentifyRequest(IdentifyOptions):
@@ -119,6 +126,9 @@ class IdentifyRequest(IdentifyOptions):
 
     input: Samples | None = Field(None, description="plant input samples (e.g. the command); or ulog")
     output: Samples | None = Field(None, description="plant output samples (e.g. the angle), as many as input")
+    reference: Samples | None = Field(None, description="data flown under feedback: the exogenous signal's samples "
+                                      "(an injected excitation, or the setpoint), as many as input; the response is "
+                                      "then the joint estimate S_ry/S_ru")
     time: Samples | None = Field(None, description="sample times, s (strictly increasing, uniform); or rate_hz")
     rate_hz: Positive | None = Field(None, description="sample rate, Hz; or time. With ulog: the grid the topics "
                                      "are resampled onto (default: the slower topic's rate)")
@@ -161,7 +171,11 @@ class IdentifyResponse(_Out):
     created_at: _dt.datetime
     model: ModelOut
     cost: float = Field(description="CIFER's J over the band (<= 50 good, <= 100 acceptable)")
-    quality: Literal["good", "acceptable", "poor"] = Field(description="J's verdict (CIFER's guideline)")
+    quality: Literal["good", "acceptable", "poor", "closed-loop"] = Field(
+        description="J's verdict (CIFER's guideline); closed-loop: flown under feedback and fitted without a "
+                    "reference, never good or acceptable (the fit may be of the controller's inverse)")
+    closed_loop: dict[str, Any] = Field(default_factory=dict, description="what tells the data were flown under "
+                                        "feedback: detected, signs, estimate (direct or joint), message")
     check: Literal["good", "fair", "noise-limited", "poor", "none"] = Field(
         "none", description="the time-domain check's verdict, beside J's (see validation)")
     verdict: str

@@ -514,6 +514,11 @@ def tune(
             res.solver.setdefault("notes", []).append(note)
         if ident is not None:  # the nominal loop on the measured response too, next to the model's
             res = _with_measured(res, ident)
+            if getattr(ident, "unreliable_feedback", False):
+                res.solver.setdefault("notes", []).insert(0, (
+                    "the identification was flown under feedback and fitted without a reference (quality "
+                    "'closed-loop'): its model may be the controller's inverse, not the plant; this design is tuned "
+                    "on that model. Identify again with the exogenous signal (--reference)"))
         if actuator is not None:  # the step the actuator allows, as the law runs it (every plant)
             res = replace(res, analyses=tuple(a.with_saturation(actuator, problem.spec, structure=st.name,
                                                                 gains=res.gains) for a in res.analyses))

@@ -42,9 +42,10 @@ IdentId = Path(min_length=1, max_length=64, description="the id returned by POST
 def _check(body: IdentifyRequest) -> None:
     """Cross-field checks the schema cannot express, each naming its field."""
     if body.ulog is not None:
-        for name in ("input", "output", "time"):
+        for name in ("input", "output", "time", "reference"):
             if getattr(body, name) is not None:
-                raise FieldError(("body", name), f"give either ulog or {name} (the samples come from the log)")
+                raise FieldError(("body", name), f"give either ulog or {name} (the samples come from the log; a "
+                                 "reference: ulog.reference)")
     else:
         if body.input is None or body.output is None:
             raise FieldError(("body", "input" if body.input is None else "output"),
@@ -58,6 +59,9 @@ def _check(body: IdentifyRequest) -> None:
                              "give exactly one of time (sample times, s) or rate_hz (the sample rate)")
         if body.time is not None and len(body.time) != n:
             raise FieldError(("body", "time"), f"time has {len(body.time)} samples but input and output have {n}")
+        if body.reference is not None and len(body.reference) != n:
+            raise FieldError(("body", "reference"), f"reference has {len(body.reference)} samples but input and "
+                             f"output have {n}")
     v = body.verify
     if v is not None:
         if len(v.output) != len(v.input):
@@ -115,15 +119,20 @@ async def post_identify(
     # the quota before any work (a ULog upload's sample count is known only after parsing: its bytes count then)
     await run_in_threadpool(check_identification_quota, store, settings,
                             len(body.input) if body.input is not None else 0)
-    options = body.model_dump(exclude={*_SAMPLES, "ulog", "verify"})
+    options = body.model_dump(exclude={*_SAMPLES, "ulog", "verify", "reference"})
+    hold = {"zoh": "zoh", "none": None}.get(options.pop("hold"), "zoh" if body.ulog is not None else None)
     raw = _ulog_bytes(body)
     if raw is not None:
-        payload = {"ulog": {"data": raw, "input": body.ulog.input, "output": body.ulog.output},
-                   "rate_hz": body.rate_hz, **options}
+        payload = {"ulog": {"data": raw, "input": body.ulog.input, "output": body.ulog.output,
+                            "reference": body.ulog.reference},
+                   "rate_hz": body.rate_hz, "hold": hold, **options}
     else:
         payload = {"input": np.asarray(body.input, dtype=float), "output": np.asarray(body.output, dtype=float),
                    "time": None if body.time is None else np.asarray(body.time, dtype=float),
-                   "rate_hz": body.rate_hz, **options}
+                   "rate_hz": body.rate_hz, "hold": hold, **options}
+        if body.reference is not None:
+            payload["reference"] = np.asarray(body.reference, dtype=float)
+    options["hold"] = "zoh" if hold else "none"
     if body.verify is not None:
         payload["verify"] = {k: np.asarray(v, dtype=float) if isinstance(v, list) else v
                              for k, v in body.verify.model_dump().items() if v is not None}
@@ -134,9 +143,11 @@ async def post_identify(
         timeout_detail=lambda e: f"the identification took longer than {settings.identify_timeout_s:g} s and was "
                                  "stopped; decimate the record or fit fewer poles")
     samples = result.pop("_samples", None)  # a ULog log's records on the grid
+    log_parameters = result.pop("_parameters", None)  # and the parameters it stores (a tune's vehicle)
     if samples is not None:
         request = {**options, "n_samples": result["n_samples"], "sampling": "ulog",
-                   "ulog": {"input": body.ulog.input, "output": body.ulog.output, "bytes": len(raw or b"")}}
+                   "ulog": {"input": body.ulog.input, "output": body.ulog.output, "reference": body.ulog.reference,
+                            "bytes": len(raw or b"")}}
         data = {"input": [x for r in samples["inputs"] for x in r],
                 "output": [x for r in samples["outputs"] for x in r], "time": None, "rate_hz": samples["rate_hz"],
                 "record_lengths": [len(r) for r in samples["inputs"]]}
@@ -147,7 +158,10 @@ async def post_identify(
     if body.verify is not None:
         request["verify"] = {"n_samples": len(body.verify.input)}
         data["verify"] = body.verify.model_dump()
-    rec = await run_in_threadpool(store.add_identification, request=request, data=data, result=result)
+    if body.reference is not None:
+        data["reference"] = body.reference
+    stored = {**result, "log_parameters": log_parameters} if log_parameters else result
+    rec = await run_in_threadpool(store.add_identification, request=request, data=data, result=stored)
     return JSONResponse(jsonable({"id": rec.id, "created_at": rec.created_at.isoformat(), **result}))
 
 

@@ -19,7 +19,7 @@ __all__ = ["add_parser", "parse_delay", "parse_holdout", "read_records"]
 _OPTION = {"input": "--input", "output": "--output", "time": "--time", "rate_hz": "--rate", "band": "--band",
            "poles": "--poles", "zeros": "--zeros", "delay": "--delay", "delay_step": "--delay-step",
            "holdout": "--holdout", "coherence_min": "--coherence-min", "n_points": "--points", "seed": "--seed",
-           "windows_s": "--windows", "verify": "--verify"}
+           "windows_s": "--windows", "verify": "--verify", "reference": "--reference", "hold": "--hold"}
 
 
 def parse_delay(text: str) -> str | float | None:
@@ -52,20 +52,30 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
     """The records of CSV or ULog files as ``identify`` arguments (``input``, ``output``, ``time``, ``rate_hz``):
     one file, one record (a ULog log split at gaps may give several); several files are fitted together."""
     from .csvlog import read_columns
+    from .feedback import signs_of
     from .ulog import is_ulog, read_ulog
 
-    us, ys, ts, rate, csv_time = [], [], [], a.rate, False
+    ref = getattr(a, "reference", None)
+    us, ys, rs, ts, rate, csv_time = [], [], [], [], a.rate, False
+    signs: list[str] = []
+    params: dict[str, float] = {}
+    kinds = set()
     for f in files:
         if is_ulog(f):
+            kinds.add("ulog")
             if a.time is not None:
                 raise TunerError(f"{f}: --time names a CSV column; a ULog log is put on a grid at --rate HZ",
                                  field="time")
-            r = read_ulog(f, {"input": a.input, "output": a.output}, rate_hz=rate)
+            cols = {"input": a.input, "output": a.output, **({"reference": ref} if ref is not None else {})}
+            r = read_ulog(f, cols, rate_hz=rate)
             if rate is None:
                 rate = r.rate_hz
             us += r.inputs
             ys += r.outputs
+            rs += r.references or []
             ts += [None] * len(r.inputs)
+            params = params or r.parameters
+            signs += [x for x in signs_of(a.input, r.parameters) if x not in signs]
             for lo, hi in r.dropped:
                 _note(f"{f}: {hi - lo:.3g} s between gaps ({lo:.3f}-{hi:.3f} s) is too short to use and was dropped")
             if r.gaps:
@@ -73,18 +83,25 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
         else:
             if (a.time is None) == (a.rate is None):
                 raise TunerError(f"{f}: a CSV log needs --time COL (a time column) or --rate HZ", field="time")
-            cols = {"input": a.input, "output": a.output, **({"time": a.time} if a.time is not None else {})}
+            kinds.add("csv")
+            cols = {"input": a.input, "output": a.output, **({"time": a.time} if a.time is not None else {}),
+                    **({"reference": ref} if ref is not None else {})}
             d = read_columns(f, cols)
             us.append(d["input"])
             ys.append(d["output"])
+            if ref is not None:
+                rs.append(d["reference"])
             ts.append(d.get("time"))
             csv_time = csv_time or a.time is not None
+            signs += [x for x in signs_of(a.input) if x not in signs]
     if csv_time and any(t is None for t in ts):
         raise TunerError("mixing CSV logs with a --time column and ULog logs: give --rate for all", field="time")
+    extra = {"signs": signs, "parameters": params, "kinds": kinds}
     if len(us) == 1:
         return {"input": us[0], "output": ys[0], "time": ts[0] if csv_time else None,
-                "rate_hz": None if csv_time else rate}
-    return {"input": us, "output": ys, "time": ts if csv_time else None, "rate_hz": None if csv_time else rate}
+                "rate_hz": None if csv_time else rate, "reference": rs[0] if rs else None, **extra}
+    return {"input": us, "output": ys, "time": ts if csv_time else None, "rate_hz": None if csv_time else rate,
+            "reference": rs if rs else None, **extra}
 
 
 def _note(text: str) -> None:
@@ -116,6 +133,15 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--output", required=True, metavar="COL",
                    help="plant output: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
                         "vehicle_angular_velocity.xyz[0]); interpolated linearly")
+    p.add_argument("--reference", metavar="COL",
+                   help="data flown under feedback (every flight log): the exogenous signal, an injected excitation "
+                        "or the rate setpoint flown in a rate mode (CSV column or ULog TOPIC.FIELD, held); the "
+                        "response is then the joint estimate S_ry/S_ru, unbiased by the feedback")
+    p.add_argument("--hold", choices=("auto", "zoh", "none"), default="auto",
+                   help="how the plant saw the input between samples: zoh (a controller's output, held), none (a "
+                        "sampled continuous signal, e.g. a stick); auto (default): zoh for a ULog log, whose input "
+                        "is held onto its grid, none for a CSV log. With zoh the model put back at the log's rate "
+                        "with a zero-order hold reproduces the measured response (the hold counted once)")
     p.add_argument("--poles", required=True, type=int, metavar="N", help="number of poles (1-8)")
     p.add_argument("--zeros", type=int, default=0, metavar="M", help="number of zeros (0-N, default 0)")
     p.add_argument("--delay", type=parse_delay, default="auto", metavar="auto|none|S",
@@ -150,14 +176,24 @@ def _run(a: argparse.Namespace):
         data = read_records(files, a)
         verify = None
         if a.verify is not None:
-            v = read_records([a.verify], a)
+            v = read_records([a.verify], argparse.Namespace(**{**vars(a), "reference": None}))
             if isinstance(v["input"], list):
                 raise TunerError(f"--verify {a.verify}: the verification log has gaps; give one continuous record",
                                  field="verify")
             verify = {k: v[k] for k in ("input", "output", "time", "rate_hz") if v[k] is not None}
+        hold = {"zoh": "zoh", "none": None}.get(a.hold, "zoh" if data["kinds"] == {"ulog"} else None)
+        controller = None
+        if data["parameters"]:
+            from .feedback import known_controller
+
+            rate = data["rate_hz"] or (1.0 / float(data["time"][1] - data["time"][0]) if data["time"] is not None
+                                       else None)
+            controller = known_controller(data["parameters"], a.input, 1.0 / rate) if rate else None
         return identify(data["input"], data["output"], time=data["time"], rate_hz=data["rate_hz"], poles=a.poles,
                         zeros=a.zeros, delay=a.delay, delay_step=a.delay_step, band=a.band, holdout=a.holdout,
-                        verify=verify, coherence_min=a.coherence_min, n_points=a.points, seed=a.seed)
+                        verify=verify, coherence_min=a.coherence_min, n_points=a.points, seed=a.seed,
+                        reference=data["reference"], controller=controller, closed_loop_signs=data["signs"],
+                        hold=hold)
     except TunerError as e:
         opt = _OPTION.get(str(e.field[0]) if e.field else "")
         if opt is None or any(str(e).startswith(str(f)) for f in files + [a.verify]):
@@ -180,7 +216,7 @@ def _cmd_identify(a: argparse.Namespace) -> int:
         print(json.dumps(jsonable(res.to_dict()), indent=2))
     else:
         _print(res, a)
-    return 1 if (a.check and (res.quality == "poor" or res.check == "poor")) else 0
+    return 1 if (a.check and (res.quality in ("poor", "closed-loop") or res.check == "poor")) else 0
 
 
 def _print(res: Any, a: argparse.Namespace) -> None:
@@ -196,8 +232,17 @@ def _print(res: Any, a: argparse.Namespace) -> None:
         t.add_row(name, f"{u.value:.5g}", f"{u.cr_bound:.3g}", f"{u.cr_bound_pct:.3g}", f"{u.insensitivity_pct:.3g}")
     con.print(t)
     lo, hi = res.band_rad_s
-    con.print(f"band {lo:.4g}-{hi:.4g} rad/s, {res.fit_points.w.size} fit frequencies; cost J = {res.cost:.4g}: "
-              f"{res.quality} (CIFER: <= 50 good, <= 100 acceptable)")
+    est = res.options.get("estimate", "direct")
+    con.print(f"band {lo:.4g}-{hi:.4g} rad/s, {res.fit_points.w.size} fit frequencies ({est} estimate); cost J = "
+              f"{res.cost:.4g}: {res.quality} (CIFER: <= 50 good, <= 100 acceptable)")
+    cl = res.closed_loop
+    if cl.get("detected"):
+        con.print(("[red]closed loop:[/red] " if res.unreliable_feedback else "closed loop: ") + cl["message"])
+    hc = res.options.get("hold_check")
+    if hc and hc.get("checked"):
+        con.print(f"hold counted once: the model with a zero-order hold at {1 / res.rate_hz:g} s against the measured "
+                  f"response: median {hc['median_db']:.2g} dB, {hc['median_deg']:.2g} deg (max {hc['max_db']:.2g} dB, "
+                  f"{hc['max_deg']:.2g} deg)")
     v = res.validation
     if v is not None:
         con.print(f"time-domain check {v.describe()}")
@@ -206,6 +251,7 @@ def _print(res: Any, a: argparse.Namespace) -> None:
     for n in res.options.get("notes", ()):
         con.print(f"note: {n}")
     for w in res.warnings:
-        con.print(f"[yellow]warning:[/yellow] {w}")
+        if not (cl.get("detected") and w == cl.get("message")):
+            con.print(f"[yellow]warning:[/yellow] {w}")
     if a.plot:
         con.print(f"wrote {a.plot}")

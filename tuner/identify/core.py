@@ -16,7 +16,7 @@ from .data import MIN_SAMPLES, Record, lowest_frequency_rad_s, make_record
 from .result import J_ACCEPTABLE, J_GOOD, J_POINT_MAX, FitPoints, IdentifyResult
 from .spectral import composite, frequency_response
 
-__all__ = ["MAX_POLES", "DelaySpec", "identify"]
+__all__ = ["MAX_POLES", "DelaySpec", "identify", "zoh_factor"]
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +89,10 @@ def identify(
     windows_s: Sequence[float] | None = None,
     n_starts: int = 20,
     seed: int = 0,
+    reference: Sequence[float] | None = None,
+    controller: Any = None,
+    closed_loop_signs: Sequence[str] = (),
+    hold: str | None = None,
 ) -> IdentifyResult:
     """Identify a continuous transfer function (with a delay) from logged input/output data.
 
@@ -151,6 +155,26 @@ def identify(
         Starting points of the fit (1 to 200).
     seed : int
         Seeds the random starting points: same data, same seed, same model.
+    reference : sequence of float (or a list of them), optional
+        The exogenous signal of data flown under feedback: an injected excitation, or the setpoint flown in a
+        rate mode (sampled like ``input``). The response is then the joint input-output estimate
+        ``S_ry / S_ru`` (:func:`tuner.identify.spectral.joint_composite`), unbiased by the feedback, with the
+        coherence of the output and of the input with ``r``; the band is where ``r`` explains both.
+    controller : ControllerTF, optional
+        The controller the data were flown with, at the record's sample time (e.g. a rate law from the log's
+        parameters): the direct estimate is compared with ``-1/C``; where they agree the data say nothing about
+        the plant (see ``closed_loop`` in the result).
+    closed_loop_signs : sequence of str
+        What the caller knows of the data: each a sign that they were flown under feedback (the input is a
+        controller's output; the log stores the rate controller's parameters). Without ``reference``, a fit of
+        data flown under feedback is never rated good or acceptable: ``quality`` is ``"closed-loop"``.
+    hold : "zoh" or None
+        How the plant saw the logged input between its samples. ``"zoh"``: held (a controller's output, a torque
+        setpoint or an actuator command, as a PX4 ULog's input is put on its grid): the hold is removed from the
+        measured response before the fit, so the continuous model put back at the record's sample time with a
+        zero-order hold reproduces the measured discrete response, and a tune at that sample time counts the
+        hold once (``options["hold_check"]`` says how closely). ``None`` (default): the input was a continuous
+        signal sampled (a pilot's stick), fitted as measured.
 
     Returns
     -------
@@ -202,7 +226,18 @@ def identify(
     n_starts = _int(n_starts, "n_starts", 1, 200)
     seed = _int(seed, "seed", 0, 2**32 - 1)
 
+    if hold not in ("zoh", None):
+        raise InvalidDataError(f"hold must be 'zoh' or None, got {hold!r}", field="hold")
     recs = _records(input, output, time, rate_hz)
+    joint = None
+    if reference is not None:
+        try:
+            joint = (_records(reference, output, time, rate_hz), _records(reference, input, time, rate_hz))
+        except InvalidDataError as e:
+            raise InvalidDataError(f"reference: {e}", field="reference") from None
+        if [r.n for r in joint[0]] != [r.n for r in recs]:
+            raise InvalidDataError("reference must have as many samples as input and output (per record)",
+                                   field="reference")
     ver = None if verify is None else _verify_record(verify, recs[0].dt)
     if ver is not None and auto:
         holdout = 0.0
@@ -223,8 +258,18 @@ def identify(
             "'auto', or a longer record", field="delay")
     _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, holdout)
     notes: list[str] = []
+    if joint is not None:  # the whole record is fitted: the reference's excitation is where the information is
+        if holdout > 0 and not auto:
+            raise InvalidDataError("with a reference the whole record is fitted (the joint estimate needs all of "
+                                   "the excitation): give holdout 0 or 'auto', or a separate verify record",
+                                   field="holdout")
+        fit_recs, tail, head, holdout = recs, None, rec, 0.0
+        fit_dur = max(r.duration_s for r in fit_recs)
     try:
-        spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
+        if joint is not None:
+            spectra, fr, used, jspec = _joint_spectral(fit_recs, joint, req_band, windows_s, coherence_min)
+        else:
+            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
     except InvalidDataError:
         if not (auto and tail is not None):
             raise
@@ -240,7 +285,12 @@ def identify(
             _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, 0.0)
             spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
     w_fit = np.geomspace(used[0], used[1], n_points)
-    pts = composite(spectra, w_fit)
+    if joint is not None:
+        from .spectral import joint_composite
+
+        pts = joint_composite(*jspec, w_fit)
+    else:
+        pts = composite(spectra, w_fit)
     keep = (pts.coherence >= coherence_min) & np.isfinite(pts.h)
     n_par = 1 + poles + zeros + (1 if delay == "auto" else 0)
     if keep.sum() < max(n_par + 2, 6):
@@ -250,9 +300,19 @@ def identify(
             "parameters); excite the plant over the band, or choose another band",
             field="band" if req_band is not None else "output")
     w, h, coh = pts.w[keep], pts.h[keep], pts.coherence[keep]
+    dt_log = recs[0].dt
+    h_measured = h
+    if hold == "zoh":  # the continuous model is fitted without the hold: G(jw) = H(e^{jw dt}) / hold(w)
+        h = h / zoh_factor(w, dt_log)
     tau_max = min(math.pi / used[0], fit_dur / 4.0)
     out = fit_model(w, h, coh, poles=poles, zeros=zeros, delay=delay, delay_step=step, band=used,
                     tau_max=tau_max, n_starts=n_starts, seed=seed)
+    if hold == "zoh":  # the hold's alias terms, from the model itself: refit to h / (hold x alias correction)
+        corr = _alias_correction(out.model, w, dt_log)
+        if corr is not None:
+            h = h / corr
+            out = fit_model(w, h, coh, poles=poles, zeros=zeros, delay=delay, delay_step=step, band=used,
+                            tau_max=tau_max, n_starts=n_starts, seed=seed)
     model = out.model
     dm, dp = out.problem.errors(model.theta)
     from .fit import cost_terms
@@ -265,20 +325,139 @@ def identify(
     warns = _warnings(out.cost, points, used, model, unc, val, n_points=n_points, tau_max=tau_max,
                       delay=delay, check=check_u, fit_u=np.concatenate([r.u for r in fit_recs]),
                       want_check=holdout > 0 or ver is not None)
-    options = {"poles": poles, "zeros": zeros, "delay": delay, "delay_step": step,
+    closed = _closed_loop(spectra, fr, dt_log, joint is not None, controller, closed_loop_signs, coherence_min,
+                          reference_band=used if joint is not None else None)
+    if closed.get("detected") and joint is None:
+        warns.insert(0, closed["message"])
+    hold_check = _hold_check(model, w, h_measured, coh, dt_log) if hold == "zoh" else None
+    options = {"poles": poles, "zeros": zeros, "delay": delay, "delay_step": step, "hold": hold,
+               "estimate": "joint (reference)" if joint is not None else "direct",
                "band": None if req_band is None else list(req_band), "holdout": "auto" if auto else holdout,
                "coherence_min": coherence_min, "n_points": n_points, "n_starts": n_starts, "seed": seed,
                "fit_starts_converged": out.starts, "delay_candidates_s": list(out.delay_candidates_s),
                "records": len(recs), "verify": None if ver is None else {"n_samples": ver.n, "rate_hz": 1 / ver.dt},
-               "noise_floor_rms": unexplained_rms(spectra), "notes": notes}
+               "noise_floor_rms": unexplained_rms(spectra), "notes": notes, "hold_check": hold_check}
     return IdentifyResult(model=model, cost=out.cost, band_rad_s=(float(used[0]), float(used[1])),
                           frequency_response=fr, fit_points=points, uncertainty=unc, validation=val,
                           warnings=tuple(warns), rate_hz=1.0 / rec.dt, n_samples=sum(r.n for r in recs),
                           fit_duration_s=sum(r.duration_s for r in fit_recs), options=options,
-                          covariance=cov)
+                          covariance=cov, closed_loop=closed)
 
 
 AUTO_HOLDOUT = 0.2
+#: the direct estimate "is" -1/C where their median relative difference over the coherent band is below this
+INVERSE_MATCH = 0.25
+
+
+def zoh_factor(w: np.ndarray, dt: float) -> np.ndarray:
+    """The zero-order hold's response ``(1 - e^{-jw dt})/(jw dt) = e^{-jw dt/2} sinc(w dt/2)``: a held input's
+    sampled response is the continuous one times this (the alias terms of a low-pass plant neglected; checked
+    after the fit against the exact ZOH model, ``options["hold_check"]``)."""
+    x = np.asarray(w, dtype=float) * dt / 2.0
+    return np.exp(-1j * x) * np.sinc(x / np.pi)
+
+
+def _joint_spectral(recs: list[Record], joint: tuple[list[Record], list[Record]], req_band: Any,
+                    windows_s: Any, coherence_min: float) -> tuple[list[Any], Any, tuple[float, float], tuple]:
+    """The direct spectra (for the time-domain check and the noise floor), the joint estimate ``S_ry/S_ru`` on
+    the usual grid, its band (where r explains y and u), and the r-spectra for the fit points."""
+    from .spectral import coherent_band, frequency_response, joint_composite
+
+    fr_ry, s_ry = frequency_response([r.detrended() for r in joint[0]], windows_s=windows_s)
+    wins = [sp.window_s for sp in s_ry]
+    _, s_ru = frequency_response([r.detrended() for r in joint[1]], windows_s=wins)
+    _, spectra = frequency_response([r.detrended() for r in recs], windows_s=wins)
+    fr = joint_composite(s_ry, s_ru, fr_ry.w)
+    if req_band is not None:
+        used = req_band
+    else:
+        try:
+            used = coherent_band(fr, coherence_min=coherence_min)
+        except InvalidDataError as e:
+            raise InvalidDataError(f"the reference has no power where it explains the output and the input: {e}; "
+                                   "excite the loop through the reference (a sweep or a multisine on the setpoint), "
+                                   "or name the signal that was injected", field="reference") from None
+    return spectra, fr, used, (s_ry, s_ru)
+
+
+def _closed_loop(spectra: list[Any], fr: Any, dt: float, joint: bool, controller: Any, signs: Sequence[str],
+                 coherence_min: float, *, reference_band: Any = None) -> dict[str, Any]:
+    """What tells that the data were flown under feedback, and what it means for the estimate."""
+    from .spectral import coherent_band, composite
+
+    found = [str(x) for x in signs]
+    match = None
+    if controller is not None:
+        direct = fr if not joint else composite(spectra, fr.w)
+        try:
+            lo, hi = coherent_band(direct, coherence_min=coherence_min)
+        except InvalidDataError:
+            lo = hi = None
+        if lo is not None:
+            sel = (direct.w >= lo) & (direct.w <= hi) & (direct.coherence >= coherence_min) & np.isfinite(direct.h)
+            if sel.any():
+                c = controller.freqresp(direct.w[sel])
+                rel = np.abs(direct.h[sel] * c + 1.0)  # |H - (-1/C)| / |1/C|
+                match = {"median_relative_difference": float(np.median(rel)), "band_rad_s": [float(lo), float(hi)],
+                         "share_within": float(np.mean(rel < INVERSE_MATCH))}
+                if match["median_relative_difference"] < INVERSE_MATCH:
+                    found.append(f"the direct estimate matches -1/C of the known controller (median relative "
+                                 f"difference {100 * match['median_relative_difference']:.0f} % over {lo:.3g}-"
+                                 f"{hi:.3g} rad/s)")
+    detected = bool(found)
+    if not detected:
+        return {"detected": False, "signs": [], "estimate": "joint" if joint else "direct", "inverse_match": match}
+    if joint:
+        lo, hi = reference_band
+        msg = ("the data were flown under feedback (" + "; ".join(found) + "); the response is the joint "
+               f"input-output estimate with the reference, unbiased by the feedback over {lo:.3g}-{hi:.3g} rad/s, "
+               "where the reference explains both the output and the input")
+    else:
+        msg = ("the data were flown under feedback (" + "; ".join(found) + "): where the disturbance, not an "
+               "excitation, drives the loop, the direct estimate from input to output is the controller's "
+               "inverse -1/C, at high coherence, and says nothing about the plant; this fit is not rated good or "
+               "acceptable. Give the exogenous signal with --reference (an injected excitation, or the rate "
+               "setpoint flown in a rate mode), and excite the loop through it")
+    return {"detected": True, "signs": found, "estimate": "joint" if joint else "direct", "message": msg,
+            "inverse_match": match}
+
+
+def _alias_correction(model: Any, w: np.ndarray, dt: float) -> np.ndarray | None:
+    """``exact ZOH(model)(e^{jw dt}) / (model(jw) hold(w))``: what the hold's first-order factor misses (the alias
+    terms of the sampled model), near 1 for a low-pass model well below Nyquist; None if it cannot be computed."""
+    from ..plant import make_plant
+
+    num, den = model.tf()
+    try:
+        exact = make_plant(num, den, delay=float(model.delay_s or 0.0)).zoh(dt).freqresp(w)
+        approx = model.freqresp(w) * zoh_factor(w, dt)
+    except Exception:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = exact / approx
+    return c if np.all(np.isfinite(c)) else None
+
+
+def _hold_check(model: Any, w: np.ndarray, h: np.ndarray, coherence: np.ndarray, dt: float) -> dict[str, float]:
+    """The fitted continuous model put back at ``dt`` with an exact zero-order hold (its delay's fraction of a
+    sample included), against the measured discrete response at the fit points: median and largest differences."""
+    from ..plant import make_plant
+
+    num, den = model.tf()
+    try:
+        zoh = make_plant(num, den, delay=float(model.delay_s or 0.0)).zoh(dt)
+        hz = zoh.freqresp(w)
+    except Exception:
+        return {"checked": False}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d_db = 20.0 * np.log10(np.abs(hz) / np.abs(h))
+        d_deg = np.degrees(np.angle(hz / h))
+    ok = np.isfinite(d_db) & np.isfinite(d_deg)
+    if not ok.any():
+        return {"checked": False}
+    return {"checked": True, "median_db": float(np.median(np.abs(d_db[ok]))),
+            "max_db": float(np.max(np.abs(d_db[ok]))), "median_deg": float(np.median(np.abs(d_deg[ok]))),
+            "max_deg": float(np.max(np.abs(d_deg[ok])))}
 _TAIL_IN_BAND = 0.5  # share of the tail's input power inside the band for it to count as exciting it
 _TAIL_AT_EDGES = 0.25  # share of the tail's input power in the part of the band only it makes coherent
 

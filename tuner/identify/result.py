@@ -13,11 +13,15 @@ from .spectral import FrequencyResponse
 from .uncertainty import ParameterUncertainty
 from .validate import Validation
 
-__all__ = ["J_ACCEPTABLE", "J_GOOD", "J_POINT_MAX", "FitPoints", "IdentifyResult", "quality_of"]
+__all__ = ["CLOSED_LOOP", "J_ACCEPTABLE", "J_GOOD", "J_POINT_MAX", "FitPoints", "IdentifyResult", "quality_of"]
 
 J_GOOD = 50.0  # CIFER guidelines: J <= 50 good, J <= 100 acceptable, single frequencies up to ~200
 J_ACCEPTABLE = 100.0
 J_POINT_MAX = 200.0
+
+
+#: the verdict of a fit of data flown under feedback without a reference: never good or acceptable, whatever J
+CLOSED_LOOP = "closed-loop"
 
 
 def quality_of(cost: float) -> str:
@@ -87,11 +91,22 @@ class IdentifyResult:
     # the parameters' covariance (Cramér–Rao matrix) in the order of ``uncertainty``, in their own units:
     # its diagonal is the square of each cr_bound (tuner.identify.uncertainty.covariance)
     covariance: np.ndarray | None = None
+    #: what tells that the data were flown under feedback: ``detected``, ``signs``, ``estimate`` (``direct`` or
+    #: ``joint``), ``message``, ``inverse_match`` (the direct estimate against -1/C of a known controller)
+    closed_loop: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def unreliable_feedback(self) -> bool:
+        """Flown under feedback and fitted from the direct estimate (no reference): what was fitted may be -1/C."""
+        return bool(self.closed_loop.get("detected")) and self.closed_loop.get("estimate") != "joint"
 
     @property
     def quality(self) -> str:
-        """J's verdict by CIFER's guideline: ``good`` (J <= 50), ``acceptable`` (<= 100), ``poor``.
-        The time-domain check is :attr:`check`, reported beside it."""
+        """J's verdict by CIFER's guideline: ``good`` (J <= 50), ``acceptable`` (<= 100), ``poor``; ``closed-loop``
+        for data flown under feedback fitted without a reference (whatever J: the direct estimate may be the
+        controller's inverse). The time-domain check is :attr:`check`, reported beside it."""
+        if self.unreliable_feedback:
+            return CLOSED_LOOP
         return quality_of(self.cost)
 
     @property
@@ -107,6 +122,9 @@ class IdentifyResult:
         lo, hi = self.band_rad_s
         s = (f"J = {self.cost:.3g} over {lo:.3g}-{hi:.3g} rad/s ({self.fit_points.w.size} frequencies): "
              f"{self.quality} (CIFER: <= {J_GOOD:.0f} good, <= {J_ACCEPTABLE:.0f} acceptable)")
+        if self.unreliable_feedback:
+            s += ("; flown under feedback without a reference: the fit may be of the controller's inverse, "
+                  "not the plant (--reference)")
         if self.validation is not None:
             s += f"; time-domain check {self.validation.describe()}"
         else:
@@ -178,6 +196,7 @@ class IdentifyResult:
             "options": dict(self.options),
             "covariance": None if self.covariance is None else {
                 "parameters": list(self.uncertainty), "matrix": np.asarray(self.covariance, float).tolist()},
+            "closed_loop": dict(self.closed_loop),
         }
 
     @classmethod
@@ -193,7 +212,8 @@ class IdentifyResult:
                    validation=None if val is None else Validation.from_dict(_nums(val)),
                    warnings=tuple(d.get("warnings", ())), rate_hz=_num(d["rate_hz"]), n_samples=int(d["n_samples"]),
                    fit_duration_s=_num(d["fit_duration_s"]), options=dict(d.get("options", {})),
-                   covariance=_covariance(d.get("covariance"), list(unc)))
+                   covariance=_covariance(d.get("covariance"), list(unc)),
+                   closed_loop=dict(d.get("closed_loop") or {}))
 
     def plot(self, *, title: str | None = None, time_domain: bool = True):
         """Bode plot of the data and the fit with a coherence panel (and the held-out check).

@@ -34,6 +34,7 @@ __all__ = [
     "coherent_band",
     "composite",
     "frequency_response",
+    "joint_composite",
     "pooled",
     "unexplained_rms",
     "window_lengths",
@@ -56,6 +57,15 @@ class FrequencyResponse:
     h: np.ndarray
     coherence: np.ndarray
     windows_s: tuple[float, ...] = ()
+    #: the joint input-output estimate (a reference r): the coherence of y with r and of u with r (``coherence`` is
+    #: then the two combined, :func:`joint_composite`); None for the direct estimate
+    coherence_ry: np.ndarray | None = None
+    coherence_ru: np.ndarray | None = None
+
+    @property
+    def joint(self) -> bool:
+        """Whether this is the joint input-output estimate ``S_ry / S_ru`` (from a reference), not ``S_uy / S_uu``."""
+        return self.coherence_ry is not None
 
     @property
     def mag_db(self) -> np.ndarray:
@@ -69,17 +79,22 @@ class FrequencyResponse:
         return np.degrees(np.unwrap(np.angle(self.h)))
 
     def to_dict(self) -> dict[str, Any]:
-        """The response as lists (``w``, ``mag_db``, ``phase_deg``, ``coherence``, ``windows_s``)."""
-        return {"w": self.w.tolist(), "mag_db": self.mag_db.tolist(), "phase_deg": self.phase_deg.tolist(),
-                "coherence": self.coherence.tolist(), "windows_s": list(self.windows_s)}
+        """The response as lists (``w``, ``mag_db``, ``phase_deg``, ``coherence``, ``windows_s``; a joint estimate
+        also ``coherence_ry``, ``coherence_ru``)."""
+        out = {"w": self.w.tolist(), "mag_db": self.mag_db.tolist(), "phase_deg": self.phase_deg.tolist(),
+               "coherence": self.coherence.tolist(), "windows_s": list(self.windows_s)}
+        if self.joint:
+            out.update(coherence_ry=self.coherence_ry.tolist(), coherence_ru=self.coherence_ru.tolist())
+        return out
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FrequencyResponse:
         """The inverse of :meth:`to_dict`."""
         w = np.asarray(d["w"], dtype=float)
         h = 10.0 ** (np.asarray(d["mag_db"], dtype=float) / 20.0) * np.exp(1j * np.radians(d["phase_deg"]))
+        extra = {k: np.asarray(d[k], dtype=float) for k in ("coherence_ry", "coherence_ru") if d.get(k) is not None}
         return cls(w=w, h=h, coherence=np.asarray(d["coherence"], dtype=float),
-                   windows_s=tuple(float(x) for x in d.get("windows_s", ())))
+                   windows_s=tuple(float(x) for x in d.get("windows_s", ())), **extra)
 
 
 @dataclass(frozen=True, eq=False)
@@ -184,6 +199,29 @@ def composite(spectra: Sequence[WindowSpectra], w: np.ndarray) -> FrequencyRespo
         coh = np.where(ok & (guu > 0) & (gyy > 0), np.abs(guy) ** 2 / np.where(ok, guu * gyy, 1.0), 0.0)
     return FrequencyResponse(w=w, h=h, coherence=np.clip(np.nan_to_num(coh), 0.0, 1.0),
                              windows_s=tuple(sp.window_s for sp in spectra))
+
+
+def joint_composite(spectra_ry: Sequence[WindowSpectra], spectra_ru: Sequence[WindowSpectra], w: np.ndarray
+                    ) -> FrequencyResponse:
+    """The joint input-output estimate at ``w``: ``G = S_ry / S_ru`` from the windows' spectra of the reference
+    ``r`` with the output ``y`` (``spectra_ry``: ``guu`` is ``S_rr``, ``guy`` is ``S_ry``) and with the plant input
+    ``u`` (``spectra_ru``), each merged as :func:`composite` merges (Forssell & Ljung 1999: unbiased under feedback,
+    where ``S_uy / S_uu`` tends to ``-1/C`` wherever the disturbance dominates).
+
+    ``coherence_ry`` and ``coherence_ru`` say where ``r`` explains ``y`` and ``u``; ``coherence`` is the two
+    combined so that the random error of the ratio is that of one estimate with it:
+    ``(1 - g2)/g2 = (1 - g2_ry)/g2_ry + (1 - g2_ru)/g2_ru`` (the relative errors of the two estimates add,
+    Bendat & Piersol's ``eps^2 = (1 - g2)/(2 n_d g2)`` each).
+    """
+    w = np.asarray(w, dtype=float)
+    ty, tu = composite(spectra_ry, w), composite(spectra_ru, w)
+    g_ry, g_ru = ty.coherence, tu.coherence
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = np.where(np.isfinite(ty.h) & np.isfinite(tu.h) & (np.abs(tu.h) > 0), ty.h / tu.h, np.nan + 0j)
+        q = (1.0 - g_ry) / np.maximum(g_ry, 1e-300) + (1.0 - g_ru) / np.maximum(g_ru, 1e-300)
+        coh = np.where((g_ry > 0) & (g_ru > 0), 1.0 / (1.0 + q), 0.0)
+    return FrequencyResponse(w=w, h=h, coherence=np.clip(np.nan_to_num(coh), 0.0, 1.0), windows_s=ty.windows_s,
+                             coherence_ry=g_ry, coherence_ru=g_ru)
 
 
 def unexplained_rms(spectra: Sequence[WindowSpectra]) -> float:

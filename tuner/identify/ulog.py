@@ -63,6 +63,8 @@ class ULogRecords:
     t_starts_s: list[float]  # the first grid time of each piece, s from the log's start
     gaps: list[tuple[float, float]] = field(default_factory=list)  # (from, to), s
     dropped: list[tuple[float, float]] = field(default_factory=list)  # pieces too short to use, s
+    references: list[np.ndarray] | None = None  # the reference signal on the same grid (held), when asked for
+    parameters: dict[str, float] = field(default_factory=dict)  # the parameters the log stores
 
     def describe(self) -> str:
         """One line: the records, their samples and rate, and where the log was split."""
@@ -181,15 +183,18 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
     ``src`` is a path, the file's bytes, or a binary file object (an upload). See the module's notes on the
     interpolation (input held, output linear) and on gaps.
     """
-    if set(columns) != {"input", "output"}:
-        raise InvalidDataError("a ULog log needs input and output signals (TOPIC.FIELD)", field="input")
-    specs = {role: parse_signal(columns[role], role) for role in ("input", "output")}
+    roles = ("input", "output", "reference") if "reference" in columns else ("input", "output")
+    if set(columns) != set(roles):
+        raise InvalidDataError("a ULog log needs input and output signals (TOPIC.FIELD), and optionally a reference",
+                               field="input")
+    specs = {role: parse_signal(columns[role], role) for role in roles}
     if not isinstance(src, (str, Path, bytes)):
         src = src.read(MAX_ULOG_BYTES + 1)
         if len(src) > MAX_ULOG_BYTES:
             raise InvalidDataError(f"the upload holds more than {MAX_ULOG_BYTES} bytes (cut the log)", field="file")
     ul = _load(src, sorted({s[0] for s in specs.values()}))
     (tu, xu), (ty, xy) = (_series(ul, src, role, columns[role]) for role in ("input", "output"))
+    tr, xr = _series(ul, src, "reference", columns["reference"]) if "reference" in columns else (None, None)
     t0 = float(ul.start_timestamp) * 1e-6  # times are reported from the logger's start
     if rate_hz is None:
         rate_hz = float(min(1.0 / np.median(np.diff(tu)), 1.0 / np.median(np.diff(ty))))
@@ -208,6 +213,8 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         gaps.append((a, a + float(d.duration) * 1e-3))
     gaps = _merge(gaps)
     lo, hi = max(tu[0], ty[0]), min(tu[-1], ty[-1])
+    if tr is not None:
+        lo, hi = max(lo, tr[0]), min(hi, tr[-1])
     if not hi - lo > dt:
         raise InvalidDataError(f"input ({tu[0] - t0:.3f}-{tu[-1] - t0:.3f} s) and output ({ty[0] - t0:.3f}-"
                                f"{ty[-1] - t0:.3f} s) do not overlap in time", field="output")
@@ -222,7 +229,9 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         edges.append((start, min(a, hi)))
         start = max(b, lo)
     edges.append((start, hi))
-    inputs, outputs, starts, dropped = [], [], [], []
+    if tr is not None:  # the reference held like the input (a setpoint is a command)
+        gaps = _merge(gaps + _gaps(tr, dt))
+    inputs, outputs, refs, starts, dropped = [], [], [], [], []
     for a0, b in edges:
         i0 = int(np.searchsorted(tu, a0 - 1e-9))  # the grid starts on an input sample: held values are exact
         a = float(tu[i0]) if i0 < tu.size else b + 1.0
@@ -235,6 +244,9 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         iu = np.searchsorted(tu, tg + 1e-9, side="right") - 1  # zero-order hold: last published at or before
         inputs.append(xu[np.clip(iu, 0, xu.size - 1)])
         outputs.append(np.interp(tg, ty, xy))
+        if tr is not None:
+            ir = np.searchsorted(tr, tg + 1e-9, side="right") - 1
+            refs.append(xr[np.clip(ir, 0, xr.size - 1)])
         starts.append(a - t0)
     rel = [(a - t0, b - t0) for a, b in gaps if lo < b and a < hi]
     if not inputs:
@@ -242,4 +254,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         raise InvalidDataError(
             f"no stretch of the log between gaps holds {MIN_SAMPLES} samples at {rate_hz:g} Hz (gaps: {where}; "
             f"common span {lo - t0:.3f}-{hi - t0:.3f} s); log longer sweeps without dropouts", field="input")
-    return ULogRecords(inputs=inputs, outputs=outputs, rate_hz=rate_hz, t_starts_s=starts, gaps=rel, dropped=dropped)
+    params = {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
+              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    return ULogRecords(inputs=inputs, outputs=outputs, rate_hz=rate_hz, t_starts_s=starts, gaps=rel, dropped=dropped,
+                       references=refs if tr is not None else None, parameters=params)
