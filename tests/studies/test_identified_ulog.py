@@ -37,7 +37,9 @@ def test_a_ulog_data_loop_with_a_verification_log(tmp_path):
     study = load_study(_study(tmp_path))
     (lp,) = study.loop
     res = identified(lp)
-    assert res.rate_hz == pytest.approx(50.0) and res.quality == "good"
+    # a torque setpoint is a controller's output: flown under feedback as far as the log tells, so never "good"
+    # without a reference (these synthetic data are open loop: J itself is good)
+    assert res.rate_hz == pytest.approx(50.0) and res.quality == "closed-loop" and res.cost <= 50
     assert res.validation.source == "verify" and res.check != "poor"
     assert res.model.values()["pole_wn_1_rad_s"] == pytest.approx(14.8528, rel=0.05)
     key = loop_key(study, "roll")

@@ -115,6 +115,10 @@ class PlantData(BaseModel):
     file: str = Field(min_length=1, description="CSV or PX4 ULog (.ulg) log, relative to the study file")
     input: str = Field(min_length=1, description="column of the plant input (ULog: TOPIC[:N].FIELD)")
     output: str = Field(min_length=1, description="column of the plant output (ULog: TOPIC[:N].FIELD)")
+    reference: str | None = Field(None, min_length=1, description="data flown under feedback: column of the "
+                                  "exogenous signal (an injected excitation or the setpoint; ULog: TOPIC.FIELD)")
+    hold: Literal["auto", "zoh", "none"] = Field("auto", description="how the plant saw the input: zoh (held, a "
+                                                 "controller's output), none (sampled); auto: zoh for a ULog")
     time: str | None = Field(None, min_length=1, description="time column, s (or rate_hz); not for ULog")
     rate_hz: float | None = Field(None, gt=0, description="sample rate, Hz (or time); ULog: the resampling grid "
                                   "(default: the slower topic's rate)")
@@ -407,14 +411,24 @@ def _read_log(path: str, o: dict[str, Any]) -> dict[str, Any]:
     from ..identify.csvlog import read_columns
     from ..identify.ulog import is_ulog, read_ulog
 
+    from ..identify.feedback import known_controller, signs_of
+
+    ref = o.get("reference")
     if is_ulog(path):
-        r = read_ulog(path, {"input": o["input"], "output": o["output"]}, rate_hz=o["rate_hz"])
+        r = read_ulog(path, {"input": o["input"], "output": o["output"], **({"reference": ref} if ref else {})},
+                      rate_hz=o["rate_hz"])
         one = len(r.inputs) == 1
+        refs = r.references
         return {"input": r.inputs[0] if one else r.inputs, "output": r.outputs[0] if one else r.outputs,
-                "time": None, "rate_hz": r.rate_hz}
-    cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {})}
+                "time": None, "rate_hz": r.rate_hz, "ulog": True,
+                "reference": None if refs is None else (refs[0] if one else refs),
+                "signs": signs_of(o["input"], r.parameters),
+                "controller": known_controller(r.parameters, o["input"], 1.0 / r.rate_hz)}
+    cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {}),
+            **({"reference": ref} if ref else {})}
     data = read_columns(path, cols)
-    return {"input": data["input"], "output": data["output"], "time": data.get("time"), "rate_hz": o["rate_hz"]}
+    return {"input": data["input"], "output": data["output"], "time": data.get("time"), "rate_hz": o["rate_hz"],
+            "ulog": False, "reference": data.get("reference"), "signs": signs_of(o["input"]), "controller": None}
 
 
 @lru_cache(maxsize=32)
@@ -435,9 +449,12 @@ def _identify_cached(path: str, digest: str, options: str, dt: float | None, ver
                                     "continuous record")
         ver = {k: v[k] for k in ("input", "output", "time", "rate_hz") if v[k] is not None}
     delay = None if o["delay"] == "none" else o["delay"]
+    hold = {"zoh": "zoh", "none": None}.get(o.get("hold", "auto"), "zoh" if data["ulog"] else None)
     return identify(data["input"], data["output"], time=data["time"], rate_hz=data["rate_hz"], poles=o["poles"],
                     zeros=o["zeros"], delay=delay, delay_step=o.get("delay_step"), band=o["band"],
-                    holdout=o["holdout"], verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"])
+                    holdout=o["holdout"], verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"],
+                    reference=data["reference"], controller=data["controller"], closed_loop_signs=data["signs"],
+                    hold=hold)
 
 
 def identified(lp: LoopDef) -> Any:
