@@ -37,7 +37,7 @@ __all__ = ["Guard", "PUBLIC_PATHS", "PUBLIC_PREFIXES", "POOL_PATHS", "docs_csp",
 
 PUBLIC_PATHS = frozenset({"/", "/health", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"})
 PUBLIC_PREFIXES = ("/web/", "/static-offline-docs/")
-POOL_PATHS = frozenset({"/tune", "/analyze", "/identify"})  # POSTs that wait for a solver
+POOL_PATHS = frozenset({"/tune", "/analyze", "/identify", "/ulog/signals"})  # POSTs that wait for a solver
 DOCS_PATHS = frozenset({"/docs", "/docs/oauth2-redirect", "/redoc"})
 
 _INLINE = re.compile(rb"<(script|style)>(.*?)</\1>", re.S)

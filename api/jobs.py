@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 __all__ = ["tune_job", "tradeoff_job", "analyze_job", "plot_job", "build_plant", "identify_job", "identify_plot_job",
-           "PLOT_MODULES"]
+           "ulog_signals_job", "PLOT_MODULES"]
 
 # what a plot process imports before its first job (this list replaces api.worker.PLOT_MODULES, which
 # still names the removed api.plots)
@@ -29,7 +29,9 @@ def _controller(d: dict[str, Any]):
 
     from tuner.controllers import ControllerTF
 
-    return ControllerTF(num=np.asarray(d["num"], dtype=float), den=np.asarray(d["den"], dtype=float), dt=d.get("dt"))
+    num_r = d.get("num_r")  # a 2-DOF result (pid2, the firmware laws): the loop that was tuned, reference path too
+    return ControllerTF(num=np.asarray(d["num"], dtype=float), den=np.asarray(d["den"], dtype=float), dt=d.get("dt"),
+                        num_r=None if num_r is None else np.asarray(num_r, dtype=float))
 
 
 def tune_job(payload: dict[str, Any]) -> dict[str, Any]:
@@ -131,3 +133,11 @@ def identify_plot_job(payload: dict[str, Any]) -> bytes:
     from tuner.identify.result import IdentifyResult
 
     return figure_bytes(IdentifyResult.from_dict(payload["result"]).plot(), fmt=payload["fmt"])
+
+
+def ulog_signals_job(payload: dict[str, Any]) -> dict[str, Any]:
+    """``payload``: ``data`` (a ULog's bytes). Returns the signals a page may choose from (``TOPIC[:N].FIELD`` with
+    their rates) and the rate law's parameters the log stores (as a QGroundControl .params text)."""
+    from tuner.identify.ulog import signals
+
+    return signals(bytes(payload["data"]))

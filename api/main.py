@@ -114,7 +114,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(public_router)
     app.include_router(api_router)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
-                       path_limits={"/identify": settings.max_identify_body_bytes})
+                       path_limits={"/identify": settings.max_identify_body_bytes,
+                                    "/ulog/signals": settings.max_identify_body_bytes})
     app.add_middleware(HeadAsGet)
     # outermost: host, key and per-client limit from the headers before any body is read; body read timeout
     app.add_middleware(Guard, allowed_hosts=settings.allowed_host_set,

@@ -31,7 +31,7 @@ variable                       default                     meaning
 ``TUNER_DB_RETRY_S``           ``5``                       while the database is unreachable at start-up,
                                                            the longest pause between two attempts
 ``TUNER_MAX_BODY_BYTES``       ``1000000``                 larger request bodies: 413
-``TUNER_MAX_IDENTIFY_BODY_BYTES`` ``24000000``             the same for ``POST /identify`` only (flight
+``TUNER_MAX_IDENTIFY_BODY_BYTES`` ``24000000``             the same for ``POST /identify`` and ``/ulog/signals`` (flight
                                                            logs: 200,000 samples of input, output and
                                                            time as JSON are about 13 MB)
 ``TUNER_IDENTIFY_TIMEOUT_S``   ``60``                      limit of one identification (then 504)

@@ -10,6 +10,7 @@ import numpy as np
 from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, ConfigDict, Field
 
 from tuner.jsonio import jsonable
 
@@ -20,6 +21,7 @@ from ..pool import WorkerPool
 from ..quota import check_identification_quota
 from ..schemas_identify import (
     IDENTIFY_EXAMPLE,
+    MAX_ULOG_BASE64,
     IdentificationData,
     IdentificationList,
     IdentificationRecordOut,
@@ -163,6 +165,39 @@ async def post_identify(
     stored = {**result, "log_parameters": log_parameters} if log_parameters else result
     rec = await run_in_threadpool(store.add_identification, request=request, data=data, result=stored)
     return JSONResponse(jsonable({"id": rec.id, "created_at": rec.created_at.isoformat(), **result}))
+
+
+class _ULogData(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    data: str = Field(min_length=16, max_length=MAX_ULOG_BASE64, description="the .ulg file, base64 (standard "
+                      "alphabet, padded)")
+
+
+@router.post("/ulog/signals", responses=ERRORS, summary="The signals and rate-law parameters a PX4 ULog log holds",
+             description="Every numeric TOPIC[:INSTANCE].FIELD with its rate (what `ulog.input`, `ulog.output` and "
+                         "`ulog.reference` of POST /identify may name), the rate law's parameters the log stores as "
+                         "a QGroundControl .params text (`params_text`: a tune's `vehicle.params`) and the loop rate "
+                         "they name. 422 at `ulog.data` for a body that is not base64 or not a ULog.")
+async def post_ulog_signals(
+    body: _ULogData, request: Request, settings: Settings = Depends(get_settings),
+    pool: WorkerPool = Depends(get_pool), client: str = Depends(client_id),
+) -> JSONResponse:
+    import base64
+    import binascii
+
+    from ..jobs import ulog_signals_job
+
+    try:
+        raw = base64.b64decode(body.data, validate=True)
+    except (binascii.Error, ValueError):
+        raise FieldError(("body", "data"), "not base64 (standard alphabet, padded): encode the .ulg file, e.g. "
+                                           "base64 -w0 flight.ulg") from None
+    out = await run_job(
+        request, pool, ulog_signals_job, {"data": raw}, timeout_s=settings.identify_timeout_s, client=client,
+        what="log reading", loc=lambda f: ("body", "data"), default_field=("data",),
+        type_of=lambda info: error_type(info["error"]),
+        timeout_detail=lambda e: f"reading the log took longer than {settings.identify_timeout_s:g} s; cut the log")
+    return JSONResponse(jsonable(out))
 
 
 @router.get("/identifications", response_model=IdentificationList, summary="List stored identifications, newest first",

@@ -173,6 +173,10 @@ function syncSliders() {
   }
 }
 
+const FIRMWARE = new Set(["px4_rate", "ardupilot_rate"]);
+
+function vehicleRow() { $("#vehicle-row").hidden = !FIRMWARE.has(field("structure").value); }
+
 function structureHint() {
   const s = CONFIG.structures.find((x) => x.name === field("structure").value);
   $("#structure-params").textContent = s ? `gains: ${s.params.join(", ")}${s.discrete_only ? " (needs dt)" : ""}` : "";
@@ -266,6 +270,10 @@ function tuneBody() {
   }
   const body = { plant, dt: dt ?? null, structure: f.structure, spec,
                  options: { seed: number(f.seed, ["body", "options", "seed"], errs, { int: true }) ?? 0 } };
+  if (FIRMWARE.has(f.structure)) {  // a firmware law: the vehicle's parameters, if given (else its defaults)
+    const text = $("#vehicle-from-log").checked && csv.params ? csv.params : state.vehicleText;
+    if (text) body.vehicle = { params: text, axis: $("#vehicle-axis").value };
+  }
   const budget = number(f.budget, ["body", "options", "time_budget_s"], errs);
   if (budget !== undefined) body.options.time_budget_s = budget;
   if (f.effort && f.effort !== "default") body.options.effort = f.effort;
@@ -533,10 +541,23 @@ function showResult(d, { title = "Result" } = {}) {
     members.append(t);
   }
   table($("#metrics"), Object.entries(d.metrics).map(([k, x]) => [label(k), fmt(x)]));
+  $("#current-block").hidden = !d.current;
+  if (d.current) {  // the vehicle's current tune next to the proposed one
+    const rows = [["gains", Object.entries(d.current.gains).filter(([k]) => ["P", "I", "D", "FF"].includes(k)).map(([k, x]) => `${k} ${fmt(x)}`).join(", ")],
+                  ["verdict", d.current.meets_spec ? "meets spec" : "does NOT meet spec"]];
+    for (const k of ["phase_margin_deg", "gain_margin_db", "ms", "overshoot_pct", "settling_time_s"]) rows.push([label(k), `${fmt(d.current.metrics[k])} (proposed ${fmt(d.metrics[k])})`]);
+    table($("#current"), rows);
+  }
+  for (const [fmtName, law] of [["px4", "px4_rate"], ["ardupilot", "ardupilot_rate"]]) {
+    const b = $(`#export .tabs button[data-format=${fmtName}]`);
+    b.hidden = d.structure !== law;
+  }
+  if (!FIRMWARE.has(d.structure) && ["px4", "ardupilot"].includes(state.exportFormat)) state.exportFormat = "c";
   const s = d.solver || {};
   $("#solver").textContent = `${s.method || "solver"}: ${fmt(s.wall_time_s)} s, seed ${fmt(s.seed)}` +
     (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "") +
-    (s.optimality?.summary ? `. ${s.optimality.summary}` : "");
+    (s.optimality?.summary ? `. ${s.optimality.summary}` : "") +
+    ((s.notes || []).length ? `. Note: ${s.notes.join(" Note: ")}` : "");
   $("#export-ct").hidden = Boolean(c.dt);
   if (!stored) return;
   showPlots(d.id);
@@ -567,6 +588,8 @@ async function loadExport() {
   if (!state.id) return;
   const f = state.exportFormat;
   const root = $("#export");
+  for (const b of $$("#export .tabs button[data-format]")) b.classList.toggle("on", b.dataset.format === f);
+  if (f === "px4" || f === "ardupilot") { await loadParamFile(f); return; }
   clearErrors(root);
   for (const b of $$(".tabs button[data-format]", root)) b.classList.toggle("on", b.dataset.format === f);
   const name = $("#export-name").value.trim() || "controller";
@@ -582,6 +605,7 @@ async function loadExport() {
   const link = $("#export-download");
   pre.textContent = continuous && !q.has("dt") ? "a continuous controller: give the sample time dt to export it" : "…";
   link.removeAttribute("href");
+  link.textContent = "download";
   if (continuous && !q.has("dt")) return;
   const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
   if (r.ok) {
@@ -597,6 +621,30 @@ async function loadExport() {
   pre.textContent = "";
   if (r.status === 422 && Array.isArray(d.detail)) showErrors(root, d.detail, $("#export-error"));
   else showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
+}
+
+// a firmware law's parameter file (the ground station's format), for download
+async function loadParamFile(f) {
+  clearErrors($("#export"));
+  $("#export-error").hidden = true;
+  const q = new URLSearchParams({ format: f, axis: $("#vehicle-axis").value });
+  const pre = $("#export-code");
+  const link = $("#export-download");
+  pre.textContent = "…";
+  const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
+  if (r.ok) {
+    const text = await r.text();
+    pre.textContent = text;
+    if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
+    state.exportUrl = URL.createObjectURL(new Blob([text], { type: "text/plain" }));
+    link.href = state.exportUrl;
+    link.download = (r.headers.get("content-disposition") || "").match(/filename="([^"]+)"/)?.[1] || `${f}.txt`;
+    link.textContent = `download ${link.download}`;
+    return;
+  }
+  const d = await answer(r);
+  pre.textContent = "";
+  showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
 }
 
 async function loadStored(id) {
@@ -654,7 +702,7 @@ async function loadHistory(offset) {
 
 // -- identification from a CSV log ---------------------------------------------------------------
 
-const csv = { names: [], rows: [] };
+const csv = { names: [], rows: [], ulog: null, params: "", loopHz: null };
 
 function parseCSV(text) {
   const lines = text.split(/\r?\n/).filter((l) => l.trim() && !l.startsWith("#"));
@@ -673,10 +721,47 @@ function options(sel, names, pick, none) {
   sel.value = pick < 0 ? "" : String(pick);
 }
 
+function base64(buf) {
+  const bytes = new Uint8Array(buf);
+  let bin = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) bin += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(bin);
+}
+
+// a PX4 ULog: its signals and stored parameters, read by the service (POST /ulog/signals)
+async function loadULog(file) {
+  const data = base64(await file.arrayBuffer());
+  $("#csv-info").innerHTML = '<span class="spinner"></span> reading the log…';
+  const r = await api("/ulog/signals", { method: "POST", json: { data } });
+  const d = await answer(r);
+  if (!r.ok) { $("#csv-info").textContent = ""; showGeneral($("#ident-out"), `${r.status}: ${detailText(d)}`); return; }
+  const names = d.signals.map((x) => x.name);
+  Object.assign(csv, { names, rows: [], ulog: data, params: d.params_text || "", loopHz: d.loop_hz || null });
+  const find = (re, dflt) => { const i = names.findIndex((n) => re.test(n)); return i >= 0 ? i : dflt; };
+  options($("#col-input"), names, find(/^vehicle_torque_setpoint\.xyz\[0\]$|^actuator_controls_0\.control\[0\]$/, 0));
+  options($("#col-output"), names, find(/^vehicle_angular_velocity\.xyz\[0\]$/, 1));
+  options($("#col-reference"), names, find(/^vehicle_rates_setpoint\.roll$/, -1), "none (open loop)");
+  $("#col-time-field").hidden = true;
+  $("#csv-columns").hidden = false;
+  const rate = csv.loopHz || d.signals.find((x) => x.name === names[Number($("#col-input").value)])?.rate_hz;
+  if (rate) { field("dt").value = String(Number((1 / rate).toPrecision(6))); syncURL(); }  // the sample time from the log
+  $("#vehicle-from-log").disabled = !csv.params;
+  $("#vehicle-from-log").checked = Boolean(csv.params);
+  $("#csv-info").textContent = `${names.length} signals` + (csv.loopHz ? `; rate loop at ${csv.loopHz} Hz (dt from the log)` : "")
+    + (d.firmware ? `; ${d.firmware} parameters stored` : "");
+}
+
 async function loadCSV(file) {
   clearErrors($("#ident"));
+  $("#ident-out").hidden = true;
+  const head = new Uint8Array(await file.slice(0, 7).arrayBuffer());
+  if (file.name.toLowerCase().endsWith(".ulg") || String.fromCharCode(...head) === "ULog\x01\x125") {
+    await loadULog(file);
+    return;
+  }
   const parsed = parseCSV(await file.text());
-  Object.assign(csv, parsed);
+  Object.assign(csv, parsed, { ulog: null, params: "", loopHz: null });
+  $("#col-time-field").hidden = false;
   const find = (re) => parsed.names.findIndex((n) => re.test(n));
   const t = find(/^(t|time)\b/i);
   const rest = parsed.names.map((_, i) => i).filter((i) => i !== t);
@@ -685,6 +770,7 @@ async function loadCSV(file) {
   options($("#col-time"), parsed.names, t, "none (rate = 1/dt)");
   options($("#col-input"), parsed.names, inp);
   options($("#col-output"), parsed.names, out);
+  options($("#col-reference"), parsed.names, find(/(setpoint|reference|^r$|_sp$)/i), "none (open loop)");
   $("#csv-columns").hidden = false;
   $("#csv-info").textContent = `${parsed.rows.length} rows, ${parsed.names.length} columns`;
 }
@@ -705,14 +791,24 @@ async function identify() {
   clearErrors(root);
   $("#ident-result").hidden = true;
   const errs = [];
-  const body = { input: column($("#col-input"), errs), output: column($("#col-output"), errs),
-                 poles: number($("#id-poles").value, ["body", "poles"], errs, { int: true }) ?? 2,
+  const body = { poles: number($("#id-poles").value, ["body", "poles"], errs, { int: true }) ?? 2,
                  zeros: number($("#id-zeros").value, ["body", "zeros"], errs, { int: true }) ?? 0 };
   const dt = Number(field("dt").value) || null;
   body.delay = $("#id-delay").checked ? "auto" : null;  // the delay as fitted: the loop takes any delay exactly
-  if ($("#col-time").value !== "") body.time = column($("#col-time"), errs);
-  else if (dt) body.rate_hz = 1 / dt;
-  else errs.push({ loc: ["body", "rate_hz"], msg: "choose the time column, or give dt (the log's sample time)" });
+  const ref = $("#col-reference").value;
+  if (csv.ulog) {
+    body.ulog = { data: csv.ulog, input: csv.names[Number($("#col-input").value)],
+                  output: csv.names[Number($("#col-output").value)] };
+    if (ref !== "") body.ulog.reference = csv.names[Number(ref)];
+    if (dt) body.rate_hz = 1 / dt;
+  } else {
+    body.input = column($("#col-input"), errs);
+    body.output = column($("#col-output"), errs);
+    if (ref !== "") body.reference = column($("#col-reference"), errs);
+    if ($("#col-time").value !== "") body.time = column($("#col-time"), errs);
+    else if (dt) body.rate_hz = 1 / dt;
+    else errs.push({ loc: ["body", "rate_hz"], msg: "choose the time column, or give dt (the log's sample time)" });
+  }
   if (errs.length) { showErrors(root, errs, $("#ident-out")); return; }
   const btn = $("#identify-btn");
   btn.disabled = true;
@@ -730,12 +826,29 @@ async function identify() {
     const res = $("#ident-result");
     res.hidden = false;
     res.replaceChildren();
+    res.className = "ident-pair";  // the verdict beside its plot
+    const side = document.createElement("div");
+    side.className = "ident-verdict";
+    const q = document.createElement("p");
+    q.className = d.quality === "good" || d.quality === "acceptable" ? "ok" : "bad";
+    q.id = "ident-quality";
+    q.textContent = `verdict: ${d.quality}` + (d.options?.estimate ? ` (${d.options.estimate} estimate)` : "");
+    side.append(q);
+    if (d.closed_loop?.detected) {
+      const cl = document.createElement("p");
+      cl.id = "ident-closed-loop";
+      cl.className = d.quality === "closed-loop" ? "bad" : "hint";
+      cl.textContent = d.closed_loop.message;
+      side.append(cl);
+    }
     const p = document.createElement("p");
-    p.textContent = `identified (J's verdict: ${d.quality}; time-domain check: ${d.check || "none"}): ${d.verdict}` + (d.warnings.length ? ` — ${d.warnings.join("; ")}` : "") +
+    const others = d.warnings.filter((w) => w !== d.closed_loop?.message);
+    p.textContent = `J's verdict and the time-domain check (${d.check || "none"}): ${d.verdict}` + (others.length ? ` — ${others.join("; ")}` : "") +
       ". The plant below is the fitted model.";
-    res.append(p);
+    side.append(p);
     const pr = await api(`/identifications/${encodeURIComponent(d.id)}/plot.svg`);
     if (pr.ok) { const img = document.createElement("img"); img.alt = "identification fit"; img.src = URL.createObjectURL(await pr.blob()); img.className = "fit"; res.append(img); }
+    res.append(side);
     syncURL();
   } finally {
     btn.disabled = false;
@@ -788,6 +901,14 @@ function init() {
     catch { $("#progress").textContent = url; }
   });
   $("#csv-file").addEventListener("change", (e) => { if (e.target.files[0]) loadCSV(e.target.files[0]); });
+  $("#vehicle-file").addEventListener("change", async (e) => {
+    const f = e.target.files[0];
+    state.vehicleText = f ? await f.text() : null;
+    $("#vehicle-info").textContent = f ? `${f.name}: the loop rate, filters and current gains come from it` : "";
+    if (f) $("#vehicle-from-log").checked = false;
+  });
+  field("structure").addEventListener("change", vehicleRow);
+  vehicleRow();
   $("#identify-btn").addEventListener("click", identify);
   for (const b of $$("#export .tabs button[data-format]")) b.addEventListener("click", () => { state.exportFormat = b.dataset.format; loadExport(); });
   for (const id of ["#export-name", "#export-dt", "#export-method", "#export-umin", "#export-umax"]) $(id).addEventListener("change", loadExport);

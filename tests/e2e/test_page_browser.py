@@ -190,7 +190,7 @@ def test_a_csv_log_is_identified_into_the_plant(page, server, sync_api):
     picked = [page.locator(f"#col-{c} option:checked").inner_text() for c in ("time", "input", "output")]
     assert picked == ["t", "pitch_cmd", "pitch"]  # guessed from the header
     page.click("#identify-btn")
-    expect(page.locator("#ident-result")).to_contain_text("identified (", timeout=90_000)
+    expect(page.locator("#ident-result")).to_contain_text("verdict: ", timeout=90_000)
     expect(page.locator("#ident-result img")).to_have_count(1)  # the fit plot
     assert page.is_checked("input[name=pmode][value=coeffs]")  # the fitted model is now the plant
 
@@ -428,3 +428,50 @@ def test_a_tradeoff_with_another_objective_is_refused_at_the_objective(page, ser
     expect(at.locator(".err")).to_contain_text("leave spec.objective at settling_time")
     expect(page.locator("#tradeoff")).to_be_hidden()
     expect(page.locator("#tradeoff-btn")).to_be_enabled()
+
+
+def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, server, sync_api, tmp_path):
+    """Upload a ULog: the signals come from the log (lists), the sample time from its rate loop, the verdict sits
+    beside its plot and says the loop was closed; with the rate setpoint as the reference the joint estimate is
+    fitted; a px4_rate tune with the log's parameters shows the current tune, and the PX4 .params file downloads."""
+    from closed_loop import fly, write
+
+    expect = sync_api.expect
+    log = write(fly("sweep", seconds=40, seed=2, sweep_amplitude=3.0, turbulence=0.03), tmp_path / "sweep.ulg")
+    page.goto(f"{server.url}/?" + urlencode({"structure": "pid"}))
+    page.check("input[name=pmode][value=csv]")
+    page.set_input_files("#csv-file", str(log))
+    expect(page.locator("#csv-info")).to_contain_text("signals", timeout=30_000)
+    assert page.locator("#col-time-field").is_hidden()
+    picked = [page.locator(f"#col-{c} option:checked").inner_text() for c in ("input", "output", "reference")]
+    assert picked == ["vehicle_torque_setpoint.xyz[0]", "vehicle_angular_velocity.xyz[0]",
+                      "vehicle_rates_setpoint.roll"]
+    assert float(page.input_value("#dt")) == pytest.approx(0.0025)  # IMU_GYRO_RATEMAX from the log
+    page.select_option("#col-reference", label="none (open loop)")  # first without the reference: flagged
+    page.click("#identify-btn")
+    expect(page.locator("#ident-quality")).to_have_text(re.compile("verdict: closed-loop"), timeout=90_000)
+    expect(page.locator("#ident-closed-loop")).to_contain_text("--reference")
+    page.check("input[name=pmode][value=csv]")
+    page.select_option("#col-reference", label="vehicle_rates_setpoint.roll")
+    page.click("#identify-btn")
+    expect(page.locator("#ident-quality")).to_have_text(re.compile(r"verdict: (good|acceptable) \(joint"),
+                                                        timeout=90_000)
+    img, verdict = page.locator("#ident-result img.fit").bounding_box(), page.locator(".ident-verdict").bounding_box()
+    assert verdict["x"] >= img["x"] + img["width"] - 1  # beside the plot, not below it
+    page.select_option("#structure", "px4_rate")
+    assert page.locator("#vehicle-row").is_visible() and page.is_checked("#vehicle-from-log")
+    page.click("#run-btn")
+    expect(page.locator("#verdict")).to_have_text(re.compile("meets spec"), timeout=90_000)
+    expect(page.locator("#current-block")).to_be_visible()
+    expect(page.locator("#current")).to_contain_text("P 0.15")
+    page.click("#export .tabs button[data-format=px4]")
+    expect(page.locator("#export-code")).to_contain_text("MC_ROLLRATE_P", timeout=30_000)
+    expect(page.locator("#export-download")).to_have_text("download px4_rate_roll.params")
+    with page.expect_download() as dl:
+        page.click("#export-download")
+    saved = tmp_path / "roll.params"
+    dl.value.save_as(saved)
+    from tuner.firmware import read_params
+
+    assert read_params(saved, firmware="px4").gains["P"] > 0
+    page.screenshot(path=os.environ.get("TUNER_PAGE_SCREENSHOT_ULOG", str(tmp_path / "ulog.png")), full_page=True)

@@ -118,7 +118,7 @@ def param_file(result: Mapping[str, Any], format: str, *, axis: str | None = Non
                     + ")")
         cur = vehicle.get("current_gains") or {}
         if cur:
-            head.append("# current: " + ", ".join(f"{names[k]} {_fmt(float(v))}" for k, v in cur.items()
+            head.append("# current: " + ", ".join(f"{names[k]} {float(v):.6g}" for k, v in cur.items()
                                                   if k in names))
     else:
         head.append("# vehicle: none given (no --params): the firmware's default loop rate and filters assumed")

@@ -45,7 +45,7 @@ from ..errors import InvalidDataError
 from ..tolerances import SAMPLE_COUNT_TOL
 from .data import MAX_SAMPLES, MIN_SAMPLES
 
-__all__ = ["GAP_FACTOR", "MAX_ULOG_BYTES", "ULogRecords", "is_ulog", "parse_signal", "read_ulog"]
+__all__ = ["GAP_FACTOR", "MAX_ULOG_BYTES", "ULogRecords", "is_ulog", "parse_signal", "read_ulog", "signals"]
 
 GAP_FACTOR = 5.0
 MAX_ULOG_BYTES = 2_000_000_000
@@ -258,3 +258,43 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
               if isinstance(v, (int, float)) and math.isfinite(float(v))}
     return ULogRecords(inputs=inputs, outputs=outputs, rate_hz=rate_hz, t_starts_s=starts, gaps=rel, dropped=dropped,
                        references=refs if tr is not None else None, parameters=params)
+
+
+#: the parameters of the rate laws a page passes on (the vehicle of a tune), by prefix
+_LAW_PARAMS = ("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "MC_RR_", "MC_PR_", "MC_YR_", "MC_ROLL_P",
+               "MC_PITCH_P", "MC_YAW_P", "IMU_GYRO_", "IMU_DGYRO_", "ATC_RAT_", "ATC_ANG_", "SCHED_LOOP_RATE",
+               "INS_GYRO_FILTER")
+
+
+def signals(src: str | Path | bytes) -> dict[str, Any]:
+    """What a log offers: every numeric ``TOPIC[:N].FIELD`` with its median rate (Hz), the rate law's parameters it
+    stores as a QGroundControl ``.params`` text (``params_text``, empty without), and the loop rate they name.
+
+    Examples
+    --------
+    >>> import io, struct
+    >>> from tuner.identify.ulog import signals
+    >>> signals(b"ULog")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    tuner.errors.InvalidDataError: the upload: not a readable ULog file ...
+    """
+    ul = _load(src, None)
+    out = []
+    for d in sorted(ul.data_list, key=lambda d: (d.name, d.multi_id)):
+        t = np.asarray(d.data.get("timestamp", []), dtype=np.float64)
+        t = t[t > 0]
+        rate = float(1e6 / np.median(np.diff(t))) if t.size > 2 and np.median(np.diff(t)) > 0 else None
+        name = f"{d.name}:{d.multi_id}" if d.multi_id else d.name
+        for k, v in d.data.items():
+            if k in ("timestamp", "timestamp_sample") or k.startswith("_padding"):
+                continue
+            if np.asarray(v).dtype.kind in "fiu":
+                out.append({"name": f"{name}.{k}", "rate_hz": rate})
+    params = {str(k): v for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
+              if str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float)) and math.isfinite(float(v))}
+    lines = [f"1\t1\t{k}\t{v!r}\t{6 if isinstance(v, int) else 9}" for k, v in sorted(params.items())]
+    loop = params.get("IMU_GYRO_RATEMAX") or params.get("SCHED_LOOP_RATE")
+    return {"signals": out, "params_text": "\n".join(lines) + ("\n" if lines else ""), "loop_hz": loop,
+            "firmware": "px4" if any(k.startswith("MC_") for k in params) else
+            ("ardupilot" if any(k.startswith("ATC_") for k in params) else None)}

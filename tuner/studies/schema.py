@@ -409,9 +409,8 @@ def _digest_cached(path: str, mtime_ns: int, size: int) -> str:
 def _read_log(path: str, o: dict[str, Any]) -> dict[str, Any]:
     """A data loop's log as :func:`tuner.identify` arguments (a ULog log split at gaps: several records)."""
     from ..identify.csvlog import read_columns
-    from ..identify.ulog import is_ulog, read_ulog
-
     from ..identify.feedback import known_controller, signs_of
+    from ..identify.ulog import is_ulog, read_ulog
 
     ref = o.get("reference")
     if is_ulog(path):
