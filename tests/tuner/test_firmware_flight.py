@@ -149,14 +149,27 @@ def settling_time(t: np.ndarray, y: np.ndarray, final: float, band: float = 0.02
     return float(t[out[-1] + 1]) if out.size else 0.0
 
 
+def exported_gains(res, tmp_path) -> dict:
+    """The result exported as its firmware's parameter file and read back (the values the vehicle gets)."""
+    from tuner.export.paramfile import param_file
+    from tuner.firmware import read_params
+
+    fmt = "px4" if res.structure == "px4_rate" else "ardupilot"
+    text, name = param_file(res.to_dict(), fmt)
+    p = tmp_path / name
+    p.write_text(text)
+    v = read_params(p, firmware=fmt)
+    return {**v.gains, **v.fixed}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["px4_rate", "ardupilot_rate"])
-def test_the_tuned_law_flies_as_claimed(name):
+def test_the_tuned_law_flies_as_claimed(name, tmp_path):
     import control as ct
 
     res = tune(ct.tf(NUM, DEN), structure=name, dt=DT, delay=DT * DELAY_SAMPLES, time_budget_s=10)
     assert res.meets_spec
-    g = res.gains
+    g = exported_gains(res, tmp_path)  # what the ground station loads, read back: the design that flies
     pm = phase_margin(name, g)
     assert pm >= 60.0 - 0.5  # the spec, to the grid's resolution
     assert res.metrics.phase_margin_deg == pytest.approx(pm, abs=2.0)
@@ -169,7 +182,7 @@ def test_the_tuned_law_flies_as_claimed(name):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["px4_rate", "ardupilot_rate"])
-def test_the_saturated_step_is_the_laws(name):
+def test_the_saturated_step_is_the_laws(name, tmp_path):
     """An 8 rad/s step with |u| <= 0.4 (the proportional kick alone asks for about 1): the tuner's saturated step
     (tuner.analysis.saturation) against the laws above with their own clamps, flown between samples."""
     import control as ct
@@ -180,7 +193,8 @@ def test_the_saturated_step_is_the_laws(name):
     res = tune(ct.tf(NUM, DEN), structure=name, dt=DT, delay=DT * DELAY_SAMPLES, time_budget_s=10, actuator=act)
     s = res.analyses[0].saturated
     assert s is not None and s.saturated_fraction > 0.05  # it does saturate
-    t, y, u = fly(name, res.gains, amplitude=8.0, u_min=-0.4, u_max=0.4, t_end=float(s.response.t[-1]))
+    t, y, u = fly(name, exported_gains(res, tmp_path), amplitude=8.0, u_min=-0.4, u_max=0.4,
+                  t_end=float(s.response.t[-1]))
     assert np.max(np.abs(u)) == pytest.approx(0.4)
     ts = settling_time(t, y, 8.0)
     assert s.metrics.settling_time_s == pytest.approx(ts, rel=0.05)
