@@ -658,16 +658,15 @@ def _cmd_tradeoff(a: argparse.Namespace) -> int:
 
 
 def _load_identified(path: str) -> Any:
-    """The :class:`~tuner.identify.IdentifyResult` in ``path`` (the JSON of ``tuner identify --json``)."""
+    """The :class:`~tuner.identify.IdentifyResult` in ``path`` (the JSON of ``tuner identify --json``), read by the
+    bounded reader (a size limit, a regular file only, binary and deep nesting refused)."""
+    from .fileio import read_json
     from .identify.result import IdentifyResult
 
-    try:
-        with open(path, encoding="utf-8") as f:
-            d = json.load(f)
-    except OSError as e:
-        raise TunerError(f"--identified {path}: cannot read: {e.strerror or e}") from None
-    except (ValueError, UnicodeDecodeError) as e:
-        raise TunerError(f"--identified {path}: not JSON: {e}") from None
+    d = read_json(path, label=f"--identified {path}", field="identified",
+                  hint="give the JSON of 'tuner identify --json'")
+    if not isinstance(d, dict):
+        raise TunerError(f"--identified {path}: not the JSON of 'tuner identify --json' (not an object)")
     try:
         return IdentifyResult.from_dict(d)
     except TunerError as e:

@@ -26,7 +26,8 @@ from typing import Any
 
 from .errors import TunerError
 
-__all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "MAX_STUDY_BYTES", "read_text", "read_json"]
+__all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "MAX_NESTING", "MAX_STUDY_BYTES", "check_input",
+           "nesting_depth", "read_head", "read_text", "read_json"]
 
 CHUNK_BYTES = 1 << 20
 MAX_CSV_BYTES = 256 << 20
@@ -38,6 +39,53 @@ def _mib(n: int) -> str:
     return f"{n / (1 << 20):g} MiB"
 
 
+def check_input(path: str | Path, *, limit: int | None = None, field: str | Sequence[str | int] = "file",
+                label: str | None = None) -> int:
+    """The size of ``path``, a regular file within ``limit`` bytes, decided from its metadata before it is opened:
+    a directory, a FIFO or pipe, a device (``/dev/zero``) or a socket is refused at once (reading one could hang or
+    never end), and so is a file larger than ``limit`` (a 2 GB sparse file is refused without reading a byte).
+
+    Examples
+    --------
+    >>> from tuner.fileio import check_input
+    >>> check_input("/dev/zero")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    tuner.errors.TunerError: /dev/zero: not a regular file (a character device): ...
+    """
+    import os
+    import stat
+
+    name = label or str(path)
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise TunerError(f"{name}: cannot read: {e.strerror or e}", field=field) from None
+    mode = st.st_mode
+    if stat.S_ISDIR(mode):
+        raise TunerError(f"{name}: a directory, not a file: give the file's path", field=field)
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO or pipe" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode) else
+                "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "a special file")
+        raise TunerError(f"{name}: not a regular file ({kind}): save the data to a file and give its path",
+                         field=field)
+    if limit is not None and st.st_size > limit:
+        raise TunerError(f"{name}: {st.st_size} bytes, larger than {_mib(limit)} (the limit for this input); give "
+                         "a smaller file", field=field)
+    return int(st.st_size)
+
+
+def read_head(path: str | Path, n: int, *, field: str | Sequence[str | int] = "file", label: str | None = None
+              ) -> bytes:
+    """The first ``n`` bytes of the regular file ``path`` (:func:`check_input` first: nothing that could hang)."""
+    check_input(path, field=field, label=label)
+    try:
+        with open(path, "rb") as f:
+            return f.read(n)
+    except OSError as e:
+        raise TunerError(f"{label or path}: cannot read: {e.strerror or e}", field=field) from None
+
+
 def read_text(path: str | Path, *, limit: int, field: str | Sequence[str | int] = "file", label: str | None = None,
               hint: str = "") -> str:
     """The UTF-8 text of ``path``, read in chunks, refused past ``limit`` bytes or at the first binary chunk.
@@ -47,6 +95,7 @@ def read_text(path: str | Path, *, limit: int, field: str | Sequence[str | int] 
     """
     name = label or str(path)
     tail = f"; {hint}" if hint else ""
+    check_input(path, limit=limit, field=field, label=label)
     dec = codecs.getincrementaldecoder("utf-8-sig")()
     parts: list[str] = []
     size = 0
@@ -78,8 +127,30 @@ def read_json(path: str | Path, *, limit: int = MAX_JSON_BYTES, field: str | Seq
     tail = f"; {hint}" if hint else ""
     text = read_text(path, limit=limit, field=field, label=label, hint=hint)
     try:
-        return json.loads(text)
+        out = json.loads(text)
     except json.JSONDecodeError as e:
         raise TunerError(f"{name}: not valid JSON ({e.msg} at line {e.lineno}){tail}", field=field) from None
     except RecursionError:
         raise TunerError(f"{name}: JSON nested too deeply to read{tail}", field=field) from None
+    if nesting_depth(out) > MAX_NESTING:
+        raise TunerError(f"{name}: JSON nested more than {MAX_NESTING} levels deep{tail}", field=field)
+    return out
+
+
+#: the deepest nesting a JSON or TOML input may have (a result's JSON is a few levels deep)
+MAX_NESTING = 64
+
+
+def nesting_depth(obj: Any, level: int = 0) -> int:
+    """How deep ``obj`` nests (iteratively: a hostile document cannot exhaust the stack here)."""
+    deepest, stack = level, [(obj, level)]
+    while stack:
+        o, d = stack.pop()
+        deepest = max(deepest, d)
+        if d > MAX_NESTING:
+            return d
+        if isinstance(o, dict):
+            stack.extend((v, d + 1) for v in o.values())
+        elif isinstance(o, list):
+            stack.extend((v, d + 1) for v in o)
+    return deepest

@@ -237,14 +237,10 @@ def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = 
     >>> v.firmware, v.loop_hz, v.gains["D"], v.fixed["K"]
     ('px4', 800.0, 0.004, 1.0)
     """
-    from ..fileio import read_text
+    from ..fileio import read_head, read_text
 
     p = Path(path)
-    try:
-        with open(p, "rb") as f:
-            head = f.read(len(_ULOG_MAGIC))
-    except OSError as e:
-        raise TunerError(f"{p}: cannot read: {e.strerror or e}", field=field) from None
+    head = read_head(p, len(_ULOG_MAGIC), field=field)  # a regular file only: nothing that could hang
     if head == _ULOG_MAGIC:
         return vehicle_from_raw(_ulog_parameters(p, field), axis=axis, firmware=firmware,
                                 source=f"{p.name} (ULog parameters)", fmt="ulog", field=field)

@@ -41,7 +41,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from ..errors import InvalidDataError
+from ..errors import InvalidDataError, TunerError
 from ..tolerances import SAMPLE_COUNT_TOL
 from .data import MAX_SAMPLES, MIN_SAMPLES
 
@@ -78,8 +78,15 @@ class ULogRecords:
 
 
 def is_ulog(path: str | Path) -> bool:
-    """Whether the file is named ``.ulg`` or starts with the ULog magic bytes."""
+    """Whether the file is named ``.ulg`` or starts with the ULog magic bytes. A path that is no regular file (a
+    FIFO, a device, a directory) is refused here, before anything opens it (it could hang or never end)."""
+    from ..fileio import check_input
+
     p = Path(path)
+    try:
+        check_input(p, field="file")
+    except TunerError as e:
+        raise InvalidDataError(str(e), field="file") from None
     if p.suffix.lower() == ".ulg":
         return True
     try:

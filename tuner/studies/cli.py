@@ -287,7 +287,7 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
     from .report import render_report
     from .schema import controller_of, identified
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_dir(out_dir, "--out")
     results = {name: (st.result or {"loop": name, "error": "not done"}) for name, st in statuses.items()}
     ctrls = {lp.name: controller_of(lp, results[lp.name]["gains"]) for lp in study.order()
              if "gains" in results[lp.name]}
@@ -328,7 +328,7 @@ def _cmd_study_run(a: argparse.Namespace) -> int:
     if a.heartbeat < 1 or a.grace <= a.heartbeat:
         raise TunerError("--heartbeat must be >= 1 s and --grace longer than it")
     out = Path(a.out or os.path.join("results", study.name))
-    out.mkdir(parents=True, exist_ok=True)
+    make_dir(out, "--out")
     url = a.storage or default_storage_url(str(out))
     t0 = time.perf_counter()
     # one worker = one core, as the service's solvers (api._preload): the parallelism is the workers (and the
@@ -417,3 +417,16 @@ def _print_verify_table(study: Any, evals: dict[str, Any]) -> None:
     for name, e in evals.items():
         if not e.meets_spec:
             con.print(f"{name}: failing {', '.join(e.failing)}")
+
+
+def make_dir(path: Path, option: str) -> None:
+    """``path`` as a directory (made with its parents), or a TunerError naming ``option`` (exit 2): an existing
+    file, a path under a file (``/dev/null/x``), a place that cannot hold one (``/proc/x``), no permission."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise TunerError(f"{option} {path}: a file of that name exists; give a directory") from None
+    except OSError as e:
+        raise TunerError(f"{option} {path}: cannot make the directory: {e.strerror or e}") from None
+    if not path.is_dir():
+        raise TunerError(f"{option} {path}: not a directory")

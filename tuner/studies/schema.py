@@ -356,6 +356,12 @@ def load_study(path: str | Path) -> StudyDef:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise InvalidStudyError(f"{p}: not valid TOML: {e}") from None
+    except RecursionError:
+        raise InvalidStudyError(f"{p}: TOML nested too deeply to read") from None
+    from ..fileio import MAX_NESTING, nesting_depth
+
+    if nesting_depth(raw) > MAX_NESTING:
+        raise InvalidStudyError(f"{p}: TOML nested more than {MAX_NESTING} levels deep; a study is a few levels deep")
     study = parse_study(raw, source=str(p))
     for lp in study.loop:
         if lp.data is not None:
@@ -397,6 +403,9 @@ def verify_path(d: PlantData) -> Path | None:
 
 
 def _digest(path: Path) -> str:
+    from ..fileio import check_input
+
+    check_input(path, field="file")  # a regular file: a FIFO or a device would never end
     st = path.stat()
     return _digest_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
 
