@@ -36,21 +36,26 @@ def bad(tmp_path_factory) -> dict[str, str]:
             "dir": str(d), "missing": str(d / "missing.json"), "zero": "/dev/zero", "afile": str(d / "afile")}
 
 
+def _ref(k: str) -> str:
+    """The placeholder of file ``k`` (filled in from the ``bad`` fixture)."""
+    return "{" + k + "}"
+
+
 READS = ["zero", "fifo", "sparse", "dir", "missing", "binary", "deep_json"]
 CASES = (
-    [(["tune", "--identified", "{%s}" % k, "--structure", "pi"], "--identified") for k in READS]
-    + [(["analyze", "--identified", "{%s}" % k, "--controller", "1"], "--identified") for k in READS]
-    + [(["tune", "--plant", "1/s", "--structure", "px4_rate", "--params", "{%s}" % k], "--params") for k in READS]
-    + [(["export", "--result", "{%s}" % k, "--format", "c"], "--result") for k in READS]
-    + [(["export", "--result", "{%s}" % k, "--format", "px4"], "--result") for k in READS]
-    + [(["verify", STUDY, "--gains", "{%s}" % k], "--gains") for k in READS]
-    + [(["identify", "{%s}" % k, *IDENT], "") for k in ("zero", "fifo", "sparse", "dir", "missing", "binary",
+    [(["tune", "--identified", _ref(k), "--structure", "pi"], "--identified") for k in READS]
+    + [(["analyze", "--identified", _ref(k), "--controller", "1"], "--identified") for k in READS]
+    + [(["tune", "--plant", "1/s", "--structure", "px4_rate", "--params", _ref(k)], "--params") for k in READS]
+    + [(["export", "--result", _ref(k), "--format", "c"], "--result") for k in READS]
+    + [(["export", "--result", _ref(k), "--format", "px4"], "--result") for k in READS]
+    + [(["verify", STUDY, "--gains", _ref(k)], "--gains") for k in READS]
+    + [(["identify", _ref(k), *IDENT], "") for k in ("zero", "fifo", "sparse", "dir", "missing", "binary",
                                                         "latin1")]
     + [(["identify", CSV, "--time", "t", "--input", "pitch_cmd", "--output", "pitch", "--poles", "2", "--verify",
-         "{%s}" % k], "") for k in ("zero", "fifo", "dir", "missing")]
-    + [(["study", "run", "{%s}" % k], "") for k in ("zero", "fifo", "sparse", "dir", "missing", "binary",
+         _ref(k)], "") for k in ("zero", "fifo", "dir", "missing")]
+    + [(["study", "run", _ref(k)], "") for k in ("zero", "fifo", "sparse", "dir", "missing", "binary",
                                                    "deep_toml")]
-    + [(["verify", "{%s}" % k, "--gains", "{missing}"], "") for k in ("zero", "fifo", "dir", "deep_toml")]
+    + [(["verify", _ref(k), "--gains", "{missing}"], "") for k in ("zero", "fifo", "dir", "deep_toml")]
     + [(["study", "run", STUDY, "--out", out], "--out") for out in ("/dev/null/x", "{afile}", "/proc/tuner-x")]
     + [(["export", "--controller", "1/s", "--dt", "0.1", "--format", "c", "--out", out], "--out")
        for out in ("/dev/null/x", "/proc/tuner-x/c.c", "{dir}")]
