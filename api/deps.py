@@ -42,10 +42,19 @@ def get_plot_cache(request: Request) -> Any:
     return request.app.state.plot_cache
 
 
+def one_key(request: Request) -> None:
+    """400 when the request carries several X-API-Key headers (the guard refuses them first; this holds for an app
+    run without it): one credential, read once."""
+    n = len(request.headers.getlist("x-api-key"))
+    if n > 1:
+        raise HTTPException(400, f"{n} X-API-Key headers: send exactly one")
+
+
 def client_id(request: Request, key: str | None = Security(_api_key_header)) -> str:
     """Who asks, for the per-client limits: the client's address, with its API key's fingerprint if
     it sent one. The address is the one uvicorn reports (behind a proxy, run uvicorn with
     ``--proxy-headers --forwarded-allow-ips`` so that it is the client's, not the proxy's)."""
+    one_key(request)
     return client_key(request.client.host if request.client is not None else "unknown", key)
 
 
@@ -57,8 +66,9 @@ def client_key(host: str, key: str | None) -> str:
 
 
 def require_api_key(
-    key: str | None = Security(_api_key_header), settings: Settings = Depends(get_settings)
+    request: Request, key: str | None = Security(_api_key_header), settings: Settings = Depends(get_settings)
 ) -> None:
+    one_key(request)
     if settings.api_key is None:
         return
     expected = settings.api_key.get_secret_value().encode()

@@ -93,6 +93,10 @@ class Guard:
         path = scope.get("path", "")
         headers = _headers(scope)
         send = self._headered(send, path)
+        n_keys = sum(1 for k, _ in scope.get("headers", ()) if k.lower() == b"x-api-key")
+        if n_keys > 1:  # one credential, read once: the guard and the route must not read different ones
+            await _answer(send, 400, f"{n_keys} X-API-Key headers: send exactly one")
+            return
         if self.allowed_hosts is not None:
             host = host_name(headers.get(b"host", b"").decode("latin-1"))
             if host not in self.allowed_hosts:
