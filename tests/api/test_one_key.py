@@ -7,9 +7,7 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import SecretStr
 
-from api.main import create_app
 from api.settings import Settings
-from api.testing import wait_for_workers
 
 BODY = {"plant": {"expr": "1/(s+1)"}, "structure": "pi", "options": {"time_budget_s": 1}}
 
