@@ -159,3 +159,32 @@ def test_the_hold_defaults_by_the_log(sweep, tmp_path, capsys):
     """A ULog's input is held onto its grid (hold zoh); a CSV's is taken as sampled (none) unless --hold says."""
     d = _identify_json(sweep, "--reference", "vehicle_rates_setpoint.roll", "--poles", "2", capsys=capsys)
     assert d["options"]["hold"] == "zoh" and d["options"]["hold_check"]["checked"]
+
+
+def test_implausible_rates_and_clocks(tmp_path, capsys):
+    """A rate no tune could use is refused; a clock in milliseconds is pointed out; a ULog clock that jumps is
+    called corrupt, not a rate problem."""
+    import numpy as np
+
+    from tests.ulog_writer import Topic, write_ulog
+    from tuner.errors import TunerError
+
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(2000)
+    y = np.convolve(u, [0.3, 0.3, 0.2])[:2000]
+    with pytest.raises(TunerError, match=r"rate_hz = 1e-12 Hz: the sample interval must be") as ei:
+        identify(u, y, rate_hz=1e-12, poles=1)
+    assert ei.value.field == ("rate_hz",)
+    res = identify(u, y, time=np.arange(2000) * 4.0, poles=1)
+    assert "milliseconds" in res.warnings[0] and "250 Hz" in res.warnings[0]
+    ts = 1_000_000 + np.arange(2000) * 2500
+    ts[1000:] += 10**13  # a clock that jumps by four months
+    tq = Topic("vehicle_torque_setpoint", [("float", "xyz", 3)], ts, {"xyz": np.stack([u, u, u], 1)})
+    av = Topic("vehicle_angular_velocity", [("float", "xyz", 3)], ts, {"xyz": np.stack([y, y, y], 1)})
+    log = write_ulog(tmp_path / "jump.ulg", [tq, av])
+    from tuner.cli import main
+
+    assert main(["identify", str(log), "--input", "vehicle_torque_setpoint.xyz[0]", "--output",
+                 "vehicle_angular_velocity.xyz[0]", "--poles", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "corrupt timestamps" in err and "--rate" not in err

@@ -325,6 +325,10 @@ def identify(
     warns = _warnings(out.cost, points, used, model, unc, val, n_points=n_points, tau_max=tau_max,
                       delay=delay, check=check_u, fit_u=np.concatenate([r.u for r in fit_recs]),
                       want_check=holdout > 0 or ver is not None)
+    if time is not None and dt_log >= 1.0 and 1e-4 <= dt_log / 1000.0 <= 0.1:  # a log's clock in milliseconds?
+        warns.insert(0, f"the time column steps by {dt_log:.4g} (a sample every {dt_log:.4g} s, {1 / dt_log:.3g} Hz): "
+                        f"if it is in milliseconds, divide it by 1000 ({1000 / dt_log:.4g} Hz); the model's time "
+                        "constants and delay are in the time column's units")
     closed = _closed_loop(spectra, fr, dt_log, joint is not None, controller, closed_loop_signs, coherence_min,
                           reference_band=used if joint is not None else None)
     if closed.get("detected") and joint is None:

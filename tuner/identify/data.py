@@ -139,6 +139,13 @@ def make_record(input: Sequence[float], output: Sequence[float], *, time: Sequen
         if not np.isfinite(r) or r <= 0:
             raise InvalidDataError(f"rate_hz must be finite and > 0, got {rate_hz!r}", field="rate_hz")
         dt, t0 = 1.0 / r, 0.0
+    from ..plant import MAX_DT_S, MIN_DT_S
+
+    if not MIN_DT_S <= dt <= MAX_DT_S:  # a model of such a record could never be tuned (nor stored to be)
+        where = "time" if time is not None else "rate_hz"
+        what = f"the time column's interval is {dt:.3g} s" if time is not None else f"rate_hz = {1 / dt:.3g} Hz"
+        raise InvalidDataError(f"{what}: the sample interval must be {MIN_DT_S:g} to {MAX_DT_S:g} s (the tuner's range"
+                               "); check the units (seconds, hertz)", field=where)
     for a, field in ((u, "input"), (y, "output")):
         big = float(np.max(np.abs(a)))
         if big > MAX_ABS:

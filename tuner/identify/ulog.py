@@ -225,9 +225,17 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
     if not hi - lo > dt:
         raise InvalidDataError(f"input ({tu[0] - t0:.3f}-{tu[-1] - t0:.3f} s) and output ({ty[0] - t0:.3f}-"
                                f"{ty[-1] - t0:.3f} s) do not overlap in time", field="output")
+    for tt, role in ((tu, "input"), (ty, "output")):  # a clock that jumps: corrupt timestamps, not a long log
+        covered = float(np.median(np.diff(tt))) * tt.size
+        if tt[-1] - tt[0] > 100.0 * covered:
+            j = int(np.argmax(np.diff(tt)))
+            raise InvalidDataError(f"{role} {columns[role]!r}: corrupt timestamps: its {tt.size} samples at their "
+                                   f"median interval cover {covered:.3g} s but they span {tt[-1] - tt[0]:.3g} s "
+                                   f"(a jump of {tt[j + 1] - tt[j]:.3g} s after sample {j}); repair or cut the log",
+                                   field=role)
     if (hi - lo) * rate_hz > MAX_SAMPLES:
-        raise InvalidDataError(f"{(hi - lo) * rate_hz:.0f} grid samples at {rate_hz:g} Hz; at most {MAX_SAMPLES} "
-                               "(lower --rate)", field="rate_hz")
+        raise InvalidDataError(f"{(hi - lo) * rate_hz:.0f} grid samples at {rate_hz:g} Hz; at most {MAX_SAMPLES}: "
+                               "resample at a lower rate, or cut the log", field="rate_hz")
     # the pieces between gaps: [lo, a1], [b1, a2], ... within [lo, hi]
     edges, start = [], lo
     for a, b in gaps:
