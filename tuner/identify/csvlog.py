@@ -10,6 +10,8 @@ refused beyond :data:`~tuner.fileio.MAX_CSV_BYTES` (256 MiB) or at its first bin
 from __future__ import annotations
 
 import csv
+import io
+import itertools
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -46,26 +48,40 @@ def read_columns(path: str | Path, columns: Mapping[str, str]) -> dict[str, np.n
 
 
 def _parse(p: Path, text: str, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
-    lines = text.splitlines()
+    """The columns as float arrays, parsed line by line from the text (no list of its lines, no Python floats
+    kept: 8 bytes a value; the text itself is the largest thing held)."""
+    from array import array
+
+    buf = io.StringIO(text)
     first = 0
-    while first < len(lines) and (not lines[first].strip() or lines[first].lstrip().startswith("#")):
+    head: list[str] = []
+    for raw in buf:  # comments and blank lines before the header
+        if raw.strip() and not raw.lstrip().startswith("#"):
+            head.append(raw)
+            break
         first += 1
-    if first == len(lines):
+    if not head:
         raise InvalidDataError(f"{p}: empty (no header row)", field="file")
-    reader = csv.reader(lines[first:], _dialect("\n".join(lines[first:first + 20])))
+    at = buf.tell()
+    sample = head[0] + "".join(buf.readline() for _ in range(19))
+    buf.seek(at)
+    reader = csv.reader(itertools.chain(head, buf), _dialect(sample))
     header = [h.strip() for h in next(reader)]
     idx: dict[str, int] = {}
     for role, name in columns.items():
         if name not in header:
             raise InvalidDataError(f"{p}: no column {name!r} (for the {role}); columns: {header}", field=role)
         idx[role] = header.index(name)
-    data: dict[str, list[float]] = {role: [] for role in columns}
+    data: dict[str, array] = {role: array("d") for role in columns}
+    lead = next(iter(columns))
     for k, row in enumerate(reader):
         line = first + 2 + k
         if not row or (len(row) == 1 and not row[0].strip()):
             continue
-        if len(data[next(iter(columns))]) >= MAX_ROWS:
-            raise InvalidDataError(f"{p}: more than {MAX_ROWS} rows; decimate the log", field="file")
+        if len(data[lead]) >= MAX_ROWS:
+            raise InvalidDataError(f"{p}: more than {MAX_ROWS} rows (the record limit, the same for the command "
+                                   "line and the service): decimate the log (keep every k-th row) or cut it",
+                                   field="file")
         for role, i in idx.items():
             cell = row[i].strip() if i < len(row) else ""
             try:
@@ -77,4 +93,4 @@ def _parse(p: Path, text: str, columns: Mapping[str, str]) -> dict[str, np.ndarr
                 raise InvalidDataError(f"{p}, line {line}, column {header[i]!r}: {cell} (non-finite); remove or "
                                        "interpolate such samples", field=role)
             data[role].append(v)
-    return {role: np.asarray(v, dtype=float) for role, v in data.items()}
+    return {role: np.frombuffer(v, dtype=float).copy() if len(v) else np.zeros(0) for role, v in data.items()}

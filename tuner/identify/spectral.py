@@ -47,6 +47,7 @@ POINTS_PER_DECADE = 40
 MIN_BAND_DECADES = 0.25  # a narrower automatic band is refused
 _PAD = 4  # FFT length / segment length
 _COH_CLIP = 0.999  # coherence used in the weights is clipped here (a perfect window would take all weight)
+STFT_BYTES_PER_SAMPLE = 32  # the short-time transforms held at once, per sample of the record
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,12 +152,23 @@ def window_spectra(rec: Record, window_s: float) -> WindowSpectra:
     nover = int(OVERLAP * nper)
     sft = ShortTimeFFT(get_window("hann", nper), nper - nover, 1.0 / rec.dt, fft_mode="onesided",
                        mfft=next_fast_len(_PAD * nper), scale_to="psd", phase_shift=None)
-    S = sft.stft_detrend(np.stack([rec.u, rec.y]), _linear_detrend(nper), p0=0, p1=(rec.n - nover) // sft.hop,
-                         k_offset=nper // 2)
-    su, sy = S[0], S[1]
-    guu = np.mean(su.real ** 2 + su.imag ** 2, axis=-1)
-    gyy = np.mean(sy.real ** 2 + sy.imag ** 2, axis=-1)
-    guy = np.mean(np.conj(su) * sy, axis=-1)  # csd(u, y): conj(U) Y; H1 = Guy / Guu
+    n_seg = (rec.n - nover) // sft.hop
+    x = np.stack([rec.u, rec.y])
+    detr = _linear_detrend(nper)
+    nf = sft.mfft // 2 + 1
+    # the segments' transforms in batches, their products summed: memory bounded by about 4 doubles per sample of
+    # the record (all segments at once hold 2 x (5 n / nper) x 2 nper complex values: 320 bytes per sample)
+    batch = max(1, int(STFT_BYTES_PER_SAMPLE * rec.n / (2 * nf * 16)))
+    guu, gyy = np.zeros(nf), np.zeros(nf)
+    guy = np.zeros(nf, dtype=complex)
+    for p0 in range(0, n_seg, batch):
+        S = sft.stft_detrend(x, detr, p0=p0, p1=min(n_seg, p0 + batch), k_offset=nper // 2)
+        su, sy = S[0], S[1]
+        guu += np.sum(su.real ** 2 + su.imag ** 2, axis=-1)
+        gyy += np.sum(sy.real ** 2 + sy.imag ** 2, axis=-1)
+        guy += np.sum(np.conj(su) * sy, axis=-1)  # csd(u, y): conj(U) Y; H1 = Guy / Guu
+        del S, su, sy
+    guu, gyy, guy = guu / n_seg, gyy / n_seg, guy / n_seg
     one_sided = slice(1, -1 if sft.mfft % 2 == 0 else None)  # as csd: double all but DC (and Nyquist)
     for g in (guu, gyy, guy):
         g[one_sided] *= 2.0
