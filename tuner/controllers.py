@@ -195,19 +195,7 @@ def _observable_pair(num: np.ndarray, num_r: np.ndarray, den: np.ndarray) -> tup
 
 # -- polynomial helpers that work on numbers and on CasADi symbols -------------------------
 
-def _pmul(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
-    out: list[Any] = [0] * (len(a) + len(b) - 1)
-    for i, x in enumerate(a):
-        for j, y in enumerate(b):
-            out[i + j] = out[i + j] + x * y
-    return out
-
-
-def _padd(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
-    n = max(len(a), len(b))
-    a = [0] * (n - len(a)) + list(a)
-    b = [0] * (n - len(b)) + list(b)
-    return [x + y for x, y in zip(a, b)]
+_pmul, _padd = laws.poly_mul, laws.poly_add  # one pair of polynomial helpers (numbers and CasADi symbols)
 
 
 def _sum_fractions(terms: Sequence[tuple[list[Any], list[Any]]]) -> tuple[list[Any], list[Any]]:

@@ -609,18 +609,23 @@ async function loadExport() {
   if (continuous && !q.has("dt")) return;
   const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
   if (r.ok) {
-    const text = await r.text();
-    pre.textContent = text;
-    if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
-    state.exportUrl = URL.createObjectURL(new Blob([text], { type: "text/plain" }));
-    link.href = state.exportUrl;
-    link.download = `${name}.${SUFFIX[f]}`;
+    offer(await r.text(), `${name}.${SUFFIX[f]}`);
     return;
   }
   const d = await answer(r);
   pre.textContent = "";
   if (r.status === 422 && Array.isArray(d.detail)) showErrors(root, d.detail, $("#export-error"));
   else showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
+}
+
+// the exported text shown, and offered as a file to download
+function offer(text, filename) {
+  $("#export-code").textContent = text;
+  if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
+  state.exportUrl = URL.createObjectURL(new Blob([text], { type: "text/plain" }));
+  const link = $("#export-download");
+  link.href = state.exportUrl;
+  link.download = filename;
 }
 
 // a firmware law's parameter file (the ground station's format), for download
@@ -633,13 +638,9 @@ async function loadParamFile(f) {
   pre.textContent = "…";
   const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
   if (r.ok) {
-    const text = await r.text();
-    pre.textContent = text;
-    if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
-    state.exportUrl = URL.createObjectURL(new Blob([text], { type: "text/plain" }));
-    link.href = state.exportUrl;
-    link.download = (r.headers.get("content-disposition") || "").match(/filename="([^"]+)"/)?.[1] || `${f}.txt`;
-    link.textContent = `download ${link.download}`;
+    const name = (r.headers.get("content-disposition") || "").match(/filename="([^"]+)"/)?.[1] || `${f}.txt`;
+    offer(await r.text(), name);
+    link.textContent = `download ${name}`;
     return;
   }
   const d = await answer(r);

@@ -33,8 +33,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["PX4_FIXED", "ARDUPILOT_FIXED", "alpha", "px4_coeffs", "px4_ref_coeffs", "ardupilot_coeffs",
-           "ardupilot_ref_coeffs"]
+__all__ = ["PX4_FIXED", "ARDUPILOT_FIXED", "alpha", "poly_add", "poly_mul", "px4_coeffs", "px4_ref_coeffs",
+           "ardupilot_coeffs", "ardupilot_ref_coeffs"]
 
 #: what the vehicle fixes for PX4's law (defaults: firmware.md, PX4's parameter defaults): the gain K
 #: (``MC_ROLLRATE_K``), the D-gyro low-pass cutoff (``IMU_DGYRO_CUTOFF``, Hz) and the integrator limit
@@ -62,7 +62,8 @@ def alpha(f_hz: float, dt: Any) -> Any:
     return dt / (dt + 1.0 / (2.0 * math.pi * f_hz))
 
 
-def _mul(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
+def poly_mul(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
+    """The product of two polynomials (highest power first), on numbers or symbols."""
     out: list[Any] = [0] * (len(a) + len(b) - 1)
     for i, x in enumerate(a):
         for j, y in enumerate(b):
@@ -70,7 +71,8 @@ def _mul(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
     return out
 
 
-def _add(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
+def poly_add(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
+    """The sum of two polynomials (highest power first, aligned at the constant term), on numbers or symbols."""
     n = max(len(a), len(b))
     a = [0] * (n - len(a)) + list(a)
     b = [0] * (n - len(b)) + list(b)
@@ -86,22 +88,22 @@ def _px4_parts(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list
     p, i, d = x[0], x[1], x[2]
     a = alpha(fixed["dgyro_hz"], dt)
     q = [1, -(1 - a)]
-    den = _mul([1, -1], q)
-    pi_num = _add(_mul([p, -p], q), _scale(q, i * dt))  # (P (z - 1) + I dt)(z - (1 - a))
-    d_num = _mul(_scale([1, -1], d * a / dt), [1, -1])  # D a/dt (z - 1)^2
+    den = poly_mul([1, -1], q)
+    pi_num = poly_add(poly_mul([p, -p], q), _scale(q, i * dt))  # (P (z - 1) + I dt)(z - (1 - a))
+    d_num = poly_mul(_scale([1, -1], d * a / dt), [1, -1])  # D a/dt (z - 1)^2
     return pi_num, d_num, den
 
 
 def px4_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
     """PX4's feedback path ``C_fb`` (numerator, denominator; highest power first) for ``x = (P, I, D, FF)``."""
     pi_num, d_num, den = _px4_parts(x, dt, fixed)
-    return _scale(_add(pi_num, d_num), fixed["K"]), den
+    return _scale(poly_add(pi_num, d_num), fixed["K"]), den
 
 
 def px4_ref_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
     """PX4's setpoint path ``C_r = K (P + I dt/(z - 1)) + FF`` over the feedback path's denominator."""
     pi_num, _, den = _px4_parts(x, dt, fixed)
-    return _add(_scale(pi_num, fixed["K"]), _scale(den, x[3])), den
+    return poly_add(_scale(pi_num, fixed["K"]), _scale(den, x[3])), den
 
 
 def _lp(f_hz: float, dt: Any) -> tuple[list, list]:
@@ -117,21 +119,22 @@ def _ardupilot_parts(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tupl
     p, i, d = x[0], x[1], x[2]
     ad = alpha(fixed["fltd_hz"], dt)
     q = [1, -(1 - ad)]
-    den = _mul([1, -1], q)  # (z - 1)(z - (1 - a_D))
-    num = _add(_add(_mul([p, -p], q), _mul([i * dt, 0], q)), _mul(_scale([1, -1], d * ad / dt), [1, -1]))
+    den = poly_mul([1, -1], q)  # (z - 1)(z - (1 - a_D))
+    pi = poly_add(poly_mul([p, -p], q), poly_mul([i * dt, 0], q))  # P (z - 1) q + I dt z q
+    num = poly_add(pi, poly_mul(_scale([1, -1], d * ad / dt), [1, -1]))  # + D a_D/dt (z - 1)^2
     ne, de = _lp(fixed["flte_hz"], dt)
     nt, dtt = _lp(fixed["fltt_hz"], dt)
-    return _mul(num, ne), _mul(den, de), nt, dtt
+    return poly_mul(num, ne), poly_mul(den, de), nt, dtt
 
 
 def ardupilot_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
     """ArduPilot's feedback path ``C_fb = PID H_E`` over the common denominator (the target filter's pole
     included, cancelled: the realisation of both paths shares it)."""
     num, den, _, dtt = _ardupilot_parts(x, dt, fixed)
-    return _mul(num, dtt), _mul(den, dtt)
+    return poly_mul(num, dtt), poly_mul(den, dtt)
 
 
 def ardupilot_ref_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
     """ArduPilot's target path ``C_r = (PID H_E + FF) H_T`` over the feedback path's denominator."""
     num, den, nt, dtt = _ardupilot_parts(x, dt, fixed)
-    return _mul(_add(num, _scale(den, x[3])), nt), _mul(den, dtt)
+    return poly_mul(poly_add(num, _scale(den, x[3])), nt), poly_mul(den, dtt)
