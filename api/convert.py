@@ -176,7 +176,10 @@ def tuning_problem(body: TuneRequest, *, identification: Any = None, vehicle: An
     try:
         return TuningProblem.build(plants, structure=structure, spec=body.spec, dt=dt)
     except TunerError as e:
-        raise FieldError.of(e, body_loc(e.field)) from None
+        loc = body_loc(e.field)
+        if identification is not None and loc[1:2] in (("plant",), ("plants",)):
+            loc = ("body", "identification_id")  # the plants are the identification's: the request has no plant
+        raise FieldError.of(e, loc) from None
 
 
 def _controller(c: ControllerIn, dt: float | None, vehicle: Any = None) -> ControllerTF:

@@ -341,7 +341,7 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
     if d > MAX_DELAY_SAMPLES:
         raise InvalidPlantError(
             f"delay of {d} samples of dt={dt:g} s is above the limit of {MAX_DELAY_SAMPLES} samples (each sample "
-            "of delay is a state of the closed loop): give a larger dt, or a continuous controller (dt null)",
+            "of delay is a state of the closed loop): give a larger sample time, or a continuous controller",
             field=("plant", "delay"))
     pct = plant.continuous_equivalent() if plant.is_discrete else plant
     return _finite(Loop(plant=plant, controller=controller, dt=dt, delay_s=0.0, delay_samples=d,

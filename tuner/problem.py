@@ -26,6 +26,9 @@ from .tolerances import SAME_DT_RTOL
 __all__ = ["TuningProblem", "MAX_PLANTS"]
 
 MAX_PLANTS = 50
+#: the plant's ultimate gain K0 a tune accepts: a controller's gains scale as K0, and the loop's products of gains
+#: (K0 times the plant's gain, squared in the sensitivities) must stay far inside double precision
+GAIN_SCALE_RANGE = (1e-100, 1e100)
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,6 +91,10 @@ class TuningProblem:
         if not all(math.isfinite(v) and v > 0 for v in scale):
             raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
                                     "(coefficients spanning hundreds of decades)", field=("plants", 0))
+        if not GAIN_SCALE_RANGE[0] <= scale[0] <= GAIN_SCALE_RANGE[1]:  # the controller's gains would be its inverse
+            raise InvalidPlantError(f"the plant's gain scale (its ultimate gain K0 = {scale[0]:.3g}) is beyond what the "
+                                    "loop's products of gains hold in double precision: rescale the plant (other "
+                                    "units for its input or output)", field=("plants", 0))
         asked = spec
         spec, limits = resolve_limits(spec, st, plants, dt, scale)
         guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale, spec=spec).values()), dt)

@@ -470,8 +470,8 @@ def tune(
         from .controllers import deprecation_note
 
         note = deprecation_note(structure) if isinstance(structure, str) else None
-        if note:
-            info["notes"] = [note]
+        if note or run.notes:
+            info["notes"] = list(dict.fromkeys(([note] if note else []) + list(run.notes)))
         from .display import optimality_line
 
         info["optimality"]["summary"] = optimality_line(info)
@@ -518,7 +518,7 @@ def tune(
                 res.solver.setdefault("notes", []).insert(0, (
                     "the identification was flown under feedback and fitted without a reference (quality "
                     "'closed-loop'): its model may be the controller's inverse, not the plant; this design is tuned "
-                    "on that model. Identify again with the exogenous signal (--reference)"))
+                    "on that model. Identify again with the exogenous signal as the reference"))
         if actuator is not None:  # the step the actuator allows, as the law runs it (every plant)
             res = replace(res, analyses=tuple(a.with_saturation(actuator, problem.spec, structure=st.name,
                                                                 gains=res.gains) for a in res.analyses))

@@ -450,7 +450,7 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
     page.select_option("#col-reference", label="none (open loop)")  # first without the reference: flagged
     page.click("#identify-btn")
     expect(page.locator("#ident-quality")).to_have_text(re.compile("verdict: closed-loop"), timeout=90_000)
-    expect(page.locator("#ident-closed-loop")).to_contain_text("--reference")
+    expect(page.locator("#ident-closed-loop")).to_contain_text("as the reference")
     page.check("input[name=pmode][value=csv]")
     page.select_option("#col-reference", label="vehicle_rates_setpoint.roll")
     page.click("#identify-btn")

@@ -66,7 +66,7 @@ def param_file(result: Mapping[str, Any], format: str, *, axis: str | None = Non
     structure = result.get("structure")
     if structure != law:
         raise TunerError(f"a {format} parameter file holds the {law} law; this result's structure is "
-                         f"{structure!r}: tune with --structure {law} (or export it as C with --format c)",
+                         f"{structure!r}: tune the structure {law} (or export this one as code, format c)",
                          field="structure")
     gains = result.get("gains")
     if not isinstance(gains, Mapping):

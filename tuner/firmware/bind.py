@@ -41,7 +41,7 @@ def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "pa
     st = structure if isinstance(structure, Structure) else get_structure(structure)
     want = FIRMWARE_OF.get(st.name)
     if want is None:
-        raise TunerError(f"--params / vehicle parameters set a firmware rate law: give structure px4_rate or "
+        raise TunerError(f"vehicle parameters set a firmware rate law: give structure px4_rate or "
                          f"ardupilot_rate (got {st.name!r})", field="structure")
     fw = getattr(vehicle, "firmware", None)
     src = getattr(vehicle, "source", "the parameters")

@@ -238,6 +238,8 @@ def _print(res: Any, a: argparse.Namespace) -> None:
     cl = res.closed_loop
     if cl.get("detected"):
         con.print(("[red]closed loop:[/red] " if res.unreliable_feedback else "closed loop: ") + cl["message"])
+        if res.unreliable_feedback:
+            con.print("  identify again with --reference COL (the exogenous signal's column or TOPIC.FIELD)")
     hc = res.options.get("hold_check")
     if hc and hc.get("checked"):
         con.print(f"hold counted once: the model with a zero-order hold at {1 / res.rate_hz:g} s against the measured "

@@ -420,7 +420,7 @@ def _closed_loop(spectra: list[Any], fr: Any, dt: float, joint: bool, controller
         msg = ("the data were flown under feedback (" + "; ".join(found) + "): where the disturbance, not an "
                "excitation, drives the loop, the direct estimate from input to output is the controller's "
                "inverse -1/C, at high coherence, and says nothing about the plant; this fit is not rated good or "
-               "acceptable. Give the exogenous signal with --reference (an injected excitation, or the rate "
+               "acceptable. Give the exogenous signal as the reference (an injected excitation, or the rate "
                "setpoint flown in a rate mode), and excite the loop through it")
     return {"detected": True, "signs": found, "estimate": "joint" if joint else "direct", "message": msg,
             "inverse_match": match}

@@ -124,7 +124,7 @@ class IdentifyResult:
              f"{self.quality} (CIFER: <= {J_GOOD:.0f} good, <= {J_ACCEPTABLE:.0f} acceptable)")
         if self.unreliable_feedback:
             s += ("; flown under feedback without a reference: the fit may be of the controller's inverse, "
-                  "not the plant (--reference)")
+                  "not the plant (give the reference)")
         if self.validation is not None:
             s += f"; time-domain check {self.validation.describe()}"
         else:

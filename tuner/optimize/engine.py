@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..controllers import get_structure
+from ..errors import TunerError
 from ..problem import TuningProblem
 from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL
 from .batch import BatchEvaluator, Start
@@ -280,6 +281,7 @@ class RunInfo:
     nlp_solves_ok: int = 0
     seeded_from: str | None = None
     history: list[float] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what the user should know of this search (shown with the result)
 
 
 class Engine:
@@ -424,9 +426,22 @@ class Engine:
             if self._time_left() <= 0:
                 break
             self.pool = [(s, w, True) if w is v else (s, w, r) for s, w, r in self.pool]
-            res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
-                         incumbent=self.best.score if self._settling else None, start=self._start(v),
-                         fine=fine, detail=self.effort.detail)
+            try:
+                res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
+                             incumbent=self.best.score if self._settling else None, start=self._start(v),
+                             fine=fine, detail=self.effort.detail)
+            except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation
+                # step of a stiff plant below the smallest sample time, a loop gain beyond double precision for
+                # the NLP's scaled candidate): the search goes on without the local stage, and says so; the user's
+                # input is valid (TuningProblem accepted it), so this is never their error
+                log.info("local NLP unavailable for this problem: %s", e)
+                self.local = False
+                note = (f"the local NLP could not model this loop (internally: {e}); the answer is the global "
+                        "search's, verified as always, without the local refinement")
+                if note not in self.info.notes:
+                    self.info.notes.append(note)
+                out.append(math.nan)
+                break
             if res.status.startswith("no time left") or time.perf_counter() > self.deadline - self.reserve_s:
                 self._exhaust()  # (a build the time left cannot afford, or a bisection the deadline cut: the end)
             i = self.info

@@ -1,0 +1,54 @@
+"""Every 422 names a field the request has, and its advice applies to the request as sent (issue 31): a stiff plant
+without dt is tuned (the NLP's internal model of it is the search's business, not the request's), a plant whose gain
+scale leaves double precision is refused at the plant, an identification's loop error points at the
+identification, and no command-line flag appears in an answer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from api.settings import Settings
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory):
+    db = tmp_path_factory.mktemp("loc") / "tuner.db"
+    return Settings(database_url=f"sqlite:///{db}", workers=1, queue_size=4, default_budget_s=2.0, solve_grace_s=10.0)
+
+
+def test_a_stiff_plant_without_dt_is_not_a_dt_error(client):
+    r = client.post("/tune", json={"plant": {"expr": "1/((s+1)*(1e-9*s+1)*(1e-8*s+1))"}, "structure": "pid",
+                                   "options": {"time_budget_s": 2}})
+    assert r.status_code == 200, r.text
+    assert any("local NLP could not model" in n for n in r.json()["solver"].get("notes", []))
+
+
+def test_a_gain_beyond_double_precision_is_the_plants(client):
+    r = client.post("/tune", json={"plant": {"num": [1e-300], "den": [1, 1]}, "structure": "pi"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "plant"], r.text
+
+
+def test_an_identifications_loop_error_points_at_it(client):
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(3000)
+    y = np.convolve(u, [0.5, 0.3, 0.1])[:3000] + 0.01 * rng.standard_normal(3000)
+    r = client.post("/identify", json={"input": u.tolist(), "output": y.tolist(), "rate_hz": 100.0, "poles": 1,
+                                       "delay": 5.0})
+    assert r.status_code == 200, r.text
+    ident = r.json()["id"]
+    r = client.post("/tune", json={"identification_id": ident, "structure": "pi", "dt": 0.001})
+    assert r.status_code == 422, r.text
+    d = r.json()["detail"][0]
+    assert d["loc"] == ["body", "identification_id"] and "dt null" not in d["msg"], d
+
+
+def test_the_closed_loop_verdict_names_no_flag(client):
+    from closed_loop import fly
+
+    lg = fly("hover", seconds=20, seed=3)
+    body = {"input": lg.u.tolist(), "output": lg.y.tolist(), "rate_hz": 400.0, "poles": 2}
+    r = client.post("/identify", json=body)
+    assert r.status_code == 200
+    d = r.json()
+    assert "--" not in d["verdict"] and all("--" not in w for w in d["warnings"])
