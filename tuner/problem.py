@@ -92,8 +92,8 @@ class TuningProblem:
             raise InvalidPlantError("the plant's gain or frequency scale is not finite: rescale the model "
                                     "(coefficients spanning hundreds of decades)", field=("plants", 0))
         if not GAIN_SCALE_RANGE[0] <= scale[0] <= GAIN_SCALE_RANGE[1]:  # the controller's gains would be its inverse
-            raise InvalidPlantError(f"the plant's gain scale (its ultimate gain K0 = {scale[0]:.3g}) is beyond what the "
-                                    "loop's products of gains hold in double precision: rescale the plant (other "
+            raise InvalidPlantError(f"the plant's gain scale (its ultimate gain K0 = {scale[0]:.3g}) is beyond what "
+                                    "the loop's products of gains hold in double precision: rescale the plant (other "
                                     "units for its input or output)", field=("plants", 0))
         asked = spec
         spec, limits = resolve_limits(spec, st, plants, dt, scale)
