@@ -13,7 +13,6 @@ Nothing here is asserted (tests/tuner/test_cli_inputs.py checks the exit codes).
 from __future__ import annotations
 
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -26,16 +25,19 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDY = str(ROOT / "studies" / "quadrotor.toml")
 
 
+_PEAK = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:], stdin=subprocess.DEVNULL, "
+         "capture_output=True); print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); sys.exit(r.returncode)")
+
+
 def _run(args: list[str]) -> tuple[int, float, float]:
-    """(exit code, wall s, the child's peak RSS MB) of ``tuner args`` in a fresh process."""
+    """(exit code, wall s, peak RSS MB) of ``tuner args`` in a fresh process (measured by a parent of its own, so
+    that each figure is that command's alone)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "tuner.cli", *args], capture_output=True, text=True, env=env,
-                       stdin=subprocess.DEVNULL, timeout=900)
+    p = subprocess.run([sys.executable, "-c", _PEAK, sys.executable, "-m", "tuner.cli", *args], capture_output=True,
+                       text=True, env=env, stdin=subprocess.DEVNULL, timeout=900)
     wall = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return p.returncode, wall, max(peak, before) / 1024.0
+    return p.returncode, wall, float(p.stdout.strip().splitlines()[-1]) / 1024.0
 
 
 def _csv(path: Path, n: int) -> Path:

@@ -195,7 +195,7 @@ def test_cli_identified_not_an_identification(tmp_path, capsys):
     assert "not the JSON of 'tuner identify --json'" in capsys.readouterr().err
     f.write_text("{")
     assert main(["tune", "--identified", str(f), "--structure", "pid_z", "--dt", "0.04"]) == 2
-    assert "not JSON" in capsys.readouterr().err
+    assert "not valid JSON" in capsys.readouterr().err
 
 
 @pytest.mark.slow

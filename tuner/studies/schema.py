@@ -403,10 +403,12 @@ def verify_path(d: PlantData) -> Path | None:
 
 
 def _digest(path: Path) -> str:
-    from ..fileio import check_input
+    import errno
+    import stat
 
-    check_input(path, field="file")  # a regular file: a FIFO or a device would never end
     st = path.stat()
+    if not stat.S_ISREG(st.st_mode):  # a regular file only: hashing a FIFO or a device would never end
+        raise OSError(errno.EINVAL, "not a regular file (a FIFO, a device or a directory): give a file", str(path))
     return _digest_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
 
 
