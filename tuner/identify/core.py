@@ -283,6 +283,7 @@ def identify(
             fit_recs, tail = recs, None
             fit_dur = max(r.duration_s for r in fit_recs)
             _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, 0.0)
+            spectra = fr = None  # the head's spectra go before the whole record's are computed (half the memory)
             spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
     w_fit = np.geomspace(used[0], used[1], n_points)
     if joint is not None:
