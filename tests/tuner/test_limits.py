@@ -50,7 +50,7 @@ def test_delay_in_samples_limit():
     with pytest.raises(TunerError, match=f"above the limit of {MAX_DELAY_SAMPLES} samples") as ei:
         analyze(over, c)
     assert ei.value.field == ("plant", "delay")
-    with pytest.raises(TunerError, match="give a larger dt") as ei:
+    with pytest.raises(TunerError, match="give a larger sample time") as ei:
         TuningProblem.build([plant_from_expr("1/(s+1)"), over], structure="pi", dt=dt)
     assert ei.value.field == ("plants", 1, "delay")
     # the same delay in a continuous loop is fine (4000 fine steps whatever the delay)
