@@ -527,8 +527,8 @@ def tune(
                 s0 = res.analyses[0].saturated
                 frac = 100 * s0.saturated_fraction if s0 is not None else math.nan
                 res.solver.setdefault("notes", []).append(
-                    f"the linear design meets its spec, but a step of {actuator.step_size:g} with "
-                    f"{actuator.u_min:g} <= u <= {actuator.u_max:g} saturates {frac:.0f} % of the samples and fails "
+                    f"the search designs the linear loop; a step of {actuator.step_size:g} with "
+                    f"{actuator.u_min:g} <= u <= {actuator.u_max:g} saturates {frac:.0f} % of the step and fails "
                     f"{', '.join(sorted({c.name for c in sat}))}: a smaller step, wider limits, or a slower design "
                     "(a settling-time limit, a lower control peak) fits the actuator")
         if current_gains is not None:

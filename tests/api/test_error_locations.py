@@ -20,8 +20,17 @@ def settings(tmp_path_factory):
 def test_a_stiff_plant_without_dt_is_not_a_dt_error(client):
     r = client.post("/tune", json={"plant": {"expr": "1/((s+1)*(1e-9*s+1)*(1e-8*s+1))"}, "structure": "pid",
                                    "options": {"time_budget_s": 2}})
-    assert r.status_code == 200, r.text
-    assert any("local NLP could not model" in n for n in r.json()["solver"].get("notes", []))
+    assert r.status_code == 200, r.text  # (whether the NLP got to try within the budget depends on the machine)
+    assert "meets_spec" in r.json()
+
+
+def test_the_nlp_that_cannot_model_a_loop_is_a_note():
+    """The library: the local NLP's internal model of a stiff continuous loop fails; the tune goes on and says so."""
+    from tuner import tune
+    from tuner.plant import plant_from_expr
+
+    r = tune(plant_from_expr("1/((s+1)*(1e-9*s+1)*(1e-8*s+1))"), structure="pid", time_budget_s=30, effort="fast")
+    assert any("local NLP could not model" in n for n in r.solver.get("notes", []))
 
 
 def test_a_gain_beyond_double_precision_is_the_plants(client):
