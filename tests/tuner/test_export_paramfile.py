@@ -76,6 +76,12 @@ def test_cli_export(tmp_path, capsys):
     assert "ardupilot_rate" in capsys.readouterr().err
     assert main(["export", "--result", str(r), "--format", "px4", "--u-max", "1"]) == 2
     assert main(["export", "--result", str(r), "--format", "c", "--axis", "roll"]) == 2
+    capsys.readouterr()
+    ctrl = __import__("tuner").controller_tf("px4_rate", PX4["gains"], dt=0.0025)
+    r.write_text(json.dumps({**PX4, "controller": ctrl.to_dict()}))
+    assert main(["export", "--result", str(r), "--format", "c"]) == 2  # the firmware runs its own law
+    assert "export its parameter file (format px4)" in capsys.readouterr().err
+    r.write_text(json.dumps(PX4))
     r.write_text(json.dumps({**PX4, "gains": {**PX4["gains"], "P": 0.9}}))
     assert main(["export", "--result", str(r), "--format", "px4"]) == 2
     assert "MC_ROLLRATE_P = 0.9" in capsys.readouterr().err
