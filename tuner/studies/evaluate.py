@@ -268,6 +268,6 @@ def identification_summary(lp: LoopDef) -> dict[str, Any]:
     if val is not None:
         val = {k: v for k, v in val.items() if k != "series"}
     keep = ("model", "cost", "quality", "check", "verdict", "warnings", "band_rad_s", "uncertainty", "rate_hz",
-            "n_samples", "fit_duration_s")
+            "n_samples", "fit_duration_s", "closed_loop")
     return {"file": lp.data.file if lp.data else None, **{k: d[k] for k in keep}, "validation": val,
             "plant": identified(lp).describe()}
