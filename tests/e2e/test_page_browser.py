@@ -129,6 +129,8 @@ def test_the_exported_controller_in_c_and_as_a_difference_equation(page, server,
     expect(code).to_contain_text("double controller_update(controller_state *s, double e)", timeout=30_000)
     assert code.inner_text().strip() == exported("c", "controller").strip()
     page.click("#export button[data-format=text]")
+    # (the C's own header holds "u[k] = " too: wait for the C to be gone, then for the text)
+    expect(code).not_to_contain_text("controller_update", timeout=30_000)
     expect(code).to_contain_text("u[k] = ", timeout=30_000)
     assert code.inner_text().strip() == exported("text", "controller").strip()
     page.fill("#export-name", "roll")
