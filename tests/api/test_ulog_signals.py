@@ -1,0 +1,60 @@
+"""``POST /ulog/signals``: what a PX4 ULog offers the page (its signals with their rates, the rate law's parameters
+as a .params text, the loop rate), and every bad upload refused with the field, before or after the body is read."""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import pytest
+from ulog_writer import Topic, write_ulog
+
+from api.settings import Settings
+from tuner.firmware import vehicle_from_text
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory):
+    db = tmp_path_factory.mktemp("ulog-signals") / "tuner.db"
+    return Settings(database_url=f"sqlite:///{db}", workers=1, queue_size=4, max_body_bytes=16_384,
+                    max_identify_body_bytes=2_000_000)
+
+
+@pytest.fixture(scope="module")
+def ulog_b64(tmp_path_factory):
+    n = 400
+    ts = 1_000_000 + np.arange(n) * 2500  # 400 Hz
+    z = np.zeros(n)
+    p = write_ulog(tmp_path_factory.mktemp("ulog") / "f.ulg", [
+        Topic("vehicle_torque_setpoint", [("float", "xyz", 3)], ts, {"xyz": np.stack([z, z, z], 1)}),
+        Topic("vehicle_angular_velocity", [("float", "xyz", 3)], ts[::2], {"xyz": np.stack([z, z, z], 1)[::2]})],
+        params={"MC_ROLLRATE_P": 0.18, "MC_ROLLRATE_I": 0.2, "MC_ROLLRATE_D": 0.004, "IMU_GYRO_RATEMAX": 400,
+                "SYS_AUTOSTART": 4001})
+    return base64.b64encode(p.read_bytes()).decode()
+
+
+def test_the_signals_rates_and_parameters(client, ulog_b64):
+    r = client.post("/ulog/signals", json={"data": ulog_b64})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    rates = {s["name"]: s["rate_hz"] for s in d["signals"]}
+    assert rates["vehicle_torque_setpoint.xyz[0]"] == pytest.approx(400.0)
+    assert rates["vehicle_angular_velocity.xyz[2]"] == pytest.approx(200.0)
+    assert d["loop_hz"] == 400 and d["firmware"] == "px4"
+    assert "SYS_AUTOSTART" not in d["params_text"]  # the rate law's parameters only
+    v = vehicle_from_text(d["params_text"], axis="roll")  # the text a tune's vehicle.params takes
+    assert v.gains["P"] == pytest.approx(0.18, rel=1e-6) and v.loop_hz == 400
+
+
+@pytest.mark.parametrize("data, words", [("not base64!" * 4, "not base64"),
+                                         (base64.b64encode(b"\x00" * 64).decode(), "not a readable ULog")])
+def test_a_bad_upload_is_422_at_the_data(client, data, words):
+    r = client.post("/ulog/signals", json={"data": data})
+    assert r.status_code == 422, r.text
+    item = r.json()["detail"][0]
+    assert item["loc"] == ["body", "data"] and words in item["msg"], item
+
+
+def test_an_upload_over_the_limit_is_refused_before_it_is_read(client):
+    r = client.post("/ulog/signals", json={"data": "A" * 2_100_000})
+    assert r.status_code == 413, r.text
