@@ -299,11 +299,12 @@ def saturated_step(loop: Any, actuator: Actuator, *, structure: str | None = Non
         Cf, Df, offsets, phi = lifted_with_switch(loop, int(samples_per_dt))
     a = actuator.step_size
     x = np.zeros(A.shape[0])
-    buf = [0.0] * (m + 1)  # u[k-m] ... u[k]
+    buf = [0.0] * (m + 1)  # u[k-m-1] ... u[k-1] before this sample's law runs; u[k-m] ... u[k] after
     ys, us, sat, yf_rows, tf_rows = [], [], [], [], []
     for k in range(K):
-        ua = buf[0]  # the plant's input over this sample (the whole-sample delay before it)
-        y = float(C @ x) + D * ua
+        # the measurement at t_k: the state and, through a feedthrough (only with a delay, m >= 1), the input
+        # held over this sample, u[k-m], the same one the state update and the fine output below use
+        y = float(C @ x) + (D * buf[1] if m else 0.0)
         u, clamped = law(a, y)
         sat.append(bool(clamped))
         buf = buf[1:] + [u] if m else [u]
@@ -331,8 +332,8 @@ def saturated_step(loop: Any, actuator: Actuator, *, structure: str | None = Non
     norm = StepResponse(t=t, y=yfine / a, u=ufine, t_samples=ts, y_samples=ys_a / a, y_final=final / a,
                         between_samples=fine, corners=corners)
     met = step_metrics(norm)
-    met = StepMetrics(met.overshoot_pct, met.settling_time_s, met.rise_time_s, float(1.0 - ys_a[-1] / a),
-                      float(np.max(np.abs(us_a))))
+    met = StepMetrics(met.overshoot_pct, met.settling_time_s, met.rise_time_s, float((final - ys_a[-1]) / a),
+                      float(np.max(np.abs(us_a))))  # (the error against the final value the metrics use)
     err = np.abs(a - yfine)
     iae = float(np.sum(0.5 * (err[1:] + err[:-1]) * np.diff(t))) if t.size > 1 else 0.0
     # the share of the step's transient (up to its settling; the whole run if it never settles) spent saturated

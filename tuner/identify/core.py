@@ -265,6 +265,9 @@ def identify(
                                    field="holdout")
         fit_recs, tail, head, holdout = recs, None, rec, 0.0
         fit_dur = max(r.duration_s for r in fit_recs)
+        if ver is None:
+            notes.append("with a reference the whole record is fitted: the time-domain check is on the fitted "
+                         "record (give a separate verification record for an independent check)")
     try:
         if joint is not None:
             spectra, fr, used, jspec = _joint_spectral(fit_recs, joint, req_band, windows_s, coherence_min)
