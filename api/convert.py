@@ -207,10 +207,9 @@ def law_gains(body: AnalyzeRequest, vehicle: Any, dt: float | None) -> dict[str,
     return {**now, **gains}
 
 
-def analysis_inputs(body: AnalyzeRequest) -> tuple[Plant, ControllerTF, Spec]:
+def analysis_inputs(body: AnalyzeRequest, vehicle: Any = None) -> tuple[Plant, ControllerTF, Spec]:
     """Plant, controller (at ``dt``, else at a discrete plant's dt, else the vehicle's loop rate) and spec of an
-    /analyze body, validated as one loop."""
-    vehicle = vehicle_of(body)
+    /analyze body, validated as one loop; ``vehicle``: the body's (:func:`vehicle_of`), read once by the caller."""
     plant = _plant(body.plant, 0)
     dt = body.dt if body.dt is not None else plant.dt
     if dt is None and vehicle is not None and getattr(vehicle, "loop_hz", None):

@@ -105,7 +105,7 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
         role = e.field[0] if e.field else "data"
         e.field = ("ulog", "data" if role == "file" else role, *e.field[1:])
         raise
-    from tuner.identify.feedback import known_controller, signs_of
+    from tuner.identify.feedback import hints
 
     opts = {k: v for k, v in payload.items() if k not in ("ulog", "rate_hz", "time")}
     one = len(recs.inputs) == 1
@@ -113,8 +113,7 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
         opts["reference"] = recs.references[0] if one else recs.references
     try:
         res = identify(recs.inputs[0] if one else recs.inputs, recs.outputs[0] if one else recs.outputs,
-                       rate_hz=recs.rate_hz, closed_loop_signs=signs_of(ulog["input"], recs.parameters),
-                       controller=known_controller(recs.parameters, ulog["input"], 1.0 / recs.rate_hz), **opts)
+                       rate_hz=recs.rate_hz, **hints(ulog["input"], recs.parameters, recs.rate_hz), **opts)
     except TunerError as e:
         if e.field[:1] == ("reference",):
             e.field = ("ulog", "reference", *e.field[1:])

@@ -42,14 +42,15 @@ async def post_analyze(
     job: Callable[[dict[str, Any]], Any] = Depends(get_analyze_job),
     client: str = Depends(client_id),
 ) -> JSONResponse:
-    plant, ctrl, spec = analysis_inputs(body)
+    vehicle = vehicle_of(body)  # read once: the controller's fixed values and the law's gains both come from it
+    plant, ctrl, spec = analysis_inputs(body, vehicle)
     payload = {"plant": plant, "controller": ctrl, "spec": spec}
     if body.actuator is not None:
         if ctrl.dt is None:
             raise FieldError(("body", "dt"), "actuator: the saturated step runs the law at its sample time: give dt "
                              "and the controller in z")
         c = body.controller
-        gains = law_gains(body, vehicle_of(body), ctrl.dt) if c.structure is not None else None
+        gains = law_gains(body, vehicle, ctrl.dt) if c.structure is not None else None
         payload.update(actuator=body.actuator.to_actuator(), structure=c.structure, gains=gains)
     out = await run_job(
         request, pool, job, payload, timeout_s=settings.analyze_timeout_s, client=client, what="analysis",

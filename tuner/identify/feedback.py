@@ -19,7 +19,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["CONTROLLER_OUTPUTS", "signs_of", "axis_of", "known_controller"]
+__all__ = ["CONTROLLER_OUTPUTS", "signs_of", "axis_of", "known_controller", "hints"]
 
 #: PX4 topics whose fields are a controller's output (the plant's input in a log flown under feedback)
 CONTROLLER_OUTPUTS = ("vehicle_torque_setpoint", "vehicle_thrust_setpoint", "actuator_controls", "actuator_motors",
@@ -77,3 +77,11 @@ def known_controller(parameters: Mapping[str, float], input_name: str, dt: float
         return st.tf({**v.gains, **st.fixed_values}, dt)
     except TunerError:
         return None
+
+
+def hints(input_name: str, parameters: Mapping[str, float] | None, rate_hz: float | None) -> dict[str, Any]:
+    """What a log tells :func:`tuner.identify` of its feedback: ``closed_loop_signs`` and the ``controller`` its
+    parameters describe (at the log's rate), as keyword arguments."""
+    params = dict(parameters or {})
+    return {"closed_loop_signs": signs_of(input_name, params),
+            "controller": known_controller(params, input_name, 1.0 / rate_hz) if params and rate_hz else None}

@@ -420,7 +420,7 @@ def _digest_cached(path: str, mtime_ns: int, size: int) -> str:
 def _read_log(path: str, o: dict[str, Any]) -> dict[str, Any]:
     """A data loop's log as :func:`tuner.identify` arguments (a ULog log split at gaps: several records)."""
     from ..identify.csvlog import read_columns
-    from ..identify.feedback import known_controller, signs_of
+    from ..identify.feedback import hints
     from ..identify.ulog import is_ulog, read_ulog
 
     ref = o.get("reference")
@@ -432,13 +432,12 @@ def _read_log(path: str, o: dict[str, Any]) -> dict[str, Any]:
         return {"input": r.inputs[0] if one else r.inputs, "output": r.outputs[0] if one else r.outputs,
                 "time": None, "rate_hz": r.rate_hz, "ulog": True,
                 "reference": None if refs is None else (refs[0] if one else refs),
-                "signs": signs_of(o["input"], r.parameters),
-                "controller": known_controller(r.parameters, o["input"], 1.0 / r.rate_hz)}
+                **hints(o["input"], r.parameters, r.rate_hz)}
     cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {}),
             **({"reference": ref} if ref else {})}
     data = read_columns(path, cols)
     return {"input": data["input"], "output": data["output"], "time": data.get("time"), "rate_hz": o["rate_hz"],
-            "ulog": False, "reference": data.get("reference"), "signs": signs_of(o["input"]), "controller": None}
+            "ulog": False, "reference": data.get("reference"), **hints(o["input"], None, None)}
 
 
 @lru_cache(maxsize=32)
@@ -463,8 +462,8 @@ def _identify_cached(path: str, digest: str, options: str, dt: float | None, ver
     return identify(data["input"], data["output"], time=data["time"], rate_hz=data["rate_hz"], poles=o["poles"],
                     zeros=o["zeros"], delay=delay, delay_step=o.get("delay_step"), band=o["band"],
                     holdout=o["holdout"], verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"],
-                    reference=data["reference"], controller=data["controller"], closed_loop_signs=data["signs"],
-                    hold=hold)
+                    reference=data["reference"], controller=data["controller"],
+                    closed_loop_signs=data["closed_loop_signs"], hold=hold)
 
 
 def identified(lp: LoopDef) -> Any:
