@@ -435,16 +435,19 @@ def tune(
         # keep a share of the budget for the final verification at full resolution
         # (and, when a diagnosis may follow, its share: an infeasible spec's search would otherwise use it all)
         reserve = (_RESERVE + (DIAGNOSIS_SHARE if diagnose else 0.0)) * float(time_budget_s)
-        eng = Engine(search, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
-                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=reserve,
-                     effort=effort)
-        # "as robust as possible at this speed": the fastest design meeting the spec is a candidate too (the
-        # robustness objectives' landscape is flat where the settling time's is not; the fast design may win)
+        # "as robust as possible at this speed": the fastest design meeting the spec leads the search (its refinements
+        # then start from a point that meets the settling-time limit; the robustness objectives' landscape is flat
+        # where the settling time's is not) and is a candidate itself
         fast = None
         if problem.spec.objective in ROBUSTNESS_OBJECTIVES and diagnose:
             fast_problem = replace(problem, spec=problem.spec.model_copy(update={"objective": "settling_time"}))
             fast = tune(fast_problem, seed=int(seed), time_budget_s=FAST_SHARE * float(time_budget_s),
                         n_starts=n_starts, nlp_solver=nlp_solver, local=local, diagnose=False, effort=effort)
+        seeds = [np.array([fast.gains[k] for k in problem.structure.params], float)] \
+            if fast is not None and fast.meets_spec else None
+        eng = Engine(search, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
+                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=reserve,
+                     effort=effort, seeds=seeds)
         run = eng.run()
         t_verify = time.perf_counter()
         best_x, best = eng.verify_best()

@@ -289,7 +289,8 @@ class Engine:
 
     def __init__(self, problem: TuningProblem, *, seed: int, deadline: float, solver: str = "sqp", local: bool = True,
                  n_starts: int | None = None, n_trials: int | None = None, sampler: Any = None,
-                 storage: Any = None, reserve_s: float = 0.0, effort: str | Effort = "default") -> None:
+                 storage: Any = None, reserve_s: float = 0.0, effort: str | Effort = "default",
+                 seeds: list[np.ndarray] | None = None) -> None:
         self.problem = problem
         self.space = make_space(problem.structure, problem.nominal, problem.dt, scale=problem.scale,
                                 nyquist=problem.spec.filter_nyquist)
@@ -310,6 +311,9 @@ class Engine:
         self.reserve_s = reserve_s
         self.info = RunInfo()
         self.pool: list[tuple[float, np.ndarray, bool]] = []  # (batch score, coordinates, refined?)
+        # parameter vectors the caller already knows meet the spec (a robustness objective's fastest design): they lead
+        # round 0, so its refinements start from a feasible point
+        self._given = [self.space.from_params(np.asarray(x, float)) for x in (seeds or [])]
         self.best = _Best()
         self._search: SeededSearch | None = None
         self._per_point = 0.0  # seconds per point of the last batch
@@ -471,7 +475,7 @@ class Engine:
         S = np.array(starts).reshape(len(starts), -1)
         seeded = [v for v in self._seeded_starts()  # those the structure's own starts do not already hold
                   if not len(S) or np.min(np.max(np.abs(S - v) / span, axis=1)) >= 1e-3]
-        seeded = self._contained_answer() + seeded
+        seeded = self._contained_answer() + self._given + seeded
         n0 = max(1, len(starts) // len(GAIN_DECADES))  # the nominal-gain starts: an incumbent, cheaply
         self._score(np.array(starts[:n0]), source="design")
         # the later batches are cut to what the time left affords (their cost per point is known by now: a slow
