@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from .errors import TunerError
+from .limits import LIMITS
 from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
 __all__ = ["main", "EXIT_OK", "EXIT_SPEC_NOT_MET", "EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_CODES"]
@@ -42,23 +43,12 @@ class _Parser(argparse.ArgumentParser):
 
 def _add_spec_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("spec (defaults: the quadrotor thesis)")
-    g.add_argument("--pm", type=float, default=None, metavar="DEG", help="minimum phase margin (60)")
-    g.add_argument("--gm", type=float, default=None, metavar="DB", help="minimum gain margin (6)")
-    g.add_argument("--overshoot", type=float, default=None, metavar="PCT", help="maximum overshoot %% (10)")
-    g.add_argument("--band", type=float, default=None, metavar="PCT", help="settling band %% (2)")
-    g.add_argument("--control-peak", type=float, default=None, help="maximum |u| after a unit step")
-    g.add_argument("--ms", type=float, default=None, help="maximum sensitivity peak Ms = max |1/(1+L)|")
-    g.add_argument("--mt", type=float, default=None, help="maximum complementary sensitivity peak Mt = max |L/(1+L)|")
-    g.add_argument("--mks", type=float, default=None, help="maximum noise sensitivity Mks = max |C/(1+L)|: how much "
-                   "sensor noise reaches the actuator")
-    g.add_argument("--disk-margin", type=float, default=None, metavar="ALPHA",
-                   help="minimum balanced disk margin alpha, 0 < alpha < 2")
-    g.add_argument("--bandwidth", type=float, default=None, metavar="RAD_S", help="minimum closed-loop bandwidth")
-    g.add_argument("--settling-max", type=float, default=None, metavar="S",
-                   help="maximum settling time, s (the response-time knob; with --objective mks or disk_margin: the "
-                   "most robust design at that speed)")
-    g.add_argument("--wc", type=float, default=None, metavar="RAD_S",
-                   help="target gain-crossover frequency, rad/s, met within +-1 %% (as pidtune(G, type, wc))")
+    for lim in LIMITS:  # one flag per limit of the registry (tuner.limits)
+        if lim.field == "overshoot_max_pct":
+            g.add_argument("--band", type=float, default=None, metavar="PCT", help="settling band %% (2)")
+        default = f" ({lim.default:g})" if lim.default is not None else ""
+        g.add_argument(lim.flag, dest=lim.field, type=float, default=None, metavar=lim.metavar,
+                       help=lim.help.replace("%", "%%") + default)
     g.add_argument("--objective", default=None, choices=list(OBJECTIVE_DEFINITIONS),
                    help="what tune optimises (default settling_time; each defined in 'tuner tune --help')")
     d = p.add_argument_group(
@@ -157,13 +147,9 @@ def _spec_from_args(a: argparse.Namespace):
 
     from .spec import Spec
 
-    fields = {
-        "phase_margin_min_deg": a.pm, "gain_margin_min_db": a.gm, "overshoot_max_pct": a.overshoot,
-        "settling_band_pct": a.band, "control_peak_max": a.control_peak, "ms_max": a.ms,
-        "mt_max": a.mt, "mks_max": a.mks, "disk_margin_min": a.disk_margin, "bandwidth_min_rad_s": a.bandwidth,
-        "objective": a.objective, "settling_time_max": a.settling_max, "crossover_rad_s": a.wc,
-        "filter_n_max": a.filter_n, "noise_gain_max": a.noise_gain,
-    }
+    fields = {lim.field: getattr(a, lim.field) for lim in LIMITS}
+    fields.update({"settling_band_pct": a.band, "objective": a.objective, "filter_n_max": a.filter_n,
+                   "noise_gain_max": a.noise_gain})
     given = {k: v for k, v in fields.items() if v is not None}
     if a.no_default_limits:
         given = {"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, **given}
@@ -179,11 +165,9 @@ def _spec_from_args(a: argparse.Namespace):
 
 #: Spec field -> the command-line flag that sets it (errors and suggestions speak the caller's vocabulary)
 SPEC_FLAGS = {
-    "phase_margin_min_deg": "--pm", "gain_margin_min_db": "--gm", "overshoot_max_pct": "--overshoot",
-    "settling_band_pct": "--band", "control_peak_max": "--control-peak", "ms_max": "--ms", "mt_max": "--mt",
-    "mks_max": "--mks", "disk_margin_min": "--disk-margin", "bandwidth_min_rad_s": "--bandwidth",
-    "objective": "--objective", "settling_time_max": "--settling-max", "crossover_rad_s": "--wc",
-    "filter_n_max": "--filter-n", "noise_gain_max": "--noise-gain", "filter_nyquist": "--no-filter-nyquist",
+    **{lim.field: lim.flag for lim in LIMITS},
+    "settling_band_pct": "--band", "objective": "--objective", "filter_n_max": "--filter-n",
+    "noise_gain_max": "--noise-gain", "filter_nyquist": "--no-filter-nyquist",
     "zero_steady_state_error": "zero_steady_state_error",
 }
 

@@ -26,25 +26,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .design import dc_gain  # re-exported: its name here before tuner.design
+from .limits import LIMITS, by_check
 from .problem import TuningProblem
 from .spec import Spec
 from .tolerances import LIMIT_RTOL, SAMPLE_COUNT_TOL
 
 __all__ = ["Reason", "diagnose", "definitional_reasons", "dc_gain"]
 
-# failing check -> (Spec field, direction: +1 = lower bound on the metric (>=), -1 = upper bound, loosest value)
+# failing check -> (Spec field, direction: +1 = lower bound on the metric (>=), -1 = upper bound, loosest value): every
+# limit of the registry (tuner.limits) with a sense, the gain margin's lower side, and the derivative-filter rule
 _LIMITS: dict[str, tuple[str, int, Any]] = {
-    "phase_margin_deg": ("phase_margin_min_deg", +1, 0.0),
-    "gain_margin_db": ("gain_margin_min_db", +1, 0.0),
+    **{lim.check: (lim.field, lim.sense, lim.loosest) for lim in LIMITS if lim.sense},
     "gain_margin_lower_db": ("gain_margin_min_db", +1, 0.0),
-    "overshoot_pct": ("overshoot_max_pct", -1, 100.0),
-    "control_peak": ("control_peak_max", -1, None),
-    "ms": ("ms_max", -1, None),
-    "mt": ("mt_max", -1, None),
-    "mks": ("mks_max", -1, None),
-    "disk_margin": ("disk_margin_min", +1, None),
-    "bandwidth_rad_s": ("bandwidth_min_rad_s", +1, None),
-    "settling_time_s": ("settling_time_max", -1, None),
     "filter_n": ("filter_n_max", -1, None),
 }
 BISECTIONS = 4
@@ -239,8 +232,10 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
             continue
         sug = suggestion(check, shown)
         said = ", ".join(f"{k} = {v:g}" for k, v in sug.items())
+        lim = by_check(check)
+        hint = ("; " + lim.binds.format(value=asked)) if lim is not None and lim.binds else ""
         reasons.append(Reason((check,), f"{check} {op} {asked:.4g} was not met with {name} on this plant together "
-                              f"with the other constraints; the tightest a search found feasible is {said}", sug))
+                              f"with the other constraints; the tightest a search found feasible is {said}{hint}", sug))
     if not single_ok:
         changes = {}
         for c in todo:

@@ -64,7 +64,10 @@ def metrics_repr(m: Any) -> str:
     head, peaks = _freq_lines(m)
     step = (f"  step: overshoot {_g(m.overshoot_pct, 3)} % | settling {_g(m.settling_time_s, 3)} s | rise "
             f"{_g(m.rise_time_s, 3)} s | error {_g(m.steady_state_error, 3)} | peak |u| {_g(m.control_peak, 3)}")
-    return f"Metrics({'stable' if m.stable else 'UNSTABLE'}, {head}\n{peaks}\n{step})"
+    load = (f"  disturbance: rejection bandwidth {_g(m.disturbance_rejection_bandwidth_rad_s, 3)} rad/s | peak "
+            f"{_g(m.disturbance_rejection_peak_db, 3)} dB | load step: IAE {_g(m.load_iae, 3)} | peak "
+            f"{_g(m.load_peak, 3)} | recovered {_g(m.load_recovery_s, 3)} s")
+    return f"Metrics({'stable' if m.stable else 'UNSTABLE'}, {head}\n{peaks}\n{step}\n{load})"
 
 
 def margins_repr(m: Any) -> str:

@@ -11,15 +11,15 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, create_model
 
+from .limits import CROSSOVER_TOL, LIMITS, SSE_TOL
+from .limits import OBJECTIVES as _OBJECTIVES
 from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
-__all__ = ["Spec", "Check", "check_spec", "OBJECTIVES"]
+__all__ = ["Spec", "Check", "check_spec", "OBJECTIVES", "SSE_TOL", "CROSSOVER_TOL"]
 
-OBJECTIVES = ("settling_time", "itae", "iae", "ie", "bandwidth", "mks", "disk_margin")
-SSE_TOL = 1e-6
-CROSSOVER_TOL = 0.01  # a target crossover is met within +-1 %
+OBJECTIVES = tuple(o.name for o in _OBJECTIVES)
 
 # The default design limits (on unless lifted; ``Spec.thesis()`` or ``--no-default-limits`` lift all three):
 FILTER_N_MAX = 20.0  # derivative filter: N = Td/Tf <= 20 (Astrom & Hagglund, Advanced PID Control, 2006: N in 2..20)
@@ -27,7 +27,7 @@ NOISE_GAIN_MAX = 10.0  # noise budget: Mks <= 10 K0, K0 = the plant's ultimate g
 DEFAULT_LIMITS = ("filter_n_max", "filter_nyquist", "noise_gain_max")
 
 
-class Spec(BaseModel):
+class _SpecCore(BaseModel):
     """A tuning specification. Optional limits are ``None`` when not requested.
 
     A frozen pydantic model: every field is validated on construction (a bad value raises
@@ -55,26 +55,11 @@ class Spec(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    phase_margin_min_deg: float = Field(60.0, ge=0, le=90, description="minimum phase margin, degrees")
-    gain_margin_min_db: float = Field(6.0, ge=0, le=40, description="minimum gain margin (upper and lower), dB")
-    overshoot_max_pct: float = Field(10.0, ge=0, le=100, description="maximum step overshoot, %")
     zero_steady_state_error: bool = Field(True, description="require zero steady-state error to a step")
     settling_band_pct: float = Field(2.0, gt=0, le=20, description="settling band, % of the final value")
-    objective: Literal["settling_time", "itae", "iae", "ie", "bandwidth", "mks", "disk_margin"] = Field(
+    objective: Literal[OBJECTIVES] = Field(  # type: ignore[valid-type]
         "settling_time", description="what is optimised (tuner.objectives): " + "; ".join(
             f"{k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()) + ". " + ROBUST_NOTE)
-    control_peak_max: float | None = Field(None, gt=0, description="maximum |u| after a unit reference step")
-    ms_max: float | None = Field(None, ge=1, description="maximum sensitivity peak Ms = max |1/(1+L)| (>= 1)")
-    mt_max: float | None = Field(None, gt=0, description="maximum complementary sensitivity peak Mt = max |L/(1+L)| "
-                                 "(>= 1 with zero steady-state error, since T(0) = 1; a tune refuses less)")
-    mks_max: float | None = Field(None, gt=0, description="maximum noise sensitivity Mks = max |C/(1+L)|: how much "
-                                  "sensor noise reaches the actuator")
-    disk_margin_min: float | None = Field(None, gt=0, lt=2, description="minimum balanced disk margin alpha (0..2)")
-    bandwidth_min_rad_s: float | None = Field(None, gt=0, description="minimum closed-loop bandwidth, rad/s")
-    settling_time_max: float | None = Field(None, gt=0, description="maximum 2 % settling time (the settling band) "
-                                            "of the unit reference step, s: the response-time knob")
-    crossover_rad_s: float | None = Field(None, gt=0, description="target gain-crossover frequency wc, rad/s (as "
-                                          "pidtune(G, type, wc)): the loop must cross over within +-1 % of it")
     # -- the default design limits (a design an engineer would fly); None / false lifts each ------------------
     filter_n_max: float | None = Field(
         FILTER_N_MAX, gt=0, description="derivative filter rule for pd, pid, pid2 and pid_mf2: N = Td/Tf = "
@@ -100,6 +85,21 @@ class Spec(BaseModel):
     def without_default_limits(self) -> Spec:
         """This spec with the default design limits lifted (what ``--no-default-limits`` does)."""
         return self.model_copy(update={"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None})
+
+
+def _limit_field(lim: Any) -> tuple[Any, Any]:
+    """A limit's Spec field, from its registry entry (:mod:`tuner.limits`)."""
+    desc = lim.help + (f" (default {lim.default:g}: {lim.source})" if lim.default is not None and lim.source else "")
+    if lim.default is None:
+        return (float | None, Field(None, description=desc, **lim.bounds))
+    return (float, Field(lim.default, description=desc, **lim.bounds))
+
+
+#: the tuning specification: the core fields above and one field per limit of the registry (:data:`tuner.limits.LIMITS`)
+Spec = create_model("Spec", __base__=_SpecCore, __module__=__name__,
+                    **{lim.field: _limit_field(lim) for lim in LIMITS})  # type: ignore[call-overload]
+Spec.__doc__ = _SpecCore.__doc__
+Spec.__qualname__ = "Spec"
 
 
 @dataclass(frozen=True)
@@ -165,33 +165,32 @@ def _le(name: str, value: float, req: float) -> Check:
 
 
 def check_spec(metrics: Any, spec: Spec) -> list[Check]:
-    """Checks of ``metrics`` (an object with the metric attributes) against ``spec``."""
+    """Checks of ``metrics`` (an object with the metric attributes) against ``spec``: stability, then every limit of
+    the registry (:data:`tuner.limits.LIMITS`) that ``spec`` sets, in the registry's order (the gain margin's lower
+    side with it; zero steady-state error after the overshoot), the settling time last (``< inf`` without a limit:
+    the step must settle)."""
     m = metrics
     checks = [Check("stable", "==", True, bool(m.stable), bool(m.stable), 0.0 if m.stable else math.inf)]
-    checks.append(_ge("phase_margin_deg", m.phase_margin_deg, spec.phase_margin_min_deg))
-    checks.append(_ge("gain_margin_db", m.gain_margin_db, spec.gain_margin_min_db))
-    checks.append(_le("gain_margin_lower_db", m.gain_margin_lower_db, -spec.gain_margin_min_db))
-    checks.append(_le("overshoot_pct", m.overshoot_pct, spec.overshoot_max_pct))
-    if spec.zero_steady_state_error:
-        sse = abs(m.steady_state_error) if not math.isnan(m.steady_state_error) else math.nan
-        checks.append(_le("steady_state_error", sse, SSE_TOL))
-    if spec.control_peak_max is not None:
-        checks.append(_le("control_peak", m.control_peak, spec.control_peak_max))
-    if spec.ms_max is not None:
-        checks.append(_le("ms", m.ms, spec.ms_max))
-    if spec.mt_max is not None:
-        checks.append(_le("mt", m.mt, spec.mt_max))
-    if spec.mks_max is not None:
-        checks.append(_le("mks", m.mks, spec.mks_max))
-    if spec.disk_margin_min is not None:
-        checks.append(_ge("disk_margin", m.disk_margin, spec.disk_margin_min))
-    if spec.bandwidth_min_rad_s is not None:
-        checks.append(_ge("bandwidth_rad_s", m.bandwidth_rad_s, spec.bandwidth_min_rad_s))
-    if spec.crossover_rad_s is not None:
-        wc, want = m.crossover_rad_s, spec.crossover_rad_s
-        err = abs(wc - want) / want if math.isfinite(wc) else math.inf
-        ok = bool(err <= CROSSOVER_TOL)
-        checks.append(Check("crossover_rad_s", "==", want, wc, ok, 0.0 if ok else err - CROSSOVER_TOL))
+    for lim in LIMITS:
+        value = getattr(spec, lim.field)
+        if lim.field == "settling_time_max":
+            continue  # last (below)
+        if value is None:
+            continue
+        got = getattr(m, lim.check)
+        if lim.op == ">=":
+            checks.append(_ge(lim.check, got, value))
+        elif lim.op == "<=":
+            checks.append(_le(lim.check, got, value))
+        else:  # a target, within CROSSOVER_TOL
+            err = abs(got - value) / value if math.isfinite(got) else math.inf
+            ok = bool(err <= CROSSOVER_TOL)
+            checks.append(Check(lim.check, "==", value, got, ok, 0.0 if ok else err - CROSSOVER_TOL))
+        if lim.field == "gain_margin_min_db":
+            checks.append(_le("gain_margin_lower_db", m.gain_margin_lower_db, -value))
+        if lim.field == "overshoot_max_pct" and spec.zero_steady_state_error:
+            sse = abs(m.steady_state_error) if not math.isnan(m.steady_state_error) else math.nan
+            checks.append(_le("steady_state_error", sse, SSE_TOL))
     if spec.settling_time_max is not None:
         checks.append(_le("settling_time_s", m.settling_time_s, spec.settling_time_max))
     else:

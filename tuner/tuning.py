@@ -27,6 +27,7 @@ from .bounds import describe
 from .controllers import ControllerTF
 from .errors import TunerError
 from .jsonio import jsonable
+from .limits import OBJECTIVES
 from .problem import MAX_PLANTS, TuningProblem
 from .spec import Check, Spec
 
@@ -645,7 +646,7 @@ def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[n
     return best
 
 
-ROBUSTNESS_OBJECTIVES = ("mks", "disk_margin")
+ROBUSTNESS_OBJECTIVES = tuple(o.name for o in OBJECTIVES if o.robust)  # (the registry says which)
 FAST_SHARE = 0.3  # of the budget: the fastest design, a candidate of the robustness objectives
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the

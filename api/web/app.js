@@ -12,6 +12,22 @@ const form = $("#tune-form");
 const SPEC = Object.keys(CONFIG.spec_defaults);
 const NULLABLE = new Set(CONFIG.spec_nullable);  // an empty input sends null (lifts a default limit)
 const LIMITS = CONFIG.default_limits;
+
+// the optional limits' inputs: one per limit of the registry (tuner.limits, through the page's configuration)
+for (const l of CONFIG.limits) {
+  const row = l.row === "speed" ? $("#speed-knob") : $("#optional-limits");
+  const lab = document.createElement("label");
+  lab.className = "field";
+  lab.dataset.loc = `spec.${l.field}`;
+  lab.title = l.help;
+  const inp = document.createElement("input");
+  Object.assign(inp, { type: "number", name: l.field, id: l.field, step: "any", placeholder: "none" });
+  if (l.min !== undefined) inp.min = String(l.min);
+  const err = document.createElement("span");
+  err.className = "err";
+  lab.append(`${l.label} `, inp, err);
+  row.insertBefore(lab, row.querySelector(".hint"));
+}
 const ROLL = { plant: "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", dt: "0.04", structure: "pid_z" };
 const HIST = 10;
 const KEY = "tuner.apiKey";

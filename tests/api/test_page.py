@@ -42,8 +42,12 @@ def test_the_page_is_public_and_carries_the_form_config(client):
         "name": "pid_z", "params": ["K", "a1", "a2"], "discrete_only": True}
     assert cfg["spec_defaults"] == Spec().model_dump(mode="json")
     assert cfg["max_budget_s"] == 30 and cfg["api_key_required"] is True
-    for name in Spec.model_fields:  # every spec field has its input in the form
-        assert f'name="{name}"' in r.text, name
+    from tuner.limits import page_limits
+
+    generated = {lim["field"] for lim in cfg["limits"]}  # the optional limits' inputs: app.js builds them from these
+    assert cfg["limits"] == page_limits() and "drb_min_rad_s" in generated
+    for name in Spec.model_fields:  # every spec field has its input in the form (or the config builds it)
+        assert f'name="{name}"' in r.text or name in generated, name
     assert client.get("/tunes").status_code == 401  # the API behind it still wants the key
 
 
@@ -98,8 +102,8 @@ def test_the_form_has_the_issue_18_fields_and_the_config_says_which_take_null(cl
     assert 'id="thesis"' in limits and "pure thesis spec (no default limits)" in limits
     for rule in ("Td/Tf", "Åström", "dt/π", "Nyquist", "K0", "Ziegler"):  # the README's reasoning, in the hints
         assert rule in limits, rule
-    for name in ("settling_time_max", "crossover_rad_s"):  # the response-time knob: number inputs, empty = none
-        assert re.search(rf'<input type="number" name="{name}"[^>]*placeholder="none"', html), name
+    knob = {lim["field"] for lim in cfg["limits"] if lim["row"] == "speed"}  # built by app.js in #speed-knob
+    assert knob == {"settling_time_max", "crossover_rad_s"} and 'id="speed-knob"' in html
     # the trade-off: its button next to tune, its axis and points, the plot and the slider, the result's bounds
     assert re.search(r'id="run-btn"[^>]*>tune</button>\s*<button type="button" id="tradeoff-btn"', html)
     assert re.search(r'<select name="y"', html) and re.search(r'<input type="number" name="points"', html)

@@ -35,7 +35,8 @@ import numpy as np
 from ..loop import Loop
 from ..tolerances import EXACT_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR
 
-__all__ = ["Margins", "disk_margin", "frequency_grid", "margins", "sensitivity_peaks"]
+__all__ = ["Margins", "disk_margin", "disturbance_rejection_bandwidth", "frequency_grid", "margins",
+           "sensitivity_peaks", "DRB_LEVEL"]
 
 _GRID_POINTS = 3000
 
@@ -82,6 +83,9 @@ class Margins:
     bandwidth_rad_s: float
     mt: float = math.nan  # peak of |T| = |L / (1 + L)|
     mks: float = math.nan  # peak of |C S| = |C / (1 + L)|: how much measurement noise reaches the actuator
+    #: the disturbance rejection bandwidth: the lowest frequency where |S| rises to -3 dB (1/sqrt(2)); 0 when |S| is
+    #: there already at w -> 0, inf when it never gets there
+    drb_rad_s: float = math.nan
 
     def __repr__(self) -> str:
         from ..display import margins_repr
@@ -341,7 +345,32 @@ def margins(loop: Loop, *, grid_points: int = _GRID_POINTS) -> Margins:
     return Margins(
         phase_margin_deg=pm, crossover_rad_s=wc, gain_margin_db=gm, gain_margin_lower_db=gml,
         phase_crossover_rad_s=wpc, disk_margin=dm, ms=ms, bandwidth_rad_s=bw, mt=mt, mks=mks,
+        drb_rad_s=disturbance_rejection_bandwidth(loop, w, S),
     )
+
+
+DRB_LEVEL = 1.0 / math.sqrt(2.0)  # -3 dB
+
+
+def disturbance_rejection_bandwidth(loop: Loop, w: np.ndarray, S: np.ndarray) -> float:
+    """The lowest frequency where ``|S| = |1/(1 + L)|`` rises to -3 dB (rotorcraft practice, e.g. ADS-33E-PRF's
+    disturbance rejection bandwidth): on the loop's exact frequency response (a sampled-data loop's at its dt, the hold
+    and a fractional delay included), the grid's first point at or above the level refined by root finding. 0 when
+    ``|S|`` is at the level already as w -> 0 (no low-frequency rejection), inf when it never reaches it on the grid
+    (up to Nyquist at dt)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mag = np.abs(S)
+    above = np.flatnonzero(np.isfinite(mag) & (mag >= DRB_LEVEL))
+    if above.size == 0:
+        return math.inf
+    i = int(above[0])
+    if i == 0:  # at the grid's lowest frequency already: with integral action |S(0)| = 0, so it rises below that
+        return float(w[0]) if loop.integrating else 0.0
+
+    def f(x: np.ndarray) -> np.ndarray:
+        return np.abs(1.0 / (1.0 + loop.freqresp(x))) - DRB_LEVEL
+
+    return _root(f, w[i - 1], w[i])
 
 
 def sensitivity_peaks(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, float, float]:

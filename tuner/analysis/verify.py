@@ -52,6 +52,13 @@ class Metrics:
     overshoot_pct, settling_time_s, rise_time_s, steady_state_error, control_peak : float
         Of the unit reference step: overshoot, settling time into the spec's band, 10-90 % rise time, final
         error, peak ``|u|``.
+    disturbance_rejection_bandwidth_rad_s, disturbance_rejection_peak_db : float
+        Where ``|S|`` first rises to -3 dB (0: it is there at w -> 0; inf: never below Nyquist), and ``max |S|`` in
+        dB (``20 log10 Ms``), on the loop's exact frequency response (:mod:`tuner.analysis.margins`).
+    load_iae, load_peak, load_recovery_s : float
+        Of a unit step load at the plant input (before its delay) with r = 0, the output between the samples:
+        the integral of ``|y|`` over the verifier's horizon, ``max |y|``, and the last time ``|y|`` is above 2 % of
+        that peak (``inf`` for both when ``y`` does not return to 0: no integral action against the load).
 
     Examples
     --------
@@ -63,7 +70,11 @@ class Metrics:
     >>> m
     Metrics(stable, PM 90 deg at 2 rad/s, GM inf dB
       Ms 1 | Mt 1 | Mks 2 | bandwidth 2 rad/s | disk margin 2
-      step: overshoot 0 % | settling 1.96 s | rise 1.1 s | error 0 | peak |u| 2)
+      step: overshoot 0 % | settling 1.96 s | rise 1.1 s | error 0 | peak |u| 2
+      disturbance: rejection bandwidth 2 rad/s | peak 0 dB | load step: IAE 0.5 | peak 0.25 | recovered 5.29 s)
+
+    (``S = s/(s + 2)`` reaches -3 dB at 2 rad/s; the load step's output is ``exp(-t) - exp(-2t)``: peak 1/4 at
+    ln 2 s, IAE 1/2, below 2 % of its peak after about 5.3 s.)
     """
 
     stable: bool
@@ -81,6 +92,11 @@ class Metrics:
     rise_time_s: float
     steady_state_error: float
     control_peak: float
+    disturbance_rejection_bandwidth_rad_s: float = math.nan
+    disturbance_rejection_peak_db: float = math.nan
+    load_iae: float = math.nan
+    load_peak: float = math.nan
+    load_recovery_s: float = math.nan
 
     def __repr__(self) -> str:
         from ..display import metrics_repr
@@ -225,6 +241,35 @@ class Analysis:
         return replace(self, saturated=st, checks=checks)
 
 
+LOAD_RECOVERY_SHARE = 0.02  # load_recovery_s: the last time |y| is above this share of its peak
+
+
+def load_metrics(loop: Loop, horizon_s: float, **kw: Any) -> tuple[float, float, float]:
+    """``(load_iae, load_peak, load_recovery_s)`` of a unit step load at the plant input with r = 0, over
+    ``horizon_s`` (the reference step's horizon: the integral objective ``iae`` is this very number), the output
+    between the samples; IAE and recovery are ``inf`` when the output does not return to 0 (its exact final value
+    above ``LOAD_RECOVERY_SHARE`` of the peak: no integral action against the load)."""
+    d = step_response(loop, horizon_s=horizon_s, load=True, **kw)
+    y = np.abs(np.asarray(d.y, float))
+    if y.size == 0 or not np.all(np.isfinite(y)):
+        return math.nan, math.nan, math.nan
+    peak = float(np.max(y))
+    iae = float(np.trapezoid(y, d.t))
+    if peak <= 0:
+        return iae, peak, 0.0
+    if abs(d.y_final) > LOAD_RECOVERY_SHARE * peak:
+        return math.inf, peak, math.inf
+    out = np.flatnonzero(y > LOAD_RECOVERY_SHARE * peak)
+    j = int(out[-1])
+    if j + 1 >= y.size:
+        return iae, peak, math.inf  # not back within the horizon
+    # interpolated between the last point above and the next (as the settling time)
+    t0, t1, e0, e1 = float(d.t[j]), float(d.t[j + 1]), float(y[j]), float(y[j + 1])
+    thr = LOAD_RECOVERY_SHARE * peak
+    rec = t0 + (e0 - thr) / (e0 - e1) * (t1 - t0) if e0 > e1 else t1
+    return iae, peak, rec
+
+
 def analyze_loop(
     loop: Loop, spec: Spec | None = None, *, horizon_s: float | None = None,
     samples_per_dt: int | None = None, grid_points: int | None = None, poles: np.ndarray | None = None,
@@ -252,11 +297,15 @@ def analyze_loop(
         resp = step_response(loop, horizon_s=horizon_s, **kw)
         sm = step_metrics(resp, band_pct=spec.settling_band_pct)
         step = (sm.overshoot_pct, sm.settling_time_s, sm.rise_time_s, sm.steady_state_error, sm.control_peak)
+        load = load_metrics(loop, float(resp.t[-1]), **kw)
     else:
         step = (math.nan, math.inf, math.nan, math.nan, math.nan)
+        load = (math.nan, math.nan, math.nan)
+    drp = 20.0 * math.log10(mg.ms) if stable and mg.ms > 0 and math.isfinite(mg.ms) else math.nan
     m = Metrics(
         stable, mg.phase_margin_deg, mg.crossover_rad_s, mg.gain_margin_db, mg.gain_margin_lower_db,
         mg.disk_margin, mg.ms, mg.mt, mg.mks, mg.bandwidth_rad_s, *step,
+        mg.drb_rad_s if stable else math.nan, drp, *load,
     )
     return Analysis(loop=loop, metrics=m, checks=check_spec(m, spec), poles=poles, response=resp, margins=mg)
 

@@ -33,7 +33,8 @@ from ..controllers import ControllerTF
 from ..loop import build_loop
 from ..lti import zoh_delayed
 from ..problem import TuningProblem
-from ..spec import CROSSOVER_TOL, SSE_TOL
+from ..limits import CROSSOVER_TOL, LIMITS, SSE_TOL, limit, objective
+from ..limits import INFEASIBLE as _INFEASIBLE
 from ..tolerances import (
     ALGEBRAIC_LOOP_TOL,
     EXACT_ROOT_TOL,
@@ -48,14 +49,21 @@ __all__ = ["BatchEvaluator", "BatchResult", "GUARD", "Start"]
 
 # how much the search tightens each limit (the batch's grid is coarser than the verifier's); the frequency-domain
 # peaks are not tightened: optima sit on those limits, and the final verification judges them on its dense grid
-GUARD = {"band": 1.0, "margin_deg": 0.01, "margin_db": 0.002, "peak": 1.0, "overshoot": 0.99}
-SETTLING_MAX_GUARD = 0.995  # a settling-time limit, kept this much inside in the search
+# how far inside its limits the search keeps (the registry's guards, tuner.limits; the NLP reads these too)
+GUARD = {"band": 1.0, "margin_deg": limit("phase_margin_min_deg").guard[1],
+         "margin_db": limit("gain_margin_min_db").guard[1], "peak": 1.0,
+         "overshoot": limit("overshoot_max_pct").guard[1]}
+SETTLING_MAX_GUARD = limit("settling_time_max").guard[1]  # a settling-time limit, kept this much inside in the search
+# the limits the batch holds generically (their figure, held inside by their guard and normalised by their value):
+# all but the thesis's margins and overshoot (scaled by max(limit, 1) and kept inside only when set above 0) and
+# the crossover target (a two-sided tolerance), whose rows in _combine are their own
+_SIMPLE = tuple(lim for lim in LIMITS if lim.batch and lim.sense and lim.default is None)
 GRID_POINTS = 500
 SAMPLES_PER_DT = 6
 CONTINUOUS_STEPS = 600
 MIN_HORIZON_W0 = 40.0
 # MAX_SAMPLES (from tuner.analysis.response): a candidate needing more samples is judged on that many
-INFEASIBLE = 1e3
+INFEASIBLE = _INFEASIBLE  # (the registry's: tuner.limits.INFEASIBLE)
 UNSTABLE = 1e5
 
 
@@ -180,10 +188,9 @@ class BatchEvaluator:
         self.n_evals = 0
         self.plants = [self._plant_data(p) for p in problem.plants]
         sp = self.spec
-        wanted = {"ms": sp.ms_max, "mt": sp.mt_max, "mks": sp.mks_max if sp.objective != "mks" else 1.0,
-                  "dm": sp.disk_margin_min if sp.objective != "disk_margin" else 1.0,
-                  "bw": sp.bandwidth_min_rad_s if sp.objective != "bandwidth" else 1.0}
-        self._needs = frozenset(k for k, lim in wanted.items() if lim is not None)  # what the spec checks
+        # the figures the spec checks or optimises (the registry's batch keys of the limits it sets, and its objective's)
+        self._needs = frozenset({lim.batch for lim in LIMITS if lim.batch and getattr(sp, lim.field) is not None}
+                                | {objective(sp.objective).batch})
 
     @staticmethod
     def _slowest(p) -> float:
@@ -466,6 +473,9 @@ class BatchEvaluator:
                 res["overshoot_pct"][sel] = np.maximum(0.0, (np.max(yn, axis=1) - 1.0) * 100.0)
                 res["steady_state_error"][sel] = 1.0 - yf
                 res["control_peak"][sel] = np.max(np.abs(u), axis=1)
+                if self.dt is None and pd.tau:  # the Tustin controller's first output is C(2/h), not the kick C(inf)
+                    lead = (num_r[sel] if num_r is not None else num[sel])[:, 0] / den[sel][:, 0]
+                    res["control_peak"][sel] = np.maximum(res["control_peak"][sel], np.abs(lead))
                 res["itae"][sel] = np.trapezoid(t * np.abs(1.0 - y), t, axis=1)
                 if need_load:
                     yl, _, tl, _ = sim(*args, 1)
@@ -544,18 +554,12 @@ class BatchEvaluator:
             v += _viol_le(m["overshoot_pct"], spec.overshoot_max_pct * g["overshoot"], max(spec.overshoot_max_pct, 1.0))
             if spec.zero_steady_state_error:
                 v += _viol_le(np.abs(m["steady_state_error"]), SSE_TOL * 0.5, 1.0)
-            for key, lim in (("control_peak", spec.control_peak_max), ("ms", spec.ms_max), ("mt", spec.mt_max),
-                             ("mks", spec.mks_max)):
-                if lim is not None:
-                    v += _viol_le(m[key], lim * g["peak"], lim)
-            if spec.disk_margin_min is not None:
-                v += _viol_ge(m["dm"], spec.disk_margin_min / g["peak"], spec.disk_margin_min)
-            if spec.bandwidth_min_rad_s is not None:
-                v += _viol_ge(m["bw"], spec.bandwidth_min_rad_s / g["peak"], spec.bandwidth_min_rad_s)
-            if spec.settling_time_max is not None:
-                # a little inside (as the NLP): the search's grid is coarser than the verifier's
-                v += _viol_le(m["settling_time_s"], spec.settling_time_max * SETTLING_MAX_GUARD,
-                              spec.settling_time_max)
+            for lim in _SIMPLE:  # every other limit of the registry the batch computes, held a little inside
+                value = getattr(spec, lim.field)
+                if value is not None:
+                    inside = lim.search_limit(value)
+                    v += (_viol_le(m[lim.batch], inside, value) if lim.sense < 0 else
+                          _viol_ge(m[lim.batch], inside, value))
             if spec.crossover_rad_s is not None:  # within +-1 % (a little inside in the search)
                 err = np.abs(m["wc"] - spec.crossover_rad_s) / spec.crossover_rad_s
                 v += np.where(np.isfinite(err), np.maximum(err - 0.9 * CROSSOVER_TOL, 0.0), 10.0)
@@ -683,8 +687,26 @@ def _viol_le(v: np.ndarray, req: float, scale: float) -> np.ndarray:
     return np.where(np.isfinite(d), d, 10.0)
 
 
+def _first_crossing(w: np.ndarray, f: np.ndarray, *, falling: bool) -> np.ndarray:
+    """Per row, the lowest frequency where ``f`` changes sign (to negative if ``falling``, else to >= 0), linear in
+    log frequency between the grid's points; ``inf`` where it never does, ``w[0]`` where it has at the first point."""
+    hit = (f < 0) if falling else (f >= 0)
+    hit &= np.isfinite(f)
+    any_ = hit.any(axis=1)
+    i = np.argmax(hit, axis=1)
+    rows = np.arange(f.shape[0])
+    j = np.maximum(i - 1, 0)
+    f0, f1 = f[rows, j], f[rows, i]
+    lw = np.log(w)
+    with np.errstate(all="ignore"):
+        t = np.where((i > 0) & (f0 != f1) & np.isfinite(f0), f0 / (f0 - f1), 1.0)
+    t = np.clip(t, 0.0, 1.0)
+    x = np.exp(lw[j] + t * (lw[i] - lw[j]))
+    return np.where(any_, np.where(i > 0, x, w[0]), np.inf)
+
+
 def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantData, num, den, dt,
-                       needs: frozenset[str] = frozenset({"ms", "mt", "mks", "dm", "bw"})) -> dict[str, Any]:
+                       needs: frozenset[str] = frozenset({"ms", "mt", "mks", "dm", "bw", "drb"})) -> dict[str, Any]:
     """Phase margin, upper/lower gain margins and the crossover frequencies on the grid; Ms, Mt, Mks, disk
     margin and bandwidth where ``needs`` asks for them (nan otherwise). Crossings are found on the whole
     grid at once and interpolated only where they are (a few per candidate)."""
@@ -735,18 +757,28 @@ def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantDa
         gm = 20 * np.log10(up)
         gml = np.where(lo > 0, 20 * np.log10(lo), -np.inf)
         out = {"pm": pm, "gm": gm, "gml": gml, "wc": wc, "wp": wp, "ms": nan, "mt": nan, "mks": nan, "dm": nan,
-               "bw": nan}
-        if needs & {"ms", "mt", "mks", "dm", "bw"}:
+               "bw": nan, "drb": nan.copy()}
+        if needs & {"ms", "mt", "mks", "dm", "bw", "drb"}:
             finL = np.isfinite(L)
             S = 1.0 / (1.0 + L)
             if "ms" in needs:
                 out["ms"] = np.max(np.where(finL, np.abs(S), 0.0), axis=1)
             if "mt" in needs or "bw" in needs:
                 absT = np.abs(L * S)
-                out["mt"] = np.max(np.where(finL, absT, 0.0), axis=1)
-                if "bw" in needs:
-                    below = absT[:, :1] / math.sqrt(2) > absT
-                    out["bw"] = np.where(below.any(axis=1), w[np.argmax(below, axis=1)], np.inf)
+                # |T(0)| exactly, as the verifier (1 where the loop integrates; the grid's lowest point is not w = 0)
+                t0 = np.ones(L.shape[0])  # a plant that integrates
+                if pd.G_dc is not None:
+                    x_dc = 0.0 if dt is None else 1.0
+                    L0 = np.polyval(num.T, x_dc) / np.polyval(den.T, x_dc) * pd.G_dc
+                    t0 = np.where(np.isfinite(L0), np.abs(L0 / (1 + L0)), 1.0)
+                    t0 = np.where(np.isnan(t0), np.abs(absT[:, 0]), t0)
+                out["mt"] = np.maximum(np.max(np.where(finL, absT, 0.0), axis=1), np.where(np.isfinite(t0), t0, 0.0))
+                if "bw" in needs:  # |T| first below |T(0)|/sqrt(2), interpolated in log frequency (as the verifier)
+                    out["bw"] = _first_crossing(w, absT - t0[:, None] / math.sqrt(2), falling=True)
+            if "drb" in needs:  # |S| first up to -3 dB, interpolated in log frequency (as the verifier)
+                absS = np.where(finL, np.abs(S), np.nan)
+                drb = _first_crossing(w, absS - 1.0 / math.sqrt(2), falling=False)
+                out["drb"] = np.where(absS[:, 0] >= 1.0 / math.sqrt(2), 0.0, drb)
             if "mks" in needs:
                 CS = np.abs(C * S)
                 mks = np.max(np.where(np.isfinite(CS), CS, 0.0), axis=1)

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..controllers import get_structure
 from ..errors import TunerError
+from ..limits import INFEASIBLE, OBJECTIVES
 from ..problem import TuningProblem
 from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL
 from .batch import BatchEvaluator, Start
@@ -58,7 +59,7 @@ __all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES", "Effort", 
 
 #: the objectives the local NLP states exactly (``nlp.transcribe._objective``); the others (bandwidth) are
 #: optimised by the global search alone
-NLP_OBJECTIVES = ("settling_time", "itae", "iae", "ie", "mks", "disk_margin")
+NLP_OBJECTIVES = tuple(o.name for o in OBJECTIVES if o.nlp)
 
 log = logging.getLogger(__name__)
 
@@ -381,7 +382,7 @@ class Engine:
     @property
     def _settling(self) -> bool:
         return self.problem.spec.objective == "settling_time" and math.isfinite(self.best.score) and \
-            self.best.score < 1e3
+            self.best.score < INFEASIBLE
 
     def _tol(self) -> float:
         b = self.best.score
@@ -495,7 +496,7 @@ class Engine:
             reached += new
             if not new or math.isnan(new[-1]):
                 continue  # not refined (no time, or no NLP solve): says nothing about convergence
-            good = sorted(r for r in reached if math.isfinite(r) and r < 1e3)
+            good = sorted(r for r in reached if math.isfinite(r) and r < INFEASIBLE)
             # converged: two refinements from distinct starts agree on the best value, or every refinement
             # after the best one (at least STALE_REFINES of them) failed to improve on it
             agree = len(good) >= 2 and good[1] - good[0] <= self._tol() and good[0] <= self.best.score + self._tol()
@@ -725,7 +726,7 @@ class Engine:
         self.round0_best = self.best.score
         self.info.rounds = 1
         eff = self.effort
-        feasible = lambda: self.best.score < 1e3
+        feasible = lambda: self.best.score < INFEASIBLE
         if eff.confirm == 0:
             # fast: round 0's own agreement; without it (or without a feasible point), Optuna rounds as before
             converged = converged and feasible() and not self._exhausted
@@ -774,17 +775,17 @@ class Engine:
         span = np.maximum(self.space.hi - self.space.lo, 1e-12)
         basins: list[tuple[float, np.ndarray]] = []
         for sc, v in sorted(self.refined, key=lambda t: t[0]):
-            if sc >= 1e3:
+            if sc >= INFEASIBLE:
                 continue
             if all(np.linalg.norm((v - w) / span) > BASIN for _, w in basins):
                 basins.append((sc, v))
         best = self.best.score if best_score is None else best_score
         alt = None
         if self.best.v is not None and math.isfinite(self.best.score):
-            far = [sc for sc, v, _ in self.pool if sc < 1e3 and np.linalg.norm((v - self.best.v) / span) > BASIN]
+            far = [sc for sc, v, _ in self.pool if sc < INFEASIBLE and np.linalg.norm((v - self.best.v) / span) > BASIN]
             alt = min(far) if far else None
-        gap = None if alt is None or not (math.isfinite(best) and best > 0 and best < 1e3) else alt / best - 1.0
-        r0 = None if not (math.isfinite(self.round0_best) and self.best.score < 1e3 and self.best.score > 0) else \
+        gap = None if alt is None or not (math.isfinite(best) and best > 0 and best < INFEASIBLE) else alt / best - 1.0
+        r0 = None if not (math.isfinite(self.round0_best) and self.best.score < INFEASIBLE and self.best.score > 0) else \
             self.round0_best / self.best.score - 1.0
         return {"effort": self.effort.name, "basins": len(basins), "alternative": alt, "gap": gap,
                 "restarts": self.restarts, "restart_improved": self.restart_improved, "round0_gap": r0,

@@ -19,6 +19,8 @@ from ..analysis.response import closed_loop_poles, default_horizon, is_stable, s
 from ..analysis.verify import Analysis, analyze_loop
 from ..controllers import ControllerTF, Structure
 from ..errors import TunerError
+from ..limits import INFEASIBLE as _INFEASIBLE
+from ..limits import objective
 from ..loop import build_loop
 from ..plant import Plant
 from ..spec import Spec
@@ -27,7 +29,7 @@ from . import rules
 
 __all__ = ["Evaluator", "Scored", "objective_value", "violation", "INFEASIBLE"]
 
-INFEASIBLE = 1e3  # every infeasible score is above this; feasible scores are below
+INFEASIBLE = _INFEASIBLE  # every infeasible score is above this; feasible scores are below (tuner.limits)
 UNSTABLE = 1e5
 
 # resolution used inside the search (the final verification uses the full defaults)
@@ -49,28 +51,24 @@ class Scored:
 def objective_value(a: Analysis, spec: Spec) -> float:
     """The spec's objective for one verified analysis (smaller is better)."""
     m = a.metrics
-    if spec.objective == "settling_time":
-        return m.settling_time_s
-    if spec.objective == "bandwidth":
-        return -m.bandwidth_rad_s if math.isfinite(m.bandwidth_rad_s) else math.inf
-    if spec.objective == "mks":
-        return m.mks if math.isfinite(m.mks) else math.inf
-    if spec.objective == "disk_margin":
-        return -m.disk_margin if math.isfinite(m.disk_margin) else math.inf
+    o = objective(spec.objective)
+    if o.metric is not None:  # a verifier figure (the registry names it)
+        v = getattr(m, o.metric)
+        if not math.isfinite(v):
+            return math.inf
+        return -v if o.sense == "max" else v
     r = a.response
     if r is None:
         return math.inf
     if spec.objective == "itae":  # of the reference step
         return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
-    # iae: integral of |y| after a unit step load disturbance at the plant input, on the same horizon;
-    # ie: |the signed integral| (= 1/Ki for a loop with integral action once settled: MIGO maximises Ki)
+    # ie: |the signed integral| after the load step (= 1/Ki for a loop with integral action once settled: MIGO
+    # maximises Ki)
     at_dc = 1.0 if a.loop.dt else 0.0
-    if spec.objective == "ie" and not np.any(np.abs(a.loop.controller.zpk.poles - at_dc) < ROOT_AT_DC_TOL):
+    if not np.any(np.abs(a.loop.controller.zpk.poles - at_dc) < ROOT_AT_DC_TOL):
         return math.inf  # without integral action the load step is never rejected
     d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
-    if spec.objective == "ie":
-        return abs(float(np.trapezoid(d.y, d.t)))
-    return float(np.trapezoid(np.abs(d.y), d.t))
+    return abs(float(np.trapezoid(d.y, d.t)))
 
 
 # how a violation is normalised: by the requirement, except where the requirement is no scale

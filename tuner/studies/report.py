@@ -90,6 +90,13 @@ def render_report(
                 rows)
     L += ["Mt = max |T|, Mks = max |C S| (how much sensor noise reaches the actuator), control peak = max |u| "
           "after a unit reference step.", ""]
+    L += ["### Disturbance rejection", "", "DRB: the lowest frequency where |S| rises to -3 dB; DRP: max |S| in dB; "
+          "the unit load step at the plant input (r = 0): IAE, peak |y|, and when |y| is last above 2 % of its peak "
+          "(inf: no integral action against the load).", ""]
+    rows = [[lp.name, *(num(getattr(tuned[lp.name].nominal.metrics, k)) for k in (
+        "disturbance_rejection_bandwidth_rad_s", "disturbance_rejection_peak_db", "load_iae", "load_peak",
+        "load_recovery_s"))] for lp in study.order() if lp.name in tuned]
+    L += _table(["loop", "DRB [rad/s]", "DRP [dB]", "load IAE", "load peak", "load recovery [s]"], rows)
     variants = [lp for lp in study.order() if lp.variant_of and lp.name in tuned and lp.variant_of in tuned]
     if variants:
         L += ["## What a spec change costs", "", "Each variant is its base loop (same plant and structure) with "

@@ -351,6 +351,11 @@ def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key
     if key.grid:
         base = np.geomspace(space.w0 * 1e-2, _wmax(ev, space.w0), MS_GRID)
         wgrid = np.concatenate([base, np.repeat(base[MS_GRID // 2], GRID_EXTRA)])  # spare slots: a duplicate
+    if key.drb:  # the limit itself is a grid frequency (the nearest base point moved there): the row that binds
+        drb = float(spec.drb_min_rad_s)
+        j = int(np.argmin(np.abs(np.log(wgrid[:MS_GRID] / drb))))
+        wgrid[j] = drb
+        values["drbmask"] = (wgrid <= drb * (1 + 1e-9)).astype(float)
     values["wgrid"] = wgrid
     _grid_response(ev, values) if key.grid else values.update(
         {f"{k}{i}": np.zeros(0) for i in range(len(ev.problem.plants)) for k in ("Gre", "Gim")})
@@ -363,6 +368,8 @@ def _grid_response(ev: BatchEvaluator, values: dict[str, Any]) -> None:
     for i, p in enumerate(ev.problem.plants):
         G = build_loop(p, unit).freqresp(values["wgrid"])
         values[f"Gre{i}"], values[f"Gim{i}"] = G.real, G.imag
+    if ev.spec.drb_min_rad_s is not None and "drbmask" in values:  # (the exchange's frequencies too)
+        values["drbmask"] = (values["wgrid"] <= ev.spec.drb_min_rad_s * (1 + 1e-9)).astype(float)
 
 
 def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: float, wmax: float,
@@ -593,6 +600,8 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
             checks.append(np.abs(C * S) / spec.mks_max)
         if spec.disk_margin_min:
             checks.append(spec.disk_margin_min / np.maximum(2 * np.abs(1 + L) / np.abs(1 - L), 1e-300))
+        if spec.drb_min_rad_s:  # |S| above -3 dB below the limit
+            checks.append(np.where(w <= spec.drb_min_rad_s, np.abs(S) * math.sqrt(2.0), 0.0))
         for r in checks:
             r = np.where(np.isfinite(r), r, 0.0)
             i = int(np.argmax(r))
@@ -660,6 +669,7 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
                      pm=spec.phase_margin_min_deg > 0 or spec.crossover_rad_s is not None,
                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
                      mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
+                     drb=spec.drb_min_rad_s is not None,
                      filter_n=rules.applies(space.structure, spec),
                      settling_max=spec.settling_time_max is not None and spec.objective != "settling_time",
                      head=grid.head, tail_N=grid.tail_N, interp=sharp)

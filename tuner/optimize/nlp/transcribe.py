@@ -18,7 +18,8 @@ Constraints, per plant:
   loops the same at the Nyquist frequency, where L is real; the plant's response at these free
   frequencies comes from its zeros, poles and gain (factored, never expanded);
 * on a frequency grid (the plant's response there is a parameter): ``|S| <= Ms``, ``|T| <= Mt``,
-  ``|C S| <= Mks``, ``2|1 + L| >= alpha |1 - L|`` (disk margin), as requested; the grid has spare
+  ``|C S| <= Mks``, ``2|1 + L| >= alpha |1 - L|`` (disk margin), ``|S| <= 1/sqrt(2)`` at the grid's frequencies up to
+  the disturbance rejection bandwidth's limit (one of them at the limit itself), as requested; the grid has spare
   slots that :mod:`~tuner.optimize.nlp.refine` fills with the frequencies where the verifier finds a
   peak the grid missed (an exchange method), so the limits hold on the verifier's dense grid;
 * the unit step response between samples (lifted ZOH model, exact at N points per sample, or at N over the
@@ -131,6 +132,7 @@ class ProblemKey:
     mt: bool = False
     mks: bool = False
     dm: bool = False
+    drb: bool = False  # a disturbance-rejection-bandwidth limit: |S| <= -3 dB at the grid's frequencies up to it
     filter_n: bool = False  # the derivative-filter rule N = Td/Tf <= nmax (Spec.filter_n_max)
     settling_max: bool = False  # a settling-time limit with another objective: the band from the mask on
     head: int = 0  # > 0: only the first ``head`` samples have N points, the later ones ``tail_N`` (N a multiple)
@@ -144,8 +146,8 @@ class ProblemKey:
 
     @property
     def grid(self) -> bool:
-        """The problem has a frequency grid (an Ms, Mt, Mks or disk-margin limit or objective)."""
-        return self.ms or self.mt or self.mks or self.dm or self.objective in ("mks", "disk_margin")
+        """The problem has a frequency grid (an Ms, Mt, Mks, disk-margin or DRB limit, or objective)."""
+        return self.ms or self.mt or self.mks or self.dm or self.drb or self.objective in ("mks", "disk_margin")
 
     @property
     def n_grid(self) -> int:
@@ -181,6 +183,8 @@ def parameter_layout(key: ProblemKey, nv: int) -> Layout:
                    (f"pr{i}", (key.poles[i],)), (f"pi{i}", (key.poles[i],)), (f"k{i}", ()), (f"tau{i}", ()),
                    (f"Gre{i}", (ng,)), (f"Gim{i}", (ng,))]
     blocks += [("wgrid", (ng,)), ("tw", (key.points,)), ("mask", (key.points,))]
+    if key.drb:  # 1 at the grid's frequencies up to the DRB limit, 0 above
+        blocks += [("drbmask", (ng,))]
     if key.settling_max:  # per plant: the verifier's output minus the NLP's at the grid's points (defect correction)
         blocks += [(f"yoff{i}", (key.points,)) for i in range(len(key.orders))]
     if key.interp:
@@ -374,6 +378,9 @@ def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden
         if key.dm:
             one_minus = _abs2((cd[0] - cng[0], cd[1] - cng[1]))
             c.add((4 * one_plus - P["alpha"] ** 2 * one_minus) / scale, 0.0, cs.inf)
+        if key.drb:  # |S|^2 = |Cd|^2 / |Cd + Cn G|^2 <= 1/2 where the mask is 1; above the limit the row is 1 >= 0
+            mk = P["drbmask"][j]
+            c.add(mk * (one_plus - 2.0 * _abs2(cd)) / scale + (1 - mk), 0.0, cs.inf)
         # the objectives mks and disk_margin: the level (the decision variable "slack") bounds the peak
         if key.objective == "mks":
             c.add((level ** 2 * one_plus - _abs2(cn)) / (scale + _abs2(cn)), 0.0, cs.inf)
