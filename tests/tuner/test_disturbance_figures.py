@@ -93,7 +93,8 @@ def test_thesis_roll_printed_controller():
     h = DT / sub
     P = control.c2d(control.ss(Gc), h, "zoh")
     A, B, Cp = np.asarray(P.A), np.asarray(P.B).ravel(), np.asarray(P.C).ravel()
-    # C(z) = 3.868 (1 - 1.305 z^-1 + 0.5668 z^-2) / (1 - z^-1): u[k] = u[k-1] + 3.868 (e[k] - 1.305 e[k-1] + 0.5668 e[k-2])
+    # C(z) = 3.868 (1 - 1.305 z^-1 + 0.5668 z^-2) / (1 - z^-1):
+    # u[k] = u[k-1] + 3.868 (e[k] - 1.305 e[k-1] + 0.5668 e[k-2])
     x = np.zeros(2)
     e = [0.0, 0.0, 0.0]  # e[k], e[k-1], e[k-2]
     u = 0.0
@@ -150,7 +151,8 @@ def test_fractional_delay(dt):
         Ea, Ga = zoh(dt * frac)  # the older input, first
         Eb, Gb = zoh(dt * (1 - frac))
         zs = z[::50]
-        Gz = np.array([(Cm @ np.linalg.solve(zz * np.eye(3) - Ad, Eb @ Ga * zz ** (-whole - 1) + Gb * zz ** (-whole)))[0, 0]
+        Gz = np.array([(Cm @ np.linalg.solve(zz * np.eye(3) - Ad,
+                                             Eb @ Ga * zz ** (-whole - 1) + Gb * zz ** (-whole)))[0, 0]
                        for zz in zs])
         S = 1 / (1 + (kp + ki * dt * zs / (zs - 1)) * Gz)
         drb, drp = _drb_drp(w[::50], S)

@@ -40,7 +40,8 @@ LAYER_NAMES = ("core", "analysis", "optimize", "tuning", "front-ends", "interfac
 
 # module (or package: it and everything under it) -> layer; the longest matching name wins
 LAYER_OF = {
-    **dict.fromkeys(("tuner.errors", "tuner.tolerances", "tuner.limits", "tuner._lazy", "tuner._process", "tuner.jsonio",
+    **dict.fromkeys(("tuner.errors", "tuner.tolerances", "tuner.limits", "tuner._lazy", "tuner._process",
+                     "tuner.jsonio",
                      "tuner.fileio", "tuner.objectives", "tuner.spec", "tuner.expr", "tuner.lti", "tuner.plant",
                      "tuner.controllers", "tuner.loop", "tuner.interop", "tuner.design", "tuner.rules",
                      "tuner.problem", "tuner.identify", "tuner.firmware"), "core"),

@@ -30,11 +30,11 @@ from scipy import linalg
 
 from ..analysis.response import MAX_SAMPLES, lifted_with_switch  # the verifier's (one source)
 from ..controllers import ControllerTF
+from ..limits import CROSSOVER_TOL, LIMITS, SSE_TOL, limit, objective
+from ..limits import INFEASIBLE as _INFEASIBLE
 from ..loop import build_loop
 from ..lti import zoh_delayed
 from ..problem import TuningProblem
-from ..limits import CROSSOVER_TOL, LIMITS, SSE_TOL, limit, objective
-from ..limits import INFEASIBLE as _INFEASIBLE
 from ..tolerances import (
     ALGEBRAIC_LOOP_TOL,
     EXACT_ROOT_TOL,
@@ -188,7 +188,7 @@ class BatchEvaluator:
         self.n_evals = 0
         self.plants = [self._plant_data(p) for p in problem.plants]
         sp = self.spec
-        # the figures the spec checks or optimises (the registry's batch keys of the limits it sets, and its objective's)
+        # the figures the spec checks or optimises (the registry's batch keys of the limits it sets, its objective's)
         self._needs = frozenset({lim.batch for lim in LIMITS if lim.batch and getattr(sp, lim.field) is not None}
                                 | {objective(sp.objective).batch})
 

@@ -785,7 +785,7 @@ class Engine:
             far = [sc for sc, v, _ in self.pool if sc < INFEASIBLE and np.linalg.norm((v - self.best.v) / span) > BASIN]
             alt = min(far) if far else None
         gap = None if alt is None or not (math.isfinite(best) and best > 0 and best < INFEASIBLE) else alt / best - 1.0
-        r0 = None if not (math.isfinite(self.round0_best) and self.best.score < INFEASIBLE and self.best.score > 0) else \
+        r0 = None if not (math.isfinite(self.round0_best) and 0 < self.best.score < INFEASIBLE) else \
             self.round0_best / self.best.score - 1.0
         return {"effort": self.effort.name, "basins": len(basins), "alternative": alt, "gap": gap,
                 "restarts": self.restarts, "restart_improved": self.restart_improved, "round0_gap": r0,
