@@ -11,146 +11,33 @@ of the step response and the Bode plot drawn by :mod:`tuner.analysis.plots` (PNG
 
 from __future__ import annotations
 
-import base64
-import html
-import logging
 import math
 from typing import Any
 
+from .analysis.html import analysis_html
+from .analysis.html import figures_html as _thumbnails
+from .text import (
+    _CSS,
+    _checks_table,
+    _e,
+    _g,
+    _loop_kind,
+    _plant_lines,
+    _table,
+    _verdict_html,
+    analysis_repr,
+    check_repr,
+    loop_eval_repr,
+    margins_repr,
+    metrics_line,
+    metrics_repr,
+    optimality_line,
+    step_response_repr,
+    verdict,
+)
+
 __all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict", "metrics_repr",
-           "margins_repr", "check_repr", "loop_eval_repr", "step_response_repr"]
-
-log = logging.getLogger(__name__)
-
-_MAX_LISTED = 4  # plants listed in a repr; the rest counted
-
-
-def _g(v: Any, digits: int = 4) -> str:
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, (int, float)):
-        if math.isnan(v):
-            return "n/a"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return f"{v:.{digits}g}"
-    return str(v)
-
-
-def metrics_line(a: Any) -> str:
-    """The main metrics of one analysis on one line."""
-    m = a.metrics
-    if not m.stable:
-        return "closed loop UNSTABLE"
-    gm = f"GM {_g(m.gain_margin_db, 3)} dB"
-    if math.isfinite(m.gain_margin_lower_db):
-        gm += f" (lower {_g(m.gain_margin_lower_db, 3)} dB)"
-    return " | ".join([f"PM {_g(m.phase_margin_deg, 3)} deg at {_g(m.crossover_rad_s, 3)} rad/s", gm,
-                       f"overshoot {_g(m.overshoot_pct, 3)} %", f"settling {_g(m.settling_time_s, 3)} s",
-                       f"Ms {_g(m.ms, 3)}", f"peak |u| {_g(m.control_peak, 3)}"])
-
-
-def _freq_lines(m: Any) -> list[str]:
-    gm = f"GM {_g(m.gain_margin_db, 3)} dB"
-    if math.isfinite(m.gain_margin_lower_db):
-        gm += f" (lower {_g(m.gain_margin_lower_db, 3)} dB)"
-    return [f"PM {_g(m.phase_margin_deg, 4)} deg at {_g(m.crossover_rad_s, 4)} rad/s, {gm}",
-            f"  Ms {_g(m.ms, 3)} | Mt {_g(m.mt, 3)} | Mks {_g(m.mks, 3)} | bandwidth {_g(m.bandwidth_rad_s, 3)} rad/s"
-            f" | disk margin {_g(m.disk_margin, 3)}"]
-
-
-def metrics_repr(m: Any) -> str:
-    """A :class:`~tuner.analysis.Metrics` in three lines: margins, peaks, step metrics."""
-    head, peaks = _freq_lines(m)
-    step = (f"  step: overshoot {_g(m.overshoot_pct, 3)} % | settling {_g(m.settling_time_s, 3)} s | rise "
-            f"{_g(m.rise_time_s, 3)} s | error {_g(m.steady_state_error, 3)} | peak |u| {_g(m.control_peak, 3)}")
-    load = (f"  disturbance: rejection bandwidth {_g(m.disturbance_rejection_bandwidth_rad_s, 3)} rad/s | peak "
-            f"{_g(m.disturbance_rejection_peak_db, 3)} dB | load step: IAE {_g(m.load_iae, 3)} | peak "
-            f"{_g(m.load_peak, 3)} | recovered {_g(m.load_recovery_s, 3)} s")
-    return f"Metrics({'stable' if m.stable else 'UNSTABLE'}, {head}\n{peaks}\n{step}\n{load})"
-
-
-def margins_repr(m: Any) -> str:
-    """A :class:`~tuner.analysis.margins.Margins` in two lines."""
-    head, peaks = _freq_lines(m)
-    if math.isfinite(m.phase_crossover_rad_s):
-        head += f" at {_g(m.phase_crossover_rad_s, 4)} rad/s"
-    return f"Margins({head}\n{peaks})"
-
-
-def step_response_repr(r: Any) -> str:
-    """A :class:`~tuner.analysis.response.StepResponse` on one line (its arrays summarised)."""
-    t = r.t
-    span = f"{t.size} points over {_g(float(t[0]))}..{_g(float(t[-1]))} s" if t.size else "no points"
-    where = "between samples" if r.between_samples else "at the sample instants"
-    samples = f", {r.t_samples.size} samples" if r.t_samples is not None else ""
-    return f"StepResponse({span}{samples}, final value {_g(r.y_final)}, {where}; arrays t, y, u)"
-
-
-def check_repr(c: Any) -> str:
-    """A :class:`~tuner.spec.Check` on one line: ``Check(phase_margin_deg 71.2 >= 60: ok)``."""
-    state = "ok" if c.ok else f"FAILS by {_g(c.violation)}"
-    return f"Check({c.name} {_g(c.achieved)} {c.op} {_g(c.required)}: {state})"
-
-
-def _failing(analyses: Any) -> list[str]:
-    seen, out = set(), []
-    for a in analyses:
-        for c in a.failing:
-            if c.name not in seen:
-                seen.add(c.name)
-                out.append(f"{c.name} = {_g(c.achieved)} (required {c.op} {_g(c.required)})")
-    return out
-
-
-def verdict(analyses: Any) -> str:
-    """``meets the spec``, or ``does NOT meet the spec:`` and every failing check (once) with its values."""
-    fails = _failing(analyses)
-    return "meets the spec" if not fails else "does NOT meet the spec: " + "; ".join(fails)
-
-
-def _loop_kind(a: Any) -> str:
-    lp = a.loop
-    if lp.dt is None:
-        return "continuous loop" + (f", delay {_g(lp.delay_s)} s" if lp.delay_s else "")
-    kind = "discrete plant" if lp.plant.is_discrete else "sampled-data loop (ZOH)"
-    return f"{kind} at dt = {_g(lp.dt)} s" + (f", delay {lp.delay_samples} samples" if lp.delay_samples else "")
-
-
-def _plant_lines(analyses: Any) -> list[str]:
-    n = len(analyses)
-    if n == 1:
-        return [f"  metrics  {metrics_line(analyses[0])}"]
-    lines = []
-    for i, a in enumerate(analyses[:_MAX_LISTED]):
-        mark = "" if a.meets_spec else "  [fails]"
-        lines.append(f"  {'nominal ' if i == 0 else f'plant {i + 1}':8} {metrics_line(a)}{mark}")
-    if n > _MAX_LISTED:
-        rest = analyses[_MAX_LISTED:]
-        bad = sum(not a.meets_spec for a in rest)
-        lines.append(f"  ... and {len(rest)} more plants ({bad} failing)")
-    return lines
-
-
-def optimality_line(s: dict[str, Any] | None) -> str:
-    """One line on what the search knows about how close its answer is (``solver["optimality"]``)."""
-    o = (s or {}).get("optimality")
-    if not o:
-        return ""
-    parts = [f"{o['basins']} basin{'s' if o['basins'] != 1 else ''} refined"]
-    n = o.get("restarts", 0)
-    if n:
-        imp = o.get("restart_improved", 0)
-        parts.append(f"{n} independent restart{'s' if n != 1 else ''}, " +
-                     ("none found better" if not imp else f"{imp} found better"
-                      + (f" (round 0 was {o['round0_gap'] * 100:.2g} % worse)" if o.get("round0_gap") else "")))
-    else:
-        parts.append("no independent restart")
-    gap = o.get("gap")
-    parts.append("no distinct alternative" if gap is None else f"best distinct alternative {gap * 100:+.3g} %")
-    stop = s.get("stop")
-    verdict_ = "converged" if stop == "converged" else "budget used (not confirmed)"
-    return f"optimality ({o.get('effort', 'default')} effort, {verdict_}): " + ", ".join(parts)
+           "margins_repr", "check_repr", "loop_eval_repr", "step_response_repr", "optimality_line"]
 
 
 def tune_repr(r: Any) -> str:
@@ -176,85 +63,6 @@ def tune_repr(r: Any) -> str:
     return "\n".join(lines)
 
 
-def loop_eval_repr(e: Any) -> str:
-    """A study's :class:`~tuner.studies.evaluate.LoopEval`: the loop, the verdict, each plant's metrics (a few)."""
-    robust = f", {len(e.analyses)} plants" if len(e.analyses) > 1 else ""
-    fails = list(e.failing)
-    state = "meets the spec" if e.meets_spec else "does NOT meet the spec: " + ", ".join(fails)
-    return "\n".join([f"LoopEval({e.loop.name}, {_loop_kind(e.analyses[0])}{robust}: {state})",
-                      *_plant_lines(e.analyses)])
-
-
-def analysis_repr(a: Any) -> str:
-    """The few-line ``repr`` of an :class:`~tuner.analysis.Analysis`."""
-    p = a.poles
-    size = abs(p) if a.loop.dt is not None else p.real
-    where = "max |z|" if a.loop.dt is not None else "max Re s"
-    poles = f"{p.size} closed-loop poles, {where} = {_g(float(size.max()), 4)}" if p.size else "no closed-loop poles"
-    return "\n".join([f"Analysis({_loop_kind(a)}: {verdict([a])})", f"  metrics  {metrics_line(a)}",
-                      f"  poles    {poles}"])
-
-
-# -- HTML -------------------------------------------------------------------------------------------------
-
-_CSS = ("<style>.tuner-r table{border-collapse:collapse;margin:4px 12px 8px 0;font-size:12px}"
-        ".tuner-r td,.tuner-r th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
-        ".tuner-r th{background:#f3f3f3}.tuner-r td.l,.tuner-r th.l{text-align:left}"
-        ".tuner-r .ok{color:#1a7f37}.tuner-r .bad{color:#c62828;font-weight:bold}</style>")
-
-
-def _e(v: Any) -> str:
-    return html.escape(str(v))
-
-
-def _table(head: list[str], rows: list[list[str]], left: int = 1) -> str:
-    """``head`` (plain text) and ``rows`` (HTML cells); the first ``left`` columns aligned left."""
-    def cls(i: int) -> str:
-        return ' class="l"' if i < left else ""
-
-    th = "".join(f"<th{cls(i)}>{_e(h)}</th>" for i, h in enumerate(head))
-    body = "".join("<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows)
-    return f"<table><tr>{th}</tr>{body}</table>"
-
-
-def _checks_table(analyses: Any) -> str:
-    names = ["nominal", *(f"plant {i + 1}" for i in range(1, len(analyses)))] if len(analyses) > 1 else ["achieved"]
-    rows = []
-    for j, c in enumerate(analyses[0].checks):
-        cells = [_e(c.name), _e(f"{c.op} {_g(c.required)}")]
-        for a in analyses:
-            ck = a.checks[j]
-            mark = '<span class="ok">&#10003;</span>' if ck.ok else '<span class="bad">&#10007;</span>'
-            cells.append(f"{_e(_g(ck.achieved))} {mark}")
-        rows.append(cells)
-    head = ["constraint", "required", *names] if len(analyses) > 1 else ["constraint", "required", "achieved (met)"]
-    return _table(head, rows)
-
-
-def _thumbnails(obj: Any) -> str:
-    """Step response and Bode plot as small PNG images (drawn by tuner.analysis.plots, no pyplot)."""
-    try:
-        from .analysis.plots import figure, figure_bytes
-
-        imgs = []
-        for kind in ("step", "bode"):
-            fig = figure(obj, kind)
-            fig.set_size_inches(5.0, 3.8)
-            data = base64.b64encode(figure_bytes(fig, fmt="png", dpi=64)).decode()
-            imgs.append(f'<img alt="{kind}" style="max-width:340px;margin-right:6px" '
-                        f'src="data:image/png;base64,{data}"/>')
-        return "<div>" + "".join(imgs) + "</div>"
-    except Exception as e:  # a display must not raise: the tables stand without the pictures
-        log.warning("thumbnails not drawn: %s", e)
-        return f"<p><i>(plots not drawn: {_e(type(e).__name__)})</i></p>"
-
-
-def _verdict_html(analyses: Any) -> str:
-    v = verdict(analyses)
-    cls = "ok" if v == "meets the spec" else "bad"
-    return f'<span class="{cls}">{_e(v)}</span>'
-
-
 def tune_html(r: Any, *, thumbnails: bool = True) -> str:
     """The HTML summary of a :class:`~tuner.TuneResult` (Jupyter): gains, checks per plant, thumbnails."""
     robust = f", {len(r.analyses)} plants" if len(r.analyses) > 1 else ""
@@ -271,10 +79,3 @@ def tune_html(r: Any, *, thumbnails: bool = True) -> str:
     bounds = "".join(f"<p>{_e(describe(e))}</p>" for e in getattr(r, "at_bounds", ()))
     return (f'{_CSS}<div class="tuner-r"><p>{head}</p><div style="display:flex;flex-wrap:wrap;align-items:flex-start">'
             f"{gains}{_checks_table(r.analyses)}</div>{bounds}{pics}{solver}</div>")
-
-
-def analysis_html(a: Any, *, thumbnails: bool = True) -> str:
-    """The HTML summary of an :class:`~tuner.analysis.Analysis` (Jupyter): checks, thumbnails."""
-    head = f"<b>Analysis</b> {_e(_loop_kind(a))}: {_verdict_html([a])}"
-    pics = _thumbnails(a) if thumbnails else ""
-    return f'{_CSS}<div class="tuner-r"><p>{head}</p>{_checks_table([a])}{pics}</div>'

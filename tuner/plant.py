@@ -280,8 +280,10 @@ def _zpk_of(num: np.ndarray, den: np.ndarray) -> Zpk:
 
 
 def _coeffs_of(zk: Zpk) -> tuple[np.ndarray, np.ndarray]:
-    """Coefficients of a zpk (for display and storage; nothing is computed from them)."""
-    num = np.real(np.poly(zk.zeros)) * zk.gain if zk.zeros.size else np.array([zk.gain])
+    """Coefficients of a zpk (for display and storage; nothing is computed from them). Beyond double precision (a
+    gain near 1e300 times the zeros' coefficients) they are inf; the callers that need them finite check."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        num = np.real(np.poly(zk.zeros)) * zk.gain if zk.zeros.size else np.array([zk.gain])
     den = np.real(np.poly(zk.poles)) if zk.poles.size else np.ones(1)
     return np.atleast_1d(num), np.atleast_1d(den)
 
@@ -348,8 +350,6 @@ def make_plant(
     tuner.errors.InvalidPlantError: ...
     """
     if den is None:
-        from .interop import is_control_lti, plant_from_control
-
         if not is_control_lti(num):
             raise InvalidPlantError("give the denominator den (or a python-control TransferFunction/StateSpace)",
                                     field="den")
@@ -458,3 +458,78 @@ def plant_from_expr(
         if e.field in (("num",), ("den",)):
             e.field = ("expr",)
         raise
+
+
+# -- python-control models in (tuner.interop re-exports these; here so that make_plant needs no import of it) --
+
+def is_control_lti(obj: Any) -> bool:
+    """``obj`` is a python-control ``TransferFunction`` or ``StateSpace`` (without importing control otherwise)."""
+    if not type(obj).__module__.startswith("control"):
+        return False
+    import control
+
+    return isinstance(obj, (control.TransferFunction, control.StateSpace))
+
+
+def _dt_of(sys: Any, error: type[TunerError], what: str) -> float | None:
+    dt = sys.dt
+    if dt is True:
+        raise error(f"the {what} is discrete with an unspecified sample time (dt=True): give its sample time in "
+                    "seconds, e.g. control.tf(num, den, 0.04) or control.c2d(sys, 0.04)", field="dt")
+    if dt is None or dt == 0:
+        return None
+    return float(dt)
+
+
+def _siso(sys: Any, error: type[TunerError], what: str) -> None:
+    if sys.ninputs != 1 or sys.noutputs != 1:
+        raise error(f"the {what} must be SISO (one input, one output), got {sys.noutputs} outputs x "
+                    f"{sys.ninputs} inputs: select the channel, e.g. sys[0, 0]")
+
+
+def _tf_coeffs(sys: Any) -> tuple[np.ndarray, np.ndarray]:
+    return (np.asarray(sys.num[0][0], dtype=float).ravel(), np.asarray(sys.den[0][0], dtype=float).ravel())
+
+
+def _ss_of(sys: Any) -> SS:
+    A = np.asarray(sys.A, dtype=float)
+    return SS(A.reshape(A.shape[0], A.shape[0]), np.asarray(sys.B, dtype=float).ravel(),
+              np.asarray(sys.C, dtype=float).ravel(), float(np.asarray(sys.D, dtype=float).ravel()[0]))
+
+
+def _zpk(sys: Any, discrete: bool) -> Zpk:
+    with np.errstate(all="ignore"):
+        return zpk_from_ss(_ss_of(sys), discrete=discrete)
+
+
+def plant_from_control(sys: Any, *, delay: float = 0.0, max_order: int = MAX_ORDER) -> Plant:
+    """A :class:`~tuner.plant.Plant` from a python-control model; ``delay`` in seconds (whole samples if discrete).
+
+    A ``TransferFunction`` or ``StateSpace``, SISO, continuous (``dt=0``) or discrete (its ``dt``; ``dt=True``
+    is refused: give the number).
+
+    Examples
+    --------
+    >>> import control
+    >>> from tuner import plant_from_control
+    >>> p = plant_from_control(control.tf([1], [1, 1]), delay=0.05)
+    >>> p.order, p.delay_s, p.dt
+    (1, 0.05, None)
+    >>> plant_from_control(control.ss([[-1.0]], [[1.0]], [[2.0]], [[0.0]])).describe()  # doctest: +ELLIPSIS
+    '(2...) / (s + 1...)'
+    """
+    import control
+
+    _siso(sys, InvalidPlantError, "plant")
+    dt = _dt_of(sys, InvalidPlantError, "plant")
+    if isinstance(sys, control.StateSpace):
+        if np.asarray(sys.A).shape[0] > max_order:
+            raise InvalidPlantError(f"plant order {np.asarray(sys.A).shape[0]} is above the limit {max_order}",
+                                    field="den")
+        zk = _zpk(sys, dt is not None)
+        if zk.gain == 0 or not np.isfinite(zk.gain):
+            raise InvalidPlantError("the state-space plant has no gain (C (sI - A)^-1 B + D is zero) or it is not "
+                                    "finite", field="num")
+        return make_plant_zpk(zk.zeros, zk.poles, zk.gain, dt=dt, delay=delay, max_order=max_order)
+    num, den = _tf_coeffs(sys)
+    return make_plant(num, den, dt=dt, delay=delay, max_order=max_order)

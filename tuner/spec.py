@@ -147,7 +147,7 @@ class Check:
                 "ok": self.ok, "violation": self.violation}
 
     def __repr__(self) -> str:
-        from .display import check_repr
+        from .text import check_repr
 
         return check_repr(self)
 

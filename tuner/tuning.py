@@ -3,7 +3,8 @@
 The search (:mod:`tuner.optimize.engine`) runs rounds until it has converged or the budget is
 used: a deterministic first round (plant-based starts, a fixed space-filling set, a contained
 structure's answer) scored by the batched verifier, the best distinct candidates refined by the
-CasADi NLP on the exact problem; then rounds of Optuna's seeded sampler and more refinements.
+CasADi NLP on the exact problem; then restarts (a scrambled Sobol set, refinements outside the basins found, scans;
+Optuna's seeded sampler too at the fast and thorough efforts, or when ``n_trials`` or ``sampler`` is given).
 The finalists are re-verified by :mod:`tuner.analysis` at full resolution on every plant; only
 verified numbers are reported, and the best verified candidate wins. When none meets the spec,
 the least-violating one is returned with ``meets_spec: false`` and the failing constraints.
@@ -292,11 +293,15 @@ def tune(
         Wall-time budget; the search stops when it has converged or the budget is used, and the best
         verified candidate is returned (``solver["stop"]`` says which).
     n_trials : int, optional
-        Optuna points per round after the first (default 24).
+        Optuna points asked per restart (default 24). The default effort's restarts do not ask Optuna (a scrambled
+        Sobol set, refinements and scans find the basins; ``effort="fast"`` and ``"thorough"`` ask it); giving
+        ``n_trials`` or a ``sampler`` makes every restart ask Optuna too, at any effort.
     n_starts : int, optional
         How many distinct candidates the local NLP refines in the first round (default: the effort's).
     sampler, storage
-        Optuna sampler and storage (in-memory TPE by default; a storage URL is accepted).
+        Optuna sampler and storage (in-memory TPE by default; a storage URL is accepted): the restarts' Optuna step
+        (see ``n_trials``) uses the sampler, seeded by ``seed`` and told every point scored before it; the storage
+        records every point the tune scored as a trial (it does not change the search).
     local : bool
         Run the CasADi local stage (``False`` = global search only, for comparison).
     nlp_solver : str
@@ -383,167 +388,246 @@ def tune(
     if local:  # the NLPs this tune builds stay in the build cache until it ends
         from .optimize.nlp.transcribe import working_set
     with _one_thread(), (working_set() if local else nullcontext()):
-        from .robust import check_draws, is_identification, plant_set
+        plant_or_plants, ident, design, n_mc = _from_identification(plant_or_plants, robust, monte_carlo, dt, delay)
+        problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle)
+        _check_actuator(actuator, problem)
+        opts = _Opts(seed=int(seed), budget_s=float(time_budget_s), deadline=deadline, t0=t0, n_starts=n_starts,
+                     n_trials=n_trials, sampler=sampler, storage=storage, local=local, nlp_solver=nlp_solver,
+                     diagnose=diagnose, effort=effort)
+        run = _search(problem, opts)
+        res = _verified(run, problem, opts, structure)
+        res = _diagnosed(res, run, problem, opts)
+        res = _annotated(res, problem, ident, actuator, vehicle, current_gains, design, n_mc, int(seed))
+        return res
 
-        ident, design = None, None
-        if is_identification(plant_or_plants):
-            if delay is not None:
-                raise TunerError("an identification carries its fitted delay: leave delay out", field="delay")
-            ident = plant_or_plants
-            plant_or_plants, design = plant_set(ident, robust, dt=dt)
-            n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
-        elif robust is not None or monte_carlo is not None:
-            raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
-                             field="robust" if robust is not None else "monte_carlo")
-        current_gains = None
-        if vehicle is not None:
-            from .firmware.bind import bind_law
 
-            if isinstance(plant_or_plants, TuningProblem):  # its structure bound already: the current gains
-                _, _, current_gains = bind_law(plant_or_plants.structure, vehicle, plant_or_plants.dt,
-                                               field="vehicle")
-            else:
-                if structure is None:
-                    raise TunerError("give the firmware law, structure='px4_rate' or 'ardupilot_rate'",
-                                     field="structure")
-                structure, dt, current_gains = bind_law(structure, vehicle, dt, field="vehicle")
-        if isinstance(plant_or_plants, TuningProblem):
-            if structure is not None or spec is not None or dt is not None or delay is not None:
-                raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
-                                 "again", field="structure")
-            problem = plant_or_plants
+@dataclass(frozen=True)
+class _Opts:
+    """How one tune runs (what :func:`tune` was given, checked)."""
+
+    seed: int
+    budget_s: float
+    deadline: float
+    t0: float
+    n_starts: int | None
+    n_trials: int | None
+    sampler: Any
+    storage: Any
+    local: bool
+    nlp_solver: str
+    diagnose: bool
+    effort: str
+
+
+@dataclass
+class _Run:
+    """A search and what its verification needs: the engine, the problem it searched (the asked one, or with the
+    limits no gains can meet set as the reasons by definition suggest), those reasons, the fastest design of a
+    robustness objective, the time share kept for the verification."""
+
+    eng: Any
+    searched: TuningProblem
+    decided: list[Any]
+    fast: TuneResult | None
+    reserve: float
+    stop: Any = None
+    t_verify: float = 0.0
+
+
+def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo: int | None, dt: float | None,
+                         delay: Any) -> tuple[Any, Any, Any, int]:
+    """An identification's plant set (its nominal model, or the ``robust``-sigma set), the identification, the robust
+    design record and the Monte Carlo draws; other inputs as they are."""
+    from .robust import check_draws, is_identification, plant_set
+
+    if is_identification(plant_or_plants):
+        if delay is not None:
+            raise TunerError("an identification carries its fitted delay: leave delay out", field="delay")
+        ident = plant_or_plants
+        plants, design = plant_set(ident, robust, dt=dt)
+        n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
+        return plants, ident, design, n_mc
+    if robust is not None or monte_carlo is not None:
+        raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
+                         field="robust" if robust is not None else "monte_carlo")
+    return plant_or_plants, None, None, 0
+
+
+def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float | None, delay: Any, vehicle: Any
+             ) -> tuple[TuningProblem, dict[str, float] | None, Any]:
+    """The validated problem, the vehicle's current gains (a firmware law bound to its parameters), and the
+    structure as given (a firmware law's, bound)."""
+    current_gains = None
+    if vehicle is not None:
+        from .firmware.bind import bind_law
+
+        if isinstance(plant_or_plants, TuningProblem):  # its structure bound already: the current gains
+            _, _, current_gains = bind_law(plant_or_plants.structure, vehicle, plant_or_plants.dt, field="vehicle")
         else:
             if structure is None:
-                raise TunerError("give the controller structure, e.g. structure='pid'", field="structure")
-            from .interop import as_plants
+                raise TunerError("give the firmware law, structure='px4_rate' or 'ardupilot_rate'", field="structure")
+            structure, dt, current_gains = bind_law(structure, vehicle, dt, field="vehicle")
+    if isinstance(plant_or_plants, TuningProblem):
+        if structure is not None or spec is not None or dt is not None or delay is not None:
+            raise TunerError("a TuningProblem already holds the plants, structure, spec and dt: do not pass them "
+                             "again", field="structure")
+        return plant_or_plants, current_gains, structure
+    if structure is None:
+        raise TunerError("give the controller structure, e.g. structure='pid'", field="structure")
+    from .interop import as_plants
 
-            problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec,
-                                          dt=dt)
+    problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec, dt=dt)
+    return problem, current_gains, structure
 
-        if actuator is not None:
-            from .analysis.saturation import Actuator
 
-            if not isinstance(actuator, Actuator):
-                raise TunerError("actuator must be a tuner.analysis.saturation.Actuator (Actuator.of(u_max=..., "
-                                 "step_size=...))", field="actuator")
-            if problem.dt is None:
-                raise TunerError("the saturated step runs the law at its sample time: give dt", field="dt")
-        from .diagnose import definitional_reasons
-        from .optimize.engine import Engine
+def _check_actuator(actuator: Any, problem: TuningProblem) -> None:
+    if actuator is None:
+        return
+    from .analysis.saturation import Actuator
 
-        decided = definitional_reasons(problem) if diagnose else []
-        search = _searchable(problem, decided)  # a limit no gains can meet: searched without it, judged with it
-        # keep a share of the budget for the final verification at full resolution
-        # (and, when a diagnosis may follow, its share: an infeasible spec's search would otherwise use it all)
-        reserve = (_RESERVE + (DIAGNOSIS_SHARE if diagnose else 0.0)) * float(time_budget_s)
-        # "as robust as possible at this speed": the fastest design meeting the spec leads the search (its refinements
-        # then start from a point that meets the settling-time limit; the robustness objectives' landscape is flat
-        # where the settling time's is not) and is a candidate itself
-        fast = None
-        if problem.spec.objective in ROBUSTNESS_OBJECTIVES and diagnose:
-            fast_problem = replace(problem, spec=problem.spec.model_copy(update={"objective": "settling_time"}))
-            fast = tune(fast_problem, seed=int(seed), time_budget_s=FAST_SHARE * float(time_budget_s),
-                        n_starts=n_starts, nlp_solver=nlp_solver, local=local, diagnose=False, effort=effort)
-        seeds = [np.array([fast.gains[k] for k in problem.structure.params], float)] \
-            if fast is not None and fast.meets_spec else None
-        eng = Engine(search, seed=int(seed), deadline=deadline, solver=nlp_solver, local=local, n_starts=n_starts,
-                     n_trials=n_trials, sampler=sampler, storage=storage, reserve_s=reserve,
-                     effort=effort, seeds=seeds)
-        run = eng.run()
-        t_verify = time.perf_counter()
-        best_x, best = eng.verify_best()
-        if search is not problem:  # the verifier's verdict on the asked spec (the impossible limit fails)
-            from .optimize.scoring import Evaluator
+    if not isinstance(actuator, Actuator):
+        raise TunerError("actuator must be a tuner.analysis.saturation.Actuator (Actuator.of(u_max=..., "
+                         "step_size=...))", field="actuator")
+    if problem.dt is None:
+        raise TunerError("the saturated step runs the law at its sample time: give dt", field="dt")
 
-            eng.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=eng.space.w0)
-            best = eng.ev.score(best_x, full=True)
-        t_verify = time.perf_counter() - t_verify
-        st = problem.structure
-        wall = time.perf_counter() - t0
-        info: dict[str, Any] = {
-            "method": f"optuna+casadi-{nlp_solver}" if eng.local else "optuna", "seed": int(seed),
-            "stop": run.stop, "converged": run.stop == "converged", "rounds": run.rounds,
-            "budget_exhausted": time.perf_counter() > deadline - reserve,
-            "wall_time_s": wall, "global_evaluations": run.batch_evaluations, "starts_tried": run.starts_refined,
-            "nlp_solves": run.nlp_solves, "nlp_iterations": run.nlp_iterations, "nlp_evaluations": run.nlp_evaluations,
-            "nlp_solves_ok": run.nlp_solves_ok, "seeded_from": run.seeded_from,
-            "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
-            "effort": effort, "optimality": eng.optimality(),
-        }
-        from .bounds import at_bounds
-        from .controllers import deprecation_note
 
-        note = deprecation_note(structure) if isinstance(structure, str) else None
-        if note or run.notes:
-            info["notes"] = list(dict.fromkeys(([note] if note else []) + list(run.notes)))
-        from .display import optimality_line
+def _search(problem: TuningProblem, o: _Opts) -> _Run:
+    """The search: the limits no gains can meet set aside (judged, not searched), a robustness objective's fastest
+    design first (it leads the search and is a candidate), then the engine's rounds."""
+    from .diagnose import definitional_reasons
+    from .optimize.engine import Engine
 
-        info["optimality"]["summary"] = optimality_line(info)
-        res = TuneResult(structure=st.name, gains=st.named(best_x), controller=eng.ev.controller(best_x),
-                         analyses=best.analyses, solver=info, spec=problem.spec,
-                         at_bounds=tuple(at_bounds(problem, eng.space, best_x, best.analyses)),
-                         limits=problem.limits)
-        if fast is not None and fast.meets_spec:
-            pick = _adopt(eng, problem, [fast])
-            if pick is not None and (not best.feasible or pick[1].score < best.score):
-                x, scored = pick
-                res = TuneResult(structure=st.name, gains=st.named(x), controller=eng.ev.controller(x),
-                                 analyses=scored.analyses, solver=info, spec=problem.spec,
-                                 at_bounds=tuple(at_bounds(problem, eng.space, x, scored.analyses)),
-                                 limits=problem.limits)
-                info["from_fastest_design"] = True
-        if not res.meets_spec and diagnose:
-            from .diagnose import diagnose as _diagnose
+    decided = definitional_reasons(problem) if o.diagnose else []
+    searched = _searchable(problem, decided)  # a limit no gains can meet: searched without it, judged with it
+    # keep a share of the budget for the final verification at full resolution
+    # (and, when a diagnosis may follow, its share: an infeasible spec's search would otherwise use it all)
+    reserve = (_RESERVE + (DIAGNOSIS_SHARE if o.diagnose else 0.0)) * o.budget_s
+    # "as robust as possible at this speed": the fastest design meeting the spec leads the search (its refinements
+    # then start from a point that meets the settling-time limit; the robustness objectives' landscape is flat
+    # where the settling time's is not) and is a candidate itself
+    fast = None
+    if problem.spec.objective in ROBUSTNESS_OBJECTIVES and o.diagnose:
+        fast_problem = replace(problem, spec=problem.spec.model_copy(update={"objective": "settling_time"}))
+        fast = tune(fast_problem, seed=o.seed, time_budget_s=FAST_SHARE * o.budget_s, n_starts=o.n_starts,
+                    nlp_solver=o.nlp_solver, local=o.local, diagnose=False, effort=o.effort)
+    seeds = [np.array([fast.gains[k] for k in problem.structure.params], float)] \
+        if fast is not None and fast.meets_spec else None
+    eng = Engine(searched, seed=o.seed, deadline=o.deadline, solver=o.nlp_solver, local=o.local, n_starts=o.n_starts,
+                 n_trials=o.n_trials, sampler=o.sampler, storage=o.storage, reserve_s=reserve, effort=o.effort,
+                 seeds=seeds)
+    run = _Run(eng=eng, searched=searched, decided=decided, fast=fast, reserve=reserve)
+    run.stop = eng.run()
+    return run
 
-            failing = [c.name for a in res.analyses for c in a.failing]
-            left = min(DIAGNOSIS_SHARE * float(time_budget_s), deadline - time.perf_counter())  # within the budget
-            found: list[TuneResult] = []
-            reasons = _diagnose(problem, failing, seed=int(seed), budget_s=0.0 if decided else left,
-                                min_tune_s=3 * t_verify + 0.02, found=found, analyses=res.analyses,
-                                tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
-                                                                nlp_solver=nlp_solver, local=local, diagnose=False))
-            res = replace(res, reasons=tuple(reasons))
-            better = _adopt(eng, problem, found)  # a relaxed re-tune's design that meets the asked spec after all
-            if better is not None:
-                x, scored = better
-                res = TuneResult(structure=st.name, gains=st.named(x), controller=eng.ev.controller(x),
-                                 analyses=scored.analyses, solver=info, spec=problem.spec,
-                                 at_bounds=tuple(at_bounds(problem, eng.space, x, scored.analyses)),
-                                 limits=problem.limits)
-                info["found_by_diagnosis"] = True
-            res.solver["wall_time_s"] = time.perf_counter() - t0
-            res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > deadline
-        note = _integral_note(res, problem)
-        if note:
-            res.solver.setdefault("notes", []).append(note)
-        if ident is not None:  # the nominal loop on the measured response too, next to the model's
-            res = _with_measured(res, ident)
-            if getattr(ident, "unreliable_feedback", False):
-                res.solver.setdefault("notes", []).insert(0, (
-                    "the identification was flown under feedback and fitted without a reference (quality "
-                    "'closed-loop'): its model may be the controller's inverse, not the plant; this design is tuned "
-                    "on that model. Identify again with the exogenous signal as the reference"))
-        if actuator is not None:  # the step the actuator allows, as the law runs it (every plant)
-            res = replace(res, analyses=tuple(a.with_saturation(actuator, problem.spec, structure=st.name,
-                                                                gains=res.gains) for a in res.analyses))
-            sat = [c for a in res.analyses for c in a.failing if c.name.startswith("saturated_")]
-            if sat:
-                s0 = res.analyses[0].saturated
-                frac = 100 * s0.saturated_fraction if s0 is not None else math.nan
-                res.solver.setdefault("notes", []).append(
-                    f"the search designs the linear loop; a step of {actuator.step_size:g} with "
-                    f"{actuator.u_min:g} <= u <= {actuator.u_max:g} saturates {frac:.0f} % of the step and fails "
-                    f"{', '.join(sorted({c.name for c in sat}))}: a smaller step, wider limits, or a slower design "
-                    "(a settling-time limit, a lower control peak) fits the actuator")
-        if current_gains is not None:
-            res = _with_current(res, problem, vehicle, current_gains, ident, actuator)
-        if ident is not None:
-            if n_mc:
-                from .robust import monte_carlo as _mc
 
-                design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=int(seed)))
-            res = replace(res, robust=design)
+def _result(run: _Run, problem: TuningProblem, x: np.ndarray, scored: Any, info: dict[str, Any]) -> TuneResult:
+    from .bounds import at_bounds
+
+    st = problem.structure
+    return TuneResult(structure=st.name, gains=st.named(x), controller=run.eng.ev.controller(x),
+                      analyses=scored.analyses, solver=info, spec=problem.spec,
+                      at_bounds=tuple(at_bounds(problem, run.eng.space, x, scored.analyses)), limits=problem.limits)
+
+
+def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> TuneResult:
+    """The best of the search's finalists as the full verifier judges it against the asked spec, the solver's
+    record, and the fastest design where it is better."""
+    eng, stop = run.eng, run.stop
+    t_verify = time.perf_counter()
+    best_x, best = eng.verify_best()
+    if run.searched is not problem:  # the verifier's verdict on the asked spec (the impossible limit fails)
+        from .optimize.scoring import Evaluator
+
+        eng.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=eng.space.w0)
+        best = eng.ev.score(best_x)
+    run.t_verify = time.perf_counter() - t_verify
+    info: dict[str, Any] = {
+        "method": f"optuna+casadi-{o.nlp_solver}" if eng.local else "optuna", "seed": o.seed,
+        "stop": stop.stop, "converged": stop.stop == "converged", "rounds": stop.rounds,
+        "budget_exhausted": time.perf_counter() > o.deadline - run.reserve,
+        "wall_time_s": time.perf_counter() - o.t0, "global_evaluations": stop.batch_evaluations,
+        "starts_tried": stop.starts_refined, "nlp_solves": stop.nlp_solves, "nlp_iterations": stop.nlp_iterations,
+        "nlp_evaluations": stop.nlp_evaluations, "nlp_solves_ok": stop.nlp_solves_ok, "seeded_from": stop.seeded_from,
+        "verifier_evaluations": eng.ev.n_evals, "candidates_verified": eng.verified,
+        "effort": o.effort, "optimality": eng.optimality(),
+    }
+    from .controllers import deprecation_note
+    from .display import optimality_line
+
+    note = deprecation_note(structure) if isinstance(structure, str) else None
+    if note or stop.notes:
+        info["notes"] = list(dict.fromkeys(([note] if note else []) + list(stop.notes)))
+    info["optimality"]["summary"] = optimality_line(info)
+    res = _result(run, problem, best_x, best, info)
+    if run.fast is not None and run.fast.meets_spec:
+        pick = _adopt(eng, problem, [run.fast])
+        if pick is not None and (not best.feasible or pick[1].score < best.score):
+            res = _result(run, problem, *pick, info)
+            info["from_fastest_design"] = True
+    return res
+
+
+def _diagnosed(res: TuneResult, run: _Run, problem: TuningProblem, o: _Opts) -> TuneResult:
+    """An unmet spec with its reasons (:mod:`tuner.diagnose`, within what is left of the budget), and a relaxed
+    re-tune's design where it meets the asked spec after all."""
+    if res.meets_spec or not o.diagnose:
         return res
+    from .diagnose import diagnose as _diagnose
+
+    failing = [c.name for a in res.analyses for c in a.failing]
+    left = min(DIAGNOSIS_SHARE * o.budget_s, o.deadline - time.perf_counter())  # within the budget
+    found: list[TuneResult] = []
+    reasons = _diagnose(problem, failing, seed=o.seed, budget_s=0.0 if run.decided else left,
+                        min_tune_s=3 * run.t_verify + 0.02, found=found, analyses=res.analyses,
+                        tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
+                                                        nlp_solver=o.nlp_solver, local=o.local, diagnose=False))
+    res = replace(res, reasons=tuple(reasons))
+    better = _adopt(run.eng, problem, found)  # a relaxed re-tune's design that meets the asked spec after all
+    if better is not None:
+        res = _result(run, problem, *better, res.solver)  # (it meets the spec: no reasons)
+        res.solver["found_by_diagnosis"] = True
+    res.solver["wall_time_s"] = time.perf_counter() - o.t0
+    res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > o.deadline
+    return res
+
+
+def _annotated(res: TuneResult, problem: TuningProblem, ident: Any, actuator: Any, vehicle: Any,
+               current_gains: dict[str, float] | None, design: Any, n_mc: int, seed: int) -> TuneResult:
+    """What the user should know beside the design: integral action lost, the loop on the measured response, the
+    saturated step, the vehicle's current tune, the robust record and its Monte Carlo check."""
+    st = problem.structure
+    note = _integral_note(res, problem)
+    if note:
+        res.solver.setdefault("notes", []).append(note)
+    if ident is not None:  # the nominal loop on the measured response too, next to the model's
+        res = _with_measured(res, ident)
+        if getattr(ident, "unreliable_feedback", False):
+            res.solver.setdefault("notes", []).insert(0, (
+                "the identification was flown under feedback and fitted without a reference (quality "
+                "'closed-loop'): its model may be the controller's inverse, not the plant; this design is tuned "
+                "on that model. Identify again with the exogenous signal as the reference"))
+    if actuator is not None:  # the step the actuator allows, as the law runs it (every plant)
+        res = replace(res, analyses=tuple(a.with_saturation(actuator, problem.spec, structure=st.name,
+                                                            gains=res.gains) for a in res.analyses))
+        sat = [c for a in res.analyses for c in a.failing if c.name.startswith("saturated_")]
+        if sat:
+            s0 = res.analyses[0].saturated
+            frac = 100 * s0.saturated_fraction if s0 is not None else math.nan
+            res.solver.setdefault("notes", []).append(
+                f"the search designs the linear loop; a step of {actuator.step_size:g} with "
+                f"{actuator.u_min:g} <= u <= {actuator.u_max:g} saturates {frac:.0f} % of the step and fails "
+                f"{', '.join(sorted({c.name for c in sat}))}: a smaller step, wider limits, or a slower design "
+                "(a settling-time limit, a lower control peak) fits the actuator")
+    if current_gains is not None:
+        res = _with_current(res, problem, vehicle, current_gains, ident, actuator)
+    if ident is not None:
+        if n_mc:
+            from .robust import monte_carlo as _mc
+
+            design = replace(design, monte_carlo=_mc(ident, res.controller, problem.spec, n=n_mc, seed=seed))
+        res = replace(res, robust=design)
+    return res
 
 
 #: an integral gain below this fraction of the loop's scale K0 w0 is "no integral action" (the search box's gains start
@@ -640,7 +724,7 @@ def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[n
             x = problem.structure.vector(r.gains)
         except TunerError:
             continue
-        s = eng.ev.score(x, full=True)
+        s = eng.ev.score(x)
         if s.feasible and (best is None or s.score < best[1].score):
             best = (x, s)
     return best

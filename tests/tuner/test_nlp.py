@@ -341,7 +341,7 @@ def test_sharp_polish_bisects_on_only_from_what_the_verifier_confirms(monkeypatc
              for solves, ts, r in _polish_solves(monkeypatch, batch, space, res.candidates, 2) if r[0] >= 0]
     verifier = Evaluator([plant], st, dt, spec)
     for ts, x, step in taken:
-        s = verifier.score(x, full=True)
+        s = verifier.score(x)
         assert s.feasible and s.score <= ts + step, (ts, s.score)
     assert len(taken) >= 3  # (the bisection went on below the refused 0.3270 s: 0.3271 s)
 

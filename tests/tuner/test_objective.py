@@ -46,7 +46,7 @@ def test_scores_order_feasible_below_infeasible_below_unstable():
     assert printed.feasible and printed.score == pytest.approx(0.43, abs=0.02)
     assert not pitchy.feasible and INFEASIBLE < pitchy.score < UNSTABLE
     assert not unstable.feasible and unstable.score >= UNSTABLE
-    # the verifier agrees: the scored settling time is the analysed one (search resolution, guard band)
+    # the verifier agrees: the scored settling time is the analysed one
     a = analyze(roll, st.tf([3.868, -1.305, 0.5668], 0.04))
     assert a.meets_spec and abs(a.metrics.settling_time_s - printed.score) < 0.01
 

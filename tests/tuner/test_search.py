@@ -200,7 +200,7 @@ def test_engine_scores_are_the_verifiers():
     assert info.stop in ("converged", "budget")
     s, v, _ = min(eng.pool, key=lambda t: t[0])
     assert s < 1e3  # the thesis roll loop meets the default spec
-    scalar = eng.ev.score(eng.space.params(v), full=True).score
+    scalar = eng.ev.score(eng.space.params(v)).score
     assert scalar == pytest.approx(s, abs=DT)
 
 
@@ -269,3 +269,26 @@ def test_same_seed_same_answer_in_one_process_and_across_processes():
             "print(json.dumps(r.gains))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     assert json.loads(out.stdout.strip().splitlines()[-1]) == runs[0].gains
+
+
+def test_n_trials_and_sampler_act_at_the_default_effort(monkeypatch):
+    """Issue 29: the default effort's restarts do not ask Optuna; n_trials (or a sampler) makes them ask it, that
+    many points each."""
+    from tuner.optimize import search as search_mod
+
+    asked: list[int] = []
+    real = search_mod.SeededSearch.ask
+
+    def ask(self, n):
+        asked.append(n)
+        return real(self, n)
+
+    monkeypatch.setattr(search_mod.SeededSearch, "ask", ask)
+    plant = plant_from_expr(ROLL)
+    tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET)
+    assert asked == []
+    r = tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, n_trials=7)
+    assert asked and set(asked) == {7} and len(asked) == r.solver["optimality"]["restarts"]
+    asked.clear()
+    tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, sampler=optuna.samplers.RandomSampler(seed=1))
+    assert asked and set(asked) == {24}

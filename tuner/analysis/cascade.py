@@ -132,7 +132,7 @@ class CascadeResponse:
     metrics: StepMetrics
 
     def __repr__(self) -> str:
-        from ..display import step_response_repr
+        from ..text import step_response_repr
 
         m = self.metrics
         return (f"CascadeResponse(overshoot {m.overshoot_pct:.3g} %, settling {m.settling_time_s:.3g} s;\n  "

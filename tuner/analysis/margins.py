@@ -88,7 +88,7 @@ class Margins:
     drb_rad_s: float = math.nan
 
     def __repr__(self) -> str:
-        from ..display import margins_repr
+        from ..text import margins_repr
 
         return margins_repr(self)
 

@@ -35,11 +35,11 @@ from matplotlib import rc_context
 from matplotlib.figure import Figure, SubFigure
 from matplotlib.ticker import MultipleLocator
 
+from .._lazy import is_instance_of
 from ..errors import TunerError
 from ..spec import Spec
 from .cascade import CascadeResponse
 from .margins import Margins, frequency_grid, margins
-from .verify import Analysis
 
 __all__ = ["KINDS", "FORMATS", "InvalidPlotError", "render", "figure", "step_figure", "bode_figure",
            "nyquist_figure", "figure_bytes", "loop_plots"]
@@ -53,9 +53,15 @@ class InvalidPlotError(TunerError, ValueError):
     """An unknown plot kind or format."""
 
 
+def _is_analysis(obj: Any) -> bool:
+    """An :class:`~tuner.analysis.Analysis` (recognised without importing the verifier: it shows itself with these
+    plots, so importing it here would make a circle)."""
+    return is_instance_of(obj, "tuner.analysis.verify", "Analysis")
+
+
 @dataclass(frozen=True, eq=False)
 class _Members:
-    analyses: tuple[Analysis, ...]
+    analyses: tuple[Any, ...]  # tuner.analysis.Analysis
     labels: tuple[str, ...]
     spec: Spec
     cascade: CascadeResponse | None
@@ -71,7 +77,7 @@ _SPEC_OF_CHECK = {"overshoot_pct": "overshoot_max_pct", "control_peak": "control
 def _members(obj: Any, spec: Spec | None, labels: Sequence[str] | None,
              cascade: CascadeResponse | None) -> _Members:
     """The analyses to draw from a TuneResult, a study's LoopEval, an Analysis or a sequence of them."""
-    if isinstance(obj, Analysis):
+    if _is_analysis(obj):
         analyses: tuple[Any, ...] = (obj,)
     elif hasattr(obj, "analyses"):
         analyses = tuple(obj.analyses)
@@ -79,7 +85,7 @@ def _members(obj: Any, spec: Spec | None, labels: Sequence[str] | None,
         cascade = cascade or getattr(obj, "cascade", None)
     else:
         analyses = tuple(obj)
-    if not analyses or not all(isinstance(a, Analysis) for a in analyses):
+    if not analyses or not all(_is_analysis(a) for a in analyses):
         raise TypeError("plots draw a TuneResult, an Analysis or a sequence of Analysis objects, got "
                         f"{type(obj).__name__}")
     if spec is None:  # the limits the checks were made against (the settling band is not in them: 2 %)
@@ -101,7 +107,7 @@ def _style(i: int, n: int) -> dict[str, Any]:
 # -- step response and control signal -------------------------------------------------------------
 
 
-def _window(a: Analysis) -> float:
+def _window(a: Any) -> float:
     """End of the time axis: a few settling times (a long horizon would squash the transient)."""
     r, m = a.response, a.metrics
     if r is None:
@@ -166,7 +172,7 @@ def _draw_step(fig: Figure | SubFigure, m: _Members, title: str) -> None:
 # -- Bode ----------------------------------------------------------------------------------------
 
 
-def _margins(a: Analysis) -> Margins:
+def _margins(a: Any) -> Margins:
     return a.margins if a.margins is not None else margins(a.loop)
 
 
@@ -193,7 +199,7 @@ def _grid(m: _Members, n: int = 1200) -> np.ndarray:
     return np.unique(np.concatenate([w, [k for k in keys if lo <= k <= hi]]))
 
 
-def _phase_deg(a: Analysis, w: np.ndarray, L: np.ndarray) -> np.ndarray:
+def _phase_deg(a: Any, w: np.ndarray, L: np.ndarray) -> np.ndarray:
     """Unwrapped phase: the rational part unwrapped on the grid, the delay's ``-w tau`` added exactly;
     shifted by whole turns so that the phase at the gain crossover is in (-360, 0] (then the phase
     margin is measured from -180), or, without a crossover, the low-frequency phase in (-180, 180]."""
@@ -255,7 +261,7 @@ def _label(ax: Any, w: np.ndarray, x: float, y: float, text: str, color: str) ->
             ha="right" if right else "left")
 
 
-def _mark_margins(ax_m: Any, ax_p: Any, w: np.ndarray, mag: np.ndarray, ph: np.ndarray, a: Analysis) -> float:
+def _mark_margins(ax_m: Any, ax_p: Any, w: np.ndarray, mag: np.ndarray, ph: np.ndarray, a: Any) -> float:
     """The phase margin (arrow from -180 to the phase at the crossover) and the gain margin (arrow from
     |L| at the phase crossover to 0 dB); returns the lowest phase worth showing."""
     mg, lowest = _margins(a), -270.0

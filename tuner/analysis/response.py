@@ -65,7 +65,7 @@ class StepResponse:
     corners: np.ndarray | None = None
 
     def __repr__(self) -> str:
-        from ..display import step_response_repr
+        from ..text import step_response_repr
 
         return step_response_repr(self)
 
@@ -247,7 +247,6 @@ def lifted(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray]:
     return pct._cache[key]
 
 
-_lifted = lifted  # its name before it was public (the search and the NLP import it)
 
 
 def lifted_with_switch(loop: Loop, N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:

@@ -99,7 +99,7 @@ class Metrics:
     load_recovery_s: float = math.nan
 
     def __repr__(self) -> str:
-        from ..display import metrics_repr
+        from ..text import metrics_repr
 
         return metrics_repr(self)
 
@@ -160,12 +160,12 @@ class Analysis:
         return [c for c in self.checks if not c.ok]
 
     def __repr__(self) -> str:
-        from ..display import analysis_repr
+        from ..text import analysis_repr
 
         return analysis_repr(self)
 
     def _repr_html_(self) -> str:
-        from ..display import analysis_html
+        from .html import analysis_html
 
         return analysis_html(self)
 

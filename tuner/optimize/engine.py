@@ -17,7 +17,7 @@ so far). The search stops when
   round, the incumbent with each gain zeroed or shrunk, refinements of the best candidates outside
   every basin refined so far, and a scan around the incumbent), none finding anything better by more
   than the tolerance. An
-  infeasible incumbent needs ``INFEASIBLE_EXTRA`` more restarts; or
+  infeasible incumbent needs ``Effort.infeasible_extra`` more restarts; or
 * **budget**: the time budget (minus what the final verification needs) is used up. Given the seed, the search's
   steps are one fixed sequence whatever the budget and the machine's load: the first step the time left cannot
   afford (a batch, an NLP build, a scan, estimated from its size and the batches before it) ends the search, and
@@ -55,7 +55,7 @@ from .scoring import Evaluator, Scored
 from .search import SeededSearch
 from .space import Space, make_space
 
-__all__ = ["Engine", "designed_starts", "PATIENCE", "NLP_OBJECTIVES", "Effort", "EFFORTS"]
+__all__ = ["Engine", "designed_starts", "NLP_OBJECTIVES", "Effort", "EFFORTS"]
 
 #: the objectives the local NLP states exactly (``nlp.transcribe._objective``); the others (bandwidth) are
 #: optimised by the global search alone
@@ -63,15 +63,7 @@ NLP_OBJECTIVES = tuple(o.name for o in OBJECTIVES if o.nlp)
 
 log = logging.getLogger(__name__)
 
-PATIENCE = 1
-EXTRA_VERIFY = 12  # finalists verified beyond the effort's when none of those is feasible
-STALE_REFINES = 2  # refinements in a row that did not improve on the best: round 0 has converged
-DESIGN_POINTS = 48  # the fixed space-filling set of round 0
 DESIGN_SEED = 20261201  # fixed: round 0 does not depend on the user's seed
-ROUND_TRIALS = 24  # Optuna points per later round
-# the local scan around the incumbent after round 0's refinements (see Engine._scan): a fixed cloud
-SCAN_POINTS = 96
-SCAN_DECADES = 0.3  # half-width per coordinate, in the search's coordinates (decades for gains and times)
 SCAN_SEED = 20261202
 GAIN_DECADES = (0.0, -0.25, 0.25, -0.5, 0.5, -1.0, -1.5)  # the designed starts' gains, in decades of the guess
 PROJECTION_SHRINK = (1e-2, 1e-4)  # the projections' shrunk gains (see Engine._projections)
@@ -80,10 +72,6 @@ PROJECTION_SHRINK = (1e-2, 1e-4)  # the projections' shrunk gains (see Engine._p
 # overshoot, 1.384 s, and 1.372 s at 2.0 %, 0.0016 decades further) and coarse further out
 RAY_DECADES = tuple(sorted({sgn * 0.04 * 2.0 ** -k for k in range(7) for sgn in (-1.0, 1.0)}
                            | {-0.32, -0.24, -0.16, 0.16, 0.24}))
-RAY_ZOOMS = 2
-RAY_CHECKS = 3  # ray points verified at full resolution per level, at most (Engine._ray)
-BASIN = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
-INFEASIBLE_EXTRA = 2  # an infeasible incumbent must survive this many more restarts before "converged"
 # a search ends after this many rounds whatever its budget, with stop = "budget" (not confirmed): the convergence test
 # ends every search of the quality suite within 14 rounds (its 280 cases, every effort), so this only bounds a search
 # whose time budget would not end it (a budget far beyond need, a test's simulated clock) on a path where the
@@ -106,6 +94,18 @@ class Effort:
     # the NLP grid's detail (refine's ``detail``): thorough resolves the polish to ~0.25 %, not 1 %, and from 2 on the
     # polish is sharp (its settling time between the grid's points, its overshoot margin measured)
     detail: int = 1
+    # -- the search's other constants, the same at every effort today (one place: here) --------------------------
+    patience: int = 1  # rounds in a row without improvement that end an Optuna-only search (no local stage)
+    extra_verify: int = 12  # finalists verified beyond ``verify`` when none of those is feasible
+    stale_refines: int = 2  # refinements in a row that did not improve on the best: round 0 has converged
+    round_trials: int = 24  # Optuna points per restart (where Optuna is asked; ``tune(n_trials=)`` overrides)
+    # the local scan around the incumbent after round 0's refinements (see Engine._scan): a fixed cloud
+    scan_points: int = 96
+    scan_decades: float = 0.3  # half-width per coordinate, in the search's coordinates (decades for gains and times)
+    ray_zooms: int = 2  # the ray's zooms around its best factor (Engine._ray)
+    ray_checks: int = 3  # ray points verified at full resolution per level, at most (Engine._ray)
+    basin: float = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
+    infeasible_extra: int = 2  # an infeasible incumbent must survive this many more restarts before "converged"
 
 
 EFFORTS = {
@@ -113,7 +113,7 @@ EFFORTS = {
                    optuna=True),
     # default: two round-0 refinements and one per restart cost 30 % less than three and two, and on every fourth
     # suite case changed no ratio by more than 0.3 % (bench/QUALITY.md)
-    "default": Effort("default", n_starts=2, design_points=DESIGN_POINTS, confirm=1, restart_points=64,
+    "default": Effort("default", n_starts=2, design_points=48, confirm=1, restart_points=64,
                       restart_refines=1, verify=2, optuna=False),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2),
@@ -309,6 +309,10 @@ class Engine:
         self.round0_best = math.inf
         self._polished: set[bytes] = set()
         self.sampler, self.storage = sampler, storage
+        # Optuna's seeded sampler acts in the restarts where the effort asks for it, where there is no local stage
+        # (its only way to home in), and wherever the caller asked for it (a number of points, a sampler); a storage
+        # only records what was scored
+        self._asks_optuna = self.effort.optuna or not self.local or n_trials is not None or sampler is not None
         self.reserve_s = reserve_s
         self.info = RunInfo()
         self.pool: list[tuple[float, np.ndarray, bool]] = []  # (batch score, coordinates, refined?)
@@ -498,11 +502,11 @@ class Engine:
                 continue  # not refined (no time, or no NLP solve): says nothing about convergence
             good = sorted(r for r in reached if math.isfinite(r) and r < INFEASIBLE)
             # converged: two refinements from distinct starts agree on the best value, or every refinement
-            # after the best one (at least STALE_REFINES of them) failed to improve on it
+            # after the best one (at least Effort.stale_refines of them) failed to improve on it
             agree = len(good) >= 2 and good[1] - good[0] <= self._tol() and good[0] <= self.best.score + self._tol()
             tried = [r for r in reached if not math.isnan(r)]
             stale = stale + 1 if len(tried) > 1 and self.best.score >= before - self._tol() else 0
-            converged = agree or stale >= STALE_REFINES
+            converged = agree or stale >= self.effort.stale_refines
             if converged:
                 break
         if self._scan():
@@ -518,12 +522,13 @@ class Engine:
         6 tau), too thin for the space-filling points and out of the NLP's reach from the basin."""
         if not self._settling or self.best.v is None:
             return False
-        if self._time_left() < 2 * SCAN_POINTS * self._per_point:  # (its cost is known from the batches before it)
+        # (its cost is known from the batches before it)
+        if self._time_left() < 2 * self.effort.scan_points * self._per_point:
             self._exhaust()
             return False
         rng = np.random.default_rng(seed)
-        half = np.minimum(SCAN_DECADES, 0.1 * (self.space.hi - self.space.lo))
-        V = self.best.v + (2 * rng.random((SCAN_POINTS, self.best.v.size)) - 1) * half
+        half = np.minimum(self.effort.scan_decades, 0.1 * (self.space.hi - self.space.lo))
+        V = self.best.v + (2 * rng.random((self.effort.scan_points, self.best.v.size)) - 1) * half
         V = np.clip(V, self.space.lo, self.space.hi)
         before, v_before = self.best.score, self.best.v
         self._score(V, source="scan")
@@ -618,9 +623,9 @@ class Engine:
         fresh = lo + sob.random_base2(m) * (hi - lo)
         # (TPE's ask costs tens of ms a point with hundreds of trials told; a search without the local stage,
         # e.g. the bandwidth objective, has only the sampler to home in on its optimum)
-        if self.effort.optuna or not self.local:
+        if self._asks_optuna:
             self._tell_new()
-            trials, V = self._search.ask(self.n_trials or ROUND_TRIALS)
+            trials, V = self._search.ask(self.n_trials or self.effort.round_trials)
             self._search.told(trials, self._score(V, source="optuna") if len(V) else [])
             self._told = len(self.pool)  # (the rest is told by the next _tell_new)
         self._score(np.array(self._affordable(self._projections() + list(fresh))), source="restart")
@@ -657,9 +662,9 @@ class Engine:
 
     def _ray(self) -> None:
         """The incumbent with all its gains scaled together (the loop gain) by RAY_DECADES, then, while that finds
-        something the verifier confirms, around the best factor at a quarter of its nearest gap (RAY_ZOOMS times); a
-        step within the tolerance is not polished again. The settling time jumps where the overshoot reaches the
-        band: a P on 0.45/(s (6.1 s + 1)) settles in 34.6 s at Kp 0.146 and in 52.6 s at 0.152, falling again to
+        something the verifier confirms, around the best factor at a quarter of its nearest gap (Effort.ray_zooms
+        times); a step within the tolerance is not polished again. The settling time jumps where the overshoot reaches
+        the band: a P on 0.45/(s (6.1 s + 1)) settles in 34.6 s at Kp 0.146 and in 52.6 s at 0.152, falling again to
         46 s at the phase-margin limit (Kp 0.23), where a refinement ends; the step back across the jump is a long
         move for the NLP's bisection and too thin a target for the scan."""
         if self.best.v is None or not self._settling:
@@ -679,7 +684,7 @@ class Engine:
     def _ray_levels(self, x: np.ndarray, gains: list[int]) -> None:
         """:meth:`_ray`'s levels from the incumbent's parameters ``x``."""
         center, D = 0.0, np.array(RAY_DECADES)
-        for _ in range(1 + RAY_ZOOMS):
+        for _ in range(1 + self.effort.ray_zooms):
             V, ds = [], []
             for d in center + D:
                 y = np.array(x, dtype=float)
@@ -697,11 +702,11 @@ class Engine:
                 return
             # the ray homes in on the edge of the band at the batch's resolution, where the verifier's finer one may
             # see the peak outside (and the settling much later): the best points are verified in the batch's order
-            # (RAY_CHECKS at most), those it does not confirm taken back (no finalists), the first confirmed kept
+            # (Effort.ray_checks at most), those it does not confirm taken back (no finalists), the first confirmed kept
             better = [k for k in np.argsort(sc) if sc[k] < saved.score]
             bad, j = set(), None
-            for k in better[:RAY_CHECKS]:
-                full = self.ev.score(self.space.params(V[k]), full=True)
+            for k in better[:self.effort.ray_checks]:
+                full = self.ev.score(self.space.params(V[k]))
                 if full.feasible and full.score < saved.score:
                     j = int(k)
                     break
@@ -740,7 +745,7 @@ class Engine:
                 self.restart_improved += int(improved)
                 stale = 0 if improved else stale + 1
                 # a restart the budget cut short is no evidence
-                converged = stale >= PATIENCE + (0 if feasible() else INFEASIBLE_EXTRA) and \
+                converged = stale >= eff.patience + (0 if feasible() else eff.infeasible_extra) and \
                     (not self.local or self.info.nlp_solves > 0) and not self._exhausted
         else:
             # independent evidence: the incumbent survives eff.confirm restarts in a row
@@ -755,7 +760,7 @@ class Engine:
                 stale = 0 if improved else stale + 1
                 if self._exhausted:
                     break  # a restart the budget cut short is no evidence: stop = "budget"
-                need = eff.confirm + (0 if feasible() else INFEASIBLE_EXTRA)
+                need = eff.confirm + (0 if feasible() else eff.infeasible_extra)
                 # a local stage that never ran (no time to build its NLP) has not converged: search on
                 if stale >= need and (not self.local or self.info.nlp_solves > 0):
                     converged = True
@@ -777,12 +782,13 @@ class Engine:
         for sc, v in sorted(self.refined, key=lambda t: t[0]):
             if sc >= INFEASIBLE:
                 continue
-            if all(np.linalg.norm((v - w) / span) > BASIN for _, w in basins):
+            if all(np.linalg.norm((v - w) / span) > self.effort.basin for _, w in basins):
                 basins.append((sc, v))
         best = self.best.score if best_score is None else best_score
         alt = None
         if self.best.v is not None and math.isfinite(self.best.score):
-            far = [sc for sc, v, _ in self.pool if sc < INFEASIBLE and np.linalg.norm((v - self.best.v) / span) > BASIN]
+            far = [sc for sc, v, _ in self.pool
+                   if sc < INFEASIBLE and np.linalg.norm((v - self.best.v) / span) > self.effort.basin]
             alt = min(far) if far else None
         gap = None if alt is None or not (math.isfinite(best) and best > 0 and best < INFEASIBLE) else alt / best - 1.0
         r0 = None if not (math.isfinite(self.round0_best) and 0 < self.best.score < INFEASIBLE) else \
@@ -829,17 +835,17 @@ class Engine:
                 break
             if self.verified and self.deadline - time.perf_counter() <= 0 and best is not None:
                 break  # out of budget: what is verified already
-            s = self.ev.score(x, full=True)
+            s = self.ev.score(x)
             self.verified += 1
             if s.analyses and (best is None or s.score < best.score):
                 best_x, best = x, s
         if best is not None and not best.feasible:
             # none of the finalists verified feasible (the search's resolution can be fooled, e.g. by a loop whose
             # slow tail outlasts its horizon): verify further candidates, in the search's order, until one is
-            for x in self.finalists(max(k, 1) + EXTRA_VERIFY)[max(k, 1):]:
+            for x in self.finalists(max(k, 1) + self.effort.extra_verify)[max(k, 1):]:
                 if self.deadline - time.perf_counter() <= 0:
                     break
-                s = self.ev.score(x, full=True)
+                s = self.ev.score(x)
                 self.verified += 1
                 if s.analyses and s.score < best.score:
                     best_x, best = x, s
@@ -849,7 +855,7 @@ class Engine:
         if x_c is not None and not any(np.array_equal(x_c, x) for x in self.finalists(k)):
             # the contained structure's answer (pid2 at b = c = 1 is pid's): verified too, so that the result is
             # never worse than that structure's own tune (the batch's scores of the two may rank them otherwise)
-            s = self.ev.score(x_c, full=True)
+            s = self.ev.score(x_c)
             self.verified += 1
             if s.analyses and (best is None or (s.feasible, -s.score) > (best.feasible, -best.score)):
                 best_x, best = x_c, s

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..analysis.response import closed_loop_poles, default_horizon, is_stable, step_response
+from ..analysis.response import step_response
 from ..analysis.verify import Analysis, analyze_loop
 from ..controllers import ControllerTF, Structure
 from ..errors import TunerError
@@ -32,11 +32,6 @@ __all__ = ["Evaluator", "Scored", "objective_value", "violation", "INFEASIBLE"]
 INFEASIBLE = _INFEASIBLE  # every infeasible score is above this; feasible scores are below (tuner.limits)
 UNSTABLE = 1e5
 
-# resolution used inside the search (the final verification uses the full defaults)
-SEARCH_GRID = 600
-SEARCH_SAMPLES_PER_DT = 8
-SEARCH_HORIZON_SAMPLES = 250  # a candidate not settled within this many samples (or 250/w0) scores as infeasible
-SEARCH_BAND_GUARD = 0.97  # in the search, settle into 97 % of the band: the edge must survive full resolution
 
 
 @dataclass(frozen=True)
@@ -102,7 +97,8 @@ def violation(a: Analysis) -> float:
 
 
 class Evaluator:
-    """Verifier-backed scoring of structure parameters against a plant set."""
+    """The verifier's scoring of structure parameters against a plant set, at full resolution: the final choice
+    between candidates (the search itself scores batches with :class:`~tuner.optimize.batch.BatchEvaluator`)."""
 
     def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec, *,
                  w0: float | None = None) -> None:
@@ -111,18 +107,11 @@ class Evaluator:
         self.dt = dt
         self.spec = spec
         self.n_evals = 0
-
-        self._search_spec = spec.model_copy(update={"settling_band_pct": spec.settling_band_pct * SEARCH_BAND_GUARD})
-        self._w0 = w0  # the plant's characteristic frequency (the search space's); computed if not given
+        self.w0 = w0  # the plant's characteristic frequency (the search space's), for the caller
 
     def controller(self, x: np.ndarray) -> ControllerTF:
         """The controller of the structure at parameter vector ``x`` (at the loop's ``dt``)."""
         return self.structure.tf(x, self.dt)
-
-    def analyse(self, x: np.ndarray, *, full: bool = False) -> tuple[Analysis, ...]:
-        """The verifier's analyses on every plant: at full resolution (``full``), else the search's."""
-        loops = self._loops(x)
-        return self._with_rules(tuple(self._analyse_loop(lp, None, full=full) for lp in loops), x)
 
     def _with_rules(self, an: tuple[Analysis, ...], x: np.ndarray) -> tuple[Analysis, ...]:
         """The analyses with the checks of the rules on the parameters (the derivative filter's N)."""
@@ -131,47 +120,13 @@ class Evaluator:
             return an
         return tuple(replace(a, checks=[*a.checks, *extra]) for a in an)
 
-    def _loops(self, x: np.ndarray) -> list:
-        ctrl = self.controller(x)
-        return [build_loop(p, ctrl) for p in self.plants]
-
-    def _analyse_loop(self, lp, poles: np.ndarray | None, *, full: bool) -> Analysis:
-        if full:
-            return analyze_loop(lp, self.spec, poles=poles)
-        return analyze_loop(lp, self._search_spec, grid_points=SEARCH_GRID,
-                            samples_per_dt=SEARCH_SAMPLES_PER_DT, horizon_s=self._horizon(lp, poles), poles=poles)
-
-    def _horizon(self, lp, poles: np.ndarray | None = None) -> float:
-        cap = SEARCH_HORIZON_SAMPLES * (lp.dt if lp.dt else 1.0 / self._scale_w0())
-        return min(default_horizon(lp, None if lp.delay_s else poles), cap)
-
-    def _scale_w0(self) -> float:
-        if self._w0 is None:
-            from .design import plant_scale
-
-            self._w0 = plant_scale(self.plants[0], self.dt)[1]
-        return self._w0
-
-    @staticmethod
-    def _outside(lp, poles: np.ndarray) -> float:
-        """0 if ``poles`` are stable, else how far the worst one is outside the stability region."""
-        if poles.size == 0 or is_stable(lp, poles):
-            return 0.0
-        out = float(np.max(poles.real)) if lp.dt is None else float(np.max(np.abs(poles)) - 1.0)
-        return max(out, 1e-9)
-
-    def score(self, x: np.ndarray, *, full: bool = False) -> Scored:
-        """Score ``x`` on every plant: the objective (worst case) if feasible, else a graded penalty
-        above every feasible score (:data:`INFEASIBLE`); ``full``: at the final verification's resolution."""
+    def score(self, x: np.ndarray) -> Scored:
+        """Score ``x`` on every plant with the full verifier: the objective (worst case) if feasible, else a graded
+        penalty above every feasible score (:data:`INFEASIBLE`)."""
         self.n_evals += 1
         try:
-            loops = self._loops(x)
-            poles = [closed_loop_poles(lp) for lp in loops]  # once per evaluation: reused below
-            if not full:
-                out = max(self._outside(lp, p) for lp, p in zip(loops, poles))
-                if out > 0:
-                    return Scored(UNSTABLE * (1.0 + min(out, 1e3)), False, ())
-            an = tuple(self._analyse_loop(lp, p, full=full) for lp, p in zip(loops, poles))
+            ctrl = self.controller(x)
+            an = tuple(analyze_loop(build_loop(p, ctrl), self.spec) for p in self.plants)
         except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
             return Scored(UNSTABLE * 10, False, ())
         an = self._with_rules(an, x)

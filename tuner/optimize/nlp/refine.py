@@ -631,15 +631,75 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     and where the overshoot limit is active its looser margin is measured at the answer (:func:`_measured_os`) and
     starts from the incumbent when the tight one cannot hold even the incumbent's own settling time."""
     res = RefineResult()
-    spec = ev.spec
-    x0 = space.params(v0)
-    try:
-        ctrl0 = ev.st.tf(x0, ev.dt)
-    except (ValueError, ArithmeticError) as e:
-        res.status = f"start not usable: {e}"
+    r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
+               detail=detail)
+    if r is None:  # (res.status says why)
         return res
-    start = start or Start.of(ev, x0)
-    incumbent = incumbent if spec.objective == "settling_time" else None
+    if r.out_of_time():
+        res.status = "no time left"
+        return res
+    if ev.spec.objective != "settling_time":
+        _other_objective(ev, space, r.solve, r.xs, res, r.to_search, r.exchange, r.out_of_time, r.key.settling_max)
+        return res
+    _settling_time(r)
+    return res
+
+
+@dataclass
+class _Refinement:
+    """One refinement's NLP and what its steps share (see :func:`refine`)."""
+
+    ev: BatchEvaluator
+    space: Space
+    res: RefineResult
+    deadline: float | None
+    start: Start
+    incumbent: float | None
+    fine: bool
+    grid: _Grid
+    coarse: _Grid
+    headed: _Grid | None
+    sharp: bool
+    same: bool
+    key: ProblemKey
+    prob: Problem
+    values: dict[str, Any]
+    xs: np.ndarray
+    solve: _Solves
+
+    def out_of_time(self) -> bool:
+        return self.deadline is not None and time.perf_counter() > self.deadline
+
+    def to_search(self, x: np.ndarray) -> np.ndarray:
+        """NLP coordinates -> the search's coordinates."""
+        return self.space.from_params(self.space.params(x[self.prob.variables.slice("v")], linear_gains=True))
+
+    def exchange(self, x: np.ndarray, ts: float) -> np.ndarray:
+        """Add the frequencies where the limits are violated between the grid's points, and solve again."""
+        ev, spec, solve, values = self.ev, self.ev.spec, self.solve, self.values
+        for slot in range(GRID_EXTRA if self.key.grid else 0):
+            level = float(x[solve.slack]) if spec.objective in ("mks", "disk_margin") else None
+            w_miss = _missed_peak(ev, self.space, self.to_search(x), level)
+            if w_miss is None or self.out_of_time():
+                break
+            values["wgrid"][MS_GRID + slot] = w_miss
+            _grid_response(ev, values)
+            r = solve(ts, x)
+            if r is None:
+                break
+            x = r[1]
+        return x
+
+    def bisect(self, target: float, x: np.ndarray, **kw: Any) -> tuple[float, np.ndarray] | None:
+        return _bisect(self.solve, self.ev, self.space, target, self.grid, x, self.res, self.to_search,
+                       self.out_of_time, self.exchange, **kw)
+
+
+def _grids(ev: BatchEvaluator, space: Space, start: Start, incumbent: float | None, fine: bool, detail: int
+           ) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
+    """The NLP's time grid, the coarse one (a polish's own start), the head grid (where the polish's looser overshoot
+    limit needs the peak resolved), whether the polish is sharp, and whether the fine grid is the coarse one."""
+    spec = ev.spec
     grid = _grid(ev, start, space.w0, incumbent, fine, detail)
     # the polish's looser overshoot limit (below) needs the peak resolved
     headed = _head_grid(start, grid) if fine and spec.objective == "settling_time" and \
@@ -653,43 +713,63 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     # a polish on the coarse grid itself would repeat the refinement it follows: only its looser overshoot margin
     # (below) or, sharp, its settling time between the grid's points can add to it
     same = fine and (coarse.K, coarse.N, coarse.head) == (grid.K, grid.N, grid.head) and not sharp
+    return grid, coarse, headed, sharp, same
+
+
+def _key(ev: BatchEvaluator, space: Space, data: _PlantData, grid: _Grid, solver: str, sharp: bool) -> ProblemKey:
+    """The NLP's shape: which rows the spec asks for (the registry's limits the NLP states), the plants' sizes, the
+    grid's."""
+    spec = ev.spec
+    return ProblemKey(structure=space.structure.key, continuous=ev.dt is None,
+                      orders=tuple(lf.n for lf in data.lifted), zeros=tuple(lf.zeros.size for lf in data.lifted),
+                      poles=tuple(lf.poles.size for lf in data.lifted),
+                      delays=tuple(lf.delay_samples for lf in data.lifted), K=grid.K, N=grid.N,
+                      phase_cross=tuple(data.has_pc), control_peak=spec.control_peak_max is not None,
+                      objective=spec.objective, solver=solver,
+                      pm=spec.phase_margin_min_deg > 0 or spec.crossover_rad_s is not None,
+                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
+                      mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
+                      drb=spec.drb_min_rad_s is not None,
+                      filter_n=rules.applies(space.structure, spec),
+                      settling_max=spec.settling_time_max is not None and spec.objective != "settling_time",
+                      head=grid.head, tail_N=grid.tail_N, interp=sharp)
+
+
+def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, *, deadline: float | None,
+           solver: str, incumbent: float | None, start: Start | None, fine: bool, detail: int) -> _Refinement | None:
+    """The start, the grids, the NLP (built, or None when its build does not fit the time left), its parameters and
+    bounds, the sharp polish's verifier, the objective's level: what the solves need."""
+    spec = ev.spec
+    x0 = space.params(v0)
+    try:
+        ctrl0 = ev.st.tf(x0, ev.dt)
+    except (ValueError, ArithmeticError) as e:
+        res.status = f"start not usable: {e}"
+        return None
+    start = start or Start.of(ev, x0)
+    incumbent = incumbent if spec.objective == "settling_time" else None
+    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail)
     if same and not _resolves_peak(start, grid):
         res.status = "the fine grid is the coarse one"
-        return res
+        return None
     if ev.dt is not None and any(build_loop(p, ctrl0).plant_ct is None for p in ev.problem.plants):
         # a plant known only at the samples (e.g. a cascade's composite plant): constrain the samples
         grid, headed = _Grid(K=grid.K, N=1, step=grid.step, h=None), None
     data = _plant_data(ev, start, ctrl0, grid, space.w0)
-    key = ProblemKey(structure=space.structure.key, continuous=ev.dt is None,
-                     orders=tuple(lf.n for lf in data.lifted), zeros=tuple(lf.zeros.size for lf in data.lifted),
-                     poles=tuple(lf.poles.size for lf in data.lifted),
-                     delays=tuple(lf.delay_samples for lf in data.lifted), K=grid.K, N=grid.N,
-                     phase_cross=tuple(data.has_pc), control_peak=spec.control_peak_max is not None,
-                     objective=spec.objective, solver=solver,
-                     pm=spec.phase_margin_min_deg > 0 or spec.crossover_rad_s is not None,
-                     gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
-                     mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
-                     drb=spec.drb_min_rad_s is not None,
-                     filter_n=rules.applies(space.structure, spec),
-                     settling_max=spec.settling_time_max is not None and spec.objective != "settling_time",
-                     head=grid.head, tail_N=grid.tail_N, interp=sharp)
+    key = _key(ev, space, data, grid, solver, sharp)
     if deadline is not None and not is_built(key) and \
             time.perf_counter() + estimated_build_s(key, len(space.structure.params)) > deadline:
         res.status = "no time left to build this NLP"  # its cost is known before it starts
-        return res
+        return None
     prob = get_problem(key, space.structure, space)
     values = _values(ev, space, grid, data, key)
     xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0), spec.crossover_rad_s)
     _integral_sign(ev, space, prob, x0, lbx, ubx)
     xs = np.clip(xs, lbx, ubx)
     solve = _Solves(prob, values, grid, lbx, ubx, res, solver)
-
-    def out_of_time() -> bool:
-        return deadline is not None and time.perf_counter() > deadline
-
-    def to_search(x: np.ndarray) -> np.ndarray:  # NLP coordinates -> the search's coordinates
-        return space.from_params(space.params(x[prob.variables.slice("v")], linear_gains=True))
-
+    r = _Refinement(ev=ev, space=space, res=res, deadline=deadline, start=start, incumbent=incumbent, fine=fine,
+                    grid=grid, coarse=coarse, headed=headed, sharp=sharp, same=same, key=key, prob=prob,
+                    values=values, xs=xs, solve=solve)
     if sharp:
         # its settling times between the grid's points take the bisection to the very edge of what the NLP holds,
         # with no slack left for what it does not see: a peak between the grid's points or at a fractional delay's
@@ -700,26 +780,10 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
         full = Evaluator(list(ev.problem.plants), ev.st, ev.dt, spec, w0=space.w0)
 
         def accept(x: np.ndarray, ts: float) -> bool:
-            s = full.score(space.params(to_search(x)), full=True)
+            s = full.score(space.params(r.to_search(x)))
             return s.feasible and s.score <= ts + grid.spacing(ts)
 
         solve.accept = accept
-
-    def exchange(x: np.ndarray, ts: float) -> np.ndarray:
-        """Add the frequencies where the limits are violated between the grid's points, and solve again."""
-        for slot in range(GRID_EXTRA if key.grid else 0):
-            level = float(x[solve.slack]) if spec.objective in ("mks", "disk_margin") else None
-            w_miss = _missed_peak(ev, space, to_search(x), level)
-            if w_miss is None or out_of_time():
-                break
-            values["wgrid"][MS_GRID + slot] = w_miss
-            _grid_response(ev, values)
-            r = solve(ts, x)
-            if r is None:
-                break
-            x = r[1]
-        return x
-
     if spec.objective in ("mks", "disk_margin"):  # the slack is the level of the peak (the objective)
         mks0, dm0 = _peaks(ev, ctrl0)
         lvl0 = mks0 * 1.01 if spec.objective == "mks" else max(min(dm0, 1.99) * 0.99, 1e-3)
@@ -728,43 +792,42 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
         xs[solve.slack] = lvl0 if math.isfinite(lvl0) else 1.0
     elif spec.objective != "settling_time":
         solve.lbx[solve.slack] = solve.ubx[solve.slack] = 0.0  # the slack is the settling objective's alone
+    return r
 
-    if out_of_time():
-        res.status = "no time left"
-        return res
-    if spec.objective != "settling_time":
-        _other_objective(ev, space, solve, xs, res, to_search, exchange, out_of_time, key.settling_max)
-        return res
-    target = _target(start, incumbent)
-    near = incumbent is not None and target == incumbent and float(np.max(start.settle)) > incumbent
+
+def _settling_time(r: _Refinement) -> None:
+    """The settling-time objective: bisection on the settling time from the target (the incumbent's, or the start's),
+    then, on a polish, on at the looser overshoot limit where that limit is active."""
+    solve, values, grid, xs = r.solve, r.values, r.grid, r.xs
+    target = _target(r.start, r.incumbent)
+    near = r.incumbent is not None and target == r.incumbent and float(np.max(r.start.settle)) > r.incumbent
     # a polish starts from a refinement's end: the fine grid's optimum is within a step or two of the coarse grid's
-    lo_step = POLISH_STEPS * coarse.step / coarse.N if fine else None
-    out = (target, xs) if same else _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time,
-                                            exchange, near=near, lo_step=lo_step)
-    if sharp:
-        if out is None and not out_of_time() and (headed is not None or solve.overshoot(xs) >= 0.999 * values["os"]):
+    lo_step = POLISH_STEPS * r.coarse.step / r.coarse.N if r.fine else None
+    out = (target, xs) if r.same else r.bisect(target, xs, near=near, lo_step=lo_step)
+    if r.sharp:
+        if out is None and not r.out_of_time() and (r.headed is not None or
+                                                    solve.overshoot(xs) >= 0.999 * values["os"]):
             # the incumbent overshoots more than the tight limit allows (a coarser grid missed its peak): not even its
             # own settling time is feasible at that limit; the looser one below starts from it
             out = (target, xs)
-        if out is not None and not out_of_time() and solve.overshoot(out[1]) >= 0.999 * values["os"]:
-            loose = _measured_os(ev, space, to_search(out[1]), solve.overshoot(out[1]))
+        if out is not None and not r.out_of_time() and solve.overshoot(out[1]) >= 0.999 * values["os"]:
+            loose = _measured_os(r.ev, r.space, r.to_search(out[1]), solve.overshoot(out[1]))
             if loose is not None and loose > values["os"]:  # the overshoot limit is active: bisect on at the looser one
                 values["os"] = loose
-                _bisect(solve, ev, space, out[0], grid, out[1], res, to_search, out_of_time, exchange, near=True)
-    elif fine and out is not None and _resolves_peak(start, grid) and not out_of_time():
+                r.bisect(out[0], out[1], near=True)
+    elif r.fine and out is not None and _resolves_peak(r.start, grid) and not r.out_of_time():
         hi, best = out
         # the overshoot limit is active (and, on a head grid, the peak within the head): bisect on at the looser one
         if solve.overshoot(best) >= 0.999 * values["os"] and \
                 (not grid.head or solve.peak_time(best) < grid.head * grid.step):
             values["os"] *= _TIGHT_OS_FINE / _TIGHT_OS
-            _bisect(solve, ev, space, hi, grid, best, res, to_search, out_of_time, exchange, near=True)
-    elif out is None and headed is not None and not out_of_time() and \
+            r.bisect(hi, best, near=True)
+    elif out is None and r.headed is not None and not r.out_of_time() and \
             (not grid.head or solve.peak_time(xs) < grid.head * grid.step):
         # the coarse grid missed the peak this one resolves: the incumbent can be above the tight limit here (pid_z at
         # wc dt = 0.5: 9.869 % against 9.851 %), and only the looser one leaves it room
         values["os"] *= _TIGHT_OS_FINE / _TIGHT_OS
-        _bisect(solve, ev, space, target, grid, xs, res, to_search, out_of_time, exchange, near=True)
-    return res
+        r.bisect(target, xs, near=True)
 
 
 def _measured_os(ev: BatchEvaluator, space: Space, v: np.ndarray, on_grid: float) -> float | None:
