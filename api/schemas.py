@@ -14,6 +14,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from tuner.controllers import DEPRECATED_STRUCTURES, MAX_CONTROLLER_ORDER, STRUCTURES
+from tuner.limits import EFFORT_NAMES
 from tuner.plant import MAX_DT_S, MAX_ORDER, MIN_DT_S
 from tuner.problem import MAX_PLANTS
 from tuner.spec import Spec
@@ -161,7 +162,7 @@ class TuneOptions(_In):
         None, gt=0, le=60, allow_inf_nan=False,
         description="wall-time budget of the solve (default 10 s; the server may set a lower maximum). "
                     "Past it the best verified result so far is returned, or 504 if the solver overruns.")
-    effort: Literal["fast", "default", "thorough"] = Field(
+    effort: Literal[EFFORT_NAMES] = Field(  # type: ignore[valid-type]
         "default", description="how hard to search: fast (the first round alone), default (plus an independent "
                                "restart that must find nothing better), thorough (three in a row, more starts); "
                                "solver.optimality says what the search knows about how close the answer is")

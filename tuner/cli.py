@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from .errors import TunerError
-from .limits import LIMITS
+from .limits import EFFORT_NAMES, LIMITS
 from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
 __all__ = ["main", "EXIT_OK", "EXIT_SPEC_NOT_MET", "EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_CODES"]
@@ -257,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_actuator_args(t)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
-    t.add_argument("--effort", choices=("fast", "default", "thorough"), default="default",
+    t.add_argument("--effort", choices=EFFORT_NAMES, default="default",
                    help="how hard to search: fast (the first round alone), default (plus an independent restart "
                         "that must find nothing better), thorough (three such restarts in a row, more starts, a finer "
                         "polish: about 3x the default's time); the output's 'optimality' line says what the search "

@@ -35,7 +35,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ["Limit", "Objective", "LIMITS", "OBJECTIVES", "limit", "objective", "by_check", "page_limits",
-           "INFEASIBLE", "SSE_TOL", "CROSSOVER_TOL"]
+           "INFEASIBLE", "SSE_TOL", "CROSSOVER_TOL", "EFFORT_NAMES"]
+
+EFFORT_NAMES = ("fast", "default", "thorough")
+"""The efforts a tune can be asked for (what each does: :data:`tuner.optimize.engine.EFFORTS`); the CLI, the API,
+study files and the page list these."""
 
 INFEASIBLE = 1e3
 """Every infeasible search score is above this, every feasible one below (the batch, the verifier's scoring, the

@@ -36,7 +36,7 @@ _ASSETS = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; c
 def page_config(settings: Settings) -> dict[str, Any]:
     """What the form is built from: structures (parameters, discrete only), spec fields, limits."""
     from tuner.controllers import DEPRECATED_STRUCTURES, STRUCTURES
-    from tuner.limits import page_limits
+    from tuner.limits import EFFORT_NAMES, page_limits
     from tuner.spec import DEFAULT_LIMITS, OBJECTIVES, Spec
     from tuner.tradeoff import MAX_POINTS, Y_AXES
 
@@ -52,6 +52,7 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "spec_nullable": [k for k, v in schema.items() if any(a.get("type") == "null" for a in v.get("anyOf", ()))],
         "default_limits": list(DEFAULT_LIMITS),
         "limits": page_limits(),  # the optional limits' inputs (the registry, tuner.limits)
+        "efforts": list(EFFORT_NAMES),
         "tradeoff": {"y": list(Y_AXES), "max_points": MAX_POINTS,
                      "default_points": TradeoffRequest.model_fields["points"].default},
         "default_budget_s": settings.default_budget_s,

@@ -28,6 +28,7 @@ for (const l of CONFIG.limits) {
   lab.append(`${l.label} `, inp, err);
   row.insertBefore(lab, row.querySelector(".hint"));
 }
+$("#effort").replaceChildren(...CONFIG.efforts.map((e) => new Option(e, e, e === "default", e === "default")));
 const ROLL = { plant: "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", dt: "0.04", structure: "pid_z" };
 const HIST = 10;
 const KEY = "tuner.apiKey";

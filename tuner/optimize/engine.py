@@ -46,7 +46,7 @@ import numpy as np
 
 from ..controllers import get_structure
 from ..errors import TunerError
-from ..limits import INFEASIBLE, OBJECTIVES
+from ..limits import EFFORT_NAMES, INFEASIBLE, OBJECTIVES
 from ..problem import TuningProblem
 from ..tolerances import REAL_ROOT_TOL, ROOT_AT_DC_TOL
 from .batch import BatchEvaluator, Start
@@ -118,6 +118,7 @@ EFFORTS = {
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2),
 }
+assert tuple(EFFORTS) == EFFORT_NAMES  # (the registry lists them for the interfaces)
 
 
 def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = False, spec: Any = None

@@ -56,6 +56,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
 
 from ..controllers import ControllerTF, controller_from_expr, controller_tf, get_structure
 from ..errors import TunerError
+from ..limits import EFFORT_NAMES
 from ..plant import MAX_DT_S, MIN_DT_S, Plant, make_plant, plant_from_expr
 from ..spec import Spec
 from ..tolerances import SAME_DT_RTOL
@@ -177,8 +178,8 @@ class LoopDef(BaseModel):
     time_budget_s: float | None = Field(None, gt=0, le=3600)
     n_trials: int | None = Field(None, ge=1, le=100_000)
     n_starts: int | None = Field(None, ge=1, le=20)
-    effort: Literal["fast", "default", "thorough"] | None = Field(None, description="tune()'s effort (None: the "
-                                                                  "study's)")
+    effort: Literal[EFFORT_NAMES] | None = Field(  # type: ignore[valid-type]
+        None, description="tune()'s effort (None: the study's)")
     note: str | None = Field(None, description="shown in the report (e.g. why a spec is relaxed)")
     robust: float | None = Field(None, gt=0, le=10, allow_inf_nan=False,
                                  description="data loops: design for the plant set spanned by the identified "
@@ -247,7 +248,7 @@ class StudyDef(BaseModel):
     description: str | None = None
     seed: int = Field(0, ge=0, lt=2**32)
     time_budget_s: float = Field(10.0, gt=0, le=3600)
-    effort: Literal["fast", "default", "thorough"] = "default"
+    effort: Literal[EFFORT_NAMES] = "default"  # type: ignore[valid-type]
     loop: list[LoopDef] = Field(min_length=1, max_length=1000)  # (the quality suite as a study: 210 loops)
 
     @model_validator(mode="after")
