@@ -71,17 +71,17 @@ def mks_knob() -> None:
     from tuner import Spec, plant_from_expr, tune
 
     print("## 3. The mks knob on 1/(s+1)^3 (and the thesis pitch model)\n")
-    P = plant_from_expr("1/(s+1)^3")
+    third = plant_from_expr("1/(s+1)^3")
     pitch = plant_from_expr(PITCH)
     fastest = tune(pitch, structure="pid").analyses[0].metrics.settling_time_s
-    for P, st, ts in ((P, "pid", 3.0), (P, "pi", 8.0), (pitch, "pid", round(1.2 * fastest, 4)),
+    for P, st, ts in ((third, "pid", 3.0), (third, "pi", 8.0), (pitch, "pid", round(1.2 * fastest, 4)),
                       (pitch, "pid", round(2.0 * fastest, 4))):
         r = tune(P, structure=st, spec=Spec(objective="mks", settling_time_max=ts))
         m = r.analyses[0].metrics
         check = tune(P, structure=st, spec=Spec(mks_max=m.mks * 0.99))
         cm = check.analyses[0].metrics
-        print(f"- {P.describe()[:40]}: {st}, settling <= {ts:g} s: Mks {m.mks:.4g} at {m.settling_time_s:.4g} s ({r.solver['stop']}, "
-              f"{r.solver['optimality']['summary']}); gains {', '.join(f'{k} {v:.4g}' for k, v in r.gains.items())}")
+        print(f"- {P.describe()[:40]}: {st}, settling <= {ts:g} s: Mks {m.mks:.4g} at {m.settling_time_s:.4g} s "
+              f"({r.solver['stop']}, {r.solver['optimality']['summary']}); gains {', '.join(f'{k} {v:.4g}' for k, v in r.gains.items())}")
         print(f"  - trade-off check: the fastest {st} with Mks <= {m.mks * 0.99:.4g} settles in "
               f"{cm.settling_time_s:.4g} s (meets: {check.meets_spec}): "
               + ("above the limit, so no design 1 % less noisy meets it" if cm.settling_time_s > ts or not
