@@ -81,7 +81,8 @@ def mks_knob() -> None:
         check = tune(P, structure=st, spec=Spec(mks_max=m.mks * 0.99))
         cm = check.analyses[0].metrics
         print(f"- {P.describe()[:40]}: {st}, settling <= {ts:g} s: Mks {m.mks:.4g} at {m.settling_time_s:.4g} s "
-              f"({r.solver['stop']}, {r.solver['optimality']['summary']}); gains {', '.join(f'{k} {v:.4g}' for k, v in r.gains.items())}")
+              f"({r.solver['stop']}, {r.solver['optimality']['summary']}); gains "
+              + ", ".join(f"{k} {v:.4g}" for k, v in r.gains.items()))
         print(f"  - trade-off check: the fastest {st} with Mks <= {m.mks * 0.99:.4g} settles in "
               f"{cm.settling_time_s:.4g} s (meets: {check.meets_spec}): "
               + ("above the limit, so no design 1 % less noisy meets it" if cm.settling_time_s > ts or not
