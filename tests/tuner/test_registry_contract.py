@@ -26,8 +26,8 @@ from tuner.optimize.scoring import objective_value
 from tuner.optimize.space import make_space
 from tuner.problem import TuningProblem
 
-STRUCTURES_CT = ("pi", "pd", "pid", "pid2", "lead", "lag", "leadlag", "pid_mf2")
-STRUCTURES_DT = ("pi", "pid", "pid2", "pid_z", "leadlag")
+STRUCTURES_CT = ("p", "pi", "pd", "pid", "pid2", "lead", "lag", "leadlag", "pid_mf2")
+STRUCTURES_DT = ("pi", "pid", "pid2", "pid_z", "leadlag", "px4_rate", "ardupilot_rate")
 
 # |batch - verifier| <= abs + rel * |verifier| (the batch's grids are coarser than the verifier's: 500 frequencies
 # over the band against 3000 refined; 6 points a sample against the verifier's finer simulation)

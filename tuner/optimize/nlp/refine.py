@@ -59,6 +59,7 @@ SETTLE_HEAD = 1.5  # a polish's fine grid is dense up to this many target settli
 SLOW_TAIL = 40.0
 CONTINUOUS_STEPS = 400
 MAX_CONTINUOUS_STEPS = 1024  # continuous loops: the fine steps of the NLP (horizon = that many steps of h)
+H_POLE = 0.5  # continuous loops: the fine step is at most 0.5 / (the start controller's fastest pole)
 H_WC = 0.1  # continuous loops: the NLP's fine step is at most 0.1 / (the start's fastest gain crossover)
 MIN_SAMPLES = 16
 MAX_NLP_STEPS = 4096  # the NLP's horizon in samples (cost limit of one local solve); documented in the README
@@ -266,7 +267,7 @@ def _at_overshoot_limit(ev: BatchEvaluator, start: Start) -> bool:
 
 
 def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
-          detail: int = 1) -> _Grid:
+          detail: int = 1, c_fast: float = 0.0) -> _Grid:
     T = _horizon(ev, start, w0, incumbent, fine)
     if ev.dt is not None:
         K = _bucket(int(math.ceil(T / ev.dt)))
@@ -279,6 +280,11 @@ def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None =
     wc = [w for w in np.atleast_1d(start.wc) if np.isfinite(w) and w > 0]
     if wc:
         h = min(h, H_WC / max(wc))
+    if 0 < c_fast < math.inf:
+        # and the start controller's fastest pole (a derivative filter's 1/Tf): Tustin at h |p| >> 1 maps it next to
+        # z = -1 and the simulated output rings (a PID with 1/Tf = 20.7 rad/s at h = 0.144 s: 26 % of the step off the
+        # verifier's, found by tests/tuner/test_registry_contract.py)
+        h = min(h, H_POLE / c_fast)
     if ev.spec.settling_time_max is not None and ev.spec.objective != "settling_time":
         # another objective under a settling-time limit: the envelope's edge resolved (the Tustin model's error is
         # O(h), and the limit is where the answer sits); the horizon then ends after MAX_CONTINUOUS_STEPS steps, at
@@ -718,17 +724,17 @@ class _Refinement:
                        self.out_of_time, self.exchange, **kw)
 
 
-def _grids(ev: BatchEvaluator, space: Space, start: Start, incumbent: float | None, fine: bool, detail: int
-           ) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
+def _grids(ev: BatchEvaluator, space: Space, start: Start, incumbent: float | None, fine: bool, detail: int,
+           c_fast: float = 0.0) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
     """The NLP's time grid, the coarse one (a polish's own start), the head grid (where the polish's looser overshoot
     limit needs the peak resolved), whether the polish is sharp, and whether the fine grid is the coarse one."""
     spec = ev.spec
-    grid = _grid(ev, start, space.w0, incumbent, fine, detail)
+    grid = _grid(ev, start, space.w0, incumbent, fine, detail, c_fast)
     # the polish's looser overshoot limit (below) needs the peak resolved
     headed = _head_grid(start, grid) if fine and spec.objective == "settling_time" and \
         _at_overshoot_limit(ev, start) else None
     grid = headed or grid
-    coarse = _grid(ev, start, space.w0, incumbent, False, detail) if fine else grid
+    coarse = _grid(ev, start, space.w0, incumbent, False, detail, c_fast) if fine else grid
     if fine and headed is None:
         grid = _settle_head(ev, start, incumbent, grid, detail)
     # the sharp polish (``detail`` >= 2): Ts interpolated between the grid's points and the overshoot margin measured
@@ -771,7 +777,8 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
         return None
     start = start or Start.of(ev, x0)
     incumbent = incumbent if spec.objective == "settling_time" else None
-    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail)
+    c_fast = float(np.max(np.abs(ctrl0.zpk.poles), initial=0.0)) if ev.dt is None else 0.0
+    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail, c_fast)
     if same and not _resolves_peak(start, grid):
         res.status = "the fine grid is the coarse one"
         return None
