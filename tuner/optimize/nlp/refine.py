@@ -777,7 +777,10 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
         return None
     start = start or Start.of(ev, x0)
     incumbent = incumbent if spec.objective == "settling_time" else None
-    c_fast = float(np.max(np.abs(ctrl0.zpk.poles), initial=0.0)) if ev.dt is None else 0.0
+    # (the settling time's bisection judges every step by the batch, and a finer step would cut its horizon: PID on
+    # the thesis pitch model 0.204 s against 0.195 s; the other objectives take the NLP's answer as it is)
+    c_fast = float(np.max(np.abs(ctrl0.zpk.poles), initial=0.0)) \
+        if ev.dt is None and spec.objective != "settling_time" else 0.0
     grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail, c_fast)
     if same and not _resolves_peak(start, grid):
         res.status = "the fine grid is the coarse one"
