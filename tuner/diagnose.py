@@ -43,6 +43,12 @@ _LIMITS: dict[str, tuple[str, int, Any]] = {
 BISECTIONS = 4
 
 
+def _within(bounds: dict[str, float], v: float) -> bool:
+    """Whether ``v`` satisfies a registry entry's pydantic bounds (``ge``, ``gt``, ``le``, ``lt``)."""
+    return (v >= bounds.get("ge", -math.inf) and v > bounds.get("gt", -math.inf) and v <= bounds.get("le", math.inf)
+            and v < bounds.get("lt", math.inf))
+
+
 @dataclass(frozen=True)
 class Reason:
     """One reason a spec is not met; ``suggest``: a spec change that would make it feasible (by definition) or
@@ -178,6 +184,9 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
     def suggestion(check: str, shown: float) -> dict[str, Any]:
         if check == "mks" and k_budget:
             return {"noise_gain_max": _outward(shown / k_budget, -1)}
+        lim = by_check(check)  # a value the field's bounds refuse (a DRB of 0 for a limit > 0) is no suggestion
+        if lim is not None and not _within(lim.bounds, shown):
+            return {}
         return {_LIMITS[check][0]: shown}
 
     def attempt(changes: dict[str, Any]) -> Any:
@@ -231,7 +240,8 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
                                   "time_budget_s or another seed"))
             continue
         sug = suggestion(check, shown)
-        said = ", ".join(f"{k} = {v:g}" for k, v in sug.items())
+        said = ", ".join(f"{k} = {v:g}" for k, v in sug.items()) or \
+            f"{check} = {shown:g}, a value the limit's field does not take (no value of it is met)"
         lim = by_check(check)
         hint = ("; " + lim.binds.format(value=asked)) if lim is not None and lim.binds else ""
         reasons.append(Reason((check,), f"{check} {op} {asked:.4g} was not met with {name} on this plant together "

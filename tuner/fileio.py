@@ -20,14 +20,15 @@ from __future__ import annotations
 
 import codecs
 import json
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from .errors import TunerError
 
 __all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "MAX_NESTING", "MAX_STUDY_BYTES", "check_input",
-           "nesting_depth", "read_head", "read_text", "read_json"]
+           "nesting_depth", "open_checked", "open_input", "read_head", "read_text", "read_text_from", "read_json"]
 
 CHUNK_BYTES = 1 << 20
 MAX_CSV_BYTES = 256 << 20
@@ -86,6 +87,30 @@ def read_head(path: str | Path, n: int, *, field: str | Sequence[str | int] = "f
         raise TunerError(f"{label or path}: cannot read: {e.strerror or e}", field=field) from None
 
 
+def open_checked(path: str | Path, *, limit: int, field: str | Sequence[str | int] = "file",
+                 label: str | None = None) -> BinaryIO:
+    """``path`` opened for reading in binary, after :func:`check_input` (a regular file within ``limit``); the caller
+    closes it (or uses :func:`open_input`)."""
+    check_input(path, limit=limit, field=field, label=label)
+    try:
+        return open(path, "rb")
+    except OSError as e:
+        raise TunerError(f"{label or path}: cannot read: {e.strerror or e}", field=field) from None
+
+
+@contextmanager
+def open_input(path: str | Path, *, limit: int, field: str | Sequence[str | int] = "file",
+               label: str | None = None) -> Iterator[BinaryIO]:
+    """``path`` opened once for reading in binary (:func:`open_checked`), closed on leaving: a caller that must look
+    at a file's first bytes to know how to read it (a ULog log or a CSV) reads both from this one handle
+    (``seek(0)``), never opening it twice."""
+    f = open_checked(path, limit=limit, field=field, label=label)
+    try:
+        yield f
+    finally:
+        f.close()
+
+
 def read_text(path: str | Path, *, limit: int, field: str | Sequence[str | int] = "file", label: str | None = None,
               hint: str = "") -> str:
     """The UTF-8 text of ``path``, read in chunks, refused past ``limit`` bytes or at the first binary chunk.
@@ -93,26 +118,30 @@ def read_text(path: str | Path, *, limit: int, field: str | Sequence[str | int] 
     ``label`` starts every message (default: the path); ``hint`` ends the messages about
     content (e.g. what file was expected).
     """
-    name = label or str(path)
+    with open_input(path, limit=limit, field=field, label=label) as f:
+        return read_text_from(f, name=label or str(path), limit=limit, field=field, hint=hint)
+
+
+def read_text_from(f: BinaryIO, *, name: str, limit: int, field: str | Sequence[str | int] = "file",
+                   hint: str = "") -> str:
+    """The UTF-8 text of the open binary file ``f`` from where it stands, as :func:`read_text` reads a path."""
     tail = f"; {hint}" if hint else ""
-    check_input(path, limit=limit, field=field, label=label)
     dec = codecs.getincrementaldecoder("utf-8-sig")()
     parts: list[str] = []
     size = 0
     try:
-        with open(path, "rb") as f:
-            while True:
-                chunk = f.read(CHUNK_BYTES)
-                if not chunk:
-                    break
-                size += len(chunk)
-                if size > limit:
-                    raise TunerError(f"{name}: larger than {_mib(limit)} (the limit for this input); give a "
-                                     f"smaller file{tail}", field=field)
-                if b"\0" in chunk:
-                    raise TunerError(f"{name}: a binary file (NUL bytes), not text{tail}", field=field)
-                parts.append(dec.decode(chunk))
-            parts.append(dec.decode(b"", final=True))
+        while True:
+            chunk = f.read(CHUNK_BYTES)
+            if not chunk:
+                break
+            size += len(chunk)
+            if size > limit:
+                raise TunerError(f"{name}: larger than {_mib(limit)} (the limit for this input); give a "
+                                 f"smaller file{tail}", field=field)
+            if b"\0" in chunk:
+                raise TunerError(f"{name}: a binary file (NUL bytes), not text{tail}", field=field)
+            parts.append(dec.decode(chunk))
+        parts.append(dec.decode(b"", final=True))
     except OSError as e:
         raise TunerError(f"{name}: cannot read: {e.strerror or e}", field=field) from None
     except UnicodeDecodeError as e:

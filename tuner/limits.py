@@ -4,8 +4,9 @@ Each :class:`Limit` says, once, what a limit is: its name (the :class:`~tuner.sp
 API's and the study files' field), unit, sense, default and bounds, the command-line flag, the page's label, the
 metric the verifier checks (a :class:`~tuner.analysis.Metrics` attribute), how the batched search computes it
 (``batch``: the key of :meth:`tuner.optimize.batch.BatchEvaluator` figures, and how far inside the limit the search
-keeps), how the NLP states it (``nlp``), and what the diagnosis says when it binds. Each :class:`Objective` says
-what is optimised and where each evaluator computes it.
+keeps), how the NLP states it (``nlp``: its frequency-grid rows are switched on from here; the rows' forms are
+written in :mod:`tuner.optimize.nlp.transcribe`), and what the diagnosis says when it binds. Each
+:class:`Objective` says what is optimised and where each evaluator computes it.
 
 Who reads it: :class:`~tuner.spec.Spec` (its limit fields are generated from :data:`LIMITS`), the verifier's checks
 (:func:`tuner.spec.check_spec`), the batched search (:mod:`tuner.optimize.batch`), the NLP
@@ -58,11 +59,11 @@ class Limit:
     pydantic's ``ge``/``gt``/``le``/``lt`` of the value. ``batch``: the batched search's figure (None: the batch does
     not compute it; the verifier of the finalists still checks it). ``guard``: how far inside the limit the search
     keeps (the search's grids are coarser than the verifier's): ``("add", a)`` adds ``a`` in the limit's sense,
-    ``("mul", f)`` multiplies the limit by ``f`` (<= 1 for a maximum's, >= 1 read as 1/f for a minimum's).
+    ``("mul", f)`` with ``f <= 1``: a maximum times ``f``, a minimum divided by it.
     ``nlp``: how the NLP states it (``"margin"``, ``"grid"``, ``"step"``, ``"envelope"``, ``"target"``; None: not in
     the NLP, the batch and the verifier hold it). ``loosest``: the value that lifts it (the diagnosis relaxes a
     failing limit to this; None: the field is removed). ``binds``: what the diagnosis says when it binds (formatted
-    with the limit's name, op and value)."""
+    with ``value``, the limit asked)."""
 
     field: str
     check: str
@@ -169,7 +170,7 @@ OBJECTIVES: tuple[Objective, ...] = (
     Objective("iae", "min",
               "minimise the IAE after a unit step load disturbance added at the plant input (the plant gets u + 1, "
               "before its delay) with r = 0: the integral over [0, T] of |e(t)| dt = |y(t)| dt, e = r - y; T as for "
-              "itae (the verifier's load_iae; infinite where y does not return to 0)", metric="load_iae",
+              "itae (the verifier's load_iae where y returns to 0; load_iae reports inf where it does not)",
               batch="iae"),
     Objective("ie", "min",
               "minimise the IE after that unit load step, |integral over [0, inf) of e(t) dt| = 1/Ki for a stable "

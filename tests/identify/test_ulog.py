@@ -191,3 +191,29 @@ def test_the_output_is_taken_at_its_sample_time(tmp_path, flight):
     np.testing.assert_allclose(rec.outputs[0], y[:n].astype(np.float32), rtol=1e-6)  # not 2.5 ms late
     with pytest.raises(InvalidDataError, match=r"fields: \['xyz\[0\]', 'xyz\[1\]', 'xyz\[2\]'\]"):
         read_ulog(ulg, {"input": IN, "output": "vehicle_angular_velocity.timestamp_sample"})
+
+
+def test_a_log_file_is_opened_once(tmp_path, flight, capsys, monkeypatch):
+    """Issue 31: identify tells a CSV from a ULog log and reads it from one handle (a second open of a FIFO hung, and
+    a sniff that consumed a pipe's first buffer made a data row the header)."""
+    import builtins
+    import io
+
+    t, u, y = flight.t[::20], flight.u[::20], flight.y[::20]
+    ulg = str(write_ulog(tmp_path / "pitch.ulg", _topics(t, u, t, y)))
+    csv_path = _csv(tmp_path / "pitch.csv", t, u, y)
+    opened: list[str] = []
+    real = builtins.open
+
+    def counting(file, *args, **kw):
+        if str(file) in (ulg, csv_path):
+            opened.append(str(file))
+        return real(file, *args, **kw)
+
+    monkeypatch.setattr(builtins, "open", counting)
+    monkeypatch.setattr(io, "open", counting)  # (pathlib opens through io.open)
+    _cli_json(capsys, ["identify", csv_path, "--time", "t", "--input", "cmd", "--output", "rate"])
+    assert opened == [csv_path]
+    opened.clear()
+    _cli_json(capsys, ["identify", ulg, "--input", IN, "--output", OUT])
+    assert opened == [ulg]

@@ -89,6 +89,7 @@ def _close(key: str, got: float, want: float) -> bool:
 
 def _contract(loops: list[tuple]) -> tuple[int, int, list[str]]:
     checked, compared, bad = 0, 0, []
+    KNOWN_SEEN.clear()
     spec = Spec(ms_max=2.0, mt_max=2.0, mks_max=1e3, disk_margin_min=0.1, bandwidth_min_rad_s=1e-3,
                 drb_min_rad_s=1e-3, control_peak_max=1e3)
     for plant, st, dt, gain in loops:
@@ -183,11 +184,13 @@ CONTINUOUS_NLP_ERR: list[float] = []
 def _nlp_contract(loops: list[tuple]) -> tuple[int, list[str]]:
     from tuner.analysis.response import step_response
 
+    CONTINUOUS_NLP_ERR.clear()
     checked, bad = 0, []
     for plant, st, dt, gain in loops:
-        # objective itae: its answer is the NLP's as it is (the settling time's bisection judges every step by the
-        # batch, on a grid that follows the crossover only: there a Tustin controller can ring, 26 % of the step on a
-        # PID with 1/Tf = 20.7 rad/s at h = 0.144 s, and the batch rejects what it gets wrong)
+        # objective itae: its answer is the NLP's as it is, on a fine step that follows the crossover and the start
+        # controller's fastest pole (the settling time's bisection, which the batch judges step by step, follows the
+        # crossover only: there a Tustin controller can ring, 26 % of the step on a PID with 1/Tf = 20.7 rad/s at
+        # h = 0.144 s, and the batch rejects what it gets wrong)
         prob = TuningProblem.build([plant], structure=st, spec=Spec(objective="itae"), dt=dt)
         space = make_space(prob.structure, prob.nominal, prob.dt, scale=prob.scale)
         x = np.array(space.params(designed_starts(space, prob.nominal, prob.dt)[0]), float)

@@ -364,12 +364,20 @@ def disturbance_rejection_bandwidth(loop: Loop, w: np.ndarray, S: np.ndarray) ->
     if above.size == 0:
         return math.inf
     i = int(above[0])
-    if i == 0:  # at the grid's lowest frequency already: with integral action |S(0)| = 0, so it rises below that
-        return float(w[0]) if loop.integrating else 0.0
 
     def f(x: np.ndarray) -> np.ndarray:
         return np.abs(1.0 / (1.0 + loop.freqresp(x))) - DRB_LEVEL
 
+    if i == 0:  # at the grid's lowest frequency already: with integral action |S(0)| = 0, so it rises below that
+        if not loop.integrating:
+            return 0.0
+        lo = float(w[0])
+        for _ in range(6):  # down by decades to where |S| is below the level, then the root between
+            hi, lo = lo, lo / 10.0
+            with np.errstate(all="ignore"):
+                if float(f(np.array([lo]))[0]) < 0:
+                    return _root(f, lo, hi)
+        return 0.0  # not below -3 dB even 1e6 times lower: no rejection worth the name
     return _root(f, w[i - 1], w[i])
 
 

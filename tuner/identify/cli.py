@@ -53,7 +53,7 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
     one file, one record (a ULog log split at gaps may give several); several files are fitted together."""
     from .csvlog import read_columns
     from .feedback import signs_of
-    from .ulog import is_ulog, read_ulog
+    from .ulog import open_log, read_ulog
 
     ref = getattr(a, "reference", None)
     us, ys, rs, ts, rate, csv_time = [], [], [], [], a.rate, False
@@ -61,39 +61,41 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
     params: dict[str, float] = {}
     kinds = set()
     for f in files:
-        if is_ulog(f):
-            kinds.add("ulog")
-            if a.time is not None:
-                raise TunerError(f"{f}: --time names a CSV column; a ULog log is put on a grid at --rate HZ",
-                                 field="time")
-            cols = {"input": a.input, "output": a.output, **({"reference": ref} if ref is not None else {})}
-            r = read_ulog(f, cols, rate_hz=rate)
-            if rate is None:
-                rate = r.rate_hz
-            us += r.inputs
-            ys += r.outputs
-            rs += r.references or []
-            ts += [None] * len(r.inputs)
-            params = params or r.parameters
-            signs += [x for x in signs_of(a.input, r.parameters) if x not in signs]
-            for lo, hi in r.dropped:
-                _note(f"{f}: {hi - lo:.3g} s between gaps ({lo:.3f}-{hi:.3f} s) is too short to use and was dropped")
-            if r.gaps:
-                _note(f"{f}: {r.describe()}")
-        else:
-            if (a.time is None) == (a.rate is None):
-                raise TunerError(f"{f}: a CSV log needs --time COL (a time column) or --rate HZ", field="time")
-            kinds.add("csv")
-            cols = {"input": a.input, "output": a.output, **({"time": a.time} if a.time is not None else {}),
-                    **({"reference": ref} if ref is not None else {})}
-            d = read_columns(f, cols)
-            us.append(d["input"])
-            ys.append(d["output"])
-            if ref is not None:
-                rs.append(d["reference"])
-            ts.append(d.get("time"))
-            csv_time = csv_time or a.time is not None
-            signs += [x for x in signs_of(a.input) if x not in signs]
+        with open_log(f) as (kind, fh):  # opened once: told CSV or ULog, and read, from one handle
+            if kind == "ulog":
+                kinds.add("ulog")
+                if a.time is not None:
+                    raise TunerError(f"{f}: --time names a CSV column; a ULog log is put on a grid at --rate HZ",
+                                     field="time")
+                cols = {"input": a.input, "output": a.output, **({"reference": ref} if ref is not None else {})}
+                r = read_ulog(fh, cols, rate_hz=rate)
+                if rate is None:
+                    rate = r.rate_hz
+                us += r.inputs
+                ys += r.outputs
+                rs += r.references or []
+                ts += [None] * len(r.inputs)
+                params = params or r.parameters
+                signs += [x for x in signs_of(a.input, r.parameters) if x not in signs]
+                for lo, hi in r.dropped:
+                    _note(f"{f}: {hi - lo:.3g} s between gaps ({lo:.3f}-{hi:.3f} s) is too short to use and was "
+                          "dropped")
+                if r.gaps:
+                    _note(f"{f}: {r.describe()}")
+            else:
+                if (a.time is None) == (a.rate is None):
+                    raise TunerError(f"{f}: a CSV log needs --time COL (a time column) or --rate HZ", field="time")
+                kinds.add("csv")
+                cols = {"input": a.input, "output": a.output, **({"time": a.time} if a.time is not None else {}),
+                        **({"reference": ref} if ref is not None else {})}
+                d = read_columns(f, cols, handle=fh)
+                us.append(d["input"])
+                ys.append(d["output"])
+                if ref is not None:
+                    rs.append(d["reference"])
+                ts.append(d.get("time"))
+                csv_time = csv_time or a.time is not None
+                signs += [x for x in signs_of(a.input) if x not in signs]
     if csv_time and any(t is None for t in ts):
         raise TunerError("mixing CSV logs with a --time column and ULog logs: give --rate for all", field="time")
     extra = {"signs": signs, "parameters": params, "kinds": kinds}

@@ -15,11 +15,12 @@ import itertools
 import math
 from collections.abc import Mapping
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from ..errors import InvalidDataError, TunerError
-from ..fileio import MAX_CSV_BYTES, read_text
+from ..fileio import MAX_CSV_BYTES, read_text, read_text_from
 
 __all__ = ["MAX_ROWS", "read_columns"]
 
@@ -33,11 +34,15 @@ def _dialect(sample: str) -> type[csv.Dialect] | csv.Dialect:
         return csv.excel
 
 
-def read_columns(path: str | Path, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
-    """The named columns of a CSV log as float arrays, keyed by role: ``{"input": "pitch_cmd", ...}``."""
+def read_columns(path: str | Path, columns: Mapping[str, str], *, handle: BinaryIO | None = None
+                 ) -> dict[str, np.ndarray]:
+    """The named columns of a CSV log as float arrays, keyed by role: ``{"input": "pitch_cmd", ...}``; ``handle``:
+    the file already opened (:func:`tuner.identify.ulog.open_log`), read from it instead of opening ``path``."""
     p = Path(path)
+    hint = "give a CSV log with a header row"
     try:
-        text = read_text(p, limit=MAX_CSV_BYTES, field="file", hint="give a CSV log with a header row")
+        text = read_text(p, limit=MAX_CSV_BYTES, field="file", hint=hint) if handle is None else \
+            read_text_from(handle, name=str(p), limit=MAX_CSV_BYTES, field="file", hint=hint)
     except TunerError as e:
         raise InvalidDataError(str(e), field="file") from None
     try:

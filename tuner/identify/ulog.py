@@ -34,7 +34,7 @@ import contextlib
 import io
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -77,6 +77,36 @@ class ULogRecords:
         return s
 
 
+@contextlib.contextmanager
+def open_log(path: str | Path) -> Iterator[tuple[str, io.BufferedReader]]:
+    """``("ulog" | "csv", handle)``: the log file opened once (a regular file within the larger of the two limits,
+    :func:`tuner.fileio.open_input`), its kind told from its name (``.ulg``) or its first bytes (the ULog magic),
+    the handle back at its start; a CSV beyond :data:`~tuner.fileio.MAX_CSV_BYTES` refused at once, from its size.
+    The caller reads it from that handle (:func:`read_ulog`, :func:`tuner.identify.csvlog.read_columns`)."""
+    import os
+
+    from ..fileio import MAX_CSV_BYTES, open_checked
+
+    p = Path(path)
+    try:
+        f = open_checked(p, limit=max(MAX_ULOG_BYTES, MAX_CSV_BYTES), field="file")
+    except TunerError as e:
+        raise InvalidDataError(str(e), field="file") from None
+    try:  # (the caller's errors pass through this as they are)
+        head = f.read(len(MAGIC))
+        f.seek(0)
+        if p.suffix.lower() == ".ulg" or head == MAGIC:
+            yield "ulog", f
+            return
+        size = os.fstat(f.fileno()).st_size
+        if size > MAX_CSV_BYTES:
+            raise InvalidDataError(f"{p}: {size} bytes, larger than {MAX_CSV_BYTES >> 20} MiB (the limit for a CSV "
+                                   "log); give a shorter record", field="file")
+        yield "csv", f
+    finally:
+        f.close()
+
+
 def is_ulog(path: str | Path) -> bool:
     """Whether the file is named ``.ulg`` or starts with the ULog magic bytes. A path that is no regular file (a
     FIFO, a device, a directory) is refused here, before anything opens it (it could hang or never end)."""
@@ -105,9 +135,16 @@ def parse_signal(text: str, role: str) -> tuple[str, int, str]:
     return m["topic"], int(m["inst"] or 0), m["field"]
 
 
-def _load(src: str | Path | bytes, topics: list[str] | None) -> Any:
+def _load(src: str | Path | bytes | io.BufferedReader, topics: list[str] | None) -> Any:
     from pyulog import ULog
 
+    if isinstance(src, io.BufferedReader):  # a log file opened once by the caller (open_log): parsed from it
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                return ULog(src, message_name_filter_list=topics)
+        except Exception as e:  # as below
+            raise InvalidDataError(f"{src.name}: not a readable ULog file ({type(e).__name__}: {e})",
+                                   field="file") from None
     name = "the upload" if isinstance(src, bytes) else str(src)
     if not isinstance(src, bytes):
         p = Path(src)
@@ -126,9 +163,10 @@ def _load(src: str | Path | bytes, topics: list[str] | None) -> Any:
         raise InvalidDataError(f"{name}: not a readable ULog file ({type(e).__name__}: {e})", field="file") from None
 
 
-def _topics_in(src: str | Path | bytes) -> list[str]:
-    """Every ``topic:instance`` logged, for the error message."""
-    ul = _load(src, None)
+def _topics_in(src: str | Path | bytes | io.BufferedReader) -> list[str]:
+    """Every ``topic:instance`` logged, for the error message (a log read from a handle: parsed again by its
+    path, on this error's path only: the first parse kept only the topics asked for)."""
+    ul = _load(src.name if isinstance(src, io.BufferedReader) else src, None)
     return sorted({f"{d.name}:{d.multi_id}" if d.multi_id else d.name for d in ul.data_list})
 
 
@@ -195,7 +233,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         raise InvalidDataError("a ULog log needs input and output signals (TOPIC.FIELD), and optionally a reference",
                                field="input")
     specs = {role: parse_signal(columns[role], role) for role in roles}
-    if not isinstance(src, (str, Path, bytes)):
+    if not isinstance(src, (str, Path, bytes, io.BufferedReader)):  # an upload's file object: its bytes
         src = src.read(MAX_ULOG_BYTES + 1)
         if len(src) > MAX_ULOG_BYTES:
             raise InvalidDataError(f"the upload holds more than {MAX_ULOG_BYTES} bytes (cut the log)", field="file")

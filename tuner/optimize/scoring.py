@@ -57,6 +57,10 @@ def objective_value(a: Analysis, spec: Spec) -> float:
         return math.inf
     if spec.objective == "itae":  # of the reference step
         return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
+    if spec.objective == "iae":  # over the horizon (Metrics.load_iae where the output returns to 0; finite here even
+        # where it does not, so that the search and the verifier rank such designs alike, as the batch does)
+        d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
+        return float(np.trapezoid(np.abs(d.y), d.t))
     # ie: |the signed integral| after the load step (= 1/Ki for a loop with integral action once settled: MIGO
     # maximises Ki)
     at_dc = 1.0 if a.loop.dt else 0.0

@@ -415,28 +415,35 @@ def _digest(path: Path) -> str:
 
 @lru_cache(maxsize=64)
 def _digest_cached(path: str, mtime_ns: int, size: int) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """The log's SHA-256, streamed in chunks (a log is at most the larger of the CSV and ULog limits), the cache key
+    of its identification: a cache hit reads nothing more."""
+    from ..fileio import MAX_CSV_BYTES, open_input
+    from ..identify.ulog import MAX_ULOG_BYTES
+
+    with open_input(path, limit=max(MAX_CSV_BYTES, MAX_ULOG_BYTES), field="data") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def _read_log(path: str, o: dict[str, Any]) -> dict[str, Any]:
     """A data loop's log as :func:`tuner.identify` arguments (a ULog log split at gaps: several records)."""
     from ..identify.csvlog import read_columns
     from ..identify.feedback import hints
-    from ..identify.ulog import is_ulog, read_ulog
+    from ..identify.ulog import open_log, read_ulog
 
     ref = o.get("reference")
-    if is_ulog(path):
-        r = read_ulog(path, {"input": o["input"], "output": o["output"], **({"reference": ref} if ref else {})},
-                      rate_hz=o["rate_hz"])
-        one = len(r.inputs) == 1
-        refs = r.references
-        return {"input": r.inputs[0] if one else r.inputs, "output": r.outputs[0] if one else r.outputs,
-                "time": None, "rate_hz": r.rate_hz, "ulog": True,
-                "reference": None if refs is None else (refs[0] if one else refs),
-                **hints(o["input"], r.parameters, r.rate_hz)}
-    cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {}),
-            **({"reference": ref} if ref else {})}
-    data = read_columns(path, cols)
+    with open_log(path) as (kind, fh):  # opened once: told CSV or ULog, and read, from one handle
+        if kind == "ulog":
+            r = read_ulog(fh, {"input": o["input"], "output": o["output"], **({"reference": ref} if ref else {})},
+                          rate_hz=o["rate_hz"])
+            one = len(r.inputs) == 1
+            refs = r.references
+            return {"input": r.inputs[0] if one else r.inputs, "output": r.outputs[0] if one else r.outputs,
+                    "time": None, "rate_hz": r.rate_hz, "ulog": True,
+                    "reference": None if refs is None else (refs[0] if one else refs),
+                    **hints(o["input"], r.parameters, r.rate_hz)}
+        cols = {"input": o["input"], "output": o["output"], **({"time": o["time"]} if o["time"] else {}),
+                **({"reference": ref} if ref else {})}
+        data = read_columns(path, cols, handle=fh)
     return {"input": data["input"], "output": data["output"], "time": data.get("time"), "rate_hz": o["rate_hz"],
             "ulog": False, "reference": data.get("reference"), **hints(o["input"], None, None)}
 

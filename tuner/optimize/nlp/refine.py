@@ -29,6 +29,7 @@ import numpy as np
 from ...analysis.margins import frequency_grid
 from ...analysis.response import step_response
 from ...controllers import ControllerTF
+from ...limits import LIMITS
 from ...loop import build_loop
 from ...tolerances import ROOT_AT_DC_TOL
 from .. import rules
@@ -287,8 +288,8 @@ def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None =
         h = min(h, H_POLE / c_fast)
     if ev.spec.settling_time_max is not None and ev.spec.objective != "settling_time":
         # another objective under a settling-time limit: the envelope's edge resolved (the Tustin model's error is
-        # O(h), and the limit is where the answer sits); the horizon then ends after MAX_CONTINUOUS_STEPS steps, at
-        # least ten times the limit
+        # O(h), and the limit is where the answer sits); the horizon then ends after MAX_CONTINUOUS_STEPS steps (ten
+        # times the limit, or less where the controller's fastest pole makes the step finer still)
         h = min(h, ev.spec.settling_time_max / SETTLE_STEPS)
     taus = [p.delay_s for p in ev.problem.plants if p.delay_s]
     if taus:
@@ -580,7 +581,7 @@ def _corrected(ev: BatchEvaluator, space: Space, solve: _Solves, x: np.ndarray, 
             yv = np.interp(t, resp.t, resp.y)
             if not np.all(np.isfinite(yv)):
                 return None
-            solve.values[f"yoff{i}"] = solve.values[f"yoff{i}"] + (yv - Y[i])
+            solve.values[f"yoff{i}"] = yv - Y[i]  # (Y is the NLP's own output, without the offset: the whole defect)
     return None
 
 
@@ -756,9 +757,10 @@ def _key(ev: BatchEvaluator, space: Space, data: _PlantData, grid: _Grid, solver
                       phase_cross=tuple(data.has_pc), control_peak=spec.control_peak_max is not None,
                       objective=spec.objective, solver=solver,
                       pm=spec.phase_margin_min_deg > 0 or spec.crossover_rad_s is not None,
-                      gm=spec.gain_margin_min_db > 0, ms=spec.ms_max is not None, mt=spec.mt_max is not None,
-                      mks=spec.mks_max is not None, dm=spec.disk_margin_min is not None,
-                      drb=spec.drb_min_rad_s is not None,
+                      gm=spec.gain_margin_min_db > 0,
+                      # the frequency-grid rows: the registry's limits the NLP states on its grid (each ProblemKey
+                      # flag named as the limit's batch figure: ms, mt, mks, dm, drb)
+                      **{lim.batch: getattr(spec, lim.field) is not None for lim in LIMITS if lim.nlp == "grid"},
                       filter_n=rules.applies(space.structure, spec),
                       settling_max=spec.settling_time_max is not None and spec.objective != "settling_time",
                       head=grid.head, tail_N=grid.tail_N, interp=sharp)
