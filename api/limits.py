@@ -19,6 +19,9 @@ from typing import Any
 __all__ = ["BodySizeLimit", "HeadAsGet"]
 
 
+_RECORD_PATHS = frozenset({"/identify"})  # bodies that carry a flight record (their 413 says how to send more)
+
+
 class BodySizeLimit:
     def __init__(self, app: Callable[..., Any], *, max_bytes: int, path_limits: dict[str, int] | None = None) -> None:
         self.app = app
@@ -37,7 +40,7 @@ class BodySizeLimit:
                 except ValueError:
                     declared = -1
                 if declared > cap:
-                    await self._refuse(send, cap)
+                    await self._refuse(send, cap, scope.get("path", ""))
                     return
         chunks: list[bytes] = []
         size = 0
@@ -48,7 +51,7 @@ class BodySizeLimit:
             body = msg.get("body", b"")
             size += len(body)
             if size > cap:
-                await self._refuse(send, cap)
+                await self._refuse(send, cap, scope.get("path", ""))
                 return
             chunks.append(body)
             if not msg.get("more_body", False):
@@ -65,8 +68,10 @@ class BodySizeLimit:
 
         await self.app(scope, replay, send)
 
-    async def _refuse(self, send: Callable[..., Any], cap: int) -> None:
-        body = json.dumps({"detail": f"request body larger than {cap} bytes"}).encode()
+    async def _refuse(self, send: Callable[..., Any], cap: int, path: str = "") -> None:
+        more = (": a longer record goes as a ULog upload (ulog.data_base64) or through the command line "
+                "('tuner identify', the same record limit)") if path in _RECORD_PATHS else ""
+        body = json.dumps({"detail": f"request body larger than {cap} bytes{more}"}).encode()
         await send({"type": "http.response.start", "status": 413,
                     "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
                                 (b"connection", b"close")]})

@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from tuner.identify import MAX_POLES
+from tuner.identify.data import MAX_SAMPLES as LIB_MAX_SAMPLES
 from tuner.identify.data import MIN_SAMPLES
 
 from .schemas import Number
@@ -34,7 +35,10 @@ __all__ = [
     "VerifyRecord",
 ]
 
-MAX_SAMPLES = 250_000  # 200,000-sample logs are accepted; the body cap is TUNER_MAX_IDENTIFY_BODY_BYTES
+# the record limit: the library's, the same as the command line's (a CSV's rows, a ULog's grid samples); a JSON body
+# is capped in bytes as well (TUNER_MAX_IDENTIFY_BODY_BYTES, 24 MB: about a million samples written as JSON numbers),
+# and its 413 says how to send more (a ULog upload, or the command line)
+MAX_SAMPLES = LIB_MAX_SAMPLES
 
 Sample = Annotated[float, Field(allow_inf_nan=False)]
 Samples = Annotated[list[Sample], Field(min_length=MIN_SAMPLES, max_length=MAX_SAMPLES)]

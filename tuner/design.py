@@ -23,6 +23,7 @@ from .plant import Plant
 from .tolerances import EXACT_ROOT_TOL, REAL_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR, STABILITY_MARGIN
 
 __all__ = ["PlantScale", "plant_scale", "plant_sign", "slow_poles", "bounds", "initial_guess", "zero_variants",
+           "dt_note",
            "tf_min", "dc_gain",
            "TF_MIN_W0", "TF_MIN_DT"]
 
@@ -226,6 +227,39 @@ def slow_poles(plant: Plant, w0: float) -> np.ndarray:
     fill = [-0.3 * w0, -0.9 * w0]
     out = [p for p in cand[:2] if abs(p.imag) <= REAL_ROOT_TOL]
     return np.array((out + fill)[:2], dtype=complex)
+
+
+DT_MAX_SHARE = 0.2  # a sample time above this share of the plant's fastest time constant is implausible
+DT_MIN_SHARE = 1e-3  # and one below this share of it
+DT_FAR = 1e-2  # beyond those by this factor (50 time constants, 1e-5 of one) it is said even where no slip explains it
+
+
+def dt_note(plant: Any, dt: float | None) -> str | None:
+    """A warning when ``dt`` is implausible for a continuous ``plant``: more than a fifth of its fastest time
+    constant (1/|p| of its fastest nonzero pole), or below a thousandth of it, where a unit slip explains it (``--dt
+    4`` meant as milliseconds, ``--dt 250`` meant as a rate in Hz: the value it would give lies in that range), or
+    where it is a hundred times further out still; None otherwise."""
+    if dt is None or getattr(plant, "dt", None) is not None:
+        return None
+    poles = np.asarray(plant.zpk.poles)
+    mags = np.abs(poles[np.abs(poles) > 1e-12])
+    if mags.size == 0:
+        return None
+    tau = float(1.0 / mags.max())
+    lo, hi = DT_MIN_SHARE * tau, DT_MAX_SHARE * tau
+    if lo <= dt <= hi:
+        return None
+    slips = [(f"{dt:g} ms", dt * 1e-3), (f"a rate of {dt:g} Hz", 1.0 / dt)] if dt > hi else \
+        [(f"{dt:g} ks", dt * 1e3), (f"{dt:g} min", dt * 60.0)]
+    fits = [f"if {what} was meant, give dt = {v:g} s" for what, v in slips if lo <= v <= hi]
+    if not fits and DT_FAR * lo <= dt <= hi / DT_FAR:
+        # coarse or fine but no unit slip explains it (the thesis's own loops sample at 0.6 of the roll model's
+        # fastest time constant, limited by their radio link): the analysis is exact at any dt, nothing to say
+        return None
+    where = "more than a fifth" if dt > hi else "below a thousandth"
+    return (f"dt = {dt:g} s is {where} of the plant's fastest time constant ({tau:.3g} s): "
+            + ("; ".join(fits) if fits else f"a sample time between {lo:.3g} and {hi:.3g} s suits this plant")
+            + " (the sample time is in seconds)")
 
 
 def dc_gain(plant: Any) -> float:

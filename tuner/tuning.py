@@ -597,6 +597,11 @@ def _annotated(res: TuneResult, problem: TuningProblem, ident: Any, actuator: An
     """What the user should know beside the design: integral action lost, the loop on the measured response, the
     saturated step, the vehicle's current tune, the robust record and its Monte Carlo check."""
     st = problem.structure
+    from .design import dt_note
+
+    slip = dt_note(problem.nominal, problem.dt)  # a sample time implausible for the plant: the likely unit slip
+    if slip:
+        res.solver.setdefault("notes", []).insert(0, slip)
     note = _integral_note(res, problem)
     if note:
         res.solver.setdefault("notes", []).append(note)

@@ -165,3 +165,21 @@ def test_parameter_file_of_a_stored_rate_law(client, tmp_path):
                                                                     "controller": c.to_dict()}).id
     r = client.get(f"/tunes/{rid}/export", params={"format": "px4"})
     assert r.status_code == 422 and "MC_ROLLRATE_P = 0.9" in r.json()["detail"][0]["msg"]
+
+
+def test_a_pid2_result_is_plotted_as_the_2dof_loop_that_was_tuned():
+    """Issue 30: the service's plot of a pid2 result re-analyses the stored controller with its reference path (the
+    1-DOF loop settled at 0.493 s beside a table saying 0.041 s)."""
+    from api.jobs import _controller
+    from tuner import Spec, analyze, plant_from_expr, tune
+    from tuner.jsonio import jsonable
+
+    plant = plant_from_expr("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)")
+    res = tune(plant, structure="pid2", dt=0.04, seed=0)
+    stored = jsonable(res.to_json())["controller"]
+    assert "num_r" in stored
+    plotted = analyze(plant, _controller(stored), Spec())
+    assert plotted.metrics.settling_time_s == pytest.approx(res.analyses[0].metrics.settling_time_s, rel=1e-9)
+    one_dof = analyze(plant, _controller({k: v for k, v in stored.items() if k != "num_r"}), Spec())
+    assert one_dof.metrics.settling_time_s != pytest.approx(res.analyses[0].metrics.settling_time_s, rel=1e-3) or \
+        res.gains["b"] == pytest.approx(1.0) and res.gains["c"] == pytest.approx(1.0)

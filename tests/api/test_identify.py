@@ -129,9 +129,21 @@ def test_a_200000_sample_log_is_accepted_on_identify_but_other_routes_keep_their
     assert d["model"]["parameters"]["pole_1_rad_s"] == pytest.approx(5.0, rel=0.05)
     big = client.post("/identify", content=b"[" + b"0," * (MAX_IDENTIFY_BODY // 2) + b"0]",
                       headers={"content-type": "application/json"})
-    assert big.status_code == 413 and big.json() == {"detail": f"request body larger than {MAX_IDENTIFY_BODY} bytes"}
+    assert big.status_code == 413
+    detail = big.json()["detail"]  # the byte cap, and how to send a longer record (the record limit is the CLI's)
+    assert detail.startswith(f"request body larger than {MAX_IDENTIFY_BODY} bytes") and "ULog upload" in detail
     tune = client.post("/tune", content=b"x" * (MAX_BODY + 1), headers={"content-type": "application/json"})
-    assert tune.status_code == 413
+    assert tune.status_code == 413 and tune.json() == {"detail": f"request body larger than {MAX_BODY} bytes"}
+
+
+def test_the_service_and_the_command_line_state_the_same_record_limit():
+    """Issue 31: one record limit (tuner.identify.data.MAX_SAMPLES) for a CSV's rows, a ULog's grid and the
+    service's sample arrays."""
+    from api.schemas_identify import MAX_SAMPLES as SERVICE
+    from tuner.identify.csvlog import MAX_ROWS
+    from tuner.identify.data import MAX_SAMPLES
+
+    assert SERVICE == MAX_ROWS == MAX_SAMPLES == 10_000_000
 
 
 def test_identification_time_limit_is_504(app, client, body, override_settings):

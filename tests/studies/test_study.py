@@ -170,3 +170,25 @@ def test_a_variant_changes_the_spec_only(tmp_path):
     bad.write_text(base.format(st="pid"))
     with pytest.raises(InvalidStudyError, match="differs in structure"):
         load_study(bad)
+
+
+def test_a_cascade_says_when_its_between_samples_simulation_did_not_run():
+    """Issue 30: an inner plant with a delay: the whole cascade's simulation needs delay-free plants and is skipped;
+    the report says so (it said the simulation ran)."""
+    from tuner import tune
+    from tuner.analysis.cascade import EXACT_NOTE, SKIPPED_NOTE
+    from tuner.studies.evaluate import evaluate_loop, loop_plants
+
+    def note_for(pitch_delay):
+        st = parse_study(_study(l0={"delay": pitch_delay} if pitch_delay else {}))
+        inner = tune(loop_plants(st, st.get("pitch"), {})[0], structure="pid_z", dt=0.04, seed=0).controller
+        outer_plant = loop_plants(st, st.get("x"), {"pitch": inner})[0]
+        outer = tune(outer_plant, structure="lead", dt=0.04, seed=0).controller
+        ev = evaluate_loop(st, st.get("x"), outer, {"pitch": inner, "x": outer})
+        assert ev.nominal.metrics.stable
+        return ev.cascade, ev.cascade_note
+
+    sim, note = note_for(0.0)
+    assert note == EXACT_NOTE and sim is not None
+    sim, note = note_for(0.02)
+    assert note == SKIPPED_NOTE and sim is None

@@ -180,3 +180,37 @@ def test_tune_missing_structure_is_an_argparse_error(capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and "--structure" in err
+
+
+def test_the_printed_controller_round_trips(capsys):
+    """Issue 30: the C(z) the table prints, pasted back, is the controller that was verified (at 6 digits a PID's
+    (z - 1) was lost: steady-state error FAIL); its factored line writes the integrator exactly."""
+    import re
+
+    from tuner.controllers import controller_from_coeffs
+
+    assert main(["tune", "--plant", "1/(s+1)^3", "--structure", "pid", "--dt", "0.1"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    line = next(x for x in out if x.startswith("C(z) = ["))
+    num, den = (np.array([float(v) for v in grp.split(",")]) for grp in re.findall(r"\[([^\]]*)\]", line))
+    assert re.search(r"dt = 0\.1\b", line)
+    assert np.sum(den) == 0.0 or abs(np.sum(den)) < 1e-15  # the integrator, as tuned
+    a = analyze(plant_from_expr("1/(s+1)^3"), controller_from_coeffs(num, den, dt=0.1))
+    assert a.meets_spec and abs(a.metrics.steady_state_error) < 1e-9
+    factored = out[out.index(line) + 1]
+    assert "(z - 1)" in factored
+    # every printed coefficient is the tuned double itself (the JSON's, the same tune again: seeded)
+    assert main(["tune", "--plant", "1/(s+1)^3", "--structure", "pid", "--dt", "0.1", "--json"]) == 0
+    tuned = json.loads(capsys.readouterr().out)["controller"]
+    assert list(num) == tuned["num"] and list(den) == tuned["den"]
+
+
+@pytest.mark.parametrize("dt, meant", [(4.0, "4 ms"), (250.0, "a rate of 250 Hz")])
+def test_a_unit_slip_in_dt_is_named(capsys, dt, meant):
+    """Issue 30: a sample time far above a fifth of the plant's fastest time constant (the roll model's 0.067 s) says
+    which slip it likely is and what it would give; a plausible one says nothing."""
+    main(["tune", "--plant", ROLL, "--structure", "pid_z", "--dt", str(dt), "--budget", "2"])
+    err = capsys.readouterr().err
+    assert f"if {meant} was meant, give dt = 0.004 s" in err
+    assert main(["tune", "--plant", ROLL, "--structure", "pid_z", "--dt", str(DT)]) == 0
+    assert "fastest time constant" not in capsys.readouterr().err

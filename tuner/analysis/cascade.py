@@ -44,10 +44,14 @@ from ..plant import MAX_ORDER, Plant, delay_in_samples, make_plant
 from ..tolerances import SAME_DT_RTOL
 from .response import StepMetrics, StepResponse, step_metrics
 
-__all__ = ["outer_plant", "outer_plants", "simulate_cascade", "CascadeResponse", "EXACT_NOTE", "HELD_NOTE"]
+__all__ = ["outer_plant", "outer_plants", "simulate_cascade", "CascadeResponse", "EXACT_NOTE", "HELD_NOTE",
+           "SKIPPED_NOTE"]
 
 EXACT_NOTE = "exact at the samples; position between samples from a sampled-data simulation of the whole cascade"
 HELD_NOTE = "inner plant given in z: angle held between samples (thesis model), sample instants only"
+SKIPPED_NOTE = ("exact at the samples; the between-samples simulation of the whole cascade did not run (it needs "
+                "delay-free continuous plants, both controllers at one sample time and a stable loop): sample "
+                "instants only")
 
 
 def _plant_from_ss(sysd: SS, dt: float) -> Plant:

@@ -13,18 +13,19 @@ import csv
 import io
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
 
 from ..errors import InvalidDataError, TunerError
-from ..fileio import MAX_CSV_BYTES, read_text, read_text_from
+from ..fileio import MAX_CSV_BYTES, open_checked
+from .data import MAX_SAMPLES
 
 __all__ = ["MAX_ROWS", "read_columns"]
 
-MAX_ROWS = 10_000_000
+MAX_ROWS = MAX_SAMPLES  # the record limit (tuner.identify.data.MAX_SAMPLES), the same for the CLI and the service
 
 
 def _dialect(sample: str) -> type[csv.Dialect] | csv.Dialect:
@@ -37,40 +38,66 @@ def _dialect(sample: str) -> type[csv.Dialect] | csv.Dialect:
 def read_columns(path: str | Path, columns: Mapping[str, str], *, handle: BinaryIO | None = None
                  ) -> dict[str, np.ndarray]:
     """The named columns of a CSV log as float arrays, keyed by role: ``{"input": "pitch_cmd", ...}``; ``handle``:
-    the file already opened (:func:`tuner.identify.ulog.open_log`), read from it instead of opening ``path``."""
+    the file already opened (:func:`tuner.identify.ulog.open_log`), read from it instead of opening ``path``.
+
+    The text is decoded and parsed as it streams in (a regular file within :data:`~tuner.fileio.MAX_CSV_BYTES`):
+    nothing but the columns' float arrays (8 bytes a value) grows with the file."""
     p = Path(path)
-    hint = "give a CSV log with a header row"
+    if handle is not None:
+        return _read(p, handle, columns)
     try:
-        text = read_text(p, limit=MAX_CSV_BYTES, field="file", hint=hint) if handle is None else \
-            read_text_from(handle, name=str(p), limit=MAX_CSV_BYTES, field="file", hint=hint)
+        f = open_checked(p, limit=MAX_CSV_BYTES, field="file")
     except TunerError as e:
         raise InvalidDataError(str(e), field="file") from None
+    with f:
+        return _read(p, f, columns)
+
+
+_HINT = "give a CSV log with a header row"
+
+
+def _read(p: Path, f: BinaryIO, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
+    text = io.TextIOWrapper(f, encoding="utf-8-sig", newline="")
     try:
-        return _parse(p, text, columns)
+        return _parse(p, _lines(p, text), columns)
+    except UnicodeDecodeError as e:
+        raise InvalidDataError(f"{p}: not a UTF-8 text file ({e.reason}); {_HINT}", field="file") from None
     except csv.Error as e:  # e.g. a cell longer than csv.field_size_limit() (131,072 characters)
-        raise InvalidDataError(f"{p}: not a readable CSV log ({e}); give a CSV log with a header row",
-                               field="file") from None
+        raise InvalidDataError(f"{p}: not a readable CSV log ({e}); {_HINT}", field="file") from None
+    finally:
+        text.detach()  # (the handle's owner closes it)
 
 
-def _parse(p: Path, text: str, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
-    """The columns as float arrays, parsed line by line from the text (no list of its lines, no Python floats
-    kept: 8 bytes a value; the text itself is the largest thing held)."""
+def _lines(p: Path, text: io.TextIOWrapper) -> Iterator[str]:
+    """The lines of the text as it streams in: binary data refused at its first NUL byte, and the text past the
+    limit (a file that grows while it is read)."""
+    size = 0
+    for line in text:
+        size += len(line)
+        if size > MAX_CSV_BYTES:
+            raise InvalidDataError(f"{p}: larger than {MAX_CSV_BYTES >> 20} MiB (the limit for a CSV log); give a "
+                                   "shorter record", field="file")
+        if "\0" in line:
+            raise InvalidDataError(f"{p}: a binary file (NUL bytes), not text; {_HINT}", field="file")
+        yield line
+
+
+def _parse(p: Path, lines: Iterator[str], columns: Mapping[str, str]) -> dict[str, np.ndarray]:
+    """The columns as float arrays, parsed line by line as the lines arrive (no list of them, no Python floats kept:
+    8 bytes a value)."""
     from array import array
 
-    buf = io.StringIO(text)
     first = 0
     head: list[str] = []
-    for raw in buf:  # comments and blank lines before the header
+    for raw in lines:  # comments and blank lines before the header
         if raw.strip() and not raw.lstrip().startswith("#"):
             head.append(raw)
             break
         first += 1
     if not head:
         raise InvalidDataError(f"{p}: empty (no header row)", field="file")
-    at = buf.tell()
-    sample = head[0] + "".join(buf.readline() for _ in range(19))
-    buf.seek(at)
-    reader = csv.reader(itertools.chain(head, buf), _dialect(sample))
+    ahead = list(itertools.islice(lines, 19))  # the sniffer's sample: the header and 19 rows
+    reader = csv.reader(itertools.chain(head, ahead, lines), _dialect("".join(head + ahead)))
     header = [h.strip() for h in next(reader)]
     idx: dict[str, int] = {}
     for role, name in columns.items():

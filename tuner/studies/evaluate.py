@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ..analysis.cascade import EXACT_NOTE, HELD_NOTE, CascadeResponse, outer_plants, simulate_cascade
+from ..analysis.cascade import EXACT_NOTE, HELD_NOTE, SKIPPED_NOTE, CascadeResponse, outer_plants, simulate_cascade
 from ..analysis.verify import Analysis, analyze
 from ..controllers import ControllerTF
 from ..errors import TunerError
@@ -140,6 +140,8 @@ def evaluate_loop(
         if r is not None:
             sim = simulate_cascade(inner_own, controllers[lp.inner], own, controller, horizon_s=float(r.t[-1]),
                                    band_pct=lp.spec.settling_band_pct, y_final=r.y_final)
+        if sim is None:  # (a plant with a delay, an unstable loop, controllers at other sample times): say so
+            note = SKIPPED_NOTE
     return LoopEval(loop=lp, controller=controller, analyses=analyses, cascade=sim, cascade_note=note,
                     inner_bandwidth_rad_s=inner_bandwidth_rad_s)
 
