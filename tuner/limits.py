@@ -149,6 +149,12 @@ LIMITS: tuple[Limit, ...] = (
           "vehicle class and axis, none general)", bounds={"gt": 0}, metavar="RAD_S", batch="drb", nlp="grid",
           binds="|S| reaches -3 dB below {value:g} rad/s: more loop gain at low frequency (integral action, a "
                 "higher crossover) or a lower drb_min_rad_s"),
+    Limit("ki_min", "integral_gain", ">=", "", "--ki-min", "integral gain |Ki| ≥",
+          "minimum integral gain |Ki| (Ki = lim s C(s), or lim (z - 1) C(z)/dt): demands integral action, and bounds "
+          "the load step's IE = 1/|Ki| (a constant load at the plant input, a CG offset or a weak motor, is rejected "
+          "with IE <= 1/ki_min); no default", bounds={"gt": 0}, metavar="KI", batch="ki", nlp="ki",
+          binds="the integral gain reaches only what the other limits leave: relax them (a control peak, Mks, the "
+                "settling time), or give a lower ki_min"),
     Limit("settling_time_max", "settling_time_s", "<=", "s", "--settling-max", "settling time ≤ [s]",
           "maximum 2 % settling time (the settling band) of the unit reference step, s: the response-time knob "
           "(with objective mks or disk_margin: the most robust design at that speed)", bounds={"gt": 0},

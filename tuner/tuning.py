@@ -659,8 +659,9 @@ def _integral_note(res: TuneResult, problem: TuningProblem) -> str | None:
     return (f"no integral action: {st.integral} = {res.gains[st.integral]:.3g} (the loop's integral gain {ki:.3g}, "
             f"below {INTEGRAL_NONE:g} of its scale K0 w0 = {unit:.3g}); the {problem.spec.objective} optimum on this "
             "plant does not need it, but a constant load at the plant input (a CG offset, a weak motor, a steady "
-            "wind) is then never rejected: it leaves a steady error. To keep integral action tune for the load "
-            "response (objective iae), which needs it")
+            "wind) is then never rejected: it leaves a steady error. To keep integral action demand it, ki_min = "
+            f"{INTEGRAL_NONE * 10 * unit:.3g} (CLI --ki-min; the load step's IE is then at most 1/ki_min), or tune "
+            "for the load response (objective iae)")
 
 
 def _with_measured(res: TuneResult, ident: Any) -> TuneResult:

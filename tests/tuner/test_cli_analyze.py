@@ -17,7 +17,7 @@ METRIC_KEYS = {
     "stable", "phase_margin_deg", "crossover_rad_s", "gain_margin_db", "gain_margin_lower_db", "disk_margin",
     "ms", "mt", "mks", "bandwidth_rad_s", "overshoot_pct", "settling_time_s", "rise_time_s", "steady_state_error",
     "control_peak", "disturbance_rejection_bandwidth_rad_s", "disturbance_rejection_peak_db", "load_iae", "load_peak",
-    "load_recovery_s",
+    "load_recovery_s", "integral_gain",
 }
 PITCH_X27 = ["analyze", "--plant", PITCH, "--dt", str(DT), "--controller", scaled(PITCH_C, 2.7)]
 ROLL_X1 = ["analyze", "--plant", ROLL, "--dt", str(DT), "--controller", ROLL_C]

@@ -34,7 +34,7 @@ STRUCTURES_DT = ("pi", "pid", "pid2", "pid_z", "leadlag", "px4_rate", "ardupilot
 TOL = {
     "pm": (0.5, 0.01), "gm": (0.1, 0.01), "overshoot_pct": (0.3, 0.03), "control_peak": (0.0, 0.02),
     "ms": (0.0, 0.02), "mt": (0.0, 0.02), "mks": (0.0, 0.02), "dm": (0.0, 0.02), "bw": (0.0, 0.02),
-    "drb": (0.0, 0.02), "wc": (0.0, 0.01), "itae": (0.0, 0.05), "iae": (0.0, 0.05),
+    "drb": (0.0, 0.02), "wc": (0.0, 0.01), "itae": (0.0, 0.05), "iae": (0.0, 0.05), "ki": (0.0, 1e-6),
 }
 
 
@@ -91,7 +91,7 @@ def _contract(loops: list[tuple]) -> tuple[int, int, list[str]]:
     checked, compared, bad = 0, 0, []
     KNOWN_SEEN.clear()
     spec = Spec(ms_max=2.0, mt_max=2.0, mks_max=1e3, disk_margin_min=0.1, bandwidth_min_rad_s=1e-3,
-                drb_min_rad_s=1e-3, control_peak_max=1e3)
+                drb_min_rad_s=1e-3, control_peak_max=1e3, ki_min=1e-9)
     for plant, st, dt, gain in loops:
         prob = TuningProblem.build([plant], structure=st, spec=spec, dt=dt)
         space = make_space(prob.structure, prob.nominal, prob.dt, scale=prob.scale)

@@ -55,6 +55,9 @@ class Metrics:
     disturbance_rejection_bandwidth_rad_s, disturbance_rejection_peak_db : float
         Where ``|S|`` first rises to -3 dB (0: it is there at w -> 0; inf: never below Nyquist), and ``max |S|`` in
         dB (``20 log10 Ms``), on the loop's exact frequency response (:mod:`tuner.analysis.margins`).
+    integral_gain : float
+        ``|Ki|``: ``lim s C(s)`` (continuous) or ``lim (z - 1) C(z)/dt`` (at dt), 0 without integral action; the load
+        step's IE is ``1/|Ki|``.
     load_iae, load_peak, load_recovery_s : float
         Of a unit step load at the plant input (before its delay) with r = 0, the output between the samples:
         the integral of ``|y|`` over the verifier's horizon, ``max |y|``, and the last time ``|y|`` is above 2 % of
@@ -97,6 +100,7 @@ class Metrics:
     load_iae: float = math.nan
     load_peak: float = math.nan
     load_recovery_s: float = math.nan
+    integral_gain: float = math.nan
 
     def __repr__(self) -> str:
         from ..text import metrics_repr
@@ -241,6 +245,25 @@ class Analysis:
         return replace(self, saturated=st, checks=checks)
 
 
+def integral_gain(c: Any) -> float:
+    """``|Ki|`` of controller ``c``: ``lim s C(s)`` (continuous) or ``lim (z - 1) C(z)/dt``, from its factors (the
+    root at DC divided out, the rest evaluated there); 0 without a pole at DC."""
+    from ..tolerances import ROOT_AT_DC_TOL
+
+    zk = c.zpk
+    at = 1.0 if c.dt else 0.0
+    poles = np.asarray(zk.poles)
+    dc = np.abs(poles - at) < ROOT_AT_DC_TOL
+    if not dc.any():
+        return 0.0
+    if dc.sum() > 1:
+        return math.inf  # a double integrator
+    rest = poles[~dc]
+    with np.errstate(all="ignore"):
+        v = zk.gain * np.prod(at - np.asarray(zk.zeros)) / np.prod(at - rest)
+    return float(abs(v.real) / (c.dt or 1.0))
+
+
 LOAD_RECOVERY_SHARE = 0.02  # load_recovery_s: the last time |y| is above this share of its peak
 
 
@@ -305,7 +328,7 @@ def analyze_loop(
     m = Metrics(
         stable, mg.phase_margin_deg, mg.crossover_rad_s, mg.gain_margin_db, mg.gain_margin_lower_db,
         mg.disk_margin, mg.ms, mg.mt, mg.mks, mg.bandwidth_rad_s, *step,
-        mg.drb_rad_s if stable else math.nan, drp, *load,
+        mg.drb_rad_s if stable else math.nan, drp, *load, integral_gain(loop.controller),
     )
     return Analysis(loop=loop, metrics=m, checks=check_spec(m, spec), poles=poles, response=resp, margins=mg)
 

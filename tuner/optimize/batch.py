@@ -274,6 +274,10 @@ class BatchEvaluator:
         num = np.where(ok[:, None], num, 0.0)
         den = np.where(ok[:, None], den, 1.0)
         per_plant = [self._evaluate_plant(pd, num, den, ok, num_r) for pd in self.plants]
+        if "ki" in self._needs:  # the controller's own figure (every plant alike): |Ki|
+            ki = np.abs(self.integral_gain(X))
+            for m in per_plant:
+                m["ki"] = ki
         return self._combine(per_plant, X)
 
     def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None) -> dict[str, np.ndarray]:

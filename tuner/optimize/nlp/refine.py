@@ -29,6 +29,7 @@ import numpy as np
 from ...analysis.margins import frequency_grid
 from ...analysis.response import step_response
 from ...controllers import ControllerTF
+from ...design import plant_sign
 from ...limits import LIMITS
 from ...loop import build_loop
 from ...tolerances import ROOT_AT_DC_TOL
@@ -355,6 +356,7 @@ def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key
         "alpha": (spec.disk_margin_min or 0.0) / _TIGHT,
         "eps": _ABS_EPS, "kiu": abs(float(kiu)) or 1.0, "units": np.asarray(space.units, float),
         "nmax": (spec.filter_n_max or 1.0) * _TIGHT, "kscale": space.k0,
+        "kimin": (spec.ki_min or 1.0) / _TIGHT, "kisgn": plant_sign(ev.problem.nominal),
         "tw": _time_weights(grid, spec.objective)}
     if key.settling_max:
         values.update({f"yoff{i}": np.zeros(grid.t.size) for i in range(len(ev.problem.plants))})
@@ -761,6 +763,7 @@ def _key(ev: BatchEvaluator, space: Space, data: _PlantData, grid: _Grid, solver
                       # the frequency-grid rows: the registry's limits the NLP states on its grid (each ProblemKey
                       # flag named as the limit's batch figure: ms, mt, mks, dm, drb)
                       **{lim.batch: getattr(spec, lim.field) is not None for lim in LIMITS if lim.nlp == "grid"},
+                      ki=spec.ki_min is not None,
                       filter_n=rules.applies(space.structure, spec),
                       settling_max=spec.settling_time_max is not None and spec.objective != "settling_time",
                       head=grid.head, tail_N=grid.tail_N, interp=sharp)

@@ -133,6 +133,7 @@ class ProblemKey:
     mks: bool = False
     dm: bool = False
     drb: bool = False  # a disturbance-rejection-bandwidth limit: |S| <= -3 dB at the grid's frequencies up to it
+    ki: bool = False  # a minimum integral gain: Ki^2 >= ki_min^2 (its sign is the start's, held by the bounds)
     filter_n: bool = False  # the derivative-filter rule N = Td/Tf <= nmax (Spec.filter_n_max)
     settling_max: bool = False  # a settling-time limit with another objective: the band from the mask on
     head: int = 0  # > 0: only the first ``head`` samples have N points, the later ones ``tail_N`` (N a multiple)
@@ -170,7 +171,8 @@ class Problem:
 
 
 # the spec's numbers and the steps, in the parameter vector (see refine for their values)
-GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu", "nmax", "kscale")
+GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu", "nmax", "kscale",
+           "kimin", "kisgn")
 
 
 def parameter_layout(key: ProblemKey, nv: int) -> Layout:
@@ -532,6 +534,9 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
         _, beta_r, d_r = _canonical(snum_r, sden)
         ctrl = ctrl + (beta_r, d_r)
     c = _Constraints()
+    if key.ki:  # sign(plant) Ki / ki_min >= 1: integral action demanded, of the sign a stable loop has (linear: a
+        # start with Ki near 0 has a gradient to follow)
+        c.add(P["kisgn"] * integral_gain(cnum, cden, P["dt"], key.continuous) / P["kimin"] - 1.0, 0.0, cs.inf)
     if key.filter_n:  # (N Kp Tf)^2 >= Kd^2, scaled to O(1)
         xp = space.to_params([X["v"][i] for i in range(nv)], exp=cs.exp, sinh=cs.sinh, units=P["units"],
                              linear_gains=True)
