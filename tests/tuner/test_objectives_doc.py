@@ -101,3 +101,16 @@ def test_bandwidth_is_where_t_falls_below_its_dc_value_over_sqrt2(pi):
         return abs(T_REF.num[0] * 1j * w + T_REF.num[1]) / abs((1j * w) ** 2 + 3 * 1j * w + 3) - 1 / np.sqrt(2)
 
     assert pi.metrics.bandwidth_rad_s == pytest.approx(optimize.brentq(mag, 0.1, 100.0), rel=1e-8)
+
+
+def test_every_limit_of_the_registry_is_in_the_readme_table_and_help(capsys):
+    """The README's limits table lists every optional limit of the registry with its flag; --help has each flag."""
+    from tuner.limits import LIMITS
+
+    readme = (ROOT / "README.md").read_text()
+    with pytest.raises(SystemExit):
+        main(["tune", "--help"])
+    help_text = capsys.readouterr().out
+    for lim in LIMITS:
+        assert f"| `{lim.field}` | `{lim.flag}` |" in readme, lim.field
+        assert lim.flag in help_text, lim.flag
