@@ -35,9 +35,8 @@ __all__ = [
     "VerifyRecord",
 ]
 
-# the record limit: the library's, the same as the command line's (a CSV's rows, a ULog's grid samples); a JSON body
-# is capped in bytes as well (TUNER_MAX_IDENTIFY_BODY_BYTES, 24 MB: about a million samples written as JSON numbers),
-# and its 413 says how to send more (a ULog upload, or the command line)
+# the record limit: the library's, the same as the command line's (a CSV's rows, a ULog's grid samples): 2e6 samples;
+# a JSON body is capped in bytes as well (TUNER_MAX_IDENTIFY_BODY_BYTES, 24 MB), and its 413 says how to send more
 MAX_SAMPLES = LIB_MAX_SAMPLES
 
 Sample = Annotated[float, Field(allow_inf_nan=False)]

@@ -153,8 +153,9 @@ def _exact(x: float) -> str:
 
 
 def _factored(c: Any, var: str) -> str:
-    """``k (var - z1)... / ((var - 1)...)``: the controller's gain, zeros and poles (6 digits), the integrator's root
-    written exactly (``var - 1`` at a sample time, ``s`` in continuous time)."""
+    """``k (var - z1)... / ((var - 1)...)``: the controller's gain, zeros and poles (6 digits; a root within 1e-4 of
+    the integrator's with all its digits, so that it cannot be read as one), the integrator's root written exactly
+    (``var - 1`` at a sample time, ``s`` in continuous time), repeated factors as powers."""
     import numpy as np
 
     from .tolerances import ROOT_AT_DC_TOL
@@ -162,23 +163,31 @@ def _factored(c: Any, var: str) -> str:
     zk = c.zpk
     at_dc = 1.0 if c.dt else 0.0
 
+    def num(v: float) -> str:
+        return repr(float(v)) if abs(abs(v) - at_dc) < 1e-4 and at_dc else f"{v:.6g}"
+
     def factors(roots: np.ndarray) -> list[str]:
-        out = []
+        out: dict[str, int] = {}
         for r in sorted(roots, key=lambda r: (abs(r - at_dc) > ROOT_AT_DC_TOL, -abs(r))):
             if abs(r - at_dc) <= ROOT_AT_DC_TOL:
-                out.append(f"({var} - 1)" if c.dt else var)
+                f = f"({var} - 1)" if c.dt else var
             elif abs(r.imag) > 1e-12:
-                if r.imag > 0:
-                    out.append(f"({var}^2 {-2 * r.real:+.6g} {var} {abs(r) ** 2:+.6g})")
+                if r.imag < 0:
+                    continue
+                b, k = -2 * r.real, abs(r) ** 2
+                f = f"({var}^2 {'-' if b < 0 else '+'} {abs(b):.6g} {var} + {k:.6g})"
             elif abs(r) == 0:
-                out.append(var)
+                f = var
             else:
-                out.append(f"({var} {-r.real:+.6g})")
-        return out
+                f = f"({var} {'-' if r.real > 0 else '+'} {num(abs(r.real))})"
+            out[f] = out.get(f, 0) + 1
+        return [f if n == 1 else f"{f}^{n}" for f, n in out.items()]
 
-    num, den = factors(zk.zeros), factors(zk.poles)
-    return f"{zk.gain:.6g} {' '.join(num)}".rstrip() + " / " + (f"({' '.join(den)})" if len(den) > 1 else
-                                                                   (den[0] if den else "1"))
+    nf, df = factors(zk.zeros), factors(zk.poles)
+    head = " ".join([f"{zk.gain:.6g}", *nf])
+    if not df:
+        return head
+    return head + " / " + (f"({' '.join(df)})" if len(df) > 1 else df[0])
 
 
 def _spec_from_args(a: argparse.Namespace):

@@ -84,6 +84,10 @@ class TuningProblem:
             raise InvalidSpecError(f"mt_max = {spec.mt_max:g} < 1 is impossible with zero steady-state error "
                                    "(T(0) = 1, so Mt >= 1): give mt_max >= 1 or set zero_steady_state_error = false",
                                    field=("spec", "mt_max"))
+        if spec.ki_min is not None and not st.integrating:
+            raise InvalidSpecError(f"ki_min = {spec.ki_min:g} demands integral action, and {st.name} has none: give a "
+                                   "structure with an integrator (pi, pid, pid2, pid_z, pid_mf2, px4_rate, "
+                                   "ardupilot_rate) or leave ki_min out", field=("spec", "ki_min"))
         try:
             scale = plant_scale(plants[0], dt)
         except TunerError as e:

@@ -143,7 +143,7 @@ def test_the_service_and_the_command_line_state_the_same_record_limit():
     from tuner.identify.csvlog import MAX_ROWS
     from tuner.identify.data import MAX_SAMPLES
 
-    assert SERVICE == MAX_ROWS == MAX_SAMPLES == 10_000_000
+    assert SERVICE == MAX_ROWS == MAX_SAMPLES == 2_000_000
 
 
 def test_identification_time_limit_is_504(app, client, body, override_settings):

@@ -36,3 +36,9 @@ def test_ki_min_on_the_command_line(capsys):
                  "--control-peak", "3", "--ki-min", "1", "--json"])
     d = json.loads(capsys.readouterr().out)
     assert code == 0 and d["metrics"]["integral_gain"] >= 1.0 and d["spec"]["ki_min"] == 1.0
+
+
+def test_ki_min_without_an_integrator_is_refused(capsys):
+    assert main(["tune", "--plant", "1/(s+1)", "--structure", "pd", "--ki-min", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "demands integral action, and pd has none" in err and "ki" in err

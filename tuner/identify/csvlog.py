@@ -15,7 +15,7 @@ import itertools
 import math
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -56,29 +56,53 @@ def read_columns(path: str | Path, columns: Mapping[str, str], *, handle: Binary
 _HINT = "give a CSV log with a header row"
 
 
+MAX_LINE_CHARS = 1 << 20  # a CSV line longer than this is no log's (a binary file without newlines): refused
+
+
+class _NoNul(io.RawIOBase):
+    """The handle's bytes as they are read, refused at the first chunk that holds a NUL byte (binary data is
+    refused before a line of it is gathered)."""
+
+    def __init__(self, f: BinaryIO, p: Path) -> None:
+        self.f, self.p = f, p
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        n = self.f.readinto(b)
+        if n and bytes(memoryview(b)[:n]).find(b"\0") >= 0:
+            raise InvalidDataError(f"{self.p}: a binary file (NUL bytes), not text; {_HINT}", field="file")
+        return n or 0
+
+
 def _read(p: Path, f: BinaryIO, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
-    text = io.TextIOWrapper(f, encoding="utf-8-sig", newline="")
+    text = io.TextIOWrapper(io.BufferedReader(_NoNul(f, p)), encoding="utf-8-sig", newline="")
     try:
         return _parse(p, _lines(p, text), columns)
     except UnicodeDecodeError as e:
         raise InvalidDataError(f"{p}: not a UTF-8 text file ({e.reason}); {_HINT}", field="file") from None
     except csv.Error as e:  # e.g. a cell longer than csv.field_size_limit() (131,072 characters)
         raise InvalidDataError(f"{p}: not a readable CSV log ({e}); {_HINT}", field="file") from None
-    finally:
-        text.detach()  # (the handle's owner closes it)
+    except OSError as e:
+        raise InvalidDataError(f"{p}: cannot read: {e.strerror or e}", field="file") from None
 
 
 def _lines(p: Path, text: io.TextIOWrapper) -> Iterator[str]:
-    """The lines of the text as it streams in: binary data refused at its first NUL byte, and the text past the
-    limit (a file that grows while it is read)."""
+    """The lines of the text as it streams in, each at most MAX_LINE_CHARS, and refused past the limit (a file that
+    grows while it is read)."""
     size = 0
-    for line in text:
+    while True:
+        line = text.readline(MAX_LINE_CHARS)
+        if not line:
+            return
+        if len(line) >= MAX_LINE_CHARS and not line.endswith(("\n", "\r")):
+            raise InvalidDataError(f"{p}: a line longer than {MAX_LINE_CHARS} characters: not a CSV log; {_HINT}",
+                                   field="file")
         size += len(line)
         if size > MAX_CSV_BYTES:
             raise InvalidDataError(f"{p}: larger than {MAX_CSV_BYTES >> 20} MiB (the limit for a CSV log); give a "
                                    "shorter record", field="file")
-        if "\0" in line:
-            raise InvalidDataError(f"{p}: a binary file (NUL bytes), not text; {_HINT}", field="file")
         yield line
 
 

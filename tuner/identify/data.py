@@ -25,7 +25,9 @@ __all__ = ["MAX_ABS", "MAX_SAMPLES", "MIN_ABS", "MIN_SAMPLES", "TIME_JITTER", "R
            "make_record"]
 
 MIN_SAMPLES = 128
-MAX_SAMPLES = 10_000_000
+MAX_SAMPLES = 2_000_000  # a record's samples: a CSV's rows, a ULog's grid, the service's arrays (one limit); 83 min
+# at 400 Hz; identification holds about 270 bytes a sample at its peak (bench/inputs.py), the service parses a JSON
+# array of this many numbers within its workers' memory
 TIME_JITTER = 0.01  # sample intervals may differ from the mean by this fraction
 MAX_ABS = 1e60  # larger samples would overflow the spectra (the coherence has fourth powers of samples)
 MIN_ABS = 1e-60  # a signal whose samples are all smaller would underflow them (a record of zeros is "constant")

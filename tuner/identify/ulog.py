@@ -77,8 +77,36 @@ class ULogRecords:
         return s
 
 
+class LogHandle:
+    """A log file opened once by :func:`open_log`: its reads, seeks and name; ``close`` does nothing (pyulog closes
+    what it parses: the handle's owner, ``open_log``, closes the file). :func:`read_ulog` parses such a handle
+    in place; any other file object (an upload) is read into bytes within the limit."""
+
+    def __init__(self, f: BinaryIO, name: str) -> None:
+        self._f, self.name = f, name
+
+    def read(self, n: int = -1) -> bytes:
+        """Up to ``n`` bytes (all that is left with -1)."""
+        return self._f.read(n)
+
+    def readinto(self, b: Any) -> int:
+        """Bytes into the buffer ``b``; how many."""
+        return self._f.readinto(b)
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        """Move to ``pos`` (from ``whence``); the new position."""
+        return self._f.seek(pos, whence)
+
+    def tell(self) -> int:
+        """The position."""
+        return self._f.tell()
+
+    def close(self) -> None:
+        """Nothing: ``open_log`` closes the file."""
+
+
 @contextlib.contextmanager
-def open_log(path: str | Path) -> Iterator[tuple[str, io.BufferedReader]]:
+def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
     """``("ulog" | "csv", handle)``: the log file opened once (a regular file within the larger of the two limits,
     :func:`tuner.fileio.open_input`), its kind told from its name (``.ulg``) or its first bytes (the ULog magic),
     the handle back at its start; a CSV beyond :data:`~tuner.fileio.MAX_CSV_BYTES` refused at once, from its size.
@@ -95,14 +123,15 @@ def open_log(path: str | Path) -> Iterator[tuple[str, io.BufferedReader]]:
     try:  # (the caller's errors pass through this as they are)
         head = f.read(len(MAGIC))
         f.seek(0)
+        h = LogHandle(f, str(p.resolve()))
         if p.suffix.lower() == ".ulg" or head == MAGIC:
-            yield "ulog", f
+            yield "ulog", h
             return
         size = os.fstat(f.fileno()).st_size
         if size > MAX_CSV_BYTES:
             raise InvalidDataError(f"{p}: {size} bytes, larger than {MAX_CSV_BYTES >> 20} MiB (the limit for a CSV "
                                    "log); give a shorter record", field="file")
-        yield "csv", f
+        yield "csv", h
     finally:
         f.close()
 
@@ -135,10 +164,11 @@ def parse_signal(text: str, role: str) -> tuple[str, int, str]:
     return m["topic"], int(m["inst"] or 0), m["field"]
 
 
-def _load(src: str | Path | bytes | io.BufferedReader, topics: list[str] | None) -> Any:
+def _load(src: str | Path | bytes | LogHandle, topics: list[str] | None) -> Any:
     from pyulog import ULog
 
-    if isinstance(src, io.BufferedReader):  # a log file opened once by the caller (open_log): parsed from it
+    if isinstance(src, LogHandle):  # a log file opened once by the caller (open_log): parsed from it
+        src.seek(0)
         try:
             with contextlib.redirect_stdout(io.StringIO()):
                 return ULog(src, message_name_filter_list=topics)
@@ -163,10 +193,10 @@ def _load(src: str | Path | bytes | io.BufferedReader, topics: list[str] | None)
         raise InvalidDataError(f"{name}: not a readable ULog file ({type(e).__name__}: {e})", field="file") from None
 
 
-def _topics_in(src: str | Path | bytes | io.BufferedReader) -> list[str]:
-    """Every ``topic:instance`` logged, for the error message (a log read from a handle: parsed again by its
-    path, on this error's path only: the first parse kept only the topics asked for)."""
-    ul = _load(src.name if isinstance(src, io.BufferedReader) else src, None)
+def _topics_in(src: str | Path | bytes | LogHandle) -> list[str]:
+    """Every ``topic:instance`` logged, for the error message (a log read from a handle: parsed again from it, on
+    this error's path only: the first parse kept only the topics asked for)."""
+    ul = _load(src, None)
     return sorted({f"{d.name}:{d.multi_id}" if d.multi_id else d.name for d in ul.data_list})
 
 
@@ -233,7 +263,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         raise InvalidDataError("a ULog log needs input and output signals (TOPIC.FIELD), and optionally a reference",
                                field="input")
     specs = {role: parse_signal(columns[role], role) for role in roles}
-    if not isinstance(src, (str, Path, bytes, io.BufferedReader)):  # an upload's file object: its bytes
+    if not isinstance(src, (str, Path, bytes, LogHandle)):  # an upload's file object: its bytes
         src = src.read(MAX_ULOG_BYTES + 1)
         if len(src) > MAX_ULOG_BYTES:
             raise InvalidDataError(f"the upload holds more than {MAX_ULOG_BYTES} bytes (cut the log)", field="file")

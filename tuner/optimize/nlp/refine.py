@@ -356,7 +356,7 @@ def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key
         "alpha": (spec.disk_margin_min or 0.0) / _TIGHT,
         "eps": _ABS_EPS, "kiu": abs(float(kiu)) or 1.0, "units": np.asarray(space.units, float),
         "nmax": (spec.filter_n_max or 1.0) * _TIGHT, "kscale": space.k0,
-        "kimin": (spec.ki_min or 1.0) / _TIGHT, "kisgn": plant_sign(ev.problem.nominal),
+        "kimin": (spec.ki_min or 1.0) / _TIGHT, "kisgn": _ki_sign(ev),
         "tw": _time_weights(grid, spec.objective)}
     if key.settling_max:
         values.update({f"yoff{i}": np.zeros(grid.t.size) for i in range(len(ev.problem.plants))})
@@ -404,6 +404,24 @@ def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: fl
         sl = lay.slice("wc")
         lbx[sl], ubx[sl] = wc_target * (1 - 0.005), wc_target * (1 + 0.005)
     return np.clip(xs, lbx, ubx), lbx, ubx
+
+
+def _ki_sign(ev: BatchEvaluator) -> float:
+    """The sign of the integral gain every stable loop has (see :func:`_integral_sign`): that of the plant's
+    numerator at DC, ``n_p(0)`` (``n_p(1)`` in z), the denominator monic; where the plants disagree or it is not
+    defined (a biproper plant, a zero at DC), the nominal plant's static sign."""
+    signs = set()
+    for p in ev.problem.plants:
+        zk = p.zpk
+        at = 1.0 if p.is_discrete else 0.0
+        if zk.zeros.size >= zk.poles.size or np.any(np.abs(zk.zeros - at) <= ROOT_AT_DC_TOL * max(1.0, at)):
+            return plant_sign(ev.problem.nominal)
+        with np.errstate(all="ignore"):
+            n_at = float(np.real(zk.gain * np.prod(at - zk.zeros)))
+        if not (math.isfinite(n_at) and n_at != 0.0):
+            return plant_sign(ev.problem.nominal)
+        signs.add(math.copysign(1.0, n_at))
+    return signs.pop() if len(signs) == 1 else plant_sign(ev.problem.nominal)
 
 
 def _integral_sign(ev: BatchEvaluator, space: Space, prob: Problem, x0: np.ndarray, lbx: np.ndarray,

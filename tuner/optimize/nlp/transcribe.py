@@ -133,7 +133,7 @@ class ProblemKey:
     mks: bool = False
     dm: bool = False
     drb: bool = False  # a disturbance-rejection-bandwidth limit: |S| <= -3 dB at the grid's frequencies up to it
-    ki: bool = False  # a minimum integral gain: Ki^2 >= ki_min^2 (its sign is the start's, held by the bounds)
+    ki: bool = False  # a minimum integral gain: kisgn Ki / ki_min >= 1 (kisgn: the sign a stable loop's Ki has)
     filter_n: bool = False  # the derivative-filter rule N = Td/Tf <= nmax (Spec.filter_n_max)
     settling_max: bool = False  # a settling-time limit with another objective: the band from the mask on
     head: int = 0  # > 0: only the first ``head`` samples have N points, the later ones ``tail_N`` (N a multiple)
