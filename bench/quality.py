@@ -198,11 +198,18 @@ def spec_choice(a: argparse.Namespace) -> tuple[Spec, str]:
     return Spec.thesis(), "the thesis spec (`Spec.thesis()`: no default filter/noise limits)"
 
 
+def same_spec(stored: dict[str, Any], spec: Any) -> bool:
+    """Whether a stored spec (a reference file's) is ``spec``: every stored field as it is, and any field added
+    since (a limit of the registry) unset."""
+    now = spec.model_dump(mode="json")
+    return all(now.get(k) == v for k, v in stored.items()) and all(now[k] is None for k in now.keys() - stored.keys())
+
+
 def spec_name(spec_d: dict[str, Any]) -> str:
     """How a stored spec (a reference file's) is named in the report."""
-    if spec_d == Spec.thesis().model_dump(mode="json"):
+    if same_spec(spec_d, Spec.thesis()):
         return "the thesis spec (`Spec.thesis()`: no default filter/noise limits)"
-    if spec_d == Spec().model_dump(mode="json"):
+    if same_spec(spec_d, Spec()):
         return ("the new defaults (`Spec()`: filter_n_max 20, filter_nyquist, noise_gain_max 10, the noise budget "
                 "resolved per plant into mks_max)")
     return f"`Spec(**{json.dumps(spec_d)})`"
@@ -579,7 +586,7 @@ def cmd_reference(a: argparse.Namespace) -> None:
     done: dict[str, Any] = {}
     if out_path.exists() and not a.fresh:
         old = json.loads(out_path.read_text())
-        if old.get("spec") != spec.model_dump(mode="json"):
+        if not same_spec(old.get("spec", {}), spec):
             raise SystemExit(f"{out_path} holds references for another spec: give another --out, or --fresh")
         done = {r["id"]: r for r in old["references"]}
     only = set(a.only.split(",")) if a.only else None
@@ -639,7 +646,7 @@ def cmd_adopt(a: argparse.Namespace) -> None:
     spec, _ = spec_choice(a)
     path = reference_path(a, a.out)
     doc = json.loads(path.read_text())
-    if doc["spec"] != spec.model_dump(mode="json"):
+    if not same_spec(doc["spec"], spec):
         raise SystemExit(f"{path} holds references for another spec")
     src = json.loads(Path(a.source).read_text())
     other = {r["id"]: r for r in src["references"]}
@@ -723,7 +730,7 @@ def cmd_run(a: argparse.Namespace) -> None:
     cases = load_suite()
     spec, _ = spec_choice(a)
     ref_path = reference_path(a, a.reference)
-    if ref_path.exists() and json.loads(ref_path.read_text())["spec"] != spec.model_dump(mode="json"):
+    if ref_path.exists() and not same_spec(json.loads(ref_path.read_text())["spec"], spec):
         raise SystemExit(f"{ref_path} holds references for another spec than the run's (--defaults / --spec / "
                          "--reference)")
     refs = load_reference(ref_path)

@@ -406,22 +406,30 @@ def _box(prob: Problem, space: Space, x0: np.ndarray, data: _PlantData, band: fl
     return np.clip(xs, lbx, ubx), lbx, ubx
 
 
-def _ki_sign(ev: BatchEvaluator) -> float:
-    """The sign of the integral gain every stable loop has (see :func:`_integral_sign`): that of the plant's
-    numerator at DC, ``n_p(0)`` (``n_p(1)`` in z), the denominator monic; where the plants disagree or it is not
-    defined (a biproper plant, a zero at DC), the nominal plant's static sign."""
+def _dc_sign(ev: BatchEvaluator) -> float | None:
+    """The sign of the integral gain every stable loop has (see :func:`_integral_sign`): that of the plants'
+    numerator at DC, ``n_p(0)`` (``n_p(1)`` in z; a continuous plant at dt: its ZOH's ``n(1)`` has the sign of
+    ``n(0)``), the denominator monic; None where the plants disagree or it is not defined (a biproper plant, whose
+    leading coefficient depends on Kp, or a zero at DC)."""
     signs = set()
     for p in ev.problem.plants:
         zk = p.zpk
         at = 1.0 if p.is_discrete else 0.0
         if zk.zeros.size >= zk.poles.size or np.any(np.abs(zk.zeros - at) <= ROOT_AT_DC_TOL * max(1.0, at)):
-            return plant_sign(ev.problem.nominal)
+            return None
         with np.errstate(all="ignore"):
-            n_at = float(np.real(zk.gain * np.prod(at - zk.zeros)))
+            n_at = float(np.real(zk.gain * np.prod(at - zk.zeros)))  # n_p at DC, d_p monic
         if not (math.isfinite(n_at) and n_at != 0.0):
-            return plant_sign(ev.problem.nominal)
-        signs.add(math.copysign(1.0, n_at))
-    return signs.pop() if len(signs) == 1 else plant_sign(ev.problem.nominal)
+            return None
+        signs.add(1.0 if n_at > 0 else -1.0)
+    return signs.pop() if len(signs) == 1 else None
+
+
+def _ki_sign(ev: BatchEvaluator) -> float:
+    """The sign the ``ki_min`` row gives the integral gain: :func:`_dc_sign`, else the nominal plant's static
+    sign."""
+    sign = _dc_sign(ev)
+    return sign if sign is not None else plant_sign(ev.problem.nominal)
 
 
 def _integral_sign(ev: BatchEvaluator, space: Space, prob: Problem, x0: np.ndarray, lbx: np.ndarray,
@@ -438,23 +446,13 @@ def _integral_sign(ev: BatchEvaluator, space: Space, prob: Problem, x0: np.ndarr
     ki = st.integral  # the integral gain's name ("Ki"; a firmware law's "I", scaled by its K > 0)
     if ki is None or ki not in st.params or not st.integrating or st.kinds[st.params.index(ki)] != "gain":
         return
-    signs = set()
-    for p in ev.problem.plants:
-        zk = p.zpk
-        at = 1.0 if p.is_discrete else 0.0  # a continuous plant at dt: its ZOH's n(1) has the sign of n(0)
-        if zk.zeros.size >= zk.poles.size or np.any(np.abs(zk.zeros - at) <= ROOT_AT_DC_TOL * max(1.0, at)):
-            return  # biproper (the leading coefficient depends on Kp) or a zero at DC: no sign to take
-        with np.errstate(all="ignore"):
-            n_at = float(np.real(zk.gain * np.prod(at - zk.zeros)))  # n_p at DC, d_p monic
-        if not (math.isfinite(n_at) and n_at != 0.0):
-            return
-        signs.add(1.0 if n_at > 0 else -1.0)
-    if len(signs) != 1:
+    dc = _dc_sign(ev)
+    if dc is None:
         return
     k = st.params.index(ki)
     i = prob.variables.slice("v").start + k
     unit = float(space.units[k])
-    sign = signs.pop() * np.sign(unit)
+    sign = dc * np.sign(unit)
     floor = INTEGRAL_FLOOR * float(x0[k]) / unit if unit else 0.0  # the start's integral, in the NLP's coordinate
     if sign > 0:
         lbx[i] = max(lbx[i], floor, 0.0)
@@ -595,7 +593,7 @@ def _corrected(ev: BatchEvaluator, space: Space, solve: _Solves, x: np.ndarray, 
         # the envelope constrains the NLP's output plus what the verifier's differs from it at this answer
         ctrl = ev.st.tf(space.params(v), ev.dt)
         t = solve.tgrid
-        Y = np.asarray(solve.prob.step(x, solve._params(math.inf))).reshape(-1, t.size)
+        Y = solve._step(x)
         for i, p in enumerate(ev.problem.plants):
             resp = step_response(build_loop(p, ctrl), horizon_s=float(t[-1]))
             yv = np.interp(t, resp.t, resp.y)
