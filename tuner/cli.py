@@ -304,7 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_vehicle_args(t)
     _add_actuator_args(t)
     t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--budget", type=float, default=10.0, metavar="S", help="time budget, seconds (10)")
+    t.add_argument("--budget", type=float, default=None, metavar="S",
+                   help="time budget, seconds, a hard wall-time limit (default: one that fits the problem: 10 s of "
+                        "search, 20 s for pid2, the NLP builds not counted, 60 s in all at most)")
     t.add_argument("--effort", choices=EFFORT_NAMES, default="default",
                    help="how hard to search: fast (the first round alone), default (plus an independent restart "
                         "that must find nothing better), thorough (three such restarts in a row, more starts, a finer "
@@ -576,7 +578,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     for i, text in enumerate(a.plant or ()):
         with field(f"--plant #{i + 1}" if len(a.plant) > 1 else "--plant"):
             plants.append(plant_from_expr(text, dt=a.dt, delay=a.delay))
-    if not (0 < a.budget <= 3600):  # (nan fails too)
+    if a.budget is not None and not (0 < a.budget <= 3600):  # (nan fails too)
         raise TunerError("--budget: must be > 0 and <= 3600 seconds")
     with field("--dt"):
         check_dt(a.dt)

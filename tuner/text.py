@@ -141,9 +141,53 @@ def optimality_line(s: dict[str, Any] | None) -> str:
         parts.append("no independent restart")
     gap = o.get("gap")
     parts.append("no distinct alternative" if gap is None else f"best distinct alternative {gap * 100:+.3g} %")
-    stop = s.get("stop")
-    verdict_ = "converged" if stop == "converged" else "budget used (not confirmed)"
-    return f"optimality ({o.get('effort', 'default')} effort, {verdict_}): " + ", ".join(parts)
+    claim = o.get("claim") or ("converged" if s.get("stop") == "converged" else "budget")
+    verdict_ = {"converged": "converged", "not confirmed": "not confirmed"}.get(claim, "budget used (not confirmed)")
+    return (f"optimality ({o.get('effort', 'default')} effort, {verdict_}): " + ", ".join(parts)
+            + (_unconfirmed(o) if claim == "not confirmed" else _left(s, o)))
+
+
+def _unconfirmed(o: dict[str, Any]) -> str:
+    """Why a search that stopped by its rule does not claim convergence, and what more search would check."""
+    why = []
+    if not o.get("restarts"):
+        why.append("no independent restart ran")
+    if o.get("moved"):
+        why.append(f"the incumbent still improved after the first round ({o['round0_gap'] * 100:.2g} %)")
+    if o.get("rival"):
+        why.append("a design distinct in its parameters lies within 1 % of the answer (a rival basin, or a direction "
+                   "the objective barely sees)")
+    more = "more starts and three restarts in a row" if o.get("effort") != "thorough" else "a longer search"
+    return (f"; not confirmed: {' and '.join(why) or 'the evidence is thin'}: a better design may exist; "
+            + ("thorough effort" if o.get("effort") != "thorough" else "a larger n_starts") + f" ({more}) checks it")
+
+
+def _left(s: dict[str, Any], o: dict[str, Any]) -> str:
+    """What a search the budget ended may have left on the table, as far as it can tell."""
+    if s.get("stop") == "converged":
+        return ""
+    wall = float(s.get("wall_time_s") or 0.0)
+    if o.get("unbuilt_s"):
+        what = (f"; the budget ended before the local refinement could build its NLP (about {o['unbuilt_s']:.2g} s "
+                "more): the answer is the global search's alone, typically well short of the refined optimum; ")
+        if s.get("budget_auto"):
+            return what + ("the build did not fit the default budget's 60 s cap: a larger time_budget_s (--budget) "
+                           "would refine it")
+        more = min(3600, math.ceil(wall + 2.0 * o["unbuilt_s"] + 5.0))
+        return what + (f"the default budget (which does not count NLP builds) or time_budget_s={more} (--budget "
+                       f"{more}) would refine it")
+    if o.get("local") and not o.get("nlp_solves"):
+        if o.get("contained_nlp_solves"):
+            return ("; this structure's own refinement never ran (the contained structure's search did): the answer "
+                    "is at best that structure's")
+        return "; the local refinement never ran: the answer is the global search's alone"
+    gain = o.get("last_gain")
+    if gain is None:
+        return "; no round completed after the first: what more search would find is unknown"
+    if gain > 0:
+        return (f"; the last round still improved the design by {gain * 100:.2g} %: more budget would likely find "
+                "more")
+    return "; the last completed round found nothing better: little is likely left, but no restart confirmed it"
 
 
 def loop_eval_repr(e: Any) -> str:

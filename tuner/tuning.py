@@ -12,6 +12,7 @@ the least-violating one is returned with ``meets_spec: false`` and the failing c
 
 from __future__ import annotations
 
+import contextvars
 import logging
 import math
 import time
@@ -72,7 +73,7 @@ class TuneResult:
     --------
     >>> import control
     >>> from tuner import tune
-    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default 10 s)
+    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default: fitted)
     >>> res.meets_spec
     True
     >>> sorted(res.gains)
@@ -249,7 +250,7 @@ def tune(
     dt: float | None = None,
     delay: float | Sequence[float] | None = None,
     seed: int = 0,
-    time_budget_s: float = 10.0,
+    time_budget_s: float | None = None,
     n_trials: int | None = None,
     n_starts: int | None = None,
     sampler: Any = None,
@@ -289,9 +290,14 @@ def tune(
         plant). A :class:`~tuner.plant.Plant` carries its own delay.
     seed : int
         Seeds the global search beyond the deterministic first round: same seed, same gains.
-    time_budget_s : float
+    time_budget_s : float, optional
         Wall-time budget; the search stops when it has converged or the budget is used, and the best
-        verified candidate is returned (``solver["stop"]`` says which).
+        verified candidate is returned (``solver["stop"]`` says which). Default (None): a budget that fits the
+        problem, ``DEFAULT_BUDGET_S`` (10 s) of search (twice that for ``pid2``, whose search first runs
+        ``pid``'s) that the NLP builds do not count against (a build is a one-off cost of the process, and it
+        grows with the sample rate and the horizon in samples: a 250 Hz loop's NLPs take seconds to build),
+        within ``AUTO_WALL_CAP_S`` (60 s) of wall time in all; ``solver["build_s"]`` says how long the builds
+        took. A number is a hard wall-time limit.
     n_trials : int, optional
         Optuna points asked per restart (default 24). The default effort's restarts do not ask Optuna (a scrambled
         Sobol set, refinements and scans find the basins; ``effort="fast"`` and ``"thorough"`` ask it); giving
@@ -320,12 +326,13 @@ def tune(
         number to check a nominal design from an identification too).
     effort : str
         How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
-        (converged when two refinements agree), ``"default"`` adds a restart independent of the first round
-        that must find nothing better, ``"thorough"`` three such restarts in a row, more starts and points
-        and a sharper polish (twice the grid detail, the settling time between the grid's points, each step
-        confirmed by the verifier; about 3x the default's time); measured costs in
-        bench/QUALITY.md. ``solver["optimality"]`` says
-        what the search knows about how close its answer is.
+        (it stops when two refinements agree; without an independent restart it never claims convergence),
+        ``"default"`` adds a restart independent of the first round that must find nothing better,
+        ``"thorough"`` three such restarts in a row, more starts and points and a sharper polish (twice the grid
+        detail, the settling time between the grid's points, each step confirmed by the verifier; about 3x the
+        default's time); measured costs in bench/QUALITY.md. ``solver["optimality"]`` says what the search knows
+        about how close its answer is, and ``solver["converged"]`` (its ``claim``) whether that evidence confirms
+        convergence (bench/convergence.py measures the claim).
     vehicle : tuner.firmware.VehicleParams, optional
         With ``px4_rate`` or ``ardupilot_rate``: what the vehicle fixes (loop rate, filters, PX4's ``K``, the
         integrator limit; :func:`tuner.firmware.read_params` reads them from a ``.params``, ``.parm`` or ULog
@@ -353,7 +360,7 @@ def tune(
     --------
     >>> import control
     >>> from tuner import tune
-    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default 10 s)
+    >>> res = tune(control.tf([1], [1, 1]), structure="pi", time_budget_s=1)  # a tiny budget (default: fitted)
     >>> res.meets_spec
     True
     >>> bool(res.metrics.overshoot_pct <= 10.0)  # the default spec: overshoot <= 10 %
@@ -367,6 +374,9 @@ def tune(
     """
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
+    auto = time_budget_s is None
+    if auto:
+        time_budget_s = DEFAULT_BUDGET_S
     if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s) and time_budget_s > 0):
         raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
     from .optimize.engine import EFFORTS
@@ -380,6 +390,13 @@ def tune(
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
     t0 = time.perf_counter()
     deadline = t0 + float(time_budget_s)
+    from .optimize.builds import build_seconds
+
+    # the default budget: NLP builds are not counted against the search time, only against the wall-clock cap; a
+    # tune nested in such a tune (a robustness objective's fastest design, a diagnosis's relaxed re-tune) keeps its
+    # own budget but does not count builds either, within the outer cap
+    cap = t0 + AUTO_WALL_CAP_S if auto else _OUTER_CAP.get()
+    cap_token = _OUTER_CAP.set(cap)
     if local:
         import casadi  # noqa: F401 - loaded before the limit, so that its OpenMP runtime is limited too
     # one BLAS/OpenMP thread for the whole tune, the plant's discretisation included (its matrices are tiny: a 3x3
@@ -387,18 +404,25 @@ def tune(
     # threading is left as it was
     if local:  # the NLPs this tune builds stay in the build cache until it ends
         from .optimize.nlp.transcribe import working_set
-    with _one_thread(), (working_set() if local else nullcontext()):
-        plant_or_plants, ident, design, n_mc = _from_identification(plant_or_plants, robust, monte_carlo, dt, delay)
-        problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle)
-        _check_actuator(actuator, problem)
-        opts = _Opts(seed=int(seed), budget_s=float(time_budget_s), deadline=deadline, t0=t0, n_starts=n_starts,
-                     n_trials=n_trials, sampler=sampler, storage=storage, local=local, nlp_solver=nlp_solver,
-                     diagnose=diagnose, effort=effort)
-        run = _search(problem, opts)
-        res = _verified(run, problem, opts, structure)
-        res = _diagnosed(res, run, problem, opts)
-        res = _annotated(res, problem, ident, actuator, vehicle, current_gains, design, n_mc, int(seed))
-        return res
+    try:
+        with _one_thread(), (working_set() if local else nullcontext()):
+            plant_or_plants, ident, design, n_mc = _from_identification(plant_or_plants, robust, monte_carlo, dt,
+                                                                        delay)
+            problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle)
+            _check_actuator(actuator, problem)
+            if auto:  # the default budget's search time, by structure (a contained search runs first: see below)
+                time_budget_s = DEFAULT_BUDGET_S * _search_factor(problem)
+                deadline = t0 + time_budget_s
+            opts = _Opts(seed=int(seed), budget_s=float(time_budget_s), deadline=deadline, t0=t0, n_starts=n_starts,
+                         n_trials=n_trials, sampler=sampler, storage=storage, local=local, nlp_solver=nlp_solver,
+                         diagnose=diagnose, effort=effort, build_cap=cap, built0=build_seconds(), auto=auto)
+            run = _search(problem, opts)
+            res = _verified(run, problem, opts, structure)
+            res = _diagnosed(res, run, problem, opts)
+            res = _annotated(res, problem, ident, actuator, vehicle, current_gains, design, n_mc, int(seed))
+            return res
+    finally:
+        _OUTER_CAP.reset(cap_token)
 
 
 @dataclass(frozen=True)
@@ -417,6 +441,9 @@ class _Opts:
     nlp_solver: str
     diagnose: bool
     effort: str
+    build_cap: float | None = None  # the default budget's wall-clock cap (the NLP builds not counted before it)
+    built0: float = 0.0  # the build clock when the tune began (what nested tunes build is not the search's time)
+    auto: bool = False  # the default budget (time_budget_s=None)
 
 
 @dataclass
@@ -515,7 +542,7 @@ def _search(problem: TuningProblem, o: _Opts) -> _Run:
         if fast is not None and fast.meets_spec else None
     eng = Engine(searched, seed=o.seed, deadline=o.deadline, solver=o.nlp_solver, local=o.local, n_starts=o.n_starts,
                  n_trials=o.n_trials, sampler=o.sampler, storage=o.storage, reserve_s=reserve, effort=o.effort,
-                 seeds=seeds)
+                 seeds=seeds, build_cap=o.build_cap, built0=o.built0)
     run = _Run(eng=eng, searched=searched, decided=decided, fast=fast, reserve=reserve)
     run.stop = eng.run()
     return run
@@ -544,8 +571,9 @@ def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> Tu
     run.t_verify = time.perf_counter() - t_verify
     info: dict[str, Any] = {
         "method": f"optuna+casadi-{o.nlp_solver}" if eng.local else "optuna", "seed": o.seed,
-        "stop": stop.stop, "converged": stop.stop == "converged", "rounds": stop.rounds,
-        "budget_exhausted": time.perf_counter() > o.deadline - run.reserve,
+        "stop": stop.stop, "rounds": stop.rounds,
+        "budget_exhausted": time.perf_counter() > eng.deadline - run.reserve,
+        "budget_s": o.budget_s, "budget_auto": o.auto, "build_s": eng.build_s,
         "wall_time_s": time.perf_counter() - o.t0, "global_evaluations": stop.batch_evaluations,
         "starts_tried": stop.starts_refined, "nlp_solves": stop.nlp_solves, "nlp_iterations": stop.nlp_iterations,
         "nlp_evaluations": stop.nlp_evaluations, "nlp_solves_ok": stop.nlp_solves_ok, "seeded_from": stop.seeded_from,
@@ -558,6 +586,8 @@ def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> Tu
     note = deprecation_note(structure) if isinstance(structure, str) else None
     if note or stop.notes:
         info["notes"] = list(dict.fromkeys(([note] if note else []) + list(stop.notes)))
+    # "converged" is the claim the evidence supports (Engine.optimality), not the stopping rule alone (``stop``)
+    info["converged"] = info["optimality"]["claim"] == "converged"
     info["optimality"]["summary"] = optimality_line(info)
     res = _result(run, problem, best_x, best, info)
     if run.fast is not None and run.fast.meets_spec:
@@ -576,7 +606,7 @@ def _diagnosed(res: TuneResult, run: _Run, problem: TuningProblem, o: _Opts) -> 
     from .diagnose import diagnose as _diagnose
 
     failing = [c.name for a in res.analyses for c in a.failing]
-    left = min(DIAGNOSIS_SHARE * o.budget_s, o.deadline - time.perf_counter())  # within the budget
+    left = min(DIAGNOSIS_SHARE * o.budget_s, run.eng.deadline - time.perf_counter())  # within the budget
     found: list[TuneResult] = []
     reasons = _diagnose(problem, failing, seed=o.seed, budget_s=0.0 if run.decided else left,
                         min_tune_s=3 * run.t_verify + 0.02, found=found, analyses=res.analyses,
@@ -588,7 +618,7 @@ def _diagnosed(res: TuneResult, run: _Run, problem: TuningProblem, o: _Opts) -> 
         res = _result(run, problem, *better, res.solver)  # (it meets the spec: no reasons)
         res.solver["found_by_diagnosis"] = True
     res.solver["wall_time_s"] = time.perf_counter() - o.t0
-    res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > o.deadline
+    res.solver["budget_exhausted"] = res.solver["budget_exhausted"] or time.perf_counter() > run.eng.deadline
     return res
 
 
@@ -602,9 +632,9 @@ def _annotated(res: TuneResult, problem: TuningProblem, ident: Any, actuator: An
     slip = dt_note(problem.nominal, problem.dt)  # a sample time implausible for the plant: the likely unit slip
     if slip:
         res.solver.setdefault("notes", []).insert(0, slip)
-    note = _integral_note(res, problem)
-    if note:
-        res.solver.setdefault("notes", []).append(note)
+    for note in (_integral_note(res, problem), _derivative_note(res, problem)):
+        if note:
+            res.solver.setdefault("notes", []).append(note)
     if ident is not None:  # the nominal loop on the measured response too, next to the model's
         res = _with_measured(res, ident)
         if getattr(ident, "unreliable_feedback", False):
@@ -662,6 +692,43 @@ def _integral_note(res: TuneResult, problem: TuningProblem) -> str | None:
             "wind) is then never rejected: it leaves a steady error. To keep integral action demand it, ki_min = "
             f"{INTEGRAL_NONE * 10 * unit:.3g} (CLI --ki-min; the load step's IE is then at most 1/ki_min), or tune "
             "for the load response (objective iae)")
+
+
+#: the structure a PID-family structure is without its derivative term (what a vanishing D leaves)
+WITHOUT_D = {"pid": "pi", "pd": "p", "pid_mf2": "pi", "pid2": "a 2-DOF PI (pid2 with Kd = 0: its b still weights r)"}
+#: a limit counts as what drove D away when the answer is within this of it (relative)
+BINDING = 0.02
+
+
+def _derivative_note(res: TuneResult, problem: TuningProblem) -> str | None:
+    """A note when a structure with a derivative gain ends with almost none: the design is the structure without it
+    (a first-order lag needs no phase lead; a control-peak limit or the noise budget can make D's high-frequency
+    gain too dear, and those that are active at the answer are named)."""
+    st = problem.structure
+    units = st.gain_units or ()
+    names = [q for q, k, u in zip(st.params, st.kinds, units) if k == "gain" and u == -1]
+    if len(names) != 1 or names[0] not in res.gains:
+        return None
+    kd = float(res.gains[names[0]])
+    unit = problem.scale[0] / problem.scale[1]  # K0 / w0: a derivative gain's unit (gain_units -1)
+    if not (math.isfinite(kd) and abs(kd) < INTEGRAL_NONE * unit):
+        return None
+    spec = problem.spec
+    active = []
+    for field_, metric in (("control_peak_max", "control_peak"), ("mks_max", "mks")):
+        lim = getattr(spec, field_)
+        worst = max((float(getattr(a.metrics, metric)) for a in res.analyses), default=math.nan)
+        if lim is not None and math.isfinite(worst) and worst >= (1 - BINDING) * lim:
+            active.append(f"{field_} ({worst:.3g} of {lim:.3g})")
+    why = (f": {' and '.join(active)} {'is' if len(active) == 1 else 'are'} at the limit, and D's high-frequency gain "
+           "is what such limits price" if active else ": no limit on the control effort holds it back, so this plant "
+           "needs no phase lead")
+    without = WITHOUT_D.get(st.name, f"{st.name} with {names[0]} = 0")
+    fix = ("to let D act, loosen the limit at work (--control-peak, --mks, --noise-gain)" if active else
+           "nothing is lost by flying it without D")
+    return (f"no derivative action: {names[0]} = {kd:.3g} (below {INTEGRAL_NONE:g} of its scale K0/w0 = {unit:.3g}); "
+            f"the {spec.objective} optimum under this spec does not use it{why}. The loop has no phase lead from D: "
+            f"the design is {without}, which flies the same loop with fewer parameters; {fix}")
 
 
 def _with_measured(res: TuneResult, ident: Any) -> TuneResult:
@@ -737,6 +804,20 @@ def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[n
 
 
 ROBUSTNESS_OBJECTIVES = tuple(o.name for o in OBJECTIVES if o.robust)  # (the registry says which)
+def _search_factor(problem: TuningProblem) -> float:
+    """The default budget's search time in units of DEFAULT_BUDGET_S: 2 for a structure whose search first runs the
+    structure it contains (pid2 runs pid's whole search, then its own: the 250 Hz rate loop's pid2 IAE tune needs
+    about 9 s of search beside its NLP builds), 1 otherwise. What grows with the sample rate and the horizon in
+    samples, the NLP builds, is not counted at all (see tune's time_budget_s)."""
+    from .optimize.engine import FULL_CONTAINMENT
+
+    return 2.0 if problem.structure.name in FULL_CONTAINMENT else 1.0
+
+
+#: the default budget's cap of the tune running on this thread/task (nested tunes inherit it; see tune)
+_OUTER_CAP: contextvars.ContextVar[float | None] = contextvars.ContextVar("tuner_build_cap", default=None)
+DEFAULT_BUDGET_S = 10.0  # the default budget's search time (the NLP builds not counted: see tune's time_budget_s)
+AUTO_WALL_CAP_S = 60.0  # ... and its wall-clock cap, builds included
 FAST_SHARE = 0.3  # of the budget: the fastest design, a candidate of the robustness objectives
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the

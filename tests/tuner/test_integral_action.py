@@ -42,3 +42,22 @@ def test_ki_min_without_an_integrator_is_refused(capsys):
     assert main(["tune", "--plant", "1/(s+1)", "--structure", "pd", "--ki-min", "1"]) == 2
     err = capsys.readouterr().err
     assert "demands integral action, and pd has none" in err and "ki" in err
+
+
+def test_a_vanishing_derivative_gain_is_said_with_its_consequence():
+    """Issue 30, item 4 (Kd): a PID whose optimum drops the D term (a first-order lag needs no phase lead) says so,
+    names the consequence and the fix; a PID that uses D (the thesis roll model, lightly damped) says nothing."""
+    from tuner.problem import TuningProblem
+
+    plant = plant_from_expr("1/(s+1)")
+    r = tune(plant, structure="pid", dt=0.1, seed=0)
+    k0, w0 = TuningProblem.build(plant, structure="pid", spec=Spec(), dt=0.1).scale
+    kd = abs(r.gains["Kd"])
+    notes = [n for n in r.solver.get("notes", []) if n.startswith("no derivative action")]
+    assert kd < 1e-3 * k0 / w0 and len(notes) == 1  # the threshold: 1e-3 of the loop's scale K0/w0
+    # no limit on the control effort is at work here (the noise budget is far): the plant needs no lead
+    assert "Kd = " in notes[0] and "the design is pi" in notes[0] and "needs no phase lead" in notes[0]
+    assert r.analyses[0].metrics.mks < 0.98 * r.spec.mks_max
+    roll = tune(plant_from_expr("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"), structure="pid", dt=0.04, seed=0)
+    assert abs(roll.gains["Kd"]) > 1e-3
+    assert not [n for n in roll.solver.get("notes", []) if n.startswith("no derivative action")]

@@ -561,3 +561,39 @@ def test_polish_grid_is_dense_where_the_settling_time_is_decided(monkeypatch):
         b = ev.evaluate(np.array([space.params(v) for v in res.candidates]))
         reached[name] = float(np.min(b.score))
     assert reached["head"] <= reached["uniform"] and reached["head"] <= inc * (1 + 1e-5)
+
+
+def test_the_default_budget_does_not_count_the_nlp_builds(monkeypatch):
+    """Issue 30: a budget that fits the problem. A build that takes longer than the whole search time (a 250 Hz
+    loop's NLP takes seconds) ends a tune on an explicit budget before its first refinement, and the result says so
+    with what was left; on the default budget the build is not counted (only against the wall-clock cap) and the
+    refinement runs."""
+    import time as _time
+
+    import tuner.tuning as tuning_mod
+
+    real = transcribe._build
+
+    def slow_build(key, st, space):
+        _time.sleep(0.6)  # a build dearer than the search time below
+        return real(key, st, space)
+
+    monkeypatch.setattr(transcribe, "_build", slow_build)
+    monkeypatch.setattr(transcribe, "estimated_build_s", lambda key, n: 0.6)
+    monkeypatch.setattr(refine_mod, "estimated_build_s", lambda key, n: 0.6)
+    plant = make_plant([1.0], [1.0, 3.0, 3.0, 1.0])
+
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    given = tune(plant, structure="pid", dt=0.1, seed=0, time_budget_s=0.4)
+    assert given.solver["nlp_solves"] == 0 and given.solver["stop"] == "budget"
+    assert given.solver["optimality"]["unbuilt_s"] == pytest.approx(0.6)
+    assert "before the local refinement could build its NLP" in given.solver["optimality"]["summary"]
+    assert given.solver["budget_auto"] is False
+
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    monkeypatch.setattr(tuning_mod, "DEFAULT_BUDGET_S", 0.4)
+    auto = tune(plant, structure="pid", dt=0.1, seed=0)
+    assert auto.solver["budget_auto"] is True
+    assert auto.solver["nlp_solves"] > 0 and auto.solver["build_s"] >= 0.6
+    assert auto.solver["wall_time_s"] > 0.4 + 0.6  # past the search time: the builds were not counted
+    assert auto.objective <= given.objective

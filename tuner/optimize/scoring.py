@@ -112,6 +112,9 @@ class Evaluator:
         self.spec = spec
         self.n_evals = 0
         self.w0 = w0  # the plant's characteristic frequency (the search space's), for the caller
+        # what was verified already, by parameter vector: the search verifies the ray's best points and then its
+        # finalists, which are often the same vectors (the verifier is deterministic)
+        self._memo: dict[bytes, Scored] = {}
 
     def controller(self, x: np.ndarray) -> ControllerTF:
         """The controller of the structure at parameter vector ``x`` (at the loop's ``dt``)."""
@@ -126,7 +129,14 @@ class Evaluator:
 
     def score(self, x: np.ndarray) -> Scored:
         """Score ``x`` on every plant with the full verifier: the objective (worst case) if feasible, else a graded
-        penalty above every feasible score (:data:`INFEASIBLE`)."""
+        penalty above every feasible score (:data:`INFEASIBLE`). A vector scored before is not scored again."""
+        key = np.asarray(x, dtype=float).tobytes()
+        hit = self._memo.get(key)
+        if hit is None:
+            hit = self._memo[key] = self._score(x)
+        return hit
+
+    def _score(self, x: np.ndarray) -> Scored:
         self.n_evals += 1
         try:
             ctrl = self.controller(x)

@@ -35,6 +35,7 @@ from ...loop import build_loop
 from ...tolerances import ROOT_AT_DC_TOL
 from .. import rules
 from ..batch import GUARD, SETTLING_MAX_GUARD, BatchEvaluator, Start
+from ..builds import build_seconds
 from ..scoring import Evaluator
 from ..space import Space
 from .plantdata import LiftedPlant, lift
@@ -101,6 +102,7 @@ class RefineResult:
     solves: int = 0
     success: bool = False
     status: str = ""
+    unbuilt_s: float = 0.0  # the estimated build time of an NLP the time left could not afford (status says so)
 
 
 @dataclass(frozen=True)
@@ -660,7 +662,7 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
 
 def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
            solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False,
-           detail: int = 1) -> RefineResult:
+           detail: int = 1, build_cap: float | None = None) -> RefineResult:
     """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
 
     ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
@@ -677,10 +679,12 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     Ts, bisected to ``1/INTERP_SPLIT`` of a step; also where the fine grid is the coarse one), a solution counts as
     feasible only if the full verifier confirms it (at that edge nothing is left for what the grid does not see),
     and where the overshoot limit is active its looser margin is measured at the answer (:func:`_measured_os`) and
-    starts from the incumbent when the tight one cannot hold even the incumbent's own settling time."""
+    starts from the incumbent when the tight one cannot hold even the incumbent's own settling time. ``build_cap``
+    (a tune on the default budget): the NLP's build does not count against ``deadline`` (it is moved on by the
+    build's time), only against this wall-clock cap."""
     res = RefineResult()
     r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
-               detail=detail)
+               detail=detail, build_cap=build_cap)
     if r is None:  # (res.status says why)
         return res
     if r.out_of_time():
@@ -786,7 +790,8 @@ def _key(ev: BatchEvaluator, space: Space, data: _PlantData, grid: _Grid, solver
 
 
 def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, *, deadline: float | None,
-           solver: str, incumbent: float | None, start: Start | None, fine: bool, detail: int) -> _Refinement | None:
+           solver: str, incumbent: float | None, start: Start | None, fine: bool, detail: int,
+           build_cap: float | None = None) -> _Refinement | None:
     """The start, the grids, the NLP (built, or None when its build does not fit the time left), its parameters and
     bounds, the sharp polish's verifier, the objective's level: what the solves need."""
     spec = ev.spec
@@ -811,11 +816,15 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
         grid, headed = _Grid(K=grid.K, N=1, step=grid.step, h=None), None
     data = _plant_data(ev, start, ctrl0, grid, space.w0)
     key = _key(ev, space, data, grid, solver, sharp)
-    if deadline is not None and not is_built(key) and \
-            time.perf_counter() + estimated_build_s(key, len(space.structure.params)) > deadline:
+    est = 0.0 if is_built(key) else estimated_build_s(key, len(space.structure.params))
+    if deadline is not None and est and time.perf_counter() + est > (deadline if build_cap is None else build_cap):
         res.status = "no time left to build this NLP"  # its cost is known before it starts
+        res.unbuilt_s = est
         return None
+    b0 = build_seconds()
     prob = get_problem(key, space.structure, space)
+    if deadline is not None and build_cap is not None:  # (the build is not the search's time)
+        deadline = min(deadline + build_seconds() - b0, build_cap)
     values = _values(ev, space, grid, data, key)
     xs, lbx, ubx = _box(prob, space, x0, data, values["band"], _wmax(ev, space.w0), spec.crossover_rad_s)
     _integral_sign(ev, space, prob, x0, lbx, ubx)

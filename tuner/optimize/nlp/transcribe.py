@@ -61,6 +61,7 @@ import casadi as cs
 import numpy as np
 
 from ...controllers import Structure
+from ..builds import timed_build
 from ..space import Space
 from .layout import Layout
 
@@ -611,7 +612,8 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
         if hit is not None:
             _CACHE.move_to_end(key)
             return hit[0]
-    prob = _build(key, st, space)
+    with timed_build():
+        prob = _build(key, st, space)
     with _LOCK:
         _CACHE[key] = (prob, BYTES_PER_NODE * _estimated_nodes(key, len(st.params)))
         _trim()

@@ -1,0 +1,167 @@
+"""Issue 30, item 1: warm in-process ``tune()`` medians, old engine, main before this work and this tree, in one run.
+
+    .venv/bin/python bench/warm_speed.py [--seeds 9] [--revs 12b6462,5565a8d] [--out bench/results/warm_speed]
+
+One warm worker process per tree (each tree extracted with ``git archive``; this tree as it is), the README's
+loops: the thesis roll, pitch and yaw models with ``pid_z`` at dt 0.04, and 1/(s+1)^3 with ``pid`` at dt 0.1,
+each tree's default spec and effort (``fast`` too where the tree has efforts). Each worker first tunes every loop
+once (imports, NLP builds), then the seeds 0..N-1; the workers take turns run by run (the order rotating), so that
+the machine's load falls on all alike. Each tune gets freshly built plants. Reported: the median wall and CPU
+time per loop and effort, the ratio to the first tree's (the old engine, 12b6462) and to main before this work,
+and the verifier's settling times. Nothing here asserts a timing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+from tune_speed import extract, load_average  # noqa: E402
+
+LOOPS = {  # name: (plant expression, structure, dt)
+    "roll": ("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "pid_z", 0.04),
+    "pitch": ("0.377568*3.5184^2/(s^2+2*0.5006*3.5184*s+3.5184^2)", "pid_z", 0.04),
+    "yaw": ("0.2843*18.611/(s+18.611)", "pid_z", 0.04),
+    "1/(s+1)^3": ("1/(s+1)^3", "pid", 0.1),
+}
+
+WORKER = r'''
+import json, sys, time, inspect
+from tuner import plant_from_expr
+try:
+    from tuner.tuning import tune
+except ImportError:
+    from tuner.tune import tune
+import tuner
+efforts = "effort" in inspect.signature(tune).parameters
+print(json.dumps({"file": tuner.__file__, "efforts": efforts}), flush=True)
+for line in sys.stdin:
+    r = json.loads(line)
+    if r.get("cmd") == "quit":
+        break
+    plant = plant_from_expr(r["plant"])  # fresh every time (outside the timed call)
+    kw = {"effort": r["effort"]} if efforts and r["effort"] else {}
+    c0, t0 = time.process_time(), time.perf_counter()
+    res = tune(plant, structure=r["structure"], dt=r["dt"], seed=r["seed"], time_budget_s=10.0, **kw)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    an = getattr(res, "analyses", None)
+    ts = max(a.metrics.settling_time_s for a in an) if an else res.metrics.settling_time_s
+    print(json.dumps({"wall_s": wall, "cpu_s": cpu, "settling_s": ts, "meets": bool(res.meets_spec)}), flush=True)
+'''
+
+
+class Worker:
+    def __init__(self, name: str, tree: Path) -> None:
+        self.name, self.tree = name, tree
+        env = {**os.environ, "PYTHONPATH": str(tree)}
+        self.proc = subprocess.Popen([sys.executable, "-c", WORKER], cwd=tree, env=env, stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        hello = json.loads(self.proc.stdout.readline())
+        if Path(hello["file"]).resolve().parents[1] != tree.resolve():
+            raise SystemExit(f"{name}: imported tuner from {hello['file']}, not from {tree}")
+        self.efforts = hello["efforts"]
+
+    def tune(self, **req: Any) -> dict[str, Any]:
+        self.proc.stdin.write(json.dumps(req) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        if not line:
+            raise SystemExit(f"{self.name}: the worker died")
+        return json.loads(line)
+
+    def close(self) -> None:
+        self.proc.stdin.write('{"cmd": "quit"}\n')
+        self.proc.stdin.flush()
+        self.proc.wait(30)
+
+
+def measure(revs: list[str], seeds: int) -> dict[str, Any]:
+    tmp = Path(tempfile.mkdtemp(prefix="warm_speed_"))
+    trees: dict[str, Path] = {}
+    commits: dict[str, str] = {}
+    for rev in revs:
+        (tmp / rev).mkdir()
+        commits[rev] = extract(rev, tmp / rev)
+        trees[rev] = tmp / rev
+    trees["this tree"] = ROOT
+    workers = {name: Worker(name, tree) for name, tree in trees.items()}
+    names = list(workers)
+    rows = []
+    try:
+        for loop, (expr, structure, dt) in LOOPS.items():
+            for effort in ("default", "fast"):
+                active = [n for n in names if effort == "default" or workers[n].efforts]
+                req = {"plant": expr, "structure": structure, "dt": dt, "effort": effort}
+                for n in active:  # warm-up (imports, NLP builds)
+                    workers[n].tune(seed=1000, **req)
+                runs: dict[str, list[dict]] = {n: [] for n in active}
+                load0 = load_average()
+                for seed in range(seeds):
+                    for n in active[seed % len(active):] + active[:seed % len(active)]:
+                        runs[n].append(workers[n].tune(seed=seed, **req))
+                row = {"loop": loop, "structure": structure, "dt": dt, "effort": effort, "load_start": load0,
+                       "trees": {n: {"median_wall_ms": 1e3 * statistics.median(r["wall_s"] for r in rs),
+                                     "median_cpu_ms": 1e3 * statistics.median(r["cpu_s"] for r in rs),
+                                     "median_settling_s": statistics.median(r["settling_s"] for r in rs),
+                                     "all_meet": all(r["meets"] for r in rs)} for n, rs in runs.items()}}
+                rows.append(row)
+                done = ", ".join(f"{n} {t['median_wall_ms']:.0f} ms ({t['median_settling_s']:.4g} s)"
+                                 for n, t in row["trees"].items())
+                print(f"[warm_speed] {loop} {effort}: {done}", file=sys.stderr, flush=True)
+    finally:
+        for w in workers.values():
+            w.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+    return {"command": "python bench/warm_speed.py " + " ".join(sys.argv[1:]), "revs": commits, "seeds": seeds,
+            "machine": {"cores": os.cpu_count(), "python": platform.python_version(), "cpu": platform.processor()},
+            "load_end": load_average(), "rows": rows}
+
+
+def markdown(res: dict[str, Any]) -> str:
+    revs = list(res["revs"])
+    names = revs + ["this tree"]
+    lines = ["# Warm tune medians (issue 30)", "", f"`{res['command']}`: {res['seeds']} seeds per loop and effort, "
+             f"the trees taking turns; load average at the end {res['load_end']}. Ratios: this tree's median wall "
+             f"over each older tree's (below 1: faster). Settling: the verifier's median, s.", "",
+             "| loop | effort | " + " | ".join(f"{n} ms" for n in names) + " | " +
+             " | ".join(f"ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} settling" for n in names) + " |",
+             "|" + "---|" * (2 + 2 * len(names) + len(revs))]
+    for row in res["rows"]:
+        t = row["trees"]
+        me = t["this tree"]["median_wall_ms"]
+        cell = lambda n, k, f, t=t: (f.format(t[n][k]) if n in t else "—")
+        lines.append(f"| {row['loop']} {row['structure']} dt {row['dt']} | {row['effort']} | "
+                     + " | ".join(cell(n, "median_wall_ms", "{:.0f}") for n in names) + " | "
+                     + " | ".join(f"{me / t[r]['median_wall_ms']:.2f}" if r in t else "—" for r in revs) + " | "
+                     + " | ".join(cell(n, "median_settling_s", "{:.4f}") for n in names) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=9)
+    ap.add_argument("--revs", default="12b6462,5565a8d", help="older trees, comma-separated (the first: baseline)")
+    ap.add_argument("--out", default=str(HERE / "results" / "warm_speed"))
+    a = ap.parse_args()
+    res = measure(a.revs.split(","), a.seeds)
+    Path(a.out + ".json").write_text(json.dumps(res, indent=1))
+    md = markdown(res)
+    Path(a.out + ".md").write_text(md)
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
