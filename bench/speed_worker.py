@@ -9,6 +9,8 @@ Requests:
           "spec", "response", "tune_kw"}]}
   {"cmd": "tune", "id": i, "seed": s, "time_budget_s": b}
       -> {"wall_s", "cpu_s", "settling_s", "meets_spec", "failing"}  (the verifier's numbers)
+  {"cmd": "hello"} -> {"tuner_file", "efforts"}
+  {"cmd": "tune_expr", "plant": expr, "structure", "dt", "seed", "time_budget_s", "effort"} -> as "tune"
   {"cmd": "quit"}
 
 Each tune gets freshly built plants (built outside the timed call), so what stays warm is the process:
@@ -85,9 +87,30 @@ class Worker:
     def cmd_tune(self, id: int, seed: int, time_budget_s: float) -> dict:
         study, lp, ctrls = self.loops[id]
         plants = self.loop_plants(study, lp, ctrls)
+        return self._timed(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed,
+                           time_budget_s=time_budget_s, **self._kw(lp))
+
+    def cmd_hello(self) -> dict:
+        """Where ``tuner`` was imported from, and whether its ``tune`` takes an ``effort``."""
+        import inspect
+
+        import tuner
+
+        return {"tuner_file": tuner.__file__, "efforts": "effort" in inspect.signature(self.tune).parameters}
+
+    def cmd_tune_expr(self, plant: str, structure: str, dt: float | None, seed: int, time_budget_s: float,
+                      effort: str | None = None) -> dict:
+        """A tune of a plant expression (built fresh, outside the timed call), at ``effort`` where the tree has
+        efforts."""
+        from tuner import plant_from_expr
+
+        kw = {"effort": effort} if effort and self.cmd_hello()["efforts"] else {}
+        return self._timed(plant_from_expr(plant), structure=structure, dt=dt, seed=seed,
+                           time_budget_s=time_budget_s, **kw)
+
+    def _timed(self, plants, **kw) -> dict:
         c0, t0 = time.process_time(), time.perf_counter()
-        r = self.tune(plants, structure=lp.structure, spec=lp.spec, dt=lp.dt, seed=seed, time_budget_s=time_budget_s,
-                      **self._kw(lp))
+        r = self.tune(plants, **kw)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         ts = max(a.metrics.settling_time_s for a in r.analyses)
         failing = sorted({c.name for a in r.analyses for c in a.failing})

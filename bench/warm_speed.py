@@ -19,7 +19,6 @@ import os
 import platform
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -29,7 +28,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-from tune_speed import extract, load_average  # noqa: E402
+from tune_speed import SpeedWorker, extract, load_average  # noqa: E402
 
 LOOPS = {  # name: (plant expression, structure, dt)
     "roll": ("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "pid_z", 0.04),
@@ -37,56 +36,6 @@ LOOPS = {  # name: (plant expression, structure, dt)
     "yaw": ("0.2843*18.611/(s+18.611)", "pid_z", 0.04),
     "1/(s+1)^3": ("1/(s+1)^3", "pid", 0.1),
 }
-
-WORKER = r'''
-import json, sys, time, inspect
-from tuner import plant_from_expr
-try:
-    from tuner.tuning import tune
-except ImportError:
-    from tuner.tune import tune
-import tuner
-efforts = "effort" in inspect.signature(tune).parameters
-print(json.dumps({"file": tuner.__file__, "efforts": efforts}), flush=True)
-for line in sys.stdin:
-    r = json.loads(line)
-    if r.get("cmd") == "quit":
-        break
-    plant = plant_from_expr(r["plant"])  # fresh every time (outside the timed call)
-    kw = {"effort": r["effort"]} if efforts and r["effort"] else {}
-    c0, t0 = time.process_time(), time.perf_counter()
-    res = tune(plant, structure=r["structure"], dt=r["dt"], seed=r["seed"], time_budget_s=10.0, **kw)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    an = getattr(res, "analyses", None)
-    ts = max(a.metrics.settling_time_s for a in an) if an else res.metrics.settling_time_s
-    print(json.dumps({"wall_s": wall, "cpu_s": cpu, "settling_s": ts, "meets": bool(res.meets_spec)}), flush=True)
-'''
-
-
-class Worker:
-    def __init__(self, name: str, tree: Path) -> None:
-        self.name, self.tree = name, tree
-        env = {**os.environ, "PYTHONPATH": str(tree)}
-        self.proc = subprocess.Popen([sys.executable, "-c", WORKER], cwd=tree, env=env, stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        hello = json.loads(self.proc.stdout.readline())
-        if Path(hello["file"]).resolve().parents[1] != tree.resolve():
-            raise SystemExit(f"{name}: imported tuner from {hello['file']}, not from {tree}")
-        self.efforts = hello["efforts"]
-
-    def tune(self, **req: Any) -> dict[str, Any]:
-        self.proc.stdin.write(json.dumps(req) + "\n")
-        self.proc.stdin.flush()
-        line = self.proc.stdout.readline()
-        if not line:
-            raise SystemExit(f"{self.name}: the worker died")
-        return json.loads(line)
-
-    def close(self) -> None:
-        self.proc.stdin.write('{"cmd": "quit"}\n')
-        self.proc.stdin.flush()
-        self.proc.wait(30)
-
 
 def measure(revs: list[str], seeds: int) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="warm_speed_"))
@@ -97,26 +46,33 @@ def measure(revs: list[str], seeds: int) -> dict[str, Any]:
         commits[rev] = extract(rev, tmp / rev)
         trees[rev] = tmp / rev
     trees["this tree"] = ROOT
-    workers = {name: Worker(name, tree) for name, tree in trees.items()}
+    workers = {name: SpeedWorker(name, tree, tmp) for name, tree in trees.items()}
+    efforts = {}
+    for name, w in workers.items():  # (each tree's own tuner, and whether it has efforts)
+        hello = w.call(cmd="hello")
+        if Path(hello["tuner_file"]).resolve().parents[1] != trees[name].resolve():
+            raise SystemExit(f"{name}: imported tuner from {hello['tuner_file']}, not from {trees[name]}")
+        efforts[name] = hello["efforts"]
     names = list(workers)
     rows = []
     try:
         for loop, (expr, structure, dt) in LOOPS.items():
             for effort in ("default", "fast"):
-                active = [n for n in names if effort == "default" or workers[n].efforts]
-                req = {"plant": expr, "structure": structure, "dt": dt, "effort": effort}
+                active = [n for n in names if effort == "default" or efforts[n]]
+                req = {"cmd": "tune_expr", "plant": expr, "structure": structure, "dt": dt, "effort": effort,
+                       "time_budget_s": 10.0}
                 for n in active:  # warm-up (imports, NLP builds)
-                    workers[n].tune(seed=1000, **req)
+                    workers[n].call(seed=1000, **req)
                 runs: dict[str, list[dict]] = {n: [] for n in active}
                 load0 = load_average()
                 for seed in range(seeds):
                     for n in active[seed % len(active):] + active[:seed % len(active)]:
-                        runs[n].append(workers[n].tune(seed=seed, **req))
+                        runs[n].append(workers[n].call(seed=seed, **req))
                 row = {"loop": loop, "structure": structure, "dt": dt, "effort": effort, "load_start": load0,
                        "trees": {n: {"median_wall_ms": 1e3 * statistics.median(r["wall_s"] for r in rs),
                                      "median_cpu_ms": 1e3 * statistics.median(r["cpu_s"] for r in rs),
-                                     "median_settling_s": statistics.median(r["settling_s"] for r in rs),
-                                     "all_meet": all(r["meets"] for r in rs)} for n, rs in runs.items()}}
+                                     "median_settling_s": statistics.median(float(r["settling_s"]) for r in rs),
+                                     "all_meet": all(r["meets_spec"] for r in rs)} for n, rs in runs.items()}}
                 rows.append(row)
                 done = ", ".join(f"{n} {t['median_wall_ms']:.0f} ms ({t['median_settling_s']:.4g} s)"
                                  for n, t in row["trees"].items())

@@ -375,9 +375,8 @@ def tune(
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
     auto = time_budget_s is None
-    if auto:
-        time_budget_s = DEFAULT_BUDGET_S
-    if not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s) and time_budget_s > 0):
+    if not auto and not (isinstance(time_budget_s, (int, float)) and math.isfinite(time_budget_s)
+                         and time_budget_s > 0):
         raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
     from .optimize.engine import EFFORTS
 
@@ -388,9 +387,9 @@ def tune(
         raise TunerError(f"n_starts must be an integer from 1 to 50, got {n_starts!r}", field="n_starts")
     if nlp_solver not in ("ipopt", "sqp"):
         raise TunerError(f"nlp_solver must be 'ipopt' or 'sqp', got {nlp_solver!r}", field="nlp_solver")
-    t0 = time.perf_counter()
-    deadline = t0 + float(time_budget_s)
     from .optimize.builds import build_seconds
+
+    t0, built0 = time.perf_counter(), build_seconds()
 
     # the default budget: NLP builds are not counted against the search time, only against the wall-clock cap; a
     # tune nested in such a tune (a robustness objective's fastest design, a diagnosis's relaxed re-tune) keeps its
@@ -410,12 +409,11 @@ def tune(
                                                                         delay)
             problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle)
             _check_actuator(actuator, problem)
-            if auto:  # the default budget's search time, by structure (a contained search runs first: see below)
-                time_budget_s = DEFAULT_BUDGET_S * _search_factor(problem)
-                deadline = t0 + time_budget_s
-            opts = _Opts(seed=int(seed), budget_s=float(time_budget_s), deadline=deadline, t0=t0, n_starts=n_starts,
+            # the default budget's search time depends on the structure (_search_factor)
+            budget = DEFAULT_BUDGET_S * _search_factor(problem) if auto else float(time_budget_s)
+            opts = _Opts(seed=int(seed), budget_s=budget, deadline=t0 + budget, t0=t0, n_starts=n_starts,
                          n_trials=n_trials, sampler=sampler, storage=storage, local=local, nlp_solver=nlp_solver,
-                         diagnose=diagnose, effort=effort, build_cap=cap, built0=build_seconds(), auto=auto)
+                         diagnose=diagnose, effort=effort, build_cap=cap, built0=built0, auto=auto)
             run = _search(problem, opts)
             res = _verified(run, problem, opts, structure)
             res = _diagnosed(res, run, problem, opts)
