@@ -14,8 +14,9 @@ so far). The search stops when
   settling time, or 0.1 %) is not enough except at ``effort="fast"``: the incumbent must survive
   ``Effort.confirm`` *restarts* in a row, each a second basin search independent of round 0's
   trajectory (a fresh scrambled-Sobol set over the whole box seeded by the user's seed and the
-  round, the incumbent with each gain zeroed or shrunk, refinements of the best candidates outside
-  every basin refined so far, and a scan around the incumbent), none finding anything better by more
+  round, the incumbent with each gain zeroed or shrunk, refinements of the best candidates (round 0's included)
+  outside every basin refined so far, at ``Effort.restart_spread`` > 0 the feasible ones among the best farthest
+  from every point refined, and a scan around the incumbent), none finding anything better by more
   than the tolerance. An
   infeasible incumbent needs ``Effort.infeasible_extra`` more restarts; or
 * **budget**: the time budget (minus what the final verification needs) is used up. Given the seed, the search's
@@ -92,7 +93,7 @@ class Effort:
     design_points: int  # round 0's fixed space-filling set
     confirm: int  # restarts in a row that must find nothing better (0: round 0's own agreement converges)
     restart_points: int  # scrambled-Sobol points over the whole box per restart
-    restart_refines: int  # refinements per restart (the best candidates outside every refined basin)
+    restart_refines: int  # refinements per restart (the best candidates outside every refined basin; restart_spread)
     verify: int  # finalists verified at full resolution; the best verified wins
     optuna: bool  # restarts also ask Optuna's seeded sampler (told every point so far) for a batch
     # the NLP grid's detail (refine's ``detail``): thorough resolves the polish to ~0.25 %, not 1 %, and from 2 on the
@@ -110,15 +111,24 @@ class Effort:
     ray_checks: int = 3  # ray points verified at full resolution per level, at most (Engine._ray)
     basin: float = 0.05  # refinements ending closer than this (norm over the box's span) are one basin
     infeasible_extra: int = 2  # an infeasible incumbent must survive this many more restarts before "converged"
+    # a restart refines the restart_refines of its best restart_refines + this many distinct unrefined candidates (round
+    # 0's included; only the feasible ones where the best is) that lie farthest from every refined point (0: simply the
+    # best): a lone refinement spent on the best-scoring candidate beside a start already refined tends to end in that
+    # start's basin again (a PID on a non-minimum-phase plant, bench/convergence.py's nmp-19: round 0's starts with
+    # the derivative filter at Td / 10 and Td / 3 end in one basin, 5.9 % above the one its Tf = Td start reaches,
+    # which scores a little worse before its refinement). fast and default: 3; thorough's three refinements a
+    # restart take the best (0): on the convergence suite the spread there lost a 2-DOF basin (twodof-14, 9 %) and
+    # found nothing its round 0's five starts had not
+    restart_spread: int = 0
 
 
 EFFORTS = {
     "fast": Effort("fast", n_starts=2, design_points=32, confirm=0, restart_points=32, restart_refines=1, verify=1,
-                   optuna=True),
+                   optuna=True, restart_spread=3),
     # default: two round-0 refinements and one per restart cost 30 % less than three and two, and on every fourth
     # suite case changed no ratio by more than 0.3 % (bench/QUALITY.md)
     "default": Effort("default", n_starts=2, design_points=48, confirm=1, restart_points=64,
-                      restart_refines=1, verify=2, optuna=False),
+                      restart_refines=1, verify=2, optuna=False, restart_spread=3),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2),
 }
@@ -155,18 +165,24 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
     if variants:
         starts += _filter_variants(space, guesses)
         starts += _filter_variants(space, guesses, negative_p=True)
+        starts += _negative_p_variants(space, guesses)
     return starts
 
 
-FILTER_N = (10.0, 3.0)  # derivative filters of the filtered starts: Tf = Td / N (Td = Kd / Kp)
+# derivative filters of the filtered starts: Tf = Td / N (Td = Kd / Kp). N = 1 is the lag form (Tf = Td: above 1/Tf
+# the controller's gain is Kp + Kd / Tf, a lead-lag rather than a derivative): a PID on a non-minimum-phase plant,
+# zero at +13.9 rad/s, poles at -6.3 and -27 rad/s, dt 0.02 (bench/convergence.py's nmp-19), settles in 0.268 s with
+# Tf = 0.107 s = 2.7 Td, against 0.284 s in the basin every textbook filter (N = 3 ... 10) refines into
+FILTER_N = (10.0, 3.0, 1.0)
 FILTER_DECADES = (0.0, -0.5)
+NEGATIVE_P = 0.3  # the PI's negative-proportional starts: Kp = -NEGATIVE_P times the designed start's (see below)
 
 
 def _filter_variants(space: Space, guesses: list[np.ndarray], *, negative_p: bool = False) -> list[np.ndarray]:
-    """The designed starts again with the derivative filter of textbook practice, Tf = Td / N, instead of at its
-    floor: under a noise limit (Mks) the optimum's filter is slow (the pitch model with Mks <= 20, IAE: Tf =
-    0.034 s at dt = 0.04, IAE 0.072, where every floor-filter start ends near 0.25), a long move in the
-    search's logarithmic Tf for a refinement. ``negative_p``: the same with the proportional gain's sign flipped
+    """The designed starts again with the derivative filter Tf = Td / N (FILTER_N: textbook practice, and the lag
+    form N = 1) instead of at its floor: under a noise limit (Mks) the optimum's filter is slow (the pitch model with
+    Mks <= 20, IAE: Tf = 0.034 s at dt = 0.04, IAE 0.072, where every floor-filter start ends near 0.25), a long move
+    in the search's logarithmic Tf for a refinement. ``negative_p``: the same with the proportional gain's sign flipped
     (the ID-like controllers of lightly damped plants: under the filter rule N = Kd / (|Kp| Tf) <= 20 the optimum
     can have Kp < 0, a region the positive-Kp starts reach only through a long detour in Tf; underdamped pid with
     the default limits: 1.10 s there, 4.01 s the best with Kp > 0)."""
@@ -194,6 +210,26 @@ def _filter_variants(space: Space, guesses: list[np.ndarray], *, negative_p: boo
                 x[i_tf] = max(x0[i_tf], x0[i_kd] / x0[i_kp] / n)
                 v = space.from_params(x)
                 out.append(np.clip(v, space.lo, space.hi))
+    return out
+
+
+def _negative_p_variants(space: Space, guesses: list[np.ndarray]) -> list[np.ndarray]:
+    """A controller with a proportional and an integral gain but no derivative (a PI): the nominal-gain designed starts
+    (one per placement of the zero) with the proportional gain's sign flipped, at NEGATIVE_P of its magnitude. On a
+    lightly damped plant the optimum can be an integral controller whose Kp has the other sign than the designed
+    starts' (the PID's are in :func:`_filter_variants`), a basin those starts do not refine into: a PI on a
+    third-order plant with lightly damped poles at dt 0.035 (bench/convergence.py's underdamped-31) settles in 21.9 s at
+    Kp -0.53, Ki 0.20, against 23.2 s the best with Kp > 0; each of its five starts flipped at 0.3 refines there (at
+    full magnitude too, but four of them score 1000-4800 before their refinement, too badly for round 0 to refine)."""
+    st = space.structure
+    if "Kp" not in st.params or st.integral not in st.params or "Kd" in st.params:
+        return []
+    i_kp = st.params.index("Kp")
+    out = []
+    for x0 in guesses:
+        x = x0.copy()
+        x[i_kp] *= -NEGATIVE_P
+        out.append(np.clip(space.from_params(x), space.lo, space.hi))
     return out
 
 
@@ -418,21 +454,33 @@ class Engine:
             return max(1e-3 * abs(b), 0.5 * (self.problem.dt or 0.0))
         return 1e-3 * max(abs(b), 1e-12)
 
-    def _distinct(self, k: int, *, unrefined: bool = True) -> list[np.ndarray]:
+    def _distinct(self, k: int, *, unrefined: bool = True, spread: int = 0) -> list[np.ndarray]:
+        """The best ``k`` pooled candidates (batch score) that are distinct from each other and from every refined
+        point; ``spread``: the ``k`` of the best ``k + spread`` such candidates that lie farthest from every refined
+        point (greedily, each then counting as refined), of the feasible ones only where the best is feasible (a far
+        candidate that fails the spec is no better a start than the best one beside a refined point)."""
         # a 2-DOF structure's setpoint weights do not make a start distinct: the refinement moves them freely, and
         # starts that differ only there (pid's starts seeded with several b, c) are one start for the feedback
         span = np.maximum(self.space.hi - self.space.lo, 1e-12)
-        span = np.where([k == "weight" for k in self.space.structure.kinds], np.inf, span)
-        chosen: list[np.ndarray] = []
+        span = np.where([kind == "weight" for kind in self.space.structure.kinds], np.inf, span)
+        chosen: list[tuple[float, np.ndarray]] = []
         refined = [v for _, v, r in self.pool if r]
-        for _, v, r in sorted(self.pool, key=lambda t: t[0]):
+        for sc, v, r in sorted(self.pool, key=lambda t: t[0]):
             if unrefined and r:
                 continue
-            if all(np.linalg.norm((v - w) / span) > 0.05 for w in chosen + refined):
-                chosen.append(v)
-            if len(chosen) >= k:
+            if all(np.linalg.norm((v - w) / span) > 0.05 for w in [c for _, c in chosen] + refined):
+                chosen.append((sc, v))
+            if len(chosen) >= k + spread:
                 break
-        return chosen
+        feasible = bool(chosen) and chosen[0][0] < INFEASIBLE
+        cands = [v for sc, v in chosen if sc < INFEASIBLE or not feasible]
+        if not spread or len(cands) <= k or not refined:
+            return [v for _, v in chosen[:k]]
+        picked: list[np.ndarray] = []
+        for _ in range(k):
+            far = [min(np.linalg.norm((v - w) / span) for w in refined + picked) for v in cands]
+            picked.append(cands.pop(int(np.argmax(far))))
+        return picked
 
     def _polish(self) -> None:
         """The incumbent refined once more on the fine NLP grid (``refine(fine=True)``: the settling time
@@ -641,8 +689,9 @@ class Engine:
     def _restart(self) -> None:
         """A second basin search, independent of round 0's trajectory: a fresh scrambled-Sobol set over the
         whole box (seeded by the user's seed and the restart's number) and Optuna's batch (told everything
-        so far), scored in one batch; the best candidates outside every basin refined so far are refined;
-        then a scan around the incumbent."""
+        so far), scored in one batch; the best candidates outside every basin refined so far (round 0's
+        included; ``Effort.restart_spread``: those of them farthest from every refined point) are refined; then a
+        scan around the incumbent and the loop-gain ray."""
         from scipy.stats import qmc
 
         self.restarts += 1
@@ -659,7 +708,8 @@ class Engine:
             self._told = len(self.pool)  # (the rest is told by the next _tell_new)
         self._score(np.array(self._affordable(self._projections() + list(fresh))), source="restart")
         if self.local and self._time_left() > 0:
-            self._refine(self._distinct(self.effort.restart_refines))
+            # (of the best candidates, those farthest from every refined point: Effort.restart_spread)
+            self._refine(self._distinct(self.effort.restart_refines, spread=self.effort.restart_spread))
         if self._time_left() > 0:
             self._scan(seed=SCAN_SEED + self.restarts)
         if self._time_left() > 0:
