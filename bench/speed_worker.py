@@ -11,6 +11,8 @@ Requests:
       -> {"wall_s", "cpu_s", "settling_s", "meets_spec", "failing"}  (the verifier's numbers)
   {"cmd": "hello"} -> {"tuner_file", "efforts"}
   {"cmd": "tune_expr", "plant": expr, "structure", "dt", "seed", "time_budget_s", "effort"} -> as "tune"
+  {"cmd": "tune_tf", "num", "den", "delay_s", "structure", "dt", "seed", "time_budget_s"} -> as "tune", on the
+      thesis spec (bench/convergence_ab.py: the convergence suite's cases; time_budget_s null: the default budget)
   {"cmd": "quit"}
 
 Each tune gets freshly built plants (built outside the timed call), so what stays warm is the process:
@@ -107,6 +109,19 @@ class Worker:
         kw = {"effort": effort} if effort and self.cmd_hello()["efforts"] else {}
         return self._timed(plant_from_expr(plant), structure=structure, dt=dt, seed=seed,
                            time_budget_s=time_budget_s, **kw)
+
+    def cmd_tune_tf(self, num: list[float], den: list[float], delay_s: float, structure: str, dt: float | None,
+                    seed: int, time_budget_s: float | None) -> dict:
+        """A tune of ``num / den`` (delay ``delay_s``) on the thesis spec, diagnosis off, as the quality and
+        convergence suites tune their cases."""
+        import numpy as np
+
+        from tuner import Spec
+        from tuner.plant import Plant
+
+        plant = Plant(np.array(num, float), np.array(den, float), delay_s=float(delay_s))
+        return self._timed(plant, structure=structure, dt=dt, spec=Spec.thesis(), seed=seed,
+                           time_budget_s=time_budget_s, diagnose=False)
 
     def _timed(self, plants, **kw) -> dict:
         c0, t0 = time.process_time(), time.perf_counter()

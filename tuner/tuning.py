@@ -802,15 +802,6 @@ def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[n
 
 
 ROBUSTNESS_OBJECTIVES = tuple(o.name for o in OBJECTIVES if o.robust)  # (the registry says which)
-def _search_factor(problem: TuningProblem) -> float:
-    """The default budget's search time in units of DEFAULT_BUDGET_S: 2 for a structure whose search first runs the
-    structure it contains (pid2 runs pid's whole search, then its own: the 250 Hz rate loop's pid2 IAE tune needs
-    about 9 s of search beside its NLP builds), 1 otherwise. What grows with the sample rate and the horizon in
-    samples, the NLP builds, is not counted at all (see tune's time_budget_s)."""
-    from .optimize.engine import FULL_CONTAINMENT
-
-    return 2.0 if problem.structure.name in FULL_CONTAINMENT else 1.0
-
 
 #: the default budget's cap of the tune running on this thread/task (nested tunes inherit it; see tune)
 _OUTER_CAP: contextvars.ContextVar[float | None] = contextvars.ContextVar("tuner_build_cap", default=None)
@@ -821,3 +812,13 @@ _RESERVE = 0.1  # share of the budget kept for the final full-resolution verific
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
 # budget, at most this share of it (the reasons by definition need no time)
 DIAGNOSIS_SHARE = 0.25
+
+
+def _search_factor(problem: TuningProblem) -> float:
+    """The default budget's search time in units of DEFAULT_BUDGET_S: 2 for a structure whose search first runs the
+    structure it contains (pid2 runs pid's whole search, then its own: the 250 Hz rate loop's pid2 IAE tune needs
+    about 9 s of search beside its NLP builds), 1 otherwise. What grows with the sample rate and the horizon in
+    samples, the NLP builds, is not counted at all (see tune's time_budget_s)."""
+    from .optimize.engine import FULL_CONTAINMENT
+
+    return 2.0 if problem.structure.name in FULL_CONTAINMENT else 1.0
