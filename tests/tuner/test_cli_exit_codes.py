@@ -220,3 +220,33 @@ def test_help_documents_exit_codes(capsys, argv):
     assert ei.value.code == 0
     out = capsys.readouterr().out
     assert "exit codes" in out and "1  done, but a spec is not met" in out and "2  bad input" in out
+
+
+
+@pytest.mark.parametrize("argv, code, skipped", [
+    (["tune", "--plant", "1/(s+1)^2", "--dt", "0.1", "--structure", "pi", "--json"], EXIT_OK, True),
+    (["tune", "--plant", "1/(s+1)^2", "--dt", "0.1", "--structure", "pd", "--json"], EXIT_SPEC_NOT_MET, True),
+    (["analyze", "--plant", "1/(s+1)^2", "--controller", "2 + 1/s", "--json"], EXIT_OK, False),
+])
+def test_a_command_that_built_nlps_ends_without_freeing_them_and_loses_no_output(argv, code, skipped):
+    """``tuner`` (cli.entry) ends a process that built NLPs with os._exit, skipping the interpreter's teardown (an
+    object of the script's is never freed); the exit code is main's, the exit handlers still run (after the
+    command's output) and --json reaches a pipe whole. A command that built none exits as usual."""
+    import subprocess
+    import sys
+
+    prog = ("import atexit, sys\n"
+            "class Witness:\n"
+            "    def __del__(self):\n"
+            "        print('torn down', file=sys.stderr)\n"
+            "witness = Witness()\n"
+            "atexit.register(lambda: print('handler ran', file=sys.stderr))\n"
+            "from tuner import cli\n"
+            f"sys.argv = ['tuner', *{argv!r}]\n"
+            "cli.entry()\n")
+    p = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, timeout=120, cwd=str(ROOT))
+    assert p.returncode == code, p.stderr[-800:]
+    doc = json.loads(p.stdout)  # the whole document: nothing cut off by the early exit
+    assert isinstance(doc, dict) and doc
+    assert "handler ran" in p.stderr
+    assert ("torn down" not in p.stderr) is skipped, p.stderr[-800:]

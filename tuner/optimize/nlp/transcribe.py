@@ -65,7 +65,7 @@ from ..builds import timed_build
 from ..space import Space
 from .layout import Layout
 
-__all__ = ["ProblemKey", "Problem", "get_problem", "working_set", "estimated_build_s", "is_built",
+__all__ = ["ProblemKey", "Problem", "get_problem", "working_set", "estimated_build_s", "is_built", "cached_count",
            "parameter_layout", "variable_layout", "BUILDS", "MS_GRID",
            "GRID_EXTRA", "SOLVERS"]
 
@@ -596,6 +596,11 @@ def estimated_build_s(key: ProblemKey, n_params: int) -> float:
     """What building the problem for ``key`` is expected to cost, s (from its size alone: the same on every machine
     and in every process)."""
     return BUILD_S_PER_NODE * _estimated_nodes(key, n_params)
+
+
+def cached_count() -> int:
+    """How many built problems the build cache holds."""
+    return len(_CACHE)
 
 
 def is_built(key: ProblemKey) -> bool:
