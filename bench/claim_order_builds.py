@@ -6,13 +6,16 @@
 Each loop of the quality suite's slice (every ``--every``-th case: the 40 loops of bench/quality_scale.py) is tuned
 once in a fresh build cache, recording the problems it requests and what each build cost; then the builds one worker
 (every loop, one cache) and two workers (a half of the order each, a cache each, nothing dropped) would make are
-added up at those costs, for the file's order and the claim order, splitting at the middle and two loops either side.
-Nothing here asserts a timing.
+added up at those costs, for the file's order and the claim order, splitting at the middle and two loops either side;
+the figures go to bench/results/claim_order_builds.json (about a minute: one default-effort tune per loop, every one
+building its problems from cold). Nothing here asserts a timing.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import shutil
 import sys
 import tempfile
 import time
@@ -35,9 +38,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--every", type=int, default=7)
     cases = quality.load_suite()[::ap.parse_args().every]
-    f = Path(tempfile.mkdtemp()) / "slice.toml"
+    tmp = Path(tempfile.mkdtemp(prefix="claim_order_builds_"))
+    f = tmp / "slice.toml"
     f.write_text(quality.study_toml(cases, name="slice", budget=10.0, effort="default"))
     study = load_study(str(f))
+    shutil.rmtree(tmp, ignore_errors=True)
     transcribe.CACHE_MB = float("inf")
     req: dict[str, set[Any]] = {}
     cost: dict[Any, float] = {}
@@ -70,15 +75,21 @@ def main() -> None:
                 s += cost[k]
         return s
 
+    doc: dict[str, Any] = {"command": "python bench/claim_order_builds.py " + " ".join(sys.argv[1:]),
+                           "loops": len(req), "problems": len(cost), "orders": {}}
     for label, order in (("file", [lp.name for lp in study.order()]),
                          ("claim", [lp.name for lp in claim_order(study)])):
         h = len(order) // 2
-        one, a, b = builds(order), builds(order[:h]), builds(order[h:])
-        print(f"{label} order: one worker {one:.2f} s of builds; halves {a:.2f} + {b:.2f} = {a + b:.2f} s "
-              f"({(a + b) / one:.3f} of one)")
-        for h2 in (h - 2, h + 2):
-            print(f"   split at {h2}: {(builds(order[:h2]) + builds(order[h2:])) / one:.3f}")
-
+        one = builds(order)
+        splits = {str(k): (builds(order[:k]) + builds(order[k:])) / one for k in (h - 2, h, h + 2)}
+        doc["orders"][label] = {"order": order, "one_worker_build_s": one,
+                                "halves_build_s": [builds(order[:h]), builds(order[h:])],
+                                "two_workers_over_one_by_split": splits}
+        print(f"{label} order: one worker {one:.2f} s of builds; two workers taking halves "
+              f"{splits[str(h)]:.3f} of one (splitting at {h - 2}: {splits[str(h - 2)]:.3f}, at {h + 2}: "
+              f"{splits[str(h + 2)]:.3f})")
+    (HERE / "results").mkdir(exist_ok=True)
+    (HERE / "results" / "claim_order_builds.json").write_text(json.dumps(doc, indent=1))
 
 if __name__ == "__main__":
     main()

@@ -8,7 +8,7 @@ the study file (as a worker on a second host would); with ``--fork``, one ``tune
 (its workers forked from it, as on one machine). The same slice of the suite (every ``--every``-th case, over all
 classes and structures) is run first by one worker, then, under a fresh study name, by two (``--workers``: the
 counts; ``--rounds`` times, alternating); the walls and their ratios go to bench/results/quality_scale.json
-(quality_scale_fork.json). Nothing here asserts a timing.
+(``--fork``: quality_scale_fork.json; ``--every N`` other than 1: ..._everyN.json). Nothing here asserts a timing.
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ def main() -> None:
            "tune_s_over_one_by_workers": {str(n): t for n, t in tune_sum.items()},
            "load_average_end": load, "cores": os.cpu_count()}
     (HERE / "results").mkdir(exist_ok=True)
-    name = "quality_scale_fork.json" if a.fork else "quality_scale.json"
+    name = "quality_scale" + ("_fork" if a.fork else "") + (f"_every{a.every}" if a.every != 1 else "") + ".json"
     (HERE / "results" / name).write_text(json.dumps(doc, indent=1))
     for n, r in ratios.items():
         print(f"speed-up {n} vs 1 workers: {', '.join(f'{x:.2f}x' for x in r)} (median {statistics.median(r):.2f}x); "
@@ -126,6 +126,7 @@ def main() -> None:
     if cpu_bound:
         print(f"CPU-bound 2 vs 1: {', '.join(f'{x:.2f}x' for x in cpu_bound)}")
     print(f"load average at the end {load[0]:.1f}; {os.cpu_count()} cores -> bench/results/{name}")
+
 
 if __name__ == "__main__":
     main()

@@ -772,8 +772,9 @@ def entry() -> None:
     A process that built NLPs ends without freeing them: the build cache holds their CasADi expression graphs (up to
     tuner.optimize.nlp.transcribe.CACHE_MB), and taking them apart one node at a time at exit achieves nothing the
     kernel does not do at once (the 133 problems of a 40-loop study run: 1.7 s of a 43 s command). The exit
-    handlers still run and the output is flushed; a thread still running (none is, after a command) gets the usual
-    exit, which waits for it."""
+    handlers still run and the output is flushed; output that cannot be written is said on stderr with exit status
+    120, as the interpreter's exit does; a thread still running (none is, after a command) gets the usual exit, which
+    waits for it."""
     import os
     import threading
 
@@ -784,11 +785,18 @@ def entry() -> None:
         import atexit
 
         atexit._run_exitfuncs()  # (what the interpreter's own exit runs: logging's flush, multiprocessing's joins)
-        for stream in (sys.stdout, sys.stderr):
+        # what the interpreter's exit would say of output it could not write (a full disk, a reader gone): the
+        # message, and its exit status 120
+        for stream in dict.fromkeys((sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__)):
             try:
-                stream.flush()
-            except (OSError, ValueError):  # a closed pipe: nothing more can reach it
-                pass
+                if stream is not None and not stream.closed:
+                    stream.flush()
+            except (OSError, ValueError) as e:
+                rc = 120
+                try:
+                    os.write(2, f"tuner: error: output not written: {e}\n".encode())
+                except OSError:
+                    pass
         os._exit(rc)
     sys.exit(rc)
 

@@ -356,24 +356,28 @@ def test_each_worker_takes_a_stretch_of_consecutive_loops(tmp_path, monkeypatch)
 
 def test_workers_take_loops_whose_nlps_have_one_shape_together(tmp_path):
     """The claim order (runner.claim_order) regroups the study's loops by what their tunes' NLPs share (structure,
-    sampled or continuous, each plant's order and delay in samples, the spec's settings that differ from the
-    default): groups of one structure together, in the order they first come, those of the same plants next to each
-    other, each group in file order; pid2 with pid (its tune runs pid's search); an outer loop goes right after its
-    inner loop. The results keep the study's order."""
-    from tuner.studies.runner import claim_order, nlp_shape
+    sampled or continuous, each plant's order, zeros and delay in samples as the NLP models it, the spec's settings
+    that differ from the default): the groups of one structure together, those of the same plant shapes next to each
+    other, each group in file order; pid2 with pid (its tune runs pid's search first); a cascade's loops in a row,
+    innermost first, even where the file lists the outer loop first."""
+    from tuner.studies.runner import LoopStatus, claim_order, nlp_shape
 
     loops = [  # name, plant, structure, extra
+        ("p2", "1/(s+3)^2", "pid2", ""),  # before any pid loop in the file: still after pid's group of its plants
         ("a", "1/(s+1)", "pi", ""),
         ("b", "1/(s+1)^2", "pid", ""),
-        ("p2", "1/(s+3)^2", "pid2", ""),  # pid2 runs pid's whole search first: with pid's loops of its plants
         ("c", "2/(3*s+1)", "pi", ""),
+        ("top", "1/s", "pi", 'inner = "mid"\n'),  # a chain listed outermost first: low <- mid <- top
         ("d", "1/(s+1)^2", "pi", ""),
+        ("mid", "1/s", "pi", 'inner = "low"\n'),
         ("e", "1/(s+2)^2", "pid", ""),
-        ("f", "1/(s+1)", "pi", "delay = 0.3\n"),  # 3 samples of delay: another shape
+        ("f", "1/(s+1)", "pi", "delay = 0.3\n"),  # 3 whole samples of delay: another shape
+        ("f2", "1/(s+1)", "pi", "delay = 0.27\n"),  # 2.7 samples: 2, and a state for the fraction (a zero too)
         ("g", "1/(s+1)", "pi", "spec = { ms_max = 1.6 }\n"),  # an Ms limit: another shape
         ("h", "1/(s+1)", "pi", "spec = { phase_margin_min_deg = 45 }\n"),  # a setting of its own: another shape
-        ("outer", "1/s", "pi", 'inner = "b"\n'),
+        ("low", "5/(s+5)", "pd", ""),
         ("i", "5/(s+5)", "pi", ""),
+        ("m", "1/(s+1)^2", "pid", ""),
     ]
     body = "\n".join(f'[[loop]]\nname = "{n}"\nplant = "{p}"\ndt = 0.1\nstructure = "{st}"\n{x}'
                      for n, p, st, x in loops)
@@ -381,22 +385,22 @@ def test_workers_take_loops_whose_nlps_have_one_shape_together(tmp_path):
     f.write_text(f'name = "mixed"\nseed = 0\n\n{body}')
     study = load_study(str(f))
     shapes = {lp.name: nlp_shape(lp) for lp in study.loop}
-    assert shapes["a"] == shapes["c"] == shapes["i"] == ("pi", False, ((1, 0),), ())
-    assert shapes["b"] == shapes["e"] and shapes["d"] != shapes["a"] and shapes["f"][2] == ((1, 3),)
+    assert shapes["a"] == shapes["c"] == shapes["i"] == ("pi", False, ((1, 0, 0),), ())
+    assert shapes["b"] == shapes["e"] == shapes["m"] and shapes["d"] != shapes["a"]
+    assert shapes["f"][2] == ((1, 0, 3),) and shapes["f2"][2] == ((2, 1, 2),)
     assert shapes["g"] != shapes["a"] and shapes["g"] != shapes["h"] and shapes["p2"][0] == "pid2"
     got = [lp.name for lp in claim_order(study)]
-    # pi (a, c, i; then g and h: the same plants, other spec settings; then d, f), then pid (b with its outer loop,
-    # e), then pid2 of the same plants
-    assert got == ["a", "c", "i", "g", "h", "d", "f", "b", "outer", "e", "p2"]
+    # pid first (p2's family comes first in the file): b, e, m, then p2 (the same plant shapes); then pi: a, c, i with
+    # g and h (the same plants, other settings), d, f, f2; then pd's low with its chain mid, top (pi loops, kept with
+    # their inner loop)
+    assert got == ["b", "e", "m", "p2", "a", "c", "i", "g", "h", "d", "f", "f2", "low", "mid", "top"]
     assert sorted(got) == sorted(lp.name for lp in study.loop)
-    assert [lp.name for lp in study.order()][:2] == ["a", "b"]  # the study's own order is unchanged
     coord = Coordinator(study, storage=None, worker="A")  # type: ignore[arg-type]  (candidates reads no storage)
-    from tuner.studies.runner import LoopStatus
-
     free = {lp.name: LoopStatus("free", 0) for lp in study.loop}
-    assert coord.candidates(free)[0].name == "a"
-    coord._last = "i"
-    assert coord.candidates(free)[0].name == "g"  # a worker continues in the claim order, not the file's
+    free.update(mid=LoopStatus("blocked", 0), top=LoopStatus("blocked", 0))
+    assert coord.candidates(free)[0].name == "b"  # the file's first loop is p2; the claim order starts at b
+    coord._last = "e"
+    assert coord.candidates(free)[0].name == "m"  # a worker continues in the claim order, not the file's
 
 
 @pytest.mark.postgres

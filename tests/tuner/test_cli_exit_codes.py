@@ -222,7 +222,6 @@ def test_help_documents_exit_codes(capsys, argv):
     assert "exit codes" in out and "1  done, but a spec is not met" in out and "2  bad input" in out
 
 
-
 @pytest.mark.parametrize("argv, code, skipped", [
     (["tune", "--plant", "1/(s+1)^2", "--dt", "0.1", "--structure", "pi", "--json"], EXIT_OK, True),
     (["tune", "--plant", "1/(s+1)^2", "--dt", "0.1", "--structure", "pd", "--json"], EXIT_SPEC_NOT_MET, True),
@@ -230,23 +229,50 @@ def test_help_documents_exit_codes(capsys, argv):
 ])
 def test_a_command_that_built_nlps_ends_without_freeing_them_and_loses_no_output(argv, code, skipped):
     """``tuner`` (cli.entry) ends a process that built NLPs with os._exit, skipping the interpreter's teardown (an
-    object of the script's is never freed); the exit code is main's, the exit handlers still run (after the
-    command's output) and --json reaches a pipe whole. A command that built none exits as usual."""
+    object of the script's is never freed); the exit code is main's, the exit handlers still run after the
+    command's output, and --json reaches a pipe whole (stdout block-buffered, as without PYTHONUNBUFFERED). A
+    command that built none exits as usual."""
+    import os
     import subprocess
     import sys
 
-    prog = ("import atexit, sys\n"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    p = subprocess.run([sys.executable, "-c", _witnessed(argv)], capture_output=True, text=True, timeout=120,
+                       cwd=str(ROOT), env=env)
+    assert p.returncode == code, p.stderr[-800:]
+    out, _, last = p.stdout.rstrip("\n").rpartition("\n")
+    assert last == "handler ran"  # the exit handler's line, after the whole document
+    doc = json.loads(out)
+    assert isinstance(doc, dict) and "metrics" in doc
+    assert ("torn down" not in p.stderr) is skipped, p.stderr[-800:]
+
+
+def _witnessed(argv: list[str]) -> str:
+    """A script running ``tuner argv`` through cli.entry, with an object that says when it is freed and an exit
+    handler that prints a line to stdout."""
+    return ("import atexit, sys\n"
             "class Witness:\n"
             "    def __del__(self):\n"
             "        print('torn down', file=sys.stderr)\n"
             "witness = Witness()\n"
-            "atexit.register(lambda: print('handler ran', file=sys.stderr))\n"
+            "atexit.register(lambda: print('handler ran'))\n"
             "from tuner import cli\n"
             f"sys.argv = ['tuner', *{argv!r}]\n"
             "cli.entry()\n")
-    p = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, timeout=120, cwd=str(ROOT))
-    assert p.returncode == code, p.stderr[-800:]
-    doc = json.loads(p.stdout)  # the whole document: nothing cut off by the early exit
-    assert isinstance(doc, dict) and doc
-    assert "handler ran" in p.stderr
-    assert ("torn down" not in p.stderr) is skipped, p.stderr[-800:]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_output_that_cannot_be_written_is_said_with_status_120():
+    """The early exit of cli.entry flushes what the command printed; where that fails (a full disk), it says so on
+    stderr and exits with 120, as the interpreter's own exit would, never 0 with the output lost."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-c", _witnessed(["tune", "--plant", "1/(s+1)^2", "--dt", "0.1",
+                                                               "--structure", "pi", "--json"])],
+                           stdout=full, stderr=subprocess.PIPE, text=True, timeout=120, cwd=str(ROOT), env=env)
+    assert p.returncode == 120, p.stderr[-800:]
+    assert "tuner: error: output not written" in p.stderr and "No space left" in p.stderr

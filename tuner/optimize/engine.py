@@ -277,26 +277,25 @@ def _unstable_variants(plant, dt: float | None, w0: float) -> list[np.ndarray]:
             np.array([-r, 0.5 * p1], dtype=complex)]
 
 
+#: the smaller structure a structure contains (:func:`_contained`: its answer seeds the larger one's search)
+CONTAINS = {"leadlag": "lead", "pid2": "pid"}
+
+
 def _contained(problem: TuningProblem) -> tuple[str, Any] | None:
     """The smaller structure this one contains, and the map of its gains into this one's parameters.
 
     (A ``pid`` at ``dt`` contains ``pid_z``, but needs no seeding: its own designed starts, zeros on the
     zero-order-hold plant's poles and Tf at the floor, are exactly ``pid_z``'s.)"""
-    if contained_structure(problem.structure.name) == "lead":  # leadlag
+    if problem.structure.name == "leadlag":
         def from_lead(g: dict[str, float]) -> dict[str, float]:
             return {"K": g["K"], "wz1": g["wz"], "wp1": g["wp"], "wz2": 1.001 * g["wz"], "wp2": g["wz"]}
-        return "lead", from_lead
-    if contained_structure(problem.structure.name) == "pid":  # pid2
+        return CONTAINS["leadlag"], from_lead
+    if problem.structure.name == "pid2":
         # pid2 contains pid at b = c = 1: pid's own starts exactly, and the same with setpoint weights
         def from_pid(g: dict[str, float]) -> list[dict[str, float]]:
             return [{**g, "b": b, "c": c} for b, c in PID2_WEIGHT_SEEDS]
-        return "pid", from_pid
+        return CONTAINS["pid2"], from_pid
     return None
-
-
-def contained_structure(name: str) -> str | None:
-    """The name of the smaller structure ``name`` contains (:func:`_contained`), or None."""
-    return {"leadlag": "lead", "pid2": "pid"}.get(name)
 
 
 #: structures whose search first runs the contained structure's whole search (:meth:`Engine._contained_answer`)

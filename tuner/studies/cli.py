@@ -56,12 +56,14 @@ _STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", 
           "tuner.analysis.plots")
 
 
-def _preload_stack() -> None:
-    """Import what the workers tune with and the parent reports with, once, before forking the workers."""
+def _preload_stack(plots: bool = True) -> None:
+    """Import what the workers tune with and the parent reports with, once, before forking the workers (the plots'
+    module, matplotlib's 0.2 s, only where plots are drawn: the start is serial, before any worker runs)."""
     import importlib
 
     for mod in _STACK:
-        importlib.import_module(mod)
+        if plots or mod != "tuner.analysis.plots":
+            importlib.import_module(mod)
 
 
 def _context() -> Any:
@@ -202,7 +204,7 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
         # Optuna creates its tables on first use: once, here (workers starting together would race), with
         # no connection left open across the fork
         open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
-        _preload_stack()
+        _preload_stack(plots=plots_dir is not None)
         ctx = _context()
         wakeup = Wakeup(ctx)
         pdir = str(plots_dir) if plots_dir is not None else None

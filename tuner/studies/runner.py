@@ -50,7 +50,6 @@ from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any
 
-import numpy as np
 import optuna
 from optuna.exceptions import DuplicatedStudyError, UpdateFinishedTrialError
 from optuna.storages import RDBStorage, fail_stale_trials
@@ -161,36 +160,42 @@ def _attempt(t: Any) -> int:
 
 
 def nlp_shape(lp: LoopDef) -> tuple[Any, ...]:
-    """What a loop's tune shares with another loop's through the NLP build cache, as far as it is known before the
-    tune: the structure, a continuous or sampled loop, each plant's order and delay in samples, which of the spec's
-    settings differ from the default (the constraints and objective the NLP carries). Loops of one shape build
-    problems of one shape (:class:`tuner.optimize.nlp.transcribe.ProblemKey`; the horizon's length aside). A data
-    loop's plant is known only once it is identified (during its tune): its own shape."""
+    """What a loop's tune tends to share with another loop's through the NLP build cache, as far as it is known
+    before the tune: the structure, a continuous or sampled loop, each plant's order, zeros and delay in samples as
+    the NLP models it (a sampled loop: the zero-order-hold plant, a fractional delay's extra state included), which
+    of the spec's settings differ from the default (the constraints and objective the NLP carries). The build
+    cache's key (:class:`tuner.optimize.nlp.transcribe.ProblemKey`) holds more (the horizon, the grid, whether the
+    loop has a phase crossover), which only the search knows. A data loop's plant is known only once it is
+    identified (during its tune), and a loop whose plant cannot be modelled here fails in its own tune: each is
+    its own shape (the order is a matter of speed only)."""
     if lp.data is not None:
         return ("data", lp.name)
     try:
         plants = base_plants(lp)
-    except TunerError:
-        return ("invalid", lp.name)
-    per = []
-    for p in plants:
-        order = max(len(np.trim_zeros(np.atleast_1d(np.asarray(p.den, float)), "f")) - 1, 0)
-        delay = round(p.delay_s / lp.dt) if lp.dt else int(p.delay_s > 0)
-        per.append((order, delay))
+        per = []
+        for p in plants:
+            m = p.zoh(lp.dt) if lp.dt is not None else p
+            per.append((m.order, m.zeros.size, round(m.delay_s / lp.dt) if lp.dt is not None else m.delay_s > 0))
+    except Exception:  # (grouping is an optimisation: a failing loop fails in its tune, as before)
+        return ("unmodelled", lp.name)
     return (lp.structure, lp.dt is None, tuple(per), tuple(sorted(lp.spec.model_dump(exclude_defaults=True))))
 
 
 def claim_order(study: StudyDef) -> list[LoopDef]:
     """The study's loops in the order workers take them: the study's order (:meth:`StudyDef.order`: file order,
-    inner loops first), regrouped so that loops of one :func:`nlp_shape` are consecutive (the groups in the order
-    their first loop comes, each in the study's order); an outer loop of a cascade goes with its inner loop.
+    inner loops first), regrouped so that loops of one :func:`nlp_shape` are consecutive, each group in the study's
+    order; the groups of one structure together (the structures in the order their first loop comes), and within a
+    structure those of the same plant shapes together (in the order of their first loops); a structure whose tune
+    first runs the whole search of a structure it contains (pid2: pid's) with that structure, after its group of the
+    same plant shapes; an outer loop of a cascade right after its inner loop.
 
     Loops of one shape reuse each other's NLP builds, and a worker tunes a stretch of consecutive loops (see
     :meth:`Coordinator.candidates`): in file order a worker that takes half the study builds what the other half
     builds too wherever shapes recur across the file. On the quality suite's 40-loop slice (bench/quality_scale.py;
     structures and plant orders alternate from case to case), two workers taking a half each build 4.5 % more than
-    one in file order (3.4-4.1 % splitting two loops either side), 0-0.7 % in this order
-    (bench/claim_order_builds.py: 23.1 s of builds in all)."""
+    one in file order, 0-0.7 % in this order (bench/claim_order_builds.py, bench/results/claim_order_builds.json)."""
+    from ..optimize.engine import CONTAINS, FULL_CONTAINMENT
+
     units: list[list[LoopDef]] = []
     unit_of: dict[str, list[LoopDef]] = {}
     for lp in study.order():
@@ -201,23 +206,20 @@ def claim_order(study: StudyDef) -> list[LoopDef]:
             unit = [lp]
             units.append(unit)
         unit_of[lp.name] = unit
-    from ..optimize.engine import FULL_CONTAINMENT, contained_structure
-
     groups: dict[tuple[Any, ...], list[LoopDef]] = {}
     for unit in units:
         groups.setdefault(nlp_shape(unit[0]), []).extend(unit)
-    # the groups of one structure together, and a structure whose tune first runs the whole search of one it contains
-    # (pid2: pid's) with that one's group of the same plants: it builds that one's problems too
-    family = {sh: (contained_structure(sh[0]) or sh[0]) if sh[0] in FULL_CONTAINMENT else sh[0]
+    # a structure's family: itself, or the structure whose whole search its tune runs first (it builds those problems)
+    family = {sh: CONTAINS[sh[0]] if sh[0] in FULL_CONTAINMENT else sh[0]
               for sh in groups if len(sh) == 4}
     first: dict[Any, int] = {}
     for sh in groups:
         first.setdefault(family.get(sh, sh), len(first))
         first.setdefault((family.get(sh, sh), sh[1:3]), len(first))
 
-    def rank(sh: tuple[Any, ...]) -> tuple[int, int]:
+    def rank(sh: tuple[Any, ...]) -> tuple[int, int, bool]:
         f = family.get(sh, sh)
-        return first[f], first[(f, sh[1:3])]
+        return first[f], first[(f, sh[1:3])], f != sh[0]  # (pid2 after pid's group of its plants)
 
     return [lp for sh in sorted(groups, key=rank) for lp in groups[sh]]
 
@@ -320,7 +322,7 @@ class Coordinator:
             out[lp.name] = st
         return out
 
-    def claim_order(self) -> list[LoopDef]:
+    def loops_in_claim_order(self) -> list[LoopDef]:
         """The order in which workers take the loops (:func:`claim_order`; computed once)."""
         if self._claim_order is None:
             self._claim_order = claim_order(self.study)
@@ -339,7 +341,7 @@ class Coordinator:
         taking loops at random spent 6-33 % more time building than one, taking every other loop 6-7 %, a half
         each 0-4 %. The split needs no count of the workers: a worker that joins halves the longest stretch
         left."""
-        loops = self.claim_order()
+        loops = self.loops_in_claim_order()
         free = [i for i, lp in enumerate(loops) if statuses[lp.name].state == "free"]
         if not free:
             return []
