@@ -91,5 +91,6 @@ def main() -> None:
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / "claim_order_builds.json").write_text(json.dumps(doc, indent=1))
 
+
 if __name__ == "__main__":
     main()

@@ -477,7 +477,7 @@ class Engine:
         for sc, v, r in sorted(self.pool, key=lambda t: t[0]):
             if unrefined and r:
                 continue
-            if all(np.linalg.norm((v - w) / span) > 0.05 for w in [c for _, c in chosen] + refined):
+            if all(np.linalg.norm((v - w) / span) > self.effort.basin for w in [c for _, c in chosen] + refined):
                 chosen.append((sc, v))
             if len(chosen) >= k + spread:
                 break
