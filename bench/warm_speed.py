@@ -112,10 +112,14 @@ def main() -> None:
     ap.add_argument("--revs", default="12b6462,5565a8d", help="older trees, comma-separated (the first: baseline)")
     ap.add_argument("--out", default=str(HERE / "results" / "warm_speed"))
     a = ap.parse_args()
-    res = measure(a.revs.split(","), a.seeds)
-    Path(a.out + ".json").write_text(json.dumps(res, indent=1))
+    write(a.out, measure(a.revs.split(","), a.seeds), markdown)
+
+
+def write(out: str, res: dict[str, Any], markdown: Any) -> None:
+    """``out``.json (the results) and ``out``.md (``markdown(res)``, printed too)."""
+    Path(out + ".json").write_text(json.dumps(res, indent=1))
     md = markdown(res)
-    Path(a.out + ".md").write_text(md)
+    Path(out + ".md").write_text(md)
     print(md)
 
 

@@ -53,3 +53,11 @@ def test_a_tiny_budget_still_returns_a_verified_result():
 def test_bad_seed(seed):
     with pytest.raises(TunerError, match="seed"):
         tune(plant_from_expr("1/(s+1)"), structure="pi", dt=0.1, seed=seed)
+
+
+@pytest.mark.parametrize("budget", [True, 0, -1.0, math.inf, math.nan, "10"])
+def test_bad_budget_is_named(budget):
+    """``time_budget_s=True`` was taken as 1 s (a bool is an int): every non-number, and every number that is not a
+    finite positive count of seconds, is refused by name."""
+    with pytest.raises(TunerError, match="time_budget_s must be a finite number > 0"):
+        tune(plant_from_expr("1/(s+1)"), structure="pi", dt=0.1, time_budget_s=budget)

@@ -66,7 +66,7 @@ from ..space import Space
 from .layout import Layout
 
 __all__ = ["ProblemKey", "Problem", "get_problem", "working_set", "estimated_build_s", "is_built", "cached_count",
-           "parameter_layout", "variable_layout", "BUILDS", "MS_GRID",
+           "sqp_options", "parameter_layout", "variable_layout", "BUILDS", "MS_GRID",
            "GRID_EXTRA", "SOLVERS"]
 
 BUILDS = {"count": 0}
@@ -484,21 +484,25 @@ def _envelope(c: _Constraints, key: ProblemKey, y: Any, slack: Any, P: dict[str,
         c.add(mask * (1 - y + slack - P["band"]) - (1 - mask), -cs.inf, 0.0)
 
 
+def sqp_options() -> dict[str, Any]:
+    """The SQP solver's options (``nlpsol(..., "sqpmethod", nlp, sqp_options())``)."""
+    # min_step_size: CasADi's default (1e-10 in the inf-norm) stops well-progressing solves whose steps in
+    # a coordinate are small (a pid at dt near its optimum: "Search_Direction_Becomes_Too_Small")
+    # tol_du: the stationarity a solve stops at (CasADi's default 1e-6); the bisection asks only the slack's
+    # sign and the batch judges every candidate, and the limited-memory Hessian's last digits cost a fifth of the
+    # iterations (on every fourth suite case: 21 % fewer, 3-7 % less CPU a tune). Where a filter time constant is
+    # nearly free the solve ends elsewhere and the search follows: with 1e-6, PI on 1/(20s+1)^2 at dt 0.1 ends at
+    # 64.9 s against 53.6 s (tests/tuner/test_effort_limits.py), with 1e-4 bench/quality.py's nmp-19 (default)
+    # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
+    return {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
+            "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False,
+            "print_iteration": False, "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
+            "qpsol_options": {"error_on_fail": False}}
+
+
 def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
     if key.solver == "sqp":
-        # min_step_size: CasADi's default (1e-10 in the inf-norm) stops well-progressing solves whose steps in
-        # a coordinate are small (a pid at dt near its optimum: "Search_Direction_Becomes_Too_Small")
-        # tol_du: the stationarity a solve stops at (CasADi's default 1e-6); the bisection asks only the slack's
-        # sign and the batch judges every candidate, and the limited-memory Hessian's last digits cost a fifth of the
-        # iterations (on every fourth suite case: 21 % fewer, 3-7 % less CPU a tune). Where a filter time constant is
-        # nearly free the solve ends elsewhere and the search follows: with 1e-6, PI on 1/(20s+1)^2 at dt 0.1 ends at
-        # 64.9 s against 53.6 s (tests/tuner/test_effort_limits.py), with 1e-4 bench/quality.py's nmp-19 (default)
-        # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
-        opts = {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
-                "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False,
-                "print_iteration": False, "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
-                "qpsol_options": {"error_on_fail": False}}
-        return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "sqpmethod", nlp, opts)
+        return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "sqpmethod", nlp, sqp_options())
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
             "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 5,
             "ipopt.mu_strategy": "adaptive", "ipopt.warm_start_init_point": "yes",
