@@ -68,7 +68,7 @@ def alive(pid: int) -> bool:
     try:  # a killed child not yet reaped is a zombie: not running
         with open(f"/proc/{pid}/stat") as f:
             return f.read().split(")")[-1].split()[0] != "Z"
-    except FileNotFoundError:
+    except (FileNotFoundError, ProcessLookupError):  # reaped between the two looks (opened, then gone: ESRCH)
         return False
 
 
