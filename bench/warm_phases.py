@@ -90,6 +90,7 @@ def _install() -> Timers:
 
 
 def phases(seeds: int, revs: list[str]) -> dict[str, Any]:
+    import tuner.optimize.nlp.transcribe as transcribe
     from tuner import plant_from_expr, tune
 
     timers = _install()
@@ -104,15 +105,17 @@ def phases(seeds: int, revs: list[str]) -> dict[str, Any]:
         for loop, (expr, structure, dt) in LOOPS.items():
             for effort in ("default", "fast"):
                 kw = {"structure": structure, "dt": dt, "time_budget_s": 10.0}
-                tune(plant_from_expr(expr), seed=1000, effort=effort, **kw)  # warm-up (NLP builds)
-                old = {}
-                for rev, w in workers.items():
-                    req = {"cmd": "tune_expr", "plant": expr, "effort": effort, **kw}
-                    w.call(seed=1000, **req)
-                    old[rev] = req
+                old = {rev: {"cmd": "tune_expr", "plant": expr, "effort": effort, **kw} for rev in workers}
+                # warm-up: every seed timed below, once first, in every process (a seed's search can need an NLP no
+                # other seed built: its build would land in the figures)
+                for seed in range(seeds):
+                    tune(plant_from_expr(expr), seed=seed, effort=effort, **kw)
+                    for rev, w in workers.items():
+                        w.call(seed=seed, **old[rev])
                 walls, outside, per = [], [], collections.defaultdict(list)
                 old_walls: dict[str, list[float]] = {rev: [] for rev in workers}
                 settle = []
+                builds0 = transcribe.BUILDS["count"]
                 for seed in range(seeds):
                     for rev, w in workers.items():
                         old_walls[rev].append(w.call(seed=seed, **old[rev])["wall_s"])
@@ -131,7 +134,10 @@ def phases(seeds: int, revs: list[str]) -> dict[str, Any]:
                         per[k].append(timers.t[k])
                         per[k + "#"].append(timers.n[k])
                 row = {"loop": loop, "structure": structure, "dt": dt, "effort": effort,
-                       "median_wall_ms": 1e3 * statistics.median(walls),
+                       "median_wall_ms": 1e3 * statistics.median(walls), "mean_wall_ms": 1e3 * statistics.mean(walls),
+                       # the NLP solves' share of the tunes' time (their sum over the walls' sum)
+                       "nlp_share": sum(per["nlp_solve"]) / sum(walls),
+                       "builds_while_timed": transcribe.BUILDS["count"] - builds0,
                        "median_outside_nlp_ms": 1e3 * statistics.median(outside),
                        "median_settling_s": statistics.median(settle),
                        "phases_ms": {k: 1e3 * statistics.mean(per[k]) for k in (*PHASES, "nlp_solve")},
@@ -225,6 +231,15 @@ def _replay_nlp(loop: str, key: Any, nlp: dict, calls: list[dict], flags: list[s
     return entry
 
 
+def machine_speed() -> float:
+    """Seconds a pure-Python loop of 10^7 additions takes here (the machine's speed, recorded with the results)."""
+    t0 = time.perf_counter()
+    total = 0
+    for i in range(10**7):
+        total += i
+    return time.perf_counter() - t0
+
+
 def _replay(solver: Any, calls: list[dict]) -> tuple[list[np.ndarray], float]:
     """Every solve of ``calls`` on ``solver``, twice (the first pass loads and allocates): the second pass's solutions
     and seconds."""
@@ -237,16 +252,23 @@ def _replay(solver: Any, calls: list[dict]) -> tuple[list[np.ndarray], float]:
 
 def markdown(res: dict[str, Any]) -> str:
     revs = res["revs"]
+    speed = res.get("python_loop_s")
     lines = ["# Where a warm tune's time goes (issue 30, item 1)", "",
-             f"`{res['command']}`, {res['seeds']} seeds per loop and effort; load average at the end "
-             f"{res['load_end']}. ms per tune (phases: mean; wall and outside the NLP: median). *Outside the NLP*: "
-             "the wall less the CasADi solves, what a tune would cost if the local solver took no time. Ratios: to "
-             f"{revs[0] if revs else 'the old engine'} in this run; the target ratio is the issue's target over its "
-             "old-engine figure.", ""]
+             f"`{res['command']}`; load average at the end {res['load_end']}"
+             + (f"; a pure-Python loop of 10^7 additions took {speed[0]:.2f} s before and {speed[-1]:.2f} s after"
+                if speed else "") + ".", ""]
     if res["phases"]:
+        lines += [f"{res['seeds']} seeds per loop and effort, each tuned once before (warm: "
+                  f"{sum(r.get('builds_while_timed', 0) for r in res['phases'])} NLP builds while timed). ms per tune "
+                  "(phases: mean; wall and outside the NLP: median). *Outside the NLP*: the wall less the CasADi "
+                  "solves, what a tune would cost if the local solver took no time; *NLP share*: the solves' time "
+                  "over the tunes'. Ratios: to " + (revs[0] if revs else "the old engine") + " in this run; the target "
+                  "ratio is the issue's target over its old-engine figure.", ""]
         lines += _phase_table(res)
     if res.get("jit"):
         lines += ["", "## One default tune's NLP solves replayed, compiled", "",
+                  "One default tune (seed 0) of each loop, its solves replayed twice per solver, the second pass "
+                  "timed; the speed-up is the virtual machine's time over the compiled one's.", "",
                   "| loop | K | N | head | rows | solves | VM ms | " +
                   " | ".join(f"{f}: compile s, ms, speed-up, bitwise" for f in res["jit_flags"]) + " |",
                   "|" + "---|" * (7 + len(res["jit_flags"]))]
@@ -260,14 +282,16 @@ def markdown(res: dict[str, Any]) -> str:
 
 def _phase_table(res: dict[str, Any]) -> list[str]:
     revs, lines = res["revs"], []
-    head = ["loop", "effort", "wall", "NLP solves (n)", "outside the NLP"] + [f"{r} wall" for r in revs] + \
+    head = ["loop", "effort", "wall", "NLP solves (n)", "NLP share", "outside the NLP"] + \
+        [f"{r} wall" for r in revs] + \
         ([f"wall / {revs[0]}", f"outside / {revs[0]}", "target ratio"] if revs else []) + \
         ["round 0", "polish", "restart", "ray", "scan", "scorings", "verify", "settling s"]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in res["phases"]:
         ph = r["phases_ms"]
         cells = [f"{r['loop']} {r['structure']}", r["effort"], f"{r['median_wall_ms']:.0f}",
-                 f"{ph['nlp_solve']:.0f} ({r['calls']['nlp_solve']:.0f})", f"{r['median_outside_nlp_ms']:.0f}"]
+                 f"{ph['nlp_solve']:.0f} ({r['calls']['nlp_solve']:.0f})",
+                 f"{100 * r['nlp_share']:.0f} %" if "nlp_share" in r else "—", f"{r['median_outside_nlp_ms']:.0f}"]
         cells += [f"{r['old_median_wall_ms'][v]:.0f}" for v in revs]
         if revs:
             old = r["old_median_wall_ms"][revs[0]]
@@ -300,9 +324,11 @@ def main() -> None:
     res: dict[str, Any] = {"command": shlex.join(["python", "bench/warm_phases.py", *sys.argv[1:]]), "seeds": a.seeds,
                            "revs": revs, "jit_flags": flags,
                            "machine": {"cores": os.cpu_count(), "python": platform.python_version()}}
+    res["python_loop_s"] = [machine_speed()]
     res["phases"] = [] if a.no_phases else phases(a.seeds, revs)["rows"]
     res["jit"] = jit(flags) if flags else []
     res["load_end"] = load_average()
+    res["python_loop_s"].append(machine_speed())
     write(a.out, res, markdown)
 
 

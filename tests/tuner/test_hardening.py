@@ -11,6 +11,7 @@ import pytest
 from tuner import TunerError, make_plant, plant_from_expr
 from tuner.analysis.verify import analyze
 from tuner.errors import InvalidPlantError
+from tuner.tradeoff import tradeoff
 from tuner.tuning import tune
 
 
@@ -58,6 +59,8 @@ def test_bad_seed(seed):
 @pytest.mark.parametrize("budget", [True, 0, -1.0, math.inf, math.nan, "10"])
 def test_bad_budget_is_named(budget):
     """``time_budget_s=True`` was taken as 1 s (a bool is an int): every non-number, and every number that is not a
-    finite positive count of seconds, is refused by name."""
+    finite positive count of seconds, is refused by name, by ``tune`` and by ``tradeoff``."""
     with pytest.raises(TunerError, match="time_budget_s must be a finite number > 0"):
         tune(plant_from_expr("1/(s+1)"), structure="pi", dt=0.1, time_budget_s=budget)
+    with pytest.raises(TunerError, match="time_budget_s must be a finite number > 0"):  # the trade-off curve too
+        tradeoff(plant_from_expr("1/(s+1)"), structure="pi", dt=0.1, time_budget_s=budget)
