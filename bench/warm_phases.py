@@ -2,8 +2,8 @@
 
     .venv/bin/python bench/warm_phases.py [--seeds 5] [--revs 12b6462] [--jit=-O0,-O1] [--out bench/results/warm_phases]
 
-For the README's loops (``bench/warm_speed.py``'s LOOPS) at each effort, in this process (warm: every loop tuned
-once first, each tune on freshly built plants):
+For the README's loops (``bench/warm_speed.py``'s LOOPS) at each effort, in this process (warm: every seed tuned once
+before it is timed, and the NLP builds while timed counted; each tune on freshly built plants):
 
 * the median wall of a tune, and per tune the time in each of the engine's phases (round 0, the fine polish, the
   restart, the ray, the scan, the batch scorings, the refinements, the final verification; the phases nest, so the
