@@ -112,7 +112,7 @@ def tradeoff(plant_or_plants: Any, *, structure: str | None = None, spec: Spec |
     """
     from .interop import as_plants
     from .problem import TuningProblem
-    from .tuning import tune
+    from .tuning import check_budget, tune
 
     if x != "settling_time":
         raise TunerError(f"x must be 'settling_time' (the speed axis), got {x!r}", field="x")
@@ -120,9 +120,7 @@ def tradeoff(plant_or_plants: Any, *, structure: str | None = None, spec: Spec |
         raise TunerError(f"y must be one of {sorted(Y_AXES)}, got {y!r}", field="y")
     if not (isinstance(points, int) and not isinstance(points, bool) and 2 <= points <= MAX_POINTS):
         raise TunerError(f"points must be an integer from 2 to {MAX_POINTS}, got {points!r}", field="points")
-    if not (isinstance(time_budget_s, (int, float)) and not isinstance(time_budget_s, bool)
-            and math.isfinite(time_budget_s) and time_budget_s > 0):  # (True is an int: 1 s)
-        raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
+    check_budget(time_budget_s)
     spec = spec if spec is not None else Spec()
     if spec.objective != "settling_time":
         raise TunerError("the trade-off curve's speed axis is the settling time: leave spec.objective at "

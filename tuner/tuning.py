@@ -375,9 +375,8 @@ def tune(
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= int(seed) < 2**32:
         raise TunerError(f"seed must be an integer from 0 to 2**32 - 1, got {seed!r}", field="seed")
     auto = time_budget_s is None
-    if not auto and not (isinstance(time_budget_s, (int, float)) and not isinstance(time_budget_s, bool)
-                         and math.isfinite(time_budget_s) and time_budget_s > 0):  # (True is an int: 1 s)
-        raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
+    if not auto:
+        check_budget(time_budget_s)
     from .optimize.engine import EFFORTS
 
     if effort not in EFFORTS:
@@ -457,6 +456,14 @@ class _Run:
     reserve: float
     stop: Any = None
     t_verify: float = 0.0
+
+
+def check_budget(time_budget_s: Any) -> None:
+    """A time budget, s, as ``tune`` and ``tradeoff`` take it: a finite number > 0 (not a bool: True is an int, 1 s);
+    a :class:`TunerError` at ``time_budget_s`` otherwise."""
+    if not (isinstance(time_budget_s, (int, float)) and not isinstance(time_budget_s, bool)
+            and math.isfinite(time_budget_s) and time_budget_s > 0):
+        raise TunerError(f"time_budget_s must be a finite number > 0, got {time_budget_s!r}", field="time_budget_s")
 
 
 def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo: int | None, dt: float | None,
