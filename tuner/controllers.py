@@ -50,7 +50,7 @@ import numpy as np
 
 from .errors import InvalidControllerError, TunerError
 from .firmware import laws
-from .lti import SS, Zpk, realize
+from .lti import SS, Zpk, realize, roots_of
 from .plant import MAX_ORDER, check_dt, tf_freqresp
 from .tolerances import SAME_COEFF_RTOL
 
@@ -110,9 +110,15 @@ class ControllerTF:
         """Zeros, poles and gain (a controller is low order: its roots are well conditioned)."""
         if "zpk" not in self._cache:
             n, d = np.trim_zeros(self.num, "f"), np.trim_zeros(self.den, "f")
-            self._cache["zpk"] = Zpk(np.roots(n).astype(complex) if n.size > 1 else np.zeros(0, complex),
-                                     np.roots(d).astype(complex) if d.size > 1 else np.zeros(0, complex),
-                                     float(n[0] / d[0]) if n.size else 0.0)
+            zeros, poles = roots_of(n), roots_of(d)  # None: not computable in double precision
+            with np.errstate(all="ignore"):
+                gain = float(n[0] / d[0]) if n.size else 0.0
+            if zeros is None or poles is None or not np.isfinite(gain):
+                raise InvalidControllerError(
+                    "the controller's zeros, poles or gain cannot be computed in double precision (its coefficients "
+                    f"span too many decades: num {self.num.tolist()}, den {self.den.tolist()}): rescale them",
+                    field="controller")
+            self._cache["zpk"] = Zpk(zeros, poles, gain)
         return self._cache["zpk"]
 
     def ss(self) -> SS:
@@ -433,8 +439,8 @@ class Structure:
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give coefficients beyond double "
                                          "precision once the denominator is made monic: rescale them",
                                          field="gains")
-        if self.ref_coeffs is None:
-            return ControllerTF(num=nn, den=dn, dt=dt)
+        if self.ref_coeffs is None:  # checked like every other controller: finite roots and realisation
+            return _checked(ControllerTF(num=nn, den=dn, dt=dt), "gains")
         num_r, den_r = self.ref_coeffs(x, dt, np.exp)
         num_r, den_r = np.asarray(num_r, dtype=float), np.asarray(den_r, dtype=float)
         if not np.all(np.isfinite(num_r)) or not np.allclose(den_r, den, rtol=SAME_COEFF_RTOL, atol=0):
@@ -646,15 +652,10 @@ def _check_order(order: int, field: str) -> None:
 
 def _checked(c: ControllerTF, field: str) -> ControllerTF:
     """``c`` if its zeros, poles and gain are finite (the factored form every computation uses)."""
-    with np.errstate(all="ignore"):
-        try:
-            zk = c.zpk
-        except (np.linalg.LinAlgError, ValueError) as e:
-            raise InvalidControllerError(f"the controller's zeros and poles cannot be computed ({e}): rescale "
-                                         "its coefficients", field=field) from None
-    if not (np.all(np.isfinite(zk.zeros)) and np.all(np.isfinite(zk.poles)) and np.isfinite(zk.gain)):
-        raise InvalidControllerError("the controller's zeros, poles or gain are not finite: rescale its "
-                                     "coefficients", field=field)
+    try:
+        c.zpk  # noqa: B018 - computed and checked finite here, cached for every later use
+    except InvalidControllerError as e:
+        raise InvalidControllerError(str(e), field=field) from None
     with np.errstate(all="ignore"):
         ss = c.ss()
     if not _finite_ss(ss):

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InvalidExpressionError
+from .lti import roots_of
 
 __all__ = ["ParsedTF", "parse_tf_expr", "MAX_EXPR_LENGTH", "MAX_DEPTH", "MAX_EXPONENT"]
 
@@ -305,10 +306,19 @@ def parse_tf_expr(text: str) -> ParsedTF:
     with np.errstate(over="ignore", invalid="ignore"):
         gain = float(np.prod([f[0] for f in r.nf]) / np.prod([f[0] for f in r.df])) if r.df else \
             float(np.prod([f[0] for f in r.nf]))
-    return ParsedTF(num=r.num / lead, den=r.den / lead, var=p.var, zeros=_roots(r.nf), poles=_roots(r.df),
-                    gain=gain)
+    with np.errstate(over="ignore", invalid="ignore"):
+        num, den = r.num / lead, r.den / lead
+    if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
+        raise InvalidExpressionError("coefficients overflow when the denominator is made monic (they span too many "
+                                     "decades): rescale them")
+    return ParsedTF(num=num, den=den, var=p.var, zeros=_roots(r.nf), poles=_roots(r.df), gain=gain)
 
 
 def _roots(factors: tuple[np.ndarray, ...]) -> np.ndarray:
-    rs = [np.roots(f) for f in factors if f.size > 1 and np.any(f)]
+    """The roots of each factor; a factor whose roots cannot be computed in double precision (``1e-300*s + 1e300``:
+    a root at -1e600; see :func:`~tuner.lti.roots_of`) is refused by name."""
+    rs = [roots_of(f) for f in factors if f.size > 1 and np.any(f)]
+    if any(r is None for r in rs):
+        raise InvalidExpressionError("a factor's roots cannot be computed in double precision (its coefficients span "
+                                     "too many decades): rescale it, or write it as a product of smaller factors")
     return np.concatenate(rs).astype(complex) if rs else np.zeros(0, complex)

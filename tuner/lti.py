@@ -110,6 +110,26 @@ def poly_from_roots(roots: Sequence[complex]) -> np.ndarray:
     return p
 
 
+def roots_of(p: np.ndarray) -> np.ndarray | None:
+    """The roots of the polynomial ``p`` (highest power first; leading zeros are dropped), or None when they cannot
+    be computed in double precision: coefficients so far apart that the companion matrix overflows
+    (``1e-300 s + 1e300``, a root at -1e600), or a root that is not finite.
+
+    Roots far below the largest come out with an absolute, not a relative, error (``s^4 + 1e100 s + 1e-100``:
+    the root near -1e-200 comes out as 0 beside three of magnitude 2e33). Every analysis treats a root that small
+    beside the others as at DC already (:attr:`tuner.loop.Loop.integrating`), and a discrete loop's pole at
+    ``z = 1e-300`` (a fast pole at a long ``dt``) is at the origin for every purpose: such roots are kept."""
+    p = np.trim_zeros(np.asarray(p, dtype=float), "f")
+    if p.size <= 1:
+        return np.zeros(0, complex)
+    with np.errstate(all="ignore"):
+        try:
+            r = np.roots(p).astype(complex)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+    return r if np.all(np.isfinite(r)) else None
+
+
 # -- cascade realisation ----------------------------------------------------------------------
 
 def _factors(roots: np.ndarray) -> list[tuple[np.ndarray, float]]:

@@ -25,7 +25,7 @@ from scipy import linalg
 
 from .errors import InvalidPlantError, TunerError
 from .expr import parse_tf_expr
-from .lti import SS, Zpk, realize, zoh, zoh_fractional, zpk_from_ss
+from .lti import SS, Zpk, realize, roots_of, zoh, zoh_fractional, zpk_from_ss
 from .lti import freqresp as lti_freqresp
 from .tolerances import EXACT_ROOT_TOL, SAME_DT_RTOL
 
@@ -272,10 +272,16 @@ class Plant:
 
 
 def _zpk_of(num: np.ndarray, den: np.ndarray) -> Zpk:
-    """Zeros, poles and gain of coefficient lists (the best the expanded data allow)."""
+    """Zeros, poles and gain of coefficient lists (the best the expanded data allow). Roots that cannot be
+    computed in double precision (:func:`~tuner.lti.roots_of`) raise :class:`~tuner.errors.InvalidPlantError`
+    naming ``num`` or ``den``."""
     n, d = np.trim_zeros(np.asarray(num, float), "f"), np.trim_zeros(np.asarray(den, float), "f")
-    zeros = np.roots(n).astype(complex) if n.size > 1 else np.zeros(0, complex)
-    poles = np.roots(d).astype(complex) if d.size > 1 else np.zeros(0, complex)
+    zeros, poles = roots_of(n), roots_of(d)
+    for roots, name, what in ((zeros, "num", "zeros"), (poles, "den", "poles")):
+        if roots is None:
+            raise InvalidPlantError(f"the plant's {what} cannot be computed in double precision from these "
+                                    "coefficients (they span too many decades): rescale the model, or give it as "
+                                    "a product of factors, e.g. an expression 1/((s + a)*(s + b))", field=name)
     return Zpk(zeros, poles, float(n[0] / d[0]) if n.size and d.size else 0.0)
 
 

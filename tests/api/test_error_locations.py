@@ -61,3 +61,14 @@ def test_the_closed_loop_verdict_names_no_flag(client):
     assert r.status_code == 200
     d = r.json()
     assert "--" not in d["verdict"] and all("--" not in w for w in d["warnings"])
+
+
+@pytest.mark.parametrize("controller, loc", [
+    ({"structure": "pi", "gains": {"Kp": 1e-300, "Ki": 1e300}}, "controller"),
+    ({"expr": "(1e-300*s + 1e300)/s"}, "controller"),
+])
+def test_a_controller_zero_beyond_double_precision_is_a_422_at_the_controller(client, controller, loc):
+    r = client.post("/analyze", json={"plant": {"expr": "1/(s + 1)"}, "controller": controller})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"][:2] == ["body", loc], r.text
+    assert "double precision" in r.json()["detail"][0]["msg"], r.text

@@ -49,7 +49,8 @@ class Margins:
     ----------
     phase_margin_deg, crossover_rad_s : float
         The worst phase margin over all gain crossings, degrees in [0, 180], and where it is taken
-        (``inf``/``nan`` when ``|L|`` never crosses 1).
+        (``inf``/``nan`` when ``|L|`` never crosses 1; both ``nan`` when it crosses 1 where the frequency grid
+        cannot reach, beyond 1e-300..1e300 rad/s: unknown, and failing a phase-margin limit).
     gain_margin_db, gain_margin_lower_db : float
         Upper (> 0 dB, ``inf`` if none) and lower (< 0 dB, ``-inf`` if none) gain margins.
     phase_crossover_rad_s : float
@@ -187,7 +188,8 @@ def _real_axis_points(loop: Loop, w: np.ndarray, L: np.ndarray) -> list[tuple[fl
 
         wc = _root(im_rel, w[i], w[i + 1])
         Lc = complex(loop.freqresp(np.array([wc]))[0])
-        if abs(Lc.imag) <= 1e-6 * abs(Lc) and abs(Lc) < 1e12:
+        mag = _cabs(Lc)
+        if abs(Lc.imag) <= 1e-6 * mag and mag < 1e12:
             pts.append((wc, Lc))
     # exact zeros of Im L on the grid
     for i in np.flatnonzero(im == 0):
@@ -205,6 +207,13 @@ def _real_axis_points(loop: Loop, w: np.ndarray, L: np.ndarray) -> list[tuple[fl
         if np.isfinite(v):
             pts.append((math.pi / loop.dt, complex(v.real)))
     return pts
+
+
+def _cabs(z: complex) -> float:
+    """``|z|``, inf where it overflows (Python's ``abs`` of a complex raises OverflowError there: near a pole on
+    the imaginary axis, ``L`` of a loop gain of 1e300)."""
+    with np.errstate(over="ignore"):
+        return float(np.abs(np.complex128(z)))
 
 
 def _at_infinity(loop: Loop) -> float | None:
@@ -246,6 +255,26 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
         if pm < best:
             best, wbest = pm, wc
     return best, wbest
+
+
+def _crossing_beyond_grid(loop: Loop, w: np.ndarray, L: np.ndarray) -> bool:
+    """Whether ``|L|`` is on one side of 1 at an end of the grid and on the other in the limit beyond it (w -> 0;
+    continuous, w -> inf): a gain crossing the grid does not hold. The grid reaches every asymptote crossing
+    within 1e-300..1e300 rad/s (:func:`_asymptote_crossings`); a loop of 1e-300/(s (s - 1e6)) crosses at
+    1e-306 rad/s."""
+    def side(v: complex | float) -> float:
+        a = abs(v)
+        return 0.0 if (math.isnan(a) or a == 1.0) else (1.0 if a > 1.0 else -1.0)
+
+    if not (np.isfinite(L[0]) and np.isfinite(L[-1])):
+        return False
+    low = math.inf if loop.integrating else loop.value_at(0.0 if loop.dt is None else 1.0)
+    if side(low) * side(L[0]) < 0:
+        return True
+    if loop.dt is None:
+        c_inf, g_inf = loop.controller.ss().D, loop.plant.ss().D  # |L(jw)| -> |C(inf) G(inf)|, delay or not
+        return side(c_inf * g_inf) * side(L[-1]) < 0
+    return False
 
 
 def _limit_values(loop: Loop) -> np.ndarray:
@@ -323,12 +352,20 @@ def disk_margin(loop: Loop, w: np.ndarray | None = None, L: np.ndarray | None = 
         with np.errstate(divide="ignore", invalid="ignore"):
             L = loop.freqresp(w)
     finite = np.isfinite(L)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dm = float(np.min(2 * np.abs(1 + L[finite]) / np.abs(1 - L[finite]))) if finite.any() else math.inf
+    dm = float(np.min(_disk_ratio(L[finite]))) if finite.any() else math.inf
     L_ends = _limit_values(loop)  # the grid stops short of w = 0 and w = inf: include the limits
     if L_ends.size:
-        dm = min(dm, float(np.min(2 * np.abs(1 + L_ends) / np.abs(1 - L_ends))))
+        dm = min(dm, float(np.min(_disk_ratio(L_ends))))
     return dm
+
+
+def _disk_ratio(L: np.ndarray) -> np.ndarray:
+    """``2|1+L|/|1-L|`` at finite ``L``, evaluated at ``1/L`` where ``|L| > 1`` (the ratio is the same at ``L`` and
+    ``1/L``): ``|1 +- L|`` of an ``L`` near 1e308 overflows, and inf/inf was a NaN margin."""
+    with np.errstate(all="ignore"):  # 1/L of |L| ~ 1e308 underflows to 0, as it should
+        big = np.abs(L) > 1.0
+        u = np.where(big, 1.0 / np.where(big, L, 1.0), L)
+        return 2 * np.abs(1 + u) / np.abs(1 - u)
 
 
 def margins(loop: Loop, *, grid_points: int = _GRID_POINTS) -> Margins:
@@ -338,6 +375,8 @@ def margins(loop: Loop, *, grid_points: int = _GRID_POINTS) -> Margins:
         L = loop.freqresp(w)
         S = 1.0 / (1.0 + L)
     pm, wc = _phase_margin(loop, w, L)
+    if _crossing_beyond_grid(loop, w, L):  # |L| crosses 1 where the grid cannot reach (below 1e-300 rad/s, ...)
+        pm, wc = math.nan, math.nan  # unknown, not "no crossing" (inf) nor the margin of another crossing
     gm, gml, wpc = _gain_margins(_real_axis_points(loop, w, L))
     ms, mt, mks = sensitivity_peaks(loop, w, L)
     bw = _bandwidth(loop, w, L * S)

@@ -297,14 +297,16 @@ class BatchEvaluator:
             poles = np.full((A_eig.shape[0], A_eig.shape[1]), np.nan, complex)
             if good.any():
                 poles[good] = np.linalg.eigvals(A_eig[good])
+        # fmax.reduce: nanmax without its warning on the rows of candidates whose loop is not finite (all NaN: not
+        # stable, scored as far outside)
         if self.dt is None and not pd.tau:
-            out = np.nanmax(poles.real, axis=1)
-            tol = -STABILITY_MARGIN * np.maximum(1.0, np.nanmax(np.abs(poles), axis=1))
+            out = np.fmax.reduce(poles.real, axis=1)
+            tol = -STABILITY_MARGIN * np.maximum(1.0, np.fmax.reduce(np.abs(poles), axis=1))
             stable = good & (out < tol)
             sig = np.where(poles.real < 0, -poles.real, np.inf)
         else:
             h = self._fine_h(pd) if self.dt is None else self.dt
-            r = np.nanmax(np.abs(poles), axis=1)
+            r = np.fmax.reduce(np.abs(poles), axis=1)
             stable = good & (r < 1 - STABILITY_MARGIN)
             out = r - 1
             sig = -np.log(np.clip(np.abs(poles), 1e-300, None)) / h
@@ -515,8 +517,7 @@ class BatchEvaluator:
             else:
                 y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
         Mdc = (np.eye(nz)[None] - A) if self.dt is not None else -A
-        with np.errstate(all="ignore"):
-            zf = np.linalg.solve(Mdc, Bm[:, :, inp:inp + 1])[:, :, 0]
+        zf = _solve_dc(Mdc, Bm[:, :, inp])
         yf = np.einsum("bz,bz->b", zf, Cy) + Dy[:, inp]
         return y, u, t, yf
 
@@ -530,8 +531,7 @@ class BatchEvaluator:
         u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
         # steady state of the delay-free continuous loop (e^{-s tau} = 1 at s = 0)
         cl0 = self._closed_loop(pd, num, den, num_r)
-        with np.errstate(all="ignore"):
-            zf = np.linalg.solve(-cl0.A, cl0.Bm[:, :, inp:inp + 1])[:, :, 0]
+        zf = _solve_dc(-cl0.A, cl0.Bm[:, :, inp])
         yf = np.einsum("bz,bz->b", zf, cl0.Cy) + cl0.Dy[:, inp]
         return y, u, np.broadcast_to(np.arange(K) * h, y.shape), yf
 
@@ -639,6 +639,23 @@ def _tustin_batch(A, B, C, D, h):
     Cd = np.einsum("bj,bji->bi", C, inv)
     Dd = D + 0.5 * np.einsum("bi,bi->b", C, Bd)
     return Ad, Bd, Cd, Dd
+
+
+def _solve_dc(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The steady states ``M z = b`` of a stack (B, n, n), (B, n); a loop whose matrix is singular in double
+    precision (stable, but with gains near 1e300) gets NaN, its final value unknown, instead of failing the
+    whole batch (numpy solves a stack all or nothing)."""
+    with np.errstate(all="ignore"):
+        try:
+            return np.linalg.solve(M, b[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            z = np.full(b.shape, np.nan)
+            for i in range(M.shape[0]):
+                try:
+                    z[i] = np.linalg.solve(M[i], b[i])
+                except np.linalg.LinAlgError:
+                    pass
+            return z
 
 
 def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
