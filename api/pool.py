@@ -22,7 +22,9 @@ What this module adds on top:
   (:class:`ClientBusy`, 429 with ``Retry-After``, beyond that).
 * **Recovery from a broken pebble pool.** pebble declares its pool broken when a worker dies while
   no job is running (e.g. the kernel's OOM killer took an idle worker; pebble issue #70). No job
-  can have been running then, so the pool is rebuilt and the jobs it aborted are resubmitted.
+  can have been running then, so the pool is rebuilt and the jobs it aborted are resubmitted. A job that
+  no solver starts within ``start_timeout_s`` (it was handed over with a solver free; a solver pebble lost
+  track of) is resubmitted the same way, on fresh solvers, once: nothing waits for a solver without bound.
 
 Exceptions for the routes (mapped in :mod:`api.errors`): :class:`PoolBusy`, :class:`ClientBusy`,
 :class:`PoolClosed`, :class:`JobTimeout`, :class:`WorkerCrashed`, :class:`JobFailed`.
@@ -225,12 +227,12 @@ class WorkerPool:
             if self._pebble is not None and not self._pebble.active:
                 await self._rebuild(self._pebble)
 
-    async def _rebuild(self, broken: ProcessPool) -> None:
+    async def _rebuild(self, broken: ProcessPool, why: str = "a worker died while idle") -> None:
         assert self._rebuilding is not None
         async with self._rebuilding:
             if self._closed or self._pebble is not broken:
                 return  # someone else rebuilt it
-            log.error("the solver pool broke (a worker died while idle); starting fresh solver processes")
+            log.error("the solver pool broke (%s); starting fresh solver processes", why)
             self.rebuilds += 1
             self.crashes += 1
             self._pebble = await asyncio.to_thread(self._new_pebble)
@@ -371,7 +373,11 @@ class WorkerPool:
                 continue
             self._inflight.add(future)
             try:
-                kind, value = await asyncio.wrap_future(future)
+                kind, value = await self._outcome(future)
+            except _NotStarted:  # a free solver did not take it: the pool is stuck, not busy
+                future.cancel()
+                await self._rebuild(pool, f"a job waited {self.start_timeout_s:g} s for a free solver to start it")
+                continue
             except FutureTimeout:
                 self.timeouts += 1
                 log.warning("a solver overran its limit of %.3g s; stopped", timeout_s)
@@ -398,4 +404,22 @@ class WorkerPool:
                 return value
             raise JobFailed(kind, value)
         raise WorkerCrashed("the solver pool could not be restarted")
+
+    async def _outcome(self, future: Any) -> Any:
+        """The job's result (or its exception), once pebble has it. A job is handed to pebble only when a solver is
+        free, so it starts at once; one not started within ``start_timeout_s`` (a solver pebble lost track of:
+        seen once under load, an idle solver killed and neither replaced nor the pool declared broken) raises
+        :class:`_NotStarted` instead of waiting without bound. Once started, pebble's own ``timeout`` bounds it."""
+        wrapped = asyncio.wrap_future(future)
+        deadline = time.monotonic() + self.start_timeout_s
+        while True:
+            done, _ = await asyncio.wait({wrapped}, timeout=0.5)
+            if done:
+                return wrapped.result()
+            if not future.running() and time.monotonic() >= deadline:
+                raise _NotStarted
+
+
+class _NotStarted(Exception):
+    """A job handed to a free solver was not started within the pool's start timeout."""
 

@@ -94,7 +94,9 @@ class Settings(BaseSettings):
     plot_queue_size: int = Field(32, ge=0, le=10_000)
     plot_cache_mb: float = Field(64.0, ge=0)
     db_retry_s: float = Field(5.0, gt=0, le=300)
-    worker_start_timeout_s: float = Field(120.0, gt=0)
+    worker_start_timeout_s: float = Field(120.0, gt=0, description="how long the solver processes may take to "
+                                          "start, and a job handed to a free solver to be started by it (else it "
+                                          "is run again on fresh solvers)")
     start_method: Literal["forkserver", "spawn"] = "forkserver"
     worker_memory_mb: int | None = Field(4096, ge=256, description="address-space cap of a solver process")
     max_tasks_per_worker: int | None = Field(200, ge=1)

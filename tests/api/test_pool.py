@@ -214,6 +214,30 @@ def test_worker_killed_while_idle_costs_no_request(app, client):
     assert pid not in app.state.pool.pids()
 
 
+def test_a_job_no_solver_starts_is_run_on_fresh_solvers_not_waited_for(tmp_path):
+    """A job is handed to pebble only when a solver is free, so it starts at once. Once in a fast-lane run the
+    previous test's request waited 300 s: a solver gone that pebble neither replaced nor declared broken. Here the
+    only solver is stopped (SIGSTOP: alive to pebble, taking nothing): the job is not started within the pool's
+    start timeout, so fresh solvers are started and the job runs there."""
+    from fastapi.testclient import TestClient
+
+    settings = Settings(database_url=f"sqlite:///{tmp_path / 'tuner.db'}", workers=1, queue_size=0,
+                        worker_start_timeout_s=3.0, analyze_timeout_s=30)
+    app = create_app(settings)
+    with TestClient(app) as c:
+        wait_for_workers(c)
+        (pid,) = app.state.pool.pids()
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            r = c.post("/analyze", json=ANALYZE)
+            assert r.status_code == 200, r.text
+            assert app.state.pool.rebuilds == 1 and pid not in app.state.pool.pids()
+        finally:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+    wait_until(lambda: not alive(pid), what="the stopped solver gone")
+
+
 def test_memory_hungry_solve_fails_alone_and_the_next_request_is_served(app, client, inject):
     inject(testing.hog_job)
     (pid,) = app.state.pool.pids()
