@@ -24,7 +24,9 @@ What this module adds on top:
   no job is running (e.g. the kernel's OOM killer took an idle worker; pebble issue #70). No job
   can have been running then, so the pool is rebuilt and the jobs it aborted are resubmitted. A job that
   no solver starts within ``start_timeout_s`` (it was handed over with a solver free; a solver pebble lost
-  track of) is resubmitted the same way, on fresh solvers, once: nothing waits for a solver without bound.
+  track of) is resubmitted the same way, on fresh solvers, once, when no other job runs on the pool (a
+  rebuild would kill it); otherwise, or if fresh solvers do not start it either, it is refused as when the
+  service is full (:class:`PoolBusy`, 503 with ``Retry-After``): nothing waits for a solver without bound.
 
 Exceptions for the routes (mapped in :mod:`api.errors`): :class:`PoolBusy`, :class:`ClientBusy`,
 :class:`PoolClosed`, :class:`JobTimeout`, :class:`WorkerCrashed`, :class:`JobFailed`.
@@ -166,7 +168,7 @@ class WorkerPool:
         self._waiting: collections.Counter[str] = collections.Counter()
         self._waiters: collections.deque[_Waiter] = collections.deque()
         self._deadlines: dict[int, tuple[str, float]] = {}  # running job -> (client, monotonic end)
-        self._inflight: set[Any] = set()  # pebble futures
+        self._inflight: dict[Any, ProcessPool] = {}  # pebble futures -> the pool each was handed to
         self._keys = itertools.count()
         self._admitted = 0
         self._closed = False
@@ -227,14 +229,15 @@ class WorkerPool:
             if self._pebble is not None and not self._pebble.active:
                 await self._rebuild(self._pebble)
 
-    async def _rebuild(self, broken: ProcessPool, why: str = "a worker died while idle") -> None:
+    async def _rebuild(self, broken: ProcessPool, why: str = "a worker died while idle", *,
+                       crash: bool = True) -> None:
         assert self._rebuilding is not None
         async with self._rebuilding:
             if self._closed or self._pebble is not broken:
                 return  # someone else rebuilt it
             log.error("the solver pool broke (%s); starting fresh solver processes", why)
             self.rebuilds += 1
-            self.crashes += 1
+            self.crashes += crash
             self._pebble = await asyncio.to_thread(self._new_pebble)
         await asyncio.to_thread(self._stop_pebble, broken)
 
@@ -371,12 +374,19 @@ class WorkerPool:
                 self._deadlines.pop(key, None)
                 await self._rebuild(pool)
                 continue
-            self._inflight.add(future)
+            self._inflight[future] = pool
             try:
                 kind, value = await self._outcome(future)
-            except _NotStarted:  # a free solver did not take it: the pool is stuck, not busy
+            except _NotStarted:  # a free solver did not take it: a solver is stuck, not busy
                 future.cancel()
-                await self._rebuild(pool, f"a job waited {self.start_timeout_s:g} s for a free solver to start it")
+                if _attempt or any(p is pool and f.running() for f, p in self._inflight.items()):
+                    # other jobs run on this pool (a rebuild would kill them), or fresh solvers did not start it
+                    # either: refused, as when the service is full, and nothing else is touched
+                    log.error("a job was not started within %.3g s by a free solver; refused", self.start_timeout_s)
+                    raise PoolBusy(f"no solver process started the job within {self.start_timeout_s:g} s",
+                                   retry_after_s=self.retry_after_s()) from None
+                await self._rebuild(pool, f"a job waited {self.start_timeout_s:g} s for a free solver to start "
+                                          "it, and no other job ran", crash=False)
                 continue
             except FutureTimeout:
                 self.timeouts += 1
@@ -398,7 +408,7 @@ class WorkerPool:
                 future.cancel()  # a running job's worker is stopped by pebble
                 raise
             finally:
-                self._inflight.discard(future)
+                self._inflight.pop(future, None)
                 self._deadlines.pop(key, None)
             if kind == "ok":
                 return value
@@ -409,14 +419,15 @@ class WorkerPool:
         """The job's result (or its exception), once pebble has it. A job is handed to pebble only when a solver is
         free, so it starts at once; one not started within ``start_timeout_s`` (a solver pebble lost track of:
         seen once under load, an idle solver killed and neither replaced nor the pool declared broken) raises
-        :class:`_NotStarted` instead of waiting without bound. Once started, pebble's own ``timeout`` bounds it."""
+        :class:`_NotStarted` instead of waiting without bound. Once started, pebble's own ``timeout`` bounds it
+        (the caller rebuilds a pool only when none of its jobs is running, so no started job loses its pool)."""
         wrapped = asyncio.wrap_future(future)
         deadline = time.monotonic() + self.start_timeout_s
         while True:
             done, _ = await asyncio.wait({wrapped}, timeout=0.5)
             if done:
                 return wrapped.result()
-            if not future.running() and time.monotonic() >= deadline:
+            if not (future.running() or future.done()) and time.monotonic() >= deadline:
                 raise _NotStarted
 
 

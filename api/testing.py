@@ -42,6 +42,15 @@ def sleep_job(payload: Any) -> dict[str, Any]:
     return {"slept_s": seconds}
 
 
+def sleep_marked(started_file: str, seconds: float) -> int:
+    """Writes its pid to ``started_file``, sleeps ``seconds`` and returns the pid (bind the file with
+    functools.partial): a job a test can see running, on a solver it can name."""
+    with open(started_file, "w") as f:
+        f.write(str(os.getpid()))
+    time.sleep(seconds)
+    return os.getpid()
+
+
 def invalid_plant_job(payload: Any) -> None:
     """The library rejects the input inside the solver (as ``tune`` may, e.g. for an unusable plant)."""
     from tuner.errors import InvalidPlantError

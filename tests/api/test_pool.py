@@ -232,10 +232,48 @@ def test_a_job_no_solver_starts_is_run_on_fresh_solvers_not_waited_for(tmp_path)
             r = c.post("/analyze", json=ANALYZE)
             assert r.status_code == 200, r.text
             assert app.state.pool.rebuilds == 1 and pid not in app.state.pool.pids()
+            assert app.state.pool.crashes == 0  # nothing crashed: a solver was stuck
         finally:
             if alive(pid):
                 os.kill(pid, signal.SIGKILL)
     wait_until(lambda: not alive(pid), what="the stopped solver gone")
+
+
+def test_a_job_not_started_beside_a_running_one_is_refused_and_the_running_one_finishes(tmp_path):
+    """Two solvers: one runs a job, the other is stopped. A job handed to the pool is not started within the start
+    timeout; rebuilding the pool would kill the running job (pebble then leaves its future running forever), so
+    the new job is refused (PoolBusy, a 503 with Retry-After) and the running job ends with its own result."""
+    import asyncio
+    import functools
+
+    from api.pool import PoolBusy, WorkerPool
+
+    marker = tmp_path / "running"
+
+    async def main() -> None:
+        pool = WorkerPool(size=2, queue_size=0, start_timeout_s=2.0, max_running_per_client=2)
+        await pool.start()
+        assert await pool.wait_ready(120)
+        running = asyncio.create_task(pool.run(functools.partial(testing.sleep_marked, str(marker)), 6.0,
+                                               timeout_s=60))
+        for _ in range(600):
+            if marker.exists() and marker.read_text():
+                break
+            await asyncio.sleep(0.1)
+        busy = int(marker.read_text())
+        (idle,) = [p for p in pool.pids() if p != busy]
+        os.kill(idle, signal.SIGSTOP)
+        try:
+            with pytest.raises(PoolBusy, match="no solver process started the job"):
+                await asyncio.wait_for(pool.run(testing.sleep_job, {"time_budget_s": 0.1}, timeout_s=30), 60)
+            assert await asyncio.wait_for(running, 60) == busy  # its solver was not stopped under it
+            assert pool.rebuilds == 0 and pool.crashes == 0
+        finally:
+            if alive(idle):
+                os.kill(idle, signal.SIGKILL)
+            await pool.close()
+
+    asyncio.run(main())
 
 
 def test_memory_hungry_solve_fails_alone_and_the_next_request_is_served(app, client, inject):

@@ -131,17 +131,40 @@ def test_a_crossing_beyond_the_grid_is_an_unknown_margin_not_none():
         an = analyze(make_plant([1e-300], [1.0, -1e6, 0.0]), controller_from_coeffs([1.0], [1.0], dt=None))
     assert math.isnan(an.metrics.phase_margin_deg) and math.isnan(an.metrics.crossover_rad_s)
     assert not next(c for c in an.checks if c.name == "phase_margin_deg").ok
-    # the fuzzer's next find, the same gap: 1e-300/(s^4 + 1e-100 s^3 + 1e100 s + 1e-100), whose pole near -1e-200
-    # is computed as 0 beside three of magnitude 2e33 (at DC for every analysis): its crossing, near
-    # 1e-300/1e100 = 1e-400 rad/s, is beyond double precision; inf ("no crossing") was reported
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        lost = analyze(make_plant([1.0], [1.0, 1e-100, 0.0, 1e100, 1e-100]),
-                       controller_from_coeffs([1e-300], [1.0], dt=None))
-    assert math.isnan(lost.metrics.phase_margin_deg)
     # and a loop whose crossing is on the grid keeps its margin: 2(s+1)/s * 1/(s+1) = 2/s, PM 90 at 2 rad/s
     ok = analyze(plant_from_expr("1/(s+1)"), controller_from_coeffs([2.0, 2.0], [1.0, 0.0], dt=None))
     assert ok.metrics.phase_margin_deg == pytest.approx(90.0) and ok.metrics.crossover_rad_s == pytest.approx(2.0)
+
+
+def test_a_crossing_just_beyond_the_grid_is_found_in_closed_form():
+    """The grid ends two decades beyond every pole and zero; a loop with |L| = 1 within rounding of an end crosses
+    just beyond it, and the margin is searched there (a cold review found them turned to nan by the first fix).
+    K/(s+1), K = 1.00001: |L| = 1 at w = sqrt(K^2 - 1), PM = 180 - atan(w) deg. K (s+2)/(s+1), K = 0.99999 (biproper,
+    |L| -> K < 1 at high frequency): |L|^2 = K^2 (w^2 + 4)/(w^2 + 1) = 1 at w^2 = (4K^2 - 1)/(1 - K^2), PM =
+    180 - |atan(w/2) - atan(w)|."""
+    k = 1.00001
+    low = analyze(plant_from_expr("1/(s+1)"), controller_from_coeffs([k], [1.0], dt=None)).metrics
+    wc = math.sqrt(k * k - 1)
+    assert low.crossover_rad_s == pytest.approx(wc, rel=1e-6)
+    assert low.phase_margin_deg == pytest.approx(180 - math.degrees(math.atan(wc)), abs=1e-6)
+    k = 0.99999
+    high = analyze(plant_from_expr("(s+2)/(s+1)"), controller_from_coeffs([k], [1.0], dt=None)).metrics
+    wc = math.sqrt((4 * k * k - 1) / (1 - k * k))
+    assert high.crossover_rad_s == pytest.approx(wc, rel=1e-6)
+    assert high.phase_margin_deg == pytest.approx(180 - abs(math.degrees(math.atan(wc / 2) - math.atan(wc))),
+                                                  abs=1e-6)
+
+
+@pytest.mark.parametrize("plant, num, den, dt", [
+    ("1/(s+1)", [1.0], [1.0], 0.01),  # |L(z=1)| = 1 to rounding, below 1 elsewhere
+    ("1e-11/(s+1e-10)", [1.0], [1.0], None),  # a pole near DC: |L| <= 0.1
+    ("1/s", [0.5, 0.0], [1.0, 1.0], None),  # a washout cancelling the integrator: L = 0.5/(s+1)
+    ("0.5*s/(s+1)^2", [1.0, 1.0], [1.0, 0.0], None),  # PI cancelling the plant's zero at 0: L = 0.5/(s+1)
+], ids=["unit DC gain", "pole near DC", "washout", "PI on a differentiator"])
+def test_a_loop_below_one_everywhere_has_no_crossing(plant, num, den, dt):
+    """|L| < 1 at every frequency (closed forms in the ids): no crossing, PM inf, not nan."""
+    m = analyze(plant_from_expr(plant), controller_from_coeffs(num, den, dt=dt)).metrics
+    assert m.phase_margin_deg == math.inf and math.isnan(m.crossover_rad_s)
 
 
 def test_the_disk_margin_of_a_loop_gain_near_double_precision_is_a_number():

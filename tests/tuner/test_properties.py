@@ -171,6 +171,30 @@ def assert_tuner_error(e: TunerError) -> None:
     assert isinstance(e.field, tuple)
 
 
+def assert_no_reachable_crossing(loop) -> None:
+    """A nan phase margin of a continuous loop means a crossing out of reach: the test's own |L|, from the factored
+    form in logs (no overflow), has no gain crossing on 0.1-decade steps up to 1e300 rad/s, from where the factored
+    form is still exact: 1e-300 rad/s, and no lower than 1e-10 of the largest root's frequency (roots carry an
+    absolute rounding of ~1e-16 of the largest). Discrete loops are not checked here: their roots near z = 1 and
+    the ZOH realisation the verifier evaluates differ at rounding level, which decides |L| at the lowest
+    frequencies (tests/tuner/test_hardening.py checks discrete loops whose |L(z=1)| is 1 to rounding)."""
+    zk = loop.zpk
+    if zk.gain == 0 or loop.dt is not None:
+        return  # L = 0: no crossing anywhere; discrete: above
+    big = float(np.max(np.abs(np.concatenate([zk.zeros, zk.poles])), initial=0.0))
+    lo, hi = math.log10(max(1e-300, 1e-10 * big)), 300.0
+    if hi <= lo:
+        return
+    w = np.logspace(lo, hi, int((hi - lo) * 10) + 2)
+    x = 1j * w
+    with np.errstate(all="ignore"):
+        lg = (math.log(abs(zk.gain)) + np.log(np.abs(x[:, None] - zk.zeros[None, :])).sum(axis=1)
+              - np.log(np.abs(x[:, None] - zk.poles[None, :])).sum(axis=1))
+    s = np.sign(lg[np.isfinite(lg)])
+    assert not np.any(s[:-1] * s[1:] < 0), \
+        f"the phase margin is nan, but |L| crosses 1 within 1e{lo:.0f}..1e{hi:.0f} rad/s"
+
+
 def assert_honest(an) -> None:
     """Figures of one analysis that can be checked without trusting the code under test."""
     m = an.metrics
@@ -187,6 +211,7 @@ def assert_honest(an) -> None:
         assert math.isnan(m.crossover_rad_s)
         if math.isnan(m.phase_margin_deg):
             assert not any(c.ok for c in an.checks if c.name == "phase_margin_deg")
+            assert_no_reachable_crossing(an.loop)
     assert not math.isnan(m.gain_margin_db) and (m.gain_margin_db > 0 or m.gain_margin_db == math.inf)
     assert not math.isnan(m.gain_margin_lower_db) and m.gain_margin_lower_db <= 0
     assert m.ms >= 0 and m.disk_margin >= 0 and not math.isnan(m.ms)

@@ -49,8 +49,8 @@ class Margins:
     ----------
     phase_margin_deg, crossover_rad_s : float
         The worst phase margin over all gain crossings, degrees in [0, 180], and where it is taken
-        (``inf``/``nan`` when ``|L|`` never crosses 1; both ``nan`` when it crosses 1 where the frequency grid
-        cannot reach, beyond 1e-300..1e300 rad/s: unknown, and failing a phase-margin limit).
+        (``inf``/``nan`` when ``|L|`` never crosses 1; both ``nan`` when it crosses 1 beyond 1e-300..1e300 rad/s,
+        out of double precision's reach: unknown, and failing a phase-margin limit).
     gain_margin_db, gain_margin_lower_db : float
         Upper (> 0 dB, ``inf`` if none) and lower (< 0 dB, ``-inf`` if none) gain margins.
     phase_crossover_rad_s : float
@@ -248,33 +248,71 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
         mag = np.log(np.abs(L))
     s = np.sign(mag)
     idx = np.flatnonzero((s[:-1] * s[1:] < 0) & np.isfinite(mag[:-1]) & np.isfinite(mag[1:]))
+    brackets: list[tuple[float, float] | None] = [(w[i], w[i + 1]) for i in idx]
+    brackets += _beyond_grid(loop, w, L)
     best, wbest = math.inf, math.nan
-    for i in idx:
-        wc = _root(lambda x: np.log(np.abs(loop.freqresp(x))), w[i], w[i + 1])
+    for br in brackets:
+        if br is None:  # a crossing beyond double precision's reach: the margin is unknown
+            return math.nan, math.nan
+        wc = _root(lambda x: np.log(np.abs(loop.freqresp(x))), *br)
         pm = _pm_at(complex(loop.freqresp(np.array([wc]))[0]))
         if pm < best:
             best, wbest = pm, wc
     return best, wbest
 
 
-def _crossing_beyond_grid(loop: Loop, w: np.ndarray, L: np.ndarray) -> bool:
-    """Whether ``|L|`` is on one side of 1 at an end of the grid and on the other in the limit beyond it (w -> 0;
-    continuous, w -> inf): a gain crossing the grid does not hold. The grid reaches every asymptote crossing
-    within 1e-300..1e300 rad/s (:func:`_asymptote_crossings`); a loop of 1e-300/(s (s - 1e6)) crosses at
-    1e-306 rad/s."""
-    def side(v: complex | float) -> float:
-        a = abs(v)
-        return 0.0 if (math.isnan(a) or a == 1.0) else (1.0 if a > 1.0 else -1.0)
+def _dc_magnitude(loop: Loop) -> float:
+    """``|L|`` in the limit w -> 0, from the factored form in logs (no overflow): inf with more poles than zeros
+    exactly at DC (s = 0; z = 1), 0 with fewer, else ``|k| prod|x0 - z| / prod|x0 - p|`` over the others (a pole
+    near DC, 1e-11/(s + 1e-10), has its finite value, 0.1; a zero cancelling an integrator, a washout on 1/s,
+    leaves the rest's)."""
+    zk = loop.zpk
+    x0 = 0.0 if loop.dt is None else 1.0
+    zd, pd = zk.zeros == x0, zk.poles == x0
+    q = int(pd.sum() - zd.sum())
+    if zk.gain == 0 or q:  # (a zero controller: L = 0 at every frequency, integrator or not)
+        return math.inf if zk.gain != 0 and q > 0 else 0.0
+    with np.errstate(divide="ignore"):
+        lg = math.log(abs(zk.gain)) + float(np.sum(np.log(np.abs(x0 - zk.zeros[~zd])))) \
+            - float(np.sum(np.log(np.abs(x0 - zk.poles[~pd]))))
+    return math.exp(min(lg, 709.0)) if lg < 709.0 else math.inf
 
-    if not (np.isfinite(L[0]) and np.isfinite(L[-1])):
-        return False
-    low = math.inf if loop.integrating else loop.value_at(0.0 if loop.dt is None else 1.0)
-    if side(low) * side(L[0]) < 0:
-        return True
-    if loop.dt is None:
-        c_inf, g_inf = loop.controller.ss().D, loop.plant.ss().D  # |L(jw)| -> |C(inf) G(inf)|, delay or not
-        return side(c_inf * g_inf) * side(L[-1]) < 0
-    return False
+
+_W_REACH = 300  # decades: the frequencies searched beyond the grid, 1e-300 .. 1e300 rad/s
+
+
+def _beyond_grid(loop: Loop, w: np.ndarray, L: np.ndarray) -> list[tuple[float, float] | None]:
+    """Brackets of the gain crossings beyond the grid's ends. Where ``|L|`` is on one side of 1 at an end of the
+    grid and on the other in the limit beyond it (w -> 0; continuous, w -> inf) it crosses 1 out there (the grid
+    spans two decades beyond every pole and zero and the asymptote crossings, so this is a rounding-level
+    near-miss, ``|L(0)|`` = 1.00001, or a crossing far out, 1e-300/(s (s - 1e6)) at 1e-306 rad/s): searched by
+    decades out to 1e-300 / 1e300 rad/s, and None (unknown) when it is not found there. Differences of ``|L|``
+    from 1 at rounding level (1e-9) are no side."""
+    def side(m: float) -> float:
+        if math.isnan(m):
+            return 0.0
+        lg = math.log(m) if m > 0 else -math.inf
+        return 0.0 if abs(lg) <= 1e-9 else math.copysign(1.0, lg)
+
+    ends = [(w[0], L[0], _dc_magnitude(loop), -1.0)]
+    if loop.dt is None:  # |L(jw)| -> |C(inf) G(inf)|, delay or not
+        ends.append((w[-1], L[-1], abs(float(loop.controller.ss().D * loop.plant.ss().D)), 1.0))
+    out: list[tuple[float, float] | None] = []
+    for w_end, L_end, limit, way in ends:
+        far = side(limit)
+        if not (np.isfinite(L_end) and far * side(_cabs(L_end)) < 0):
+            continue
+        n = int(math.floor(_W_REACH - way * math.log10(w_end)))
+        xs = w_end * 10.0 ** (way * np.arange(1, n + 1)) if n >= 1 else np.zeros(0)
+        with np.errstate(all="ignore"):
+            mags = np.abs(loop.freqresp(xs)) if xs.size else np.zeros(0)
+        hit = next((i for i, m in enumerate(mags) if side(float(m)) == far), None)
+        if hit is None:
+            out.append(None)
+            continue
+        prev = w_end if hit == 0 else float(xs[hit - 1])
+        out.append((float(xs[hit]), prev) if way < 0 else (prev, float(xs[hit])))
+    return out
 
 
 def _limit_values(loop: Loop) -> np.ndarray:
@@ -375,8 +413,6 @@ def margins(loop: Loop, *, grid_points: int = _GRID_POINTS) -> Margins:
         L = loop.freqresp(w)
         S = 1.0 / (1.0 + L)
     pm, wc = _phase_margin(loop, w, L)
-    if _crossing_beyond_grid(loop, w, L):  # |L| crosses 1 where the grid cannot reach (below 1e-300 rad/s, ...)
-        pm, wc = math.nan, math.nan  # unknown, not "no crossing" (inf) nor the margin of another crossing
     gm, gml, wpc = _gain_margins(_real_axis_points(loop, w, L))
     ms, mt, mks = sensitivity_peaks(loop, w, L)
     bw = _bandwidth(loop, w, L * S)

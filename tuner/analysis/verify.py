@@ -41,7 +41,7 @@ class Metrics:
         The closed loop is stable (from its poles).
     phase_margin_deg, crossover_rad_s : float
         The worst phase margin over all gain crossings, and the crossover frequency where it is taken (both
-        ``nan`` when a crossing lies beyond the frequency grid's reach: unknown, failing a phase-margin limit).
+        ``nan`` when a crossing lies beyond 1e-300..1e300 rad/s: unknown, failing a phase-margin limit).
     gain_margin_db, gain_margin_lower_db : float
         Upper gain margin (> 0 dB, ``inf`` if none) and lower gain margin (< 0 dB, ``-inf`` if none).
     disk_margin : float
