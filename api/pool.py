@@ -422,13 +422,10 @@ class WorkerPool:
         :class:`_NotStarted` instead of waiting without bound. Once started, pebble's own ``timeout`` bounds it
         (the caller rebuilds a pool only when none of its jobs is running, so no started job loses its pool)."""
         wrapped = asyncio.wrap_future(future)
-        deadline = time.monotonic() + self.start_timeout_s
-        while True:
-            done, _ = await asyncio.wait({wrapped}, timeout=0.5)
-            if done:
-                return wrapped.result()
-            if not (future.running() or future.done()) and time.monotonic() >= deadline:
-                raise _NotStarted
+        done, _ = await asyncio.wait({wrapped}, timeout=self.start_timeout_s)
+        if not done and not (future.running() or future.done()):
+            raise _NotStarted
+        return await wrapped
 
 
 class _NotStarted(Exception):

@@ -129,24 +129,31 @@ def _asymptote_crossings(loop: Loop) -> np.ndarray:
     zk = loop.zpk
     if zk.gain == 0 or not np.isfinite(zk.gain):
         return np.zeros(0)
+    out = []
+    q, lk = _dc_asymptote(loop, ROOT_AT_DC_TOL)
+    if q > 0:
+        w = 10.0 ** np.clip(lk / q, -300, 300)
+        out.append(w / loop.dt if loop.dt is not None else w)
+    r = zk.poles.size - zk.zeros.size
+    if loop.dt is None and r > 0:
+        out.append(10.0 ** np.clip(math.log10(abs(zk.gain)) / r, -300, 300))
+    return np.asarray(out, dtype=float)
+
+
+def _dc_asymptote(loop: Loop, tol: float) -> tuple[int, float]:
+    """``(q, log10 |K_q|)`` of the low-frequency asymptote ``|L| ~ |K_q| / w^q`` (``w dt`` for ``w`` in discrete
+    time), from the factored form in logs: ``q`` poles less zeros at DC (s = 0; z = 1) within ``tol``, exactly at
+    it for ``tol`` 0, and ``K_q`` from the gain and the other roots' distances to DC."""
+    zk = loop.zpk
     x0 = 0.0 if loop.dt is None else 1.0
     zeros, poles = zk.zeros, zk.poles
     if loop.dt is not None:  # delay poles at z = 0 have |1 - 0| = 1: they do not change |K_q|
         poles = poles[np.abs(poles) > EXACT_ROOT_TOL]
-    tol = ROOT_AT_DC_TOL
-    zi, pi_ = np.abs(zeros - x0) < tol, np.abs(poles - x0) < tol
-    out = []
-    q = int(pi_.sum() - zi.sum())
+    zi, pi_ = (np.abs(zeros - x0) < tol, np.abs(poles - x0) < tol) if tol else (zeros == x0, poles == x0)
     with np.errstate(divide="ignore"):
-        if q > 0:
-            lk = math.log10(abs(zk.gain)) + np.sum(np.log10(np.abs(x0 - zeros[~zi]))) \
-                - np.sum(np.log10(np.abs(x0 - poles[~pi_])))
-            w = 10.0 ** np.clip(lk / q, -300, 300)
-            out.append(w / loop.dt if loop.dt is not None else w)
-        r = zk.poles.size - zk.zeros.size
-        if loop.dt is None and r > 0:
-            out.append(10.0 ** np.clip(math.log10(abs(zk.gain)) / r, -300, 300))
-    return np.asarray(out, dtype=float)
+        lk = math.log10(abs(zk.gain)) + float(np.sum(np.log10(np.abs(x0 - zeros[~zi])))) \
+            - float(np.sum(np.log10(np.abs(x0 - poles[~pi_]))))
+    return int(pi_.sum() - zi.sum()), lk
 
 
 def _root(fv, a: float, b: float, *, rounds: int = 2, n: int = 72) -> float:
@@ -266,16 +273,12 @@ def _dc_magnitude(loop: Loop) -> float:
     exactly at DC (s = 0; z = 1), 0 with fewer, else ``|k| prod|x0 - z| / prod|x0 - p|`` over the others (a pole
     near DC, 1e-11/(s + 1e-10), has its finite value, 0.1; a zero cancelling an integrator, a washout on 1/s,
     leaves the rest's)."""
-    zk = loop.zpk
-    x0 = 0.0 if loop.dt is None else 1.0
-    zd, pd = zk.zeros == x0, zk.poles == x0
-    q = int(pd.sum() - zd.sum())
-    if zk.gain == 0 or q:  # (a zero controller: L = 0 at every frequency, integrator or not)
-        return math.inf if zk.gain != 0 and q > 0 else 0.0
-    with np.errstate(divide="ignore"):
-        lg = math.log(abs(zk.gain)) + float(np.sum(np.log(np.abs(x0 - zk.zeros[~zd])))) \
-            - float(np.sum(np.log(np.abs(x0 - zk.poles[~pd]))))
-    return math.exp(min(lg, 709.0)) if lg < 709.0 else math.inf
+    if loop.zpk.gain == 0:  # a zero controller: L = 0 at every frequency, integrator or not
+        return 0.0
+    q, lk = _dc_asymptote(loop, 0.0)
+    if q:
+        return math.inf if q > 0 else 0.0
+    return 10.0 ** lk if lk < 308.0 else math.inf
 
 
 _W_REACH = 300  # decades: the frequencies searched beyond the grid, 1e-300 .. 1e300 rad/s
