@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["at_bounds", "describe", "REL_TOL"]
+__all__ = ["at_bounds", "describe", "range_reason", "REL_TOL"]
 
 REL_TOL = 1e-3  # a coordinate within this share of its box's width from an edge is on the bound
 LIMIT_TOL = 0.01  # a default limit within 1 % of its value is active
@@ -41,7 +41,11 @@ def at_bounds(problem: Any, space: Any, x: np.ndarray, analyses: Any) -> list[di
         for side, edge in (("lower", lo[i]), ("upper", hi[i])):
             if abs(v[i] - edge) > REL_TOL * width[i]:
                 continue
-            if kind == "gain":
+            rng = st.param_range(p) if kind == "gain" else None
+            if rng is not None and _on_range(space, i, edge, rng):
+                lim = float(space.params(np.where(np.arange(v.size) == i, edge, v))[i])
+                rule = _range_rule(st, p, rng)
+            elif kind == "gain":
                 if abs(edge) < _V_SPAN * 0.999:
                     continue
                 lim = float(space.params(np.where(np.arange(v.size) == i, edge, v))[i])
@@ -76,6 +80,49 @@ def at_bounds(problem: Any, space: Any, x: np.ndarray, analyses: Any) -> list[di
                         "beyond": beyond, "rule": "the noise budget " + ("is exceeded" if beyond else "decides")
                         + f" ({lim['rule'].removeprefix('noise budget: ')}; Mks = {mks:.4g})"})
     return out
+
+
+def _on_range(space: Any, i: int, edge: float, rng: tuple[float, float]) -> bool:
+    """Whether the box edge ``edge`` of gain coordinate ``i`` is an end of its documented range ``rng``."""
+    val = float(space.params(np.full(space.lo.size, edge))[i])
+    # (an end at 0 is the firmware gains' sign, the box's own edge: not a range that decides)
+    return any(math.isfinite(r) and r != 0 and abs(val - r) <= 1e-9 * abs(r) for r in rng)
+
+
+def _range_rule(st: Any, p: str, rng: tuple[float, float]) -> str:
+    """Why a firmware law's gain on an end of its documented range stops there."""
+    from .firmware.names import law_names
+
+    name = law_names(st.firmware, st.axis or "roll").get(p, p)
+    hi = f"{rng[1]:g}" if math.isfinite(rng[1]) else "no upper end"
+    return (f"the documented range of {name} ({rng[0]:g} to {hi}: the ground station's parameter metadata, which "
+            "the exported parameter file keeps to) decides")
+
+
+def range_reason(st: Any, entries: list[dict[str, Any]], k0: float) -> str | None:
+    """A failing design's gain held on an end of its documented range: what that means for the plant and what to
+    change (PX4's ``K`` scales P, I and D together; ArduPilot has no such scale), or None."""
+    from .firmware.names import law_names
+
+    hits = [e for e in entries if e.get("param") in st.params and st.param_range(e["param"]) is not None
+            and "documented range" in e.get("rule", "")]
+    if not hits:
+        return None
+    names = law_names(st.firmware, st.axis or "roll")
+    parts = [f"{names.get(e['param'], e['param'])} at the {e['bound']} end of its documented range "
+             f"({_fmt(e['limit'])})" for e in hits]
+    low = any(e["bound"] == "lower" for e in hits)
+    if st.firmware == "px4":
+        k = dict(st.fixed).get("K", 1.0)
+        scale = (f"scale the whole law with {names['K']} (K = {k:g} now; it multiplies P, I and D, documented "
+                 "range 0.01 to 5): " + ("a smaller K" if low else "a larger K") + " moves the gains the plant "
+                 "needs into their ranges; set it on the vehicle and tune again with its parameters (--params)")
+    else:
+        scale = ("ArduPilot's rate law has no gain scale: check the plant's units (the identified input is the "
+                 "mixer's normalised command, the output the body rate in rad/s)")
+    need = "less" if low else "more"
+    return (f"{' and '.join(parts)}: the design this plant needs lies outside what the vehicle's parameter file can "
+            f"hold (this loop needs {need} gain there; the plant's ultimate gain K0 is {k0:.3g}); {scale}")
 
 
 def describe(entry: dict[str, Any]) -> str:

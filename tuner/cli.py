@@ -54,8 +54,10 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
                        help=lim.help.replace("%", "%%") + default)
         if lim.field == "overshoot_max_pct":  # (not a limit: the band the settling time is measured in)
             g.add_argument("--band", type=float, default=None, metavar="PCT", help="settling band %% (2)")
-    g.add_argument("--objective", default=None, choices=list(OBJECTIVE_DEFINITIONS),
-                   help="what tune optimises (default settling_time; each defined in 'tuner tune --help')")
+    g.add_argument("--objective", default=None, choices=[*OBJECTIVE_DEFINITIONS, "auto"],
+                   help="what tune optimises (each defined in 'tuner tune --help'); default auto: settling_time, and "
+                   "for a law with its own setpoint path (pid2, px4_rate, ardupilot_rate) iae for the feedback, then "
+                   "the setpoint path alone for the settling time")
     d = p.add_argument_group(
         "default design limits (tune; on unless lifted)",
         "A derivative filter N = Td/Tf <= 20 (Astrom & Hagglund, Advanced PID Control, 2006: N in 2..20) for pd, "
@@ -66,8 +68,14 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
     d.add_argument("--filter-n", type=float, default=None, metavar="N", help="derivative filter rule N_max (20)")
     d.add_argument("--no-filter-nyquist", action="store_true", help="lift the filter's Nyquist rule (Tf >= 1e-3 dt)")
     d.add_argument("--noise-gain", type=float, default=None, metavar="X", help="noise budget: Mks <= X K0 (10)")
+    d.add_argument("--gain-variation", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="the design holds with the nominal plant's gain times LO and HI too (every constraint on "
+                   "each; default 0.8 1.25 for px4_rate and ardupilot_rate: a rate loop's control effectiveness "
+                   "moves with battery voltage and payload, none otherwise)")
+    d.add_argument("--no-gain-variation", action="store_true", help="lift the gain variation")
     d.add_argument("--no-default-limits", action="store_true",
-                   help="the pure thesis spec: lift the three default limits (flags above still apply)")
+                   help="the pure thesis spec: lift the default limits, and the settling time is the objective for "
+                   "every structure (flags above still apply)")
 
 
 def _add_vehicle_args(p: argparse.ArgumentParser) -> None:
@@ -198,11 +206,19 @@ def _spec_from_args(a: argparse.Namespace):
     fields = {lim.field: getattr(a, lim.field) for lim in LIMITS}
     fields.update({"settling_band_pct": a.band, "objective": a.objective, "filter_n_max": a.filter_n,
                    "noise_gain_max": a.noise_gain})
+    gv = getattr(a, "gain_variation", None)
+    if gv is not None:
+        fields["gain_variation"] = tuple(gv)
     given = {k: v for k, v in fields.items() if v is not None}
     if a.no_default_limits:
-        given = {"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, **given}
+        given = {"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, "gain_variation": None,
+                 "objective": "settling_time", **given}  # (Spec.thesis(): its objective for every structure)
     if a.no_filter_nyquist:
         given["filter_nyquist"] = False
+    if getattr(a, "no_gain_variation", False):
+        if gv is not None:
+            raise TunerError("--no-gain-variation: lifts the gain variation that --gain-variation sets: give one")
+        given["gain_variation"] = None
     try:
         return Spec(**given)
     except ValidationError as e:
@@ -215,7 +231,7 @@ def _spec_from_args(a: argparse.Namespace):
 SPEC_FLAGS = {
     **{lim.field: lim.flag for lim in LIMITS},
     "settling_band_pct": "--band", "objective": "--objective", "filter_n_max": "--filter-n",
-    "noise_gain_max": "--noise-gain", "filter_nyquist": "--no-filter-nyquist",
+    "noise_gain_max": "--noise-gain", "filter_nyquist": "--no-filter-nyquist", "gain_variation": "--gain-variation",
     "zero_steady_state_error": "zero_steady_state_error",
 }
 
@@ -588,6 +604,10 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     vehicle = _read_vehicle(a, a.structure)
     if vehicle is not None:
         extra["vehicle"] = vehicle
+    from .firmware.bind import FIRMWARE_OF
+
+    if a.structure in FIRMWARE_OF:  # the axis whose documented ranges the search keeps to (and the export writes)
+        extra["axis"] = a.axis
     act = _actuator(a)
     if act is not None:
         extra["actuator"] = act
@@ -616,7 +636,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
               " (reference path, on r)" + _weights_note(res.gains))
     for i, an in enumerate(res.analyses):
         d = an.to_dict()
-        title = "nominal plant" if i == 0 else f"plant #{i + 1}"
+        title = res.label(i) + (" plant" if i == 0 and res.label(i) == "nominal" else "")
         print_table(title, analysis_rows(d["metrics"]), d["checks"])
     if res.analyses[0].saturated is not None:
         _print_saturated(res.analyses[0].saturated)
@@ -628,6 +648,10 @@ def _cmd_tune(a: argparse.Namespace) -> int:
     print(f"solver: {s['method']}, {s['wall_time_s']:.2f} s, {s['global_evaluations']} global evaluations, "
           f"{s['starts_tried']} NLP starts, {s['nlp_iterations']} NLP iterations, seed {s['seed']}")
     print(optimality_line(s))
+    from .display import design_lines
+
+    for d in design_lines(s):
+        print(d)
     many = len(res.analyses) > 1
     print(f"objective {res.spec.objective} = {fmt(out['objective']['value'])}"
           + (" (worst over the plants)" if many else ""))
@@ -670,7 +694,7 @@ def _cmd_tradeoff(a: argparse.Namespace) -> int:
         raise TunerError("--budget: must be > 0 and <= 3600 seconds")
     if not 2 <= a.points <= 20:
         raise TunerError("--points: must be from 2 to 20")
-    if spec.objective != "settling_time":
+    if spec.objective not in ("settling_time", "auto"):
         raise TunerError("--objective: the trade-off's speed axis is the settling time; leave --objective out")
     res = tradeoff(plants, structure=a.structure, spec=spec, dt=a.dt, x=a.x, y=a.y, points=a.points, seed=a.seed,
                    time_budget_s=a.budget)

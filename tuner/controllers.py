@@ -155,6 +155,30 @@ class ControllerTF:
             self._cache["two_input"] = _observable_pair(self.num, self.num_r, self.den)
         return self._cache["two_input"]
 
+    def without_dc_cancellation(self) -> ControllerTF:
+        """This controller with a pole at DC (``s = 0``, ``z = 1``) that a zero of each of its paths cancels exactly
+        divided out: an integrator whose gain is 0 (a PI at ``Ki = 0``, a firmware law at ``I = 0``), whose state would
+        be a mode of the loop that nothing drives and nothing sees. ``self`` when there is none.
+
+        Examples
+        --------
+        >>> from tuner import controller_from_coeffs
+        >>> c = controller_from_coeffs([2.0, -2.0], [1.0, -1.0], dt=0.1)  # 2 (z - 1)/(z - 1): a P of 2
+        >>> r = c.without_dc_cancellation()
+        >>> r.num.tolist(), r.den.tolist()
+        ([2.0], [1.0])
+        """
+        x0 = 1.0 if self.dt is not None else 0.0
+        polys = [np.asarray(self.den, float), np.asarray(self.num, float)]
+        if self.two_dof:
+            polys.append(np.asarray(self.num_r, float))
+        if any(p.size < 2 for p in polys):
+            return self
+        if not all(abs(float(np.polyval(p, x0))) <= 1e-12 * float(np.max(np.abs(p))) for p in polys):
+            return self
+        red = [np.polydiv(p, [1.0, -x0])[0] for p in polys]
+        return ControllerTF(num=red[1], den=red[0], dt=self.dt, num_r=red[2] if self.two_dof else None)
+
     def freqresp(self, w: np.ndarray) -> np.ndarray:
         """``C(j w)`` (continuous) or ``C(exp(j w dt))`` at the frequencies ``w``, rad/s."""
         return tf_freqresp(self.num, self.den, w, dt=self.dt)
@@ -348,6 +372,15 @@ class Structure:
     integral: str | None = None
     #: the firmware this structure's parameters belong to ("px4", "ardupilot"), None for the generic forms
     firmware: str | None = None
+    #: a firmware law's documented parameter ranges on one axis, ``(name, lo, hi)`` (the ground station's metadata,
+    #: :func:`tuner.firmware.names.law_ranges`): the search stays inside them, so that a design can be written to
+    #: the vehicle's parameter file; empty: no ranges (the generic structures)
+    ranges: tuple[tuple[str, float, float], ...] = ()
+    #: the axis whose ranges :attr:`ranges` holds (a firmware law), None otherwise
+    axis: str | None = None
+    #: a 2-DOF structure's parameters that act on the setpoint path alone (pid2's ``b``, ``c``; a firmware law's
+    #: ``FF``): the feedback, and so the margins and the load response, do not depend on them
+    setpoint: tuple[str, ...] = ()
 
     @property
     def two_dof(self) -> bool:
@@ -395,6 +428,25 @@ class Structure:
             return self
         return _firmware_structure(self, tuple((k, new[k]) for k, _ in self.fixed))
 
+    def with_ranges(self, axis: str) -> Structure:
+        """This firmware law with the documented ranges of its parameters on ``axis`` (``roll``, ``pitch``,
+        ``yaw``): the search keeps every tuned parameter inside them (:func:`tuner.firmware.names.law_ranges`)."""
+        if self.firmware is None:
+            return self
+        import dataclasses
+
+        from .firmware.names import law_ranges
+
+        r = law_ranges(self.firmware, axis)
+        rng = tuple((p, float(r[p][0]), float(r[p][1])) for p in self.params if p in r)
+        if rng == self.ranges and axis == self.axis:
+            return self
+        return dataclasses.replace(self, ranges=rng, axis=axis)
+
+    def param_range(self, p: str) -> tuple[float, float] | None:
+        """The documented range ``(lo, hi)`` of parameter ``p`` (a firmware law's, on its axis), or None."""
+        return next(((lo, hi) for q, lo, hi in self.ranges if q == p), None)
+
     def weight_range(self, p: str) -> tuple[float, float]:
         """The (lower, upper) range of the setpoint weight ``p`` (pid2's ``b``, ``c``)."""
         return next((lo, hi) for q, lo, hi in self.weight_ranges if q == p)
@@ -439,13 +491,21 @@ class Structure:
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give coefficients beyond double "
                                          "precision once the denominator is made monic: rescale them",
                                          field="gains")
+        no_integral = self.integral is not None and x[self.params.index(self.integral)] == 0
         if self.ref_coeffs is None:  # checked like every other controller: finite roots and realisation
-            return _checked(ControllerTF(num=nn, den=dn, dt=dt), "gains")
+            c = ControllerTF(num=nn, den=dn, dt=dt)
+            # an integrator of gain 0 is no state of the loop (else: a mode at DC nothing drives, "not stable")
+            return _checked(c.without_dc_cancellation() if no_integral else c, "gains")
         num_r, den_r = self.ref_coeffs(x, dt, np.exp)
         num_r, den_r = np.asarray(num_r, dtype=float), np.asarray(den_r, dtype=float)
         if not np.all(np.isfinite(num_r)) or not np.allclose(den_r, den, rtol=SAME_COEFF_RTOL, atol=0):
             raise InvalidControllerError(f"{self.name} parameters {self.named(x)} give an invalid reference path",
                                          field="gains")
+        c = ControllerTF(num=num / den[0], den=den / den[0], dt=dt, num_r=num_r / den[0])
+        if no_integral:  # (as above: the reduced controller, realised from its coefficients)
+            reduced = c.without_dc_cancellation()
+            if reduced is not c:
+                return reduced
         real = None
         if self.realize2 is not None:
             A, B, C, D, Br, Dr = self.realize2(x, dt)
@@ -513,8 +573,9 @@ def _firmware(name: str, law: tuple[Callable, Callable], fixed: tuple[tuple[str,
               ) -> Structure:
     st = Structure(name, ("P", "I", "D", "FF"), ("gain", "gain", "gain", "gain"), _p, discrete_only=True,
                    integrating=True, gain_units=(0, 1, -1, 0), ref_coeffs=_p, law=law, nonneg=True, integral="I",
-                   firmware=firmware)
-    return _firmware_structure(st, fixed)
+                   firmware=firmware, setpoint=("FF",))
+    # the documented ranges of the default axis (roll; a vehicle's axis rebinds them: tuner.firmware.bind)
+    return _firmware_structure(st, fixed).with_ranges("roll")
 
 
 STRUCTURES: dict[str, Structure] = {
@@ -528,7 +589,7 @@ STRUCTURES: dict[str, Structure] = {
         Structure("pid_z", ("K", "a1", "a2"), ("gain", "coef", "coef"), _pid_z, discrete_only=True, integrating=True),
         Structure("pid2", ("Kp", "Ki", "Kd", "Tf", "b", "c"), ("gain", "gain", "gain", "time", "weight", "weight"),
                   _pid2, integrating=True, gain_units=(0, 1, -1, 0, 0, 0), ref_coeffs=_pid2_ref, integral="Ki",
-                  realize2=_pid2_realization, weight_ranges=(("b", 0.0, 2.0), ("c", 0.0, 1.0))),
+                  realize2=_pid2_realization, weight_ranges=(("b", 0.0, 2.0), ("c", 0.0, 1.0)), setpoint=("b", "c")),
         Structure("pid_mf2", ("Kp", "Ki", "Kd", "Tf"), ("gain", "gain", "gain", "time"), _pid_mf2, integrating=True,
                   gain_units=(0, 1, -1, 0), positive_time=True, integral="Ki"),
         Structure("lead", ("K", "wz", "wp"), ("gain", "freq", "freq"), _leadlag1, orderings=(("wz", "wp"),)),

@@ -192,7 +192,7 @@ def diagnose(problem: TuningProblem, failing: list[str], *, tune_fn: Any, seed: 
     def attempt(changes: dict[str, Any]) -> Any:
         if time.perf_counter() + max(longest[0], each) > end:
             return None
-        prob = TuningProblem.build(list(problem.plants), structure=problem.structure, spec=_relaxed(sp, changes),
+        prob = TuningProblem.build(list(problem.given_plants), structure=problem.structure, spec=_relaxed(sp, changes),
                                    dt=problem.dt)
         t0 = time.perf_counter()
         out = tune_fn(prob, seed, each)

@@ -27,6 +27,7 @@ from .text import (
     _verdict_html,
     analysis_repr,
     check_repr,
+    design_lines,
     loop_eval_repr,
     margins_repr,
     metrics_line,
@@ -37,7 +38,7 @@ from .text import (
 )
 
 __all__ = ["analysis_repr", "tune_repr", "analysis_html", "tune_html", "metrics_line", "verdict", "metrics_repr",
-           "margins_repr", "check_repr", "loop_eval_repr", "step_response_repr", "optimality_line"]
+           "margins_repr", "check_repr", "loop_eval_repr", "step_response_repr", "optimality_line", "design_lines"]
 
 
 def tune_repr(r: Any) -> str:
@@ -56,6 +57,7 @@ def tune_repr(r: Any) -> str:
                      f"seed {s.get('seed')}")
         if optimality_line(s):
             lines.append(f"  {optimality_line(s)}")
+        lines.extend(f"  {d}" for d in design_lines(s))
     rd = getattr(r, "robust", None)
     if rd is not None:
         lines.append(f"  robust   {'nominal model' if rd.k is None else f'{rd.k:g}-sigma set of {rd.n_plants} plants'}"

@@ -157,6 +157,33 @@ class Plant:
             self._cache["ss"] = realize(self.zpk, discrete=self.is_discrete)
         return self._cache["ss"]
 
+    def scaled(self, k: float) -> Plant:
+        """The plant with its gain times ``k`` (``k > 0``): the same poles, zeros, delay and realisation, its output
+        scaled (a rate loop's control effectiveness moving with battery voltage and payload). A zero-order-hold
+        equivalent stays one, of its continuous plant scaled alike.
+
+        Examples
+        --------
+        >>> from tuner import make_plant
+        >>> make_plant([2.0], [1.0, 1.0]).scaled(1.25).dc_gain()
+        2.5
+        """
+        k = float(k)
+        if not (math.isfinite(k) and k > 0):
+            raise InvalidPlantError(f"a plant's gain scales by a finite factor > 0, got {k!r}", field="gain")
+        from dataclasses import replace as _replace
+
+        zk = Zpk(zeros=self.zpk.zeros, poles=self.zpk.poles, gain=self.zpk.gain * k)
+        out = Plant(num=self.num * k, den=self.den, dt=self.dt, delay_s=self.delay_s, zpk=zk)
+        g = self.ss()
+        out._cache["ss"] = _replace(g, C=g.C * k, D=g.D * k, _cache={})
+        parent = self._cache.get("ct_parent")
+        if parent is not None:
+            out._cache["ct_parent"] = parent.scaled(k)
+        if "zoh_fraction" in self._cache:
+            out._cache["zoh_fraction"] = self._cache["zoh_fraction"]
+        return out
+
     def dc_gain(self) -> float:
         """Steady-state gain (``inf`` with an integrator)."""
         x = 0.0 if self.dt is None else 1.0

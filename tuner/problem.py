@@ -56,6 +56,21 @@ class TuningProblem:
     scale: PlantScale
     asked: Spec | None = None  # the spec as given (None: the same as ``spec``)
     limits: tuple[dict, ...] = ()  # the default limits in force: {"field", "value", "rule"} (see resolve_limits)
+    #: the plant-gain factors of the members added to the set (``spec.gain_variation``): the last
+    #: ``len(variation)`` plants are the nominal's gain times each
+    variation: tuple[float, ...] = ()
+
+    @property
+    def given_plants(self) -> tuple[Plant, ...]:
+        """The plants as given (the set without the gain-variation members, :attr:`variation`)."""
+        return self.plants[:len(self.plants) - len(self.variation)]
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """A name for each plant of the set: ``nominal``, ``plant #2``, ..., ``nominal x0.8`` (a gain-variation
+        member)."""
+        given = ["nominal" if i == 0 else f"plant #{i + 1}" for i in range(len(self.given_plants))]
+        return (*given, *(f"nominal x{k:g}" for k in self.variation))
 
     @property
     def asked_spec(self) -> Spec:
@@ -101,13 +116,18 @@ class TuningProblem:
                                     "units for its input or output)", field=("plants", 0))
         asked = spec
         spec, limits = resolve_limits(spec, st, plants, dt, scale)
+        variation: tuple[float, ...] = ()
+        if spec.gain_variation is not None:  # the nominal's gain varied: members of the set (every constraint on each)
+            variation = tuple(float(k) for k in spec.gain_variation if k != 1.0)
+            plants = [*plants, *(plants[0].scaled(k) for k in variation)]
         guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale, spec=spec).values()), dt)
         for i, p in enumerate(plants):  # a plant that cannot form a loop fails here, with its own message
             try:
                 build_loop(p, guess)
             except TunerError as e:
                 raise _at_plant(e, i) from None
-        return cls(plants=tuple(plants), structure=st, dt=dt, spec=spec, scale=scale, asked=asked, limits=limits)
+        return cls(plants=tuple(plants), structure=st, dt=dt, spec=spec, scale=scale, asked=asked, limits=limits,
+                   variation=variation)
 
 
 def noise_scale(plants: Sequence[Plant], scale: PlantScale) -> float:
@@ -123,6 +143,21 @@ def resolve_limits(spec: Spec, st: Structure, plants: Sequence[Plant], dt: float
     """The spec in force and the default limits that apply: the noise budget becomes ``mks_max`` (the tighter of
     the two), the filter rules are described (they act on the structure's parameters: :mod:`tuner.optimize`)."""
     limits: list[dict] = []
+    from .spec import AUTO, FIRMWARE_GAIN_VARIATION, resolved_objective
+
+    updates: dict = {}
+    if spec.objective == AUTO:
+        updates["objective"] = resolved_objective(AUTO, st)
+    if spec.gain_variation == AUTO:
+        updates["gain_variation"] = FIRMWARE_GAIN_VARIATION if st.firmware else None
+    if updates:
+        spec = spec.model_copy(update=updates)
+    if spec.gain_variation is not None:
+        lo, hi = spec.gain_variation
+        limits.append({"field": "gain_variation", "value": [lo, hi], "default": spec.gain_variation ==
+                       FIRMWARE_GAIN_VARIATION, "rule": f"gain variation: the nominal plant's gain x{lo:g} and "
+                       f"x{hi:g} too (a rate loop's control effectiveness moves with battery voltage and payload): "
+                       "every constraint on each, the objective their worst case"})
     if spec.noise_gain_max is not None:
         k = noise_scale(plants, scale)
         budget = spec.noise_gain_max * k

@@ -11,20 +11,25 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, create_model
+from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator
 
 from .limits import CROSSOVER_TOL, LIMITS, SSE_TOL
 from .limits import OBJECTIVES as _OBJECTIVES
 from .objectives import OBJECTIVE_DEFINITIONS, ROBUST_NOTE
 
-__all__ = ["Spec", "Check", "check_spec", "OBJECTIVES", "SSE_TOL", "CROSSOVER_TOL"]
+__all__ = ["Spec", "Check", "check_spec", "resolved_objective", "OBJECTIVES", "AUTO", "SSE_TOL", "CROSSOVER_TOL"]
 
 OBJECTIVES = tuple(o.name for o in _OBJECTIVES)
+#: ``Spec.objective``'s default: the structure decides (see :func:`resolved_objective`)
+AUTO = "auto"
+#: the plant-gain factors a firmware rate law's default design holds too (``Spec.gain_variation = "auto"``): a rate
+#: loop's control effectiveness moves this much with battery voltage and payload (issue 39)
+FIRMWARE_GAIN_VARIATION = (0.8, 1.25)
 
 # The default design limits (on unless lifted; ``Spec.thesis()`` or ``--no-default-limits`` lift all three):
 FILTER_N_MAX = 20.0  # derivative filter: N = Td/Tf <= 20 (Astrom & Hagglund, Advanced PID Control, 2006: N in 2..20)
 NOISE_GAIN_MAX = 10.0  # noise budget: Mks <= 10 K0, K0 = the plant's ultimate gain (see Spec.noise_gain_max)
-DEFAULT_LIMITS = ("filter_n_max", "filter_nyquist", "noise_gain_max")
+DEFAULT_LIMITS = ("filter_n_max", "filter_nyquist", "noise_gain_max", "gain_variation")
 
 
 class _SpecCore(BaseModel):
@@ -39,8 +44,8 @@ class _SpecCore(BaseModel):
     --------
     >>> from tuner import Spec
     >>> spec = Spec()  # PM >= 60 deg, GM >= 6 dB, overshoot <= 10 %, zero steady-state error
-    >>> spec.phase_margin_min_deg, spec.gain_margin_min_db, spec.objective
-    (60.0, 6.0, 'settling_time')
+    >>> spec.phase_margin_min_deg, spec.gain_margin_min_db, spec.objective  # auto: the structure decides
+    (60.0, 6.0, 'auto')
     >>> Spec(ms_max=1.4, objective="iae").ms_max
     1.4
     >>> Spec.thesis().filter_n_max is None  # the default design limits lifted
@@ -57,9 +62,13 @@ class _SpecCore(BaseModel):
 
     zero_steady_state_error: bool = Field(True, description="require zero steady-state error to a step")
     settling_band_pct: float = Field(2.0, gt=0, le=20, description="settling band, % of the final value")
-    objective: Literal[OBJECTIVES] = Field(  # type: ignore[valid-type]
-        "settling_time", description="what is optimised (tuner.objectives): " + "; ".join(
-            f"{k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()) + ". " + ROBUST_NOTE)
+    objective: Literal[(*OBJECTIVES, AUTO)] = Field(  # type: ignore[valid-type]
+        AUTO, description="what is optimised (tuner.objectives): " + "; ".join(
+            f"{k}: {v}" for k, v in OBJECTIVE_DEFINITIONS.items()) + ". " + ROBUST_NOTE + " auto (the default): "
+        "the structure decides: settling_time for the one-degree-of-freedom structures; for a law with its own "
+        "setpoint path (pid2, px4_rate, ardupilot_rate) the feedback is designed for the load (iae), then the setpoint "
+        "path alone (px4_rate's and ardupilot_rate's FF, pid2's b and c) for the settling time (Astrom & Hagglund, "
+        "Advanced PID Control, 2006, ch. 7)")
     # -- the default design limits (a design an engineer would fly); None / false lifts each ------------------
     filter_n_max: float | None = Field(
         FILTER_N_MAX, gt=0, description="derivative filter rule for pd, pid, pid2 and pid_mf2: N = Td/Tf = "
@@ -76,15 +85,65 @@ class _SpecCore(BaseModel):
         "A Ziegler-Nichols PID (Kp = 0.6 Ku) with N = 10..20 has a high-frequency gain of 6.6..12.6 Ku: 10 "
         "is that classic aggressive design's noise gain; the tighter of this and mks_max applies; null lifts it")
 
+    gain_variation: Literal[AUTO] | tuple[float, float] | None = Field(
+        AUTO, description="the plant-gain factors [lo, hi] the design must also hold at: the nominal plant's gain "
+        "times lo and times hi are added to the plant set, every constraint of the spec on each and the objective "
+        "their worst case (a rate loop's control effectiveness moves with battery voltage and payload); auto (the "
+        "default): [0.8, 1.25] for the firmware rate laws px4_rate and ardupilot_rate, none otherwise; null lifts it")
+
+    @field_validator("gain_variation")
+    @classmethod
+    def _gain_range(cls, v: Any) -> Any:
+        if v is None or v == AUTO:
+            return v
+        lo, hi = (float(x) for x in v)
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0.1 <= lo <= 1.0 <= hi <= 10.0 and lo < hi):
+            raise ValueError(f"gain_variation is [lo, hi] with 0.1 <= lo <= 1 <= hi <= 10 and lo < hi, got {[lo, hi]}")
+        return (lo, hi)
+
     @classmethod
     def thesis(cls, **kw: Any) -> Spec:
         """The pure thesis spec: ``Spec(**kw)`` with the default design limits (derivative filter rule, Nyquist
-        filter rule, noise budget) lifted."""
-        return cls(**{"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, **kw})
+        filter rule, noise budget, a firmware law's gain variation) lifted, and its objective, the settling time,
+        for every structure."""
+        return cls(**{"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None, "gain_variation": None,
+                      "objective": "settling_time", **kw})
 
     def without_default_limits(self) -> Spec:
         """This spec with the default design limits lifted (what ``--no-default-limits`` does)."""
-        return self.model_copy(update={"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None})
+        return self.model_copy(update={"filter_n_max": None, "filter_nyquist": False, "noise_gain_max": None,
+                                       "gain_variation": None})
+
+
+def resolved_objective(objective: str, structure: Any) -> str:
+    """The objective a tune optimises: ``objective`` itself, or for ``"auto"`` the structure's default (``structure``: a
+    :class:`~tuner.controllers.Structure`, or a bool: whether it has its own setpoint path):
+
+    * ``settling_time`` for a one-degree-of-freedom structure;
+    * ``iae`` for one whose setpoint weights can take back what a strong integrator does to the reference step (pid2,
+      ``b`` below 1): the feedback is designed for the load step, then its setpoint weights for the reference step
+      (:func:`tuner.optimize.setpoint.shape_setpoint`);
+    * ``ie`` for a firmware rate law, whose setpoint path is a feed-forward ``FF >= 0`` alone: the fastest reference
+      step, then its integral gain raised as far as the reference step allows
+      (:func:`tuner.optimize.setpoint.raise_integral`).
+
+    Examples
+    --------
+    >>> from tuner import get_structure
+    >>> from tuner.spec import resolved_objective
+    >>> [resolved_objective("auto", get_structure(n)) for n in ("pid", "pid2", "px4_rate")]
+    ['settling_time', 'iae', 'ie']
+    >>> resolved_objective("itae", get_structure("px4_rate"))
+    'itae'
+    """
+    if objective != AUTO:
+        return objective
+    if isinstance(structure, bool):
+        return "ie" if structure else "settling_time"
+    if not structure.two_dof:
+        return "settling_time"
+    kinds = dict(zip(structure.params, structure.kinds))
+    return "iae" if any(kinds[p] == "weight" for p in structure.setpoint) else "ie"
 
 
 def _limit_field(lim: Any) -> tuple[Any, Any]:

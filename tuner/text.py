@@ -13,7 +13,7 @@ import math
 from typing import Any
 
 __all__ = ["metrics_line", "verdict", "metrics_repr", "margins_repr", "check_repr", "loop_eval_repr",
-           "step_response_repr", "analysis_repr", "optimality_line"]
+           "step_response_repr", "analysis_repr", "optimality_line", "design_lines"]
 
 _MAX_LISTED = 4  # plants listed in a repr; the rest counted
 
@@ -123,6 +123,29 @@ def _plant_lines(analyses: Any) -> list[str]:
         bad = sum(not a.meets_spec for a in rest)
         lines.append(f"  ... and {len(rest)} more plants ({bad} failing)")
     return lines
+
+
+def design_lines(s: dict[str, Any] | None) -> list[str]:
+    """What the stages after the search did to a 2-DOF design (``solver["load_design"]``, ``solver["setpoint_stage"]``),
+    one line each, in words."""
+    out = []
+    s = s or {}
+    ld = s.get("load_design")
+    if ld:
+        k = ld["integral"]
+        b, a = ld["before"], ld["after"]
+        moved = ", ".join(f"{p} {_g(b[p], 4)} -> {_g(a[p], 4)}" for p in a if p != k and a[p] != b[p])
+        out.append(f"design: the fastest reference step (settling {_g(ld['fastest_settling_s'], 4)} s, worst over the "
+                   f"plants), then its integral gain raised for the load as far as the reference step allows (within "
+                   f"{_g(100 * (ld['settling_limit_s'] / ld['fastest_settling_s'] - 1), 3)} %): {k} {_g(b[k], 4)} -> "
+                   f"{_g(a[k], 4)}" + (f" ({moved})" if moved else "") + f", load IE {_g(ld['objective_before'], 4)} "
+                   f"-> {_g(ld['objective_after'], 4)}, settling {_g(ld['settling_after_s'], 4)} s")
+    sp = s.get("setpoint_stage")
+    if sp and sp["after"] != sp["before"]:
+        ch = ", ".join(f"{p} {_g(sp['before'][p], 4)} -> {_g(sp['after'][p], 4)}" for p in sp["params"])
+        out.append(f"design: the feedback for the load, then the setpoint path alone for the reference step: {ch}, "
+                   f"settling {_g(sp['settling_before_s'], 4)} -> {_g(sp['settling_after_s'], 4)} s")
+    return out
 
 
 def optimality_line(s: dict[str, Any] | None) -> str:

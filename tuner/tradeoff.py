@@ -122,6 +122,8 @@ def tradeoff(plant_or_plants: Any, *, structure: str | None = None, spec: Spec |
         raise TunerError(f"points must be an integer from 2 to {MAX_POINTS}, got {points!r}", field="points")
     check_budget(time_budget_s)
     spec = spec if spec is not None else Spec()
+    if spec.objective == "auto":  # the curve's speed axis is the settling time, whatever the structure
+        spec = spec.model_copy(update={"objective": "settling_time"})
     if spec.objective != "settling_time":
         raise TunerError("the trade-off curve's speed axis is the settling time: leave spec.objective at "
                          "settling_time", field=("spec", "objective"))
@@ -129,7 +131,10 @@ def tradeoff(plant_or_plants: Any, *, structure: str | None = None, spec: Spec |
     end = t0 + float(time_budget_s)
     if isinstance(plant_or_plants, TuningProblem):  # validated already (the service): its own spec and dt
         problem = plant_or_plants
-        plants, spec = list(problem.plants), problem.asked_spec
+        plants, spec = list(problem.given_plants), problem.asked_spec
+        if spec.objective == "auto":
+            spec = spec.model_copy(update={"objective": "settling_time"})
+            problem = TuningProblem.build(plants, structure=problem.structure, spec=spec, dt=problem.dt)
         if spec.objective != "settling_time":
             raise TunerError("the trade-off curve's speed axis is the settling time: leave spec.objective at "
                              "settling_time", field=("spec", "objective"))

@@ -102,6 +102,18 @@ class TuneResult:
     #: the vehicle's current gains (``vehicle["current_gains"]`` with the law's fixed values) analysed on every
     #: plant, next to the proposed design's ``analyses`` (empty without a vehicle)
     current: tuple[Analysis, ...] = ()
+    #: a firmware law's axis (``roll``, ``pitch``, ``yaw``): the one whose documented ranges the search kept to, and
+    #: whose parameter names an export writes (None for the generic structures)
+    axis: str | None = None
+    #: a name for each plant of ``analyses`` (``nominal``, ``plant #2``, ``nominal x0.8`` for a gain-variation
+    #: member: :attr:`tuner.problem.TuningProblem.labels`); empty: ``nominal``, ``plant #2``, ...
+    plant_labels: tuple[str, ...] = ()
+
+    def label(self, i: int) -> str:
+        """The name of plant ``i`` of the set (``nominal``, ``plant #2``, ``nominal x1.25``)."""
+        if i < len(self.plant_labels):
+            return self.plant_labels[i]
+        return "nominal" if i == 0 else f"plant #{i + 1}"
 
     @property
     def meets_spec(self) -> bool:
@@ -217,8 +229,10 @@ class TuneResult:
             "solver": dict(self.solver),
             "spec": self.spec.model_dump(),
         }
+        if self.axis is not None:
+            out["axis"] = self.axis
         if len(self.analyses) > 1:
-            out["plants"] = [a.to_dict() for a in self.analyses]
+            out["plants"] = [{"label": self.label(i), **a.to_dict()} for i, a in enumerate(self.analyses)]
         if self.robust is not None:
             out["robust"] = self.robust.to_dict()
         if "measured" in nominal:
@@ -263,6 +277,7 @@ def tune(
     effort: str = "default",
     vehicle: Any = None,
     actuator: Any = None,
+    axis: str | None = None,
 ) -> TuneResult:
     """Tune ``structure`` on a plant (or a set of plants: every constraint on every plant).
 
@@ -344,6 +359,10 @@ def tune(
         the integrator handled as the law does, on every plant (``analyses[i].saturated``, JSON
         ``saturated_step``), and its overshoot and settling are checked (they count in ``meets_spec``). The
         search itself designs the linear loop. Needs a sample time.
+    axis : str, optional
+        With ``px4_rate`` or ``ardupilot_rate``: the axis (``roll``, ``pitch``, ``yaw``) whose documented parameter
+        ranges the search stays inside (:func:`tuner.firmware.names.law_ranges`: what the vehicle's parameter file
+        can hold); default the vehicle's axis, else ``roll``.
 
     Returns
     -------
@@ -406,7 +425,7 @@ def tune(
         with _one_thread(), (working_set() if local else nullcontext()):
             plant_or_plants, ident, design, n_mc = _from_identification(plant_or_plants, robust, monte_carlo, dt,
                                                                         delay)
-            problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle)
+            problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle, axis)
             _check_actuator(actuator, problem)
             # the default budget's search time depends on the structure (_search_factor)
             budget = DEFAULT_BUDGET_S * _search_factor(problem) if auto else float(time_budget_s)
@@ -456,6 +475,7 @@ class _Run:
     reserve: float
     stop: Any = None
     t_verify: float = 0.0
+    load: dict[str, Any] | None = None  # the load design's record: the fastest settling time and the limit it set
 
 
 def check_budget(time_budget_s: Any) -> None:
@@ -485,11 +505,26 @@ def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo
     return plant_or_plants, None, None, 0
 
 
-def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float | None, delay: Any, vehicle: Any
-             ) -> tuple[TuningProblem, dict[str, float] | None, Any]:
+def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float | None, delay: Any, vehicle: Any,
+             axis: str | None = None) -> tuple[TuningProblem, dict[str, float] | None, Any]:
     """The validated problem, the vehicle's current gains (a firmware law bound to its parameters), and the
-    structure as given (a firmware law's, bound)."""
+    structure as given (a firmware law's, bound to the vehicle and to the axis's documented ranges)."""
     current_gains = None
+    if axis is not None:
+        from .firmware.names import AXES
+
+        if axis not in AXES:
+            raise TunerError(f"axis must be one of {', '.join(AXES)}, got {axis!r}", field="axis")
+        v_axis = getattr(vehicle, "axis", None)
+        if vehicle is not None and v_axis and v_axis != axis:
+            raise TunerError(f"axis {axis!r} contradicts the vehicle's parameters, read for the {v_axis} axis: "
+                             "leave axis out, or read the parameters for that axis", field="axis")
+        if structure is not None and not isinstance(plant_or_plants, TuningProblem):
+            from .controllers import Structure, get_structure
+
+            st = structure if isinstance(structure, Structure) else get_structure(structure)
+            if st.firmware:
+                structure = st.with_ranges(axis)
     if vehicle is not None:
         from .firmware.bind import bind_law
 
@@ -539,18 +574,34 @@ def _search(problem: TuningProblem, o: _Opts) -> _Run:
     # then start from a point that meets the settling-time limit; the robustness objectives' landscape is flat
     # where the settling time's is not) and is a candidate itself
     fast = None
+    load = None
     if problem.spec.objective in ROBUSTNESS_OBJECTIVES and o.diagnose:
         fast_problem = replace(problem, spec=problem.spec.model_copy(update={"objective": "settling_time"}))
         fast = tune(fast_problem, seed=o.seed, time_budget_s=FAST_SHARE * o.budget_s, n_starts=o.n_starts,
                     nlp_solver=o.nlp_solver, local=o.local, diagnose=False, effort=o.effort)
+    elif load_design(problem):
+        # "auto" on a law with its own setpoint path: the search finds the fastest reference step; the load stage then
+        # raises its integral action as far as the reference step allows (tuner.optimize.setpoint.raise_integral)
+        try:
+            searched = TuningProblem.build(list(searched.given_plants), structure=searched.structure, dt=searched.dt,
+                                           spec=searched.asked_spec.model_copy(update={"objective": "settling_time"}))
+            load = {}
+        except TunerError:
+            load = None
     seeds = [np.array([fast.gains[k] for k in problem.structure.params], float)] \
         if fast is not None and fast.meets_spec else None
     eng = Engine(searched, seed=o.seed, deadline=o.deadline, solver=o.nlp_solver, local=o.local, n_starts=o.n_starts,
                  n_trials=o.n_trials, sampler=o.sampler, storage=o.storage, reserve_s=reserve, effort=o.effort,
                  seeds=seeds, build_cap=o.build_cap, built0=o.built0)
-    run = _Run(eng=eng, searched=searched, decided=decided, fast=fast, reserve=reserve)
+    run = _Run(eng=eng, searched=searched, decided=decided, fast=fast, reserve=reserve, load=load)
     run.stop = eng.run()
     return run
+
+
+def load_design(problem: TuningProblem) -> bool:
+    """Whether ``problem`` gets the load design of ``objective="auto"``: a law with its own setpoint path (pid2,
+    px4_rate, ardupilot_rate) whose objective the structure chose (:func:`tuner.spec.resolved_objective`)."""
+    return problem.structure.two_dof and problem.asked_spec.objective == "auto" and problem.spec.objective == "ie"
 
 
 def _result(run: _Run, problem: TuningProblem, x: np.ndarray, scored: Any, info: dict[str, Any]) -> TuneResult:
@@ -559,7 +610,8 @@ def _result(run: _Run, problem: TuningProblem, x: np.ndarray, scored: Any, info:
     st = problem.structure
     return TuneResult(structure=st.name, gains=st.named(x), controller=run.eng.ev.controller(x),
                       analyses=scored.analyses, solver=info, spec=problem.spec,
-                      at_bounds=tuple(at_bounds(problem, run.eng.space, x, scored.analyses)), limits=problem.limits)
+                      at_bounds=tuple(at_bounds(problem, run.eng.space, x, scored.analyses)), limits=problem.limits,
+                      axis=st.axis, plant_labels=problem.labels)
 
 
 def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> TuneResult:
@@ -594,6 +646,22 @@ def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> Tu
     # "converged" is the claim the evidence supports (Engine.optimality), not the stopping rule alone (``stop``)
     info["converged"] = info["optimality"]["claim"] == "converged"
     info["optimality"]["summary"] = optimality_line(info)
+    if run.load is not None and best.feasible:
+        # the fastest reference step found: its integral action raised for the load, the reference step held
+        from .optimize.setpoint import raise_integral
+
+        raised = raise_integral(problem, eng, best_x, slack=LOAD_SETTLING_SLACK)
+        if raised is not None:
+            best_x, stage, best = raised
+            info["load_design"] = stage.to_dict()
+    elif problem.structure.setpoint and problem.spec.objective in SETPOINT_AFTER and best.feasible:
+        # the feedback designed for the load: the setpoint path after it, for the fastest reference step
+        from .optimize.setpoint import shape_setpoint
+
+        shaped = shape_setpoint(eng, best_x)
+        if shaped is not None:
+            best_x, stage, best = shaped
+            info["setpoint_stage"] = stage.to_dict()
     res = _result(run, problem, best_x, best, info)
     if run.fast is not None and run.fast.meets_spec:
         pick = _adopt(eng, problem, [run.fast])
@@ -608,7 +676,18 @@ def _diagnosed(res: TuneResult, run: _Run, problem: TuningProblem, o: _Opts) -> 
     re-tune's design where it meets the asked spec after all."""
     if res.meets_spec or not o.diagnose:
         return res
+    from .bounds import range_reason
     from .diagnose import diagnose as _diagnose
+
+    if problem.structure.ranges:  # a gain held on an end of its documented range: the first reason
+        why = range_reason(problem.structure, list(res.at_bounds), problem.scale[0])
+        if why:
+            from .diagnose import Reason
+
+            # (the search-based diagnosis relaxes the spec's limits within the same ranges: its re-tunes would end
+            # on the same edge, and its advice (another structure) would not be the reason)
+            return replace(res, reasons=(Reason(tuple(sorted({c.name for a in res.analyses for c in a.failing})),
+                                                why, {}),))
 
     failing = [c.name for a in res.analyses for c in a.failing]
     left = min(DIAGNOSIS_SHARE * o.budget_s, run.eng.deadline - time.perf_counter())  # within the budget
@@ -617,7 +696,7 @@ def _diagnosed(res: TuneResult, run: _Run, problem: TuningProblem, o: _Opts) -> 
                         min_tune_s=3 * run.t_verify + 0.02, found=found, analyses=res.analyses,
                         tune_fn=lambda prob, s, b: tune(prob, seed=s, time_budget_s=b, n_starts=1,
                                                         nlp_solver=o.nlp_solver, local=o.local, diagnose=False))
-    res = replace(res, reasons=tuple(reasons))
+    res = replace(res, reasons=tuple(res.reasons) + tuple(reasons))
     better = _adopt(run.eng, problem, found)  # a relaxed re-tune's design that meets the asked spec after all
     if better is not None:
         res = _result(run, problem, *better, res.solver)  # (it meets the spec: no reasons)
@@ -788,7 +867,7 @@ def _searchable(problem: TuningProblem, decided: list[Any]) -> TuningProblem:
         return problem
     try:
         spec = Spec.model_validate({**problem.asked_spec.model_dump(), **changes})
-        return TuningProblem.build(list(problem.plants), structure=problem.structure, spec=spec, dt=problem.dt)
+        return TuningProblem.build(list(problem.given_plants), structure=problem.structure, spec=spec, dt=problem.dt)
     except TunerError:
         return problem
 
@@ -809,12 +888,19 @@ def _adopt(eng: Any, problem: TuningProblem, found: list[TuneResult]) -> tuple[n
 
 
 ROBUSTNESS_OBJECTIVES = tuple(o.name for o in OBJECTIVES if o.robust)  # (the registry says which)
+#: the load objectives after which a 2-DOF design's setpoint path is shaped for the reference step
+#: (:mod:`tuner.optimize.setpoint`): they do not depend on it, so the search leaves it to chance
+SETPOINT_AFTER = ("iae", "ie")
 
 #: the default budget's cap of the tune running on this thread/task (nested tunes inherit it; see tune)
 _OUTER_CAP: contextvars.ContextVar[float | None] = contextvars.ContextVar("tuner_build_cap", default=None)
 DEFAULT_BUDGET_S = 10.0  # the default budget's search time (the NLP builds not counted: see tune's time_budget_s)
 AUTO_WALL_CAP_S = 60.0  # ... and its wall-clock cap, builds included
 FAST_SHARE = 0.3  # of the budget: the fastest design, a candidate of the robustness objectives
+#: "auto" on a 2-DOF law: the load design's reference step may settle this much slower than the fastest design's
+#: (the settling time is flat in the integral gain until a strong integrator's slow tail leaves the band, where it
+#: jumps: PX4's law on a small quad, 0.14 s at I = 0.2 and 0.57 s at I = 0.3; the load design stops before the jump)
+LOAD_SETTLING_SLACK = 0.05
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
 # budget, at most this share of it (the reasons by definition need no time)
@@ -824,8 +910,12 @@ DIAGNOSIS_SHARE = 0.25
 def _search_factor(problem: TuningProblem) -> float:
     """The default budget's search time in units of DEFAULT_BUDGET_S: 2 for a structure whose search first runs the
     structure it contains (pid2 runs pid's whole search, then its own: the 250 Hz rate loop's pid2 IAE tune needs
-    about 9 s of search beside its NLP builds), 1 otherwise. What grows with the sample rate and the horizon in
-    samples, the NLP builds, is not counted at all (see tune's time_budget_s)."""
+    about 9 s of search beside its NLP builds) or with gain-variation members (a firmware law's default holds three
+    plants: a small quad's warm search took 6.3 s of NLP solves and polish), 1 otherwise. What grows with the sample
+    rate and the horizon in samples, the NLP builds, is not counted at all (see tune's time_budget_s)."""
     from .optimize.engine import FULL_CONTAINMENT
 
-    return 2.0 if problem.structure.name in FULL_CONTAINMENT else 1.0
+    if problem.structure.name in FULL_CONTAINMENT:
+        return 2.0
+    # the gain-variation members triple each evaluation's cost (a firmware law's default: the gain x0.8 and x1.25)
+    return 2.0 if problem.variation else 1.0

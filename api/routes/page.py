@@ -45,7 +45,7 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "structures": [{"name": s.name, "params": list(s.params), "discrete_only": s.discrete_only}
                        for s in STRUCTURES.values()],
         "deprecated_structures": dict(DEPRECATED_STRUCTURES),  # old name -> new (a stored tune's form)
-        "objectives": list(OBJECTIVES),
+        "objectives": ["auto", *OBJECTIVES],  # (auto, the default: the structure decides)
         "spec_defaults": Spec().model_dump(mode="json"),
         "spec_help": {k: v.get("description", "") for k, v in schema.items()},
         # the fields that take null (an empty input sends null: a default limit such as filter_n_max is lifted)

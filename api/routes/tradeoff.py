@@ -41,7 +41,7 @@ async def post_tradeoff(
 ) -> JSONResponse:
     budget = request_budget(body, settings)
     request_plant_limit(body, settings)
-    if body.spec is not None and body.spec.objective != "settling_time":
+    if body.spec is not None and body.spec.objective not in ("settling_time", "auto"):
         raise FieldError(("body", "spec", "objective"), "the trade-off's speed axis is the settling time: leave "
                          "spec.objective at settling_time")
     for f in ("identification_id", "robust", "monte_carlo"):

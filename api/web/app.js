@@ -99,13 +99,16 @@ function setMode(m) {
   for (const el of $$(".mode", form)) el.hidden = el.dataset.mode !== m;
 }
 
+// a spec value as the form holds it; gain_variation is a checkbox: on for "auto" (or a range), off for null
+function specValue(k, v) {
+  if (k === "gain_variation") return v === null ? "0" : "1";
+  return v === null ? "" : typeof v === "boolean" ? (v ? "1" : "0") : String(v);
+}
+
 function defaults() {
   const d = { var: "s", budget: String(CONFIG.default_budget_s), seed: "0", effort: "default", y: CONFIG.tradeoff.y[0],
               points: String(CONFIG.tradeoff.default_points) };
-  for (const k of SPEC) {
-    const v = CONFIG.spec_defaults[k];
-    d[k] = v === null ? "" : typeof v === "boolean" ? (v ? "1" : "0") : String(v);
-  }
+  for (const k of SPEC) d[k] = specValue(k, CONFIG.spec_defaults[k]);
   return d;
 }
 
@@ -277,7 +280,8 @@ function tuneBody() {
   const spec = {};
   for (const k of SPEC) {
     const el = field(k);
-    if (el.type === "checkbox") spec[k] = el.checked;
+    if (k === "gain_variation") spec[k] = el.checked ? "auto" : null;
+    else if (el.type === "checkbox") spec[k] = el.checked;
     else if (el.tagName === "SELECT") spec[k] = f[k];
     else {
       const v = number(f[k], ["body", "spec", k], errs);
@@ -682,7 +686,7 @@ function fromRequest(q) {
   if (p.delay) v.delay = String(p.delay);
   if (q.dt) v.dt = String(q.dt);
   v.structure = (CONFIG.deprecated_structures || {})[q.structure] || q.structure; // pidf2 -> pid_mf2
-  for (const [k, x] of Object.entries(q.spec || {})) v[k] = x === null ? "" : typeof x === "boolean" ? (x ? "1" : "0") : String(x);
+  for (const [k, x] of Object.entries(q.spec || {})) v[k] = specValue(k, x);
   if (q.options) {
     v.seed = String(q.options.seed ?? 0);
     if (q.options.time_budget_s) v.budget = String(q.options.time_budget_s);
@@ -881,6 +885,7 @@ function init() {
   const obj = field("objective");
   const maximised = { bandwidth: "maximise bandwidth", disk_margin: "maximise disk margin", ie: "minimise |IE| (maximise Ki)",
                       mks: "minimise Mks (noise sensitivity)" };
+  maximised.auto = "auto: the structure decides (settling time; a 2-DOF law: the load too)";
   for (const o of CONFIG.objectives) obj.append(new Option(maximised[o] || `minimise ${o.replaceAll("_", " ")}`, o));
   for (const k of SPEC) {  // the library's description as the tooltip, unless the page has its own (the limits)
     const el = field(k)?.closest(".field");

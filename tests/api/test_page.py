@@ -83,10 +83,12 @@ def test_the_form_has_the_issue_18_fields_and_the_config_says_which_take_null(cl
     assert cfg["spec_nullable"] == nullable
     assert {"filter_n_max", "noise_gain_max", "settling_time_max", "crossover_rad_s"} <= set(nullable)
     assert "phase_margin_min_deg" not in nullable and "filter_nyquist" not in nullable
-    assert cfg["default_limits"] == list(DEFAULT_LIMITS) == ["filter_n_max", "filter_nyquist", "noise_gain_max"]
+    assert cfg["default_limits"] == list(DEFAULT_LIMITS) == ["filter_n_max", "filter_nyquist", "noise_gain_max",
+                                                             "gain_variation"]
     assert cfg["spec_defaults"]["filter_n_max"] == 20 and cfg["spec_defaults"]["noise_gain_max"] == 10
     assert cfg["spec_defaults"]["filter_nyquist"] is True
-    assert cfg["objectives"] == list(OBJECTIVES) and {"mks", "disk_margin"} <= set(cfg["objectives"])
+    assert cfg["objectives"] == ["auto", *OBJECTIVES] and {"mks", "disk_margin"} <= set(cfg["objectives"])
+    assert cfg["spec_defaults"]["objective"] == "auto" and cfg["spec_defaults"]["gain_variation"] == "auto"
     y_axes = get_args(TradeoffRequest.model_fields["y"].annotation)
     assert cfg["tradeoff"] == {"y": list(y_axes), "max_points": 20,
                                "default_points": TradeoffRequest.model_fields["points"].default}
@@ -96,7 +98,7 @@ def test_the_form_has_the_issue_18_fields_and_the_config_says_which_take_null(cl
     assert m, "no default design limits fieldset"
     limits = m.group(1)
     assert "<legend>default design limits</legend>" in limits
-    for name in DEFAULT_LIMITS:  # the three limits live in it, each with its rule as a tooltip
+    for name in DEFAULT_LIMITS:  # the default limits live in it, each with its rule as a tooltip
         assert re.search(rf'title="[^"]+"[^>]*>[^<]*\s*<input[^>]*name="{name}"', limits), name
     assert 'type="checkbox" name="filter_nyquist"' in limits
     assert 'id="thesis"' in limits and "pure thesis spec (no default limits)" in limits

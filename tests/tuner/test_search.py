@@ -121,7 +121,11 @@ def _check_gain_mapping(st, dt):
     lo_p, hi_p = bounds(st, PLANTS["roll"], dt)
     x_lo, x_hi = space.params(space.lo), space.params(space.hi)
     for i, kind in enumerate(st.kinds):
-        if kind == "gain":  # a firmware law's gains are >= 0: its box starts at 0
+        rng_ = st.param_range(st.params[i]) if kind == "gain" else None
+        if rng_ is not None:  # a firmware law's documented range, within the plant-based box (or the range alone)
+            assert x_lo[i] == pytest.approx(max(rng_[0], 0.0), rel=1e-9, abs=1e-300)
+            assert x_hi[i] == pytest.approx(min(rng_[1], GAIN_SPAN * space.units[i]), rel=1e-9)
+        elif kind == "gain":  # the generic structures' box: +-GAIN_SPAN units
             assert space.lo[i] == pytest.approx(0.0 if st.nonneg else -5.0) and space.hi[i] == pytest.approx(5.0)
             assert x_hi[i] == pytest.approx(hi_p[i], rel=1e-9) == pytest.approx(GAIN_SPAN * space.units[i])
             assert x_lo[i] == pytest.approx(lo_p[i], rel=1e-9)

@@ -23,7 +23,7 @@ from ..errors import InvalidControllerError, TunerError
 from ..loop import Loop, build_loop
 from ..spec import Check, Spec, check_spec
 from .margins import Margins, margins
-from .response import StepResponse, closed_loop_poles, is_stable, stability, step_metrics, step_response
+from .response import StepResponse, closed_loop_poles, is_stable, stability, steady_state, step_metrics, step_response
 
 __all__ = ["Metrics", "Analysis", "analyze", "analyze_loop"]
 
@@ -266,6 +266,40 @@ def integral_gain(c: Any) -> float:
 
 
 LOAD_RECOVERY_SHARE = 0.02  # load_recovery_s: the last time |y| is above this share of its peak
+#: the plant's gain factors at which a 2-DOF loop's zero steady-state error is checked too: a separate setpoint path
+#: (a feed-forward, a setpoint weight) can give zero error at the nominal gain alone, a rate loop's control
+#: effectiveness moves this much with battery voltage and payload (issue 39), and integral action passes at any gain
+GAIN_VARIATION = (0.8, 1.25)
+
+
+def gain_varied_error(loop: Loop) -> float:
+    """The largest steady-state error of the unit reference step at the plant's gain and at its gain times each factor
+    of :data:`GAIN_VARIATION` (the exact steady state of each loop; ``nan`` if one is not defined). A loop whose zero
+    error rests on a feed-forward or a setpoint weight matched to the nominal plant has an error here; integral
+    action in the controller or the plant has none.
+
+    Examples
+    --------
+    >>> from tuner import make_plant, get_structure
+    >>> from tuner.analysis.verify import gain_varied_error
+    >>> from tuner.loop import build_loop
+    >>> st = get_structure("pid2")  # Ki = 0: b = 1.5 matches the nominal plant 2/(s + 1) exactly
+    >>> c = st.tf({"Kp": 1.0, "Ki": 0.0, "Kd": 0.0, "Tf": 0.0, "b": 1.5, "c": 0.0}, 0.01)
+    >>> round(gain_varied_error(build_loop(make_plant([2.0], [1.0, 1.0]), c)), 4)  # 1 - 1.5*1.6/2.6 at 0.8x
+    0.0769
+    """
+    c = loop.controller.without_dc_cancellation()
+    worst = 0.0
+    for k in (1.0, *GAIN_VARIATION):
+        try:
+            yk, _ = steady_state(build_loop(loop.plant.scaled(k), c))
+        except (TunerError, np.linalg.LinAlgError, ValueError):
+            return math.nan
+        e = abs(1.0 - yk)
+        if not math.isfinite(e):
+            return math.nan
+        worst = max(worst, e)
+    return worst
 
 
 def load_metrics(loop: Loop, horizon_s: float, **kw: Any) -> tuple[float, float, float]:
@@ -320,7 +354,11 @@ def analyze_loop(
         kw = {} if samples_per_dt is None else {"samples_per_dt": samples_per_dt}
         resp = step_response(loop, horizon_s=horizon_s, **kw)
         sm = step_metrics(resp, band_pct=spec.settling_band_pct)
-        step = (sm.overshoot_pct, sm.settling_time_s, sm.rise_time_s, sm.steady_state_error, sm.control_peak)
+        sse = sm.steady_state_error
+        if loop.controller.two_dof and spec.zero_steady_state_error:  # (see gain_varied_error)
+            varied = gain_varied_error(loop)
+            sse = varied if math.isnan(sse) or math.isnan(varied) or varied > abs(sse) else sse
+        step = (sm.overshoot_pct, sm.settling_time_s, sm.rise_time_s, sse, sm.control_peak)
         load = load_metrics(loop, float(resp.t[-1]), **kw)
     else:
         step = (math.nan, math.inf, math.nan, math.nan, math.nan)

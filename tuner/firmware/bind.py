@@ -59,6 +59,9 @@ def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "pa
         raise TunerError(f"{src} does not give the loop rate: give dt (the rate loop's sample time)", field="dt")
     st = st.with_fixed({k: v for k, v in dict(getattr(vehicle, "fixed", {}) or {}).items()
                         if k in st.fixed_values})
+    axis = getattr(vehicle, "axis", None)
+    if axis:
+        st = st.with_ranges(axis)  # the documented ranges of the vehicle's axis (the search stays inside them)
     now = {**{p: float(v) for p, v in dict(getattr(vehicle, "gains", {}) or {}).items() if p in st.params},
            **st.fixed_values}
     missing = [p for p in st.params if p not in now]

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["AXES", "PX4", "ARDUPILOT", "law_names", "RANGES"]
+__all__ = ["AXES", "PX4", "ARDUPILOT", "law_names", "law_ranges", "RANGES"]
 
 AXES = ("roll", "pitch", "yaw")
 _INF = math.inf
@@ -66,3 +66,18 @@ def law_names(firmware: str, axis: str) -> dict[str, str]:
     """
     table = {"px4": PX4, "ardupilot": ARDUPILOT}[firmware]
     return dict(table[axis])
+
+
+def law_ranges(firmware: str, axis: str) -> dict[str, tuple[float, float]]:
+    """The documented ranges of the rate law's tuned parameters (``P``, ``I``, ``D``, ``FF``) of ``firmware`` on
+    ``axis``: what a ground station offers for each (its parameter metadata; neither firmware enforces them on
+    board). The search keeps a tuned law inside them, so that every design can be written to the vehicle's file.
+
+    Examples
+    --------
+    >>> from tuner.firmware.names import law_ranges
+    >>> law_ranges("px4", "roll")["P"], law_ranges("ardupilot", "yaw")["I"]
+    ((0.01, 0.5), (0.01, 1.0))
+    """
+    r = RANGES[firmware][axis]
+    return {k: tuple(r[k]) for k in ("P", "I", "D", "FF") if k in r}

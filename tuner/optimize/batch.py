@@ -315,7 +315,29 @@ class BatchEvaluator:
         m["outside"] = np.where(stable, 0.0, np.where(np.isfinite(out), np.maximum(out, 1e-9), 1e3))
         smin = np.min(sig, axis=1)
         m.update(self._time_metrics(pd, cl, stable, smin, num, den, num_r))
+        if num_r is not None and self.spec.zero_steady_state_error and not self.problem.variation:
+            # (a set with gain-variation members checks each member's own error: :attr:`TuningProblem.variation`)
+            # a separate setpoint path: zero error must not rest on a feed-forward matched to the nominal gain
+            m["steady_state_error"] = np.fmax(np.abs(m["steady_state_error"]),
+                                              self._gain_varied_error(pd, num, den, num_r))
         return m
+
+    def _gain_varied_error(self, pd: _PlantData, num, den, num_r) -> np.ndarray:
+        """The largest steady-state error of the unit reference step with the plant's gain times each of
+        :data:`tuner.analysis.verify.GAIN_VARIATION` (the verifier's ``steady_state_error`` of a 2-DOF loop)."""
+        from dataclasses import replace as _replace
+
+        from ..analysis.verify import GAIN_VARIATION
+
+        worst = np.zeros(num.shape[0])
+        for k in GAIN_VARIATION:
+            cl = self._closed_loop(_replace(pd, C=pd.C * k, D=pd.D * k), num, den, num_r)
+            Mdc = (np.eye(cl.A.shape[1])[None] - cl.A) if self.dt is not None else -cl.A
+            zf = _solve_dc(Mdc, cl.Bm[:, :, 0])
+            with np.errstate(all="ignore"):
+                e = np.abs(1.0 - (np.einsum("bz,bz->b", zf, cl.Cy) + cl.Dy[:, 0]))
+            worst = np.fmax(worst, np.where(np.isfinite(e), e, np.inf))
+        return worst
 
     # -- closed loops ---------------------------------------------------------------------------
 

@@ -738,8 +738,9 @@ class Engine:
         for i, kind in enumerate(self.space.structure.kinds):
             if kind == "gain" and abs(self.best.v[i]) > 1e-9:
                 v = self.best.v.copy()
-                v[i] = 0.0
-                out.append(v)
+                v[i] = min(max(0.0, self.space.lo[i]), self.space.hi[i])  # (a documented range may exclude 0)
+                if v[i] != self.best.v[i]:
+                    out.append(v)
                 for shrink in PROJECTION_SHRINK:
                     y = np.array(x, dtype=float)
                     y[i] *= shrink

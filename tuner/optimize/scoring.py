@@ -46,7 +46,11 @@ class Scored:
 def objective_value(a: Analysis, spec: Spec) -> float:
     """The spec's objective for one verified analysis (smaller is better)."""
     m = a.metrics
-    o = objective(spec.objective)
+    from ..spec import resolved_objective
+
+    # ("auto": the structure decides; from an analysis alone, its controller: a 2-DOF one's load design's IE)
+    name = resolved_objective(spec.objective, bool(a.loop.controller.two_dof))
+    o = objective(name)
     if o.metric is not None:  # a verifier figure (the registry names it)
         v = getattr(m, o.metric)
         if not math.isfinite(v):
@@ -55,9 +59,9 @@ def objective_value(a: Analysis, spec: Spec) -> float:
     r = a.response
     if r is None:
         return math.inf
-    if spec.objective == "itae":  # of the reference step
+    if name == "itae":  # of the reference step
         return float(np.trapezoid(r.t * np.abs(1.0 - r.y), r.t))
-    if spec.objective == "iae":  # over the horizon (Metrics.load_iae where the output returns to 0; finite here even
+    if name == "iae":  # over the horizon (Metrics.load_iae where the output returns to 0; finite here even
         # where it does not, so that the search and the verifier rank such designs alike, as the batch does)
         d = step_response(a.loop, horizon_s=float(r.t[-1]), load=True)
         return float(np.trapezoid(np.abs(d.y), d.t))

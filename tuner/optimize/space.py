@@ -92,13 +92,36 @@ class Space:
             return self.lo, self.hi
         g = np.array([k == "gain" for k in self.structure.kinds])
         g_lo = 0.0 if self.structure.nonneg else -GAIN_SPAN  # a firmware law's gains are >= 0
-        return np.where(g, g_lo, self.lo), np.where(g, GAIN_SPAN, self.hi)
+        lo, hi = np.where(g, g_lo, self.lo), np.where(g, GAIN_SPAN, self.hi)
+        for i, p in enumerate(self.structure.params):  # a firmware law's documented ranges, in units
+            rng = self.structure.param_range(p) if g[i] else None
+            if rng is not None:
+                lo[i] = self.params(self.lo)[i] / self.units[i]
+                hi[i] = self.params(self.hi)[i] / self.units[i]
+        return lo, hi
 
     def params(self, v: np.ndarray, *, linear_gains: bool = False) -> np.ndarray:
         """Numeric :meth:`to_params`; a coordinate far outside the box (an NLP iterate) may overflow to an
         infinite (or NaN) parameter, which the callers drop (the engine scores finite points only)."""
         with np.errstate(over="ignore", invalid="ignore"):
             return np.asarray(self.to_params(np.asarray(v, dtype=float), linear_gains=linear_gains), dtype=float)
+
+
+def _coord(x: float, unit: float) -> float:
+    """The search coordinate of gain ``x`` with plant-based ``unit`` (the inverse of the log-like map)."""
+    return math.asinh(x / (unit * 2 * _G)) / _LN10
+
+
+def _range_box(rng: tuple[float, float], unit: float, g_lo: float, g_hi: float) -> tuple[float, float]:
+    """A gain's coordinate box within its documented range ``rng``: the plant-based box intersected with the range;
+    the range alone where the two do not meet (the range is what the firmware's file can hold: a design outside it
+    cannot be written, and the verifier then says what the plant needs)."""
+    lo_c = _coord(rng[0], unit) if math.isfinite(rng[0]) else g_lo
+    hi_c = _coord(rng[1], unit) if math.isfinite(rng[1]) else g_hi
+    a, b = max(g_lo, lo_c), min(g_hi, hi_c)
+    if a < b:
+        return a, b
+    return lo_c, (hi_c if math.isfinite(rng[1]) else max(lo_c + 1.0, g_hi))
 
 
 def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: PlantScale | None = None,
@@ -115,10 +138,15 @@ def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: P
             ratio_of[ib] = ia  # b = a * 10^r, r > 0
         else:
             ratio_of[ia] = ib
+    units = tuple(float(u) for u in structure.gain_scale(k0, w0))
     lo, hi, names = [], [], []
     for i, (p, kind) in enumerate(zip(structure.params, structure.kinds)):
         if kind == "gain":
-            lo.append(0.0 if structure.nonneg else -_V_SPAN), hi.append(_V_SPAN)
+            g_lo, g_hi = (0.0 if structure.nonneg else -_V_SPAN), _V_SPAN
+            rng = structure.param_range(p)
+            if rng is not None:  # a firmware law's documented range (what its parameter file can hold)
+                g_lo, g_hi = _range_box(rng, units[i], g_lo, g_hi)
+            lo.append(g_lo), hi.append(g_hi)
             names.append(f"asinh_{p}")
         elif kind in ("freq", "time"):
             if ratio_of[i] is not None:
@@ -138,6 +166,5 @@ def make_space(structure: Structure, plant: Plant, dt: float | None, *, scale: P
         else:
             lo.append(lo_p[i]), hi.append(hi_p[i])
             names.append(p)
-    units = tuple(float(u) for u in structure.gain_scale(k0, w0))
     return Space(structure=structure, k0=k0, w0=w0, units=units, lo=np.array(lo), hi=np.array(hi),
                  names=tuple(names), _ratio_of=tuple(ratio_of))

@@ -1,0 +1,288 @@
+"""The stages of a 2-DOF design after the search: the setpoint path shaped for the reference step, and the integral
+action raised for the load (Astrom & Hagglund, *Advanced PID Control*, 2006, ch. 7: the feedback designed for the load
+disturbance and robustness, the setpoint response shaped with setpoint weights or feed-forward).
+
+A 2-DOF structure's setpoint parameters (:attr:`tuner.controllers.Structure.setpoint`: pid2's ``b`` and ``c``, a
+firmware law's ``FF``) act on the reference path alone: the loop's margins, sensitivities and load response do not
+depend on them. Once the search has designed the feedback for a load objective (``iae``, ``ie``), :func:`shape_setpoint`
+chooses them for the fastest reference step: the worst settling time over the plant set, every constraint of the spec
+held on every plant. It scores a grid over their box with the batched verifier, zooms twice around the best cell, and
+has the full verifier judge the best few; the feedback's parameters are never moved, so the load objective is what the
+search found.
+
+:func:`raise_integral` is the load design of ``objective="auto"`` on such a law (pid2, px4_rate, ardupilot_rate). A
+firmware law's setpoint path is a feed-forward ``FF >= 0`` alone: it cannot take back the slow overshoot tail that a
+strong integrator leaves in the reference step (a setpoint weight below 1 could), so the load design cannot ignore the
+reference step. From the search's fastest reference step it raises the integral gain along a ray (the other feedback
+gains kept), choosing the setpoint parameters afresh at each level (a strong integrator wants no feed-forward: PX4's
+law on a small quad settles in 0.14 s at I = 0.21 with FF = 0 and in 0.82 s with the FF of I = 0.09), and keeps the
+level with the smallest load IAE whose reference step settles within ``slack`` of the fastest one, on every plant of
+the set and with every constraint held. The settling time is flat in the integral gain until the integrator's tail
+leaves the band, where it jumps (there, 0.14 s to 0.57 s between I = 0.2 and 0.3): the stage stops before the jump.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["SetpointStage", "LoadStage", "shape_setpoint", "raise_integral", "GRID_1D", "GRID_2D", "ZOOMS", "CHECKED",
+           "LEVEL_DECADES", "LEVEL_STEP"]
+
+GRID_1D = 65  # points over a single setpoint parameter's box (a firmware law's FF: log-like, 13 a decade)
+GRID_2D = 13  # points a side over two (pid2's b and c: linear)
+ZOOMS = 2  # finer grids around the best cell
+CHECKED = 4  # the best candidates the full verifier judges
+LEVEL_DECADES = 3.0  # the integral gain's ray: up to this many decades above the fastest design's
+LEVEL_STEP = 0.1  # ... in steps of this many decades, then bisections between the last that holds and the next
+BISECTIONS = 3
+POLL_STEP = 0.04  # the pattern search's first step, in search coordinates (about decades of a gain)
+POLL_MIN_STEP = 0.003
+POLL_ITERATIONS = 25
+PENALTY = 1e3  # the merit of a candidate that fails a constraint: above every settling time
+
+
+@dataclass(frozen=True)
+class SetpointStage:
+    """What :func:`shape_setpoint` did: the setpoint parameters before and after, the worst settling time over the
+    plants before and after (the verifier's), and how many candidates the batch and the verifier scored."""
+
+    params: tuple[str, ...]
+    before: dict[str, float]
+    after: dict[str, float]
+    settling_before_s: float
+    settling_after_s: float
+    evaluated: int
+    verified: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (the solver record's ``setpoint_stage``)."""
+        return {"params": list(self.params), "before": dict(self.before), "after": dict(self.after),
+                "settling_before_s": self.settling_before_s, "settling_after_s": self.settling_after_s,
+                "evaluated": self.evaluated, "verified": self.verified}
+
+
+def _worst_settling(scored: Any) -> float:
+    """The verifier's worst settling time over the plants of a feasible candidate (``inf`` otherwise)."""
+    if not scored.feasible or not scored.analyses:
+        return math.inf
+    return max(float(a.metrics.settling_time_s) for a in scored.analyses)
+
+
+def _grid(lo: np.ndarray, hi: np.ndarray, n: int) -> np.ndarray:
+    axes = [np.linspace(a, b, n) for a, b in zip(lo, hi)]
+    return np.array(list(itertools.product(*axes)), float)
+
+
+def shape_setpoint(engine: Any, x0: np.ndarray) -> tuple[np.ndarray, SetpointStage, Any] | None:
+    """The setpoint parameters of ``x0`` (structure parameters) re-chosen for the fastest reference step, its feedback
+    parameters kept: ``(x, record, scored)`` (``scored``: the full verifier's :class:`~tuner.optimize.scoring.Scored`
+    of ``x``), ``x`` is ``x0`` itself when nothing verified better. None when the structure has no setpoint parameters
+    or ``x0`` does not meet the spec (the feedback must first).
+
+    ``engine`` is the search's :class:`~tuner.optimize.engine.Engine` (its space, batched verifier and full verifier).
+    """
+    st = engine.problem.structure
+    idx = [st.params.index(p) for p in st.setpoint]
+    if not idx:
+        return None
+    x0 = np.asarray(x0, float)
+    s0 = engine.ev.score(x0)
+    if not s0.feasible:
+        return None
+    space, batch = engine.space, engine.batch
+    v0 = space.from_params(x0)
+    lo, hi = space.lo[idx].copy(), space.hi[idx].copy()
+    n = GRID_1D if len(idx) == 1 else GRID_2D
+    evaluated = 0
+    cands: dict[bytes, tuple[float, np.ndarray]] = {}
+    box_lo, box_hi = lo.copy(), hi.copy()
+    for _ in range(1 + ZOOMS):
+        G = _grid(lo, hi, n)
+        V = np.repeat(v0[None, :], len(G), axis=0)
+        V[:, idx] = G
+        X = np.array([space.params(v) for v in V])
+        ok = np.all(np.isfinite(X), axis=1)
+        X, V = X[ok], V[ok]
+        r = batch.evaluate(X)
+        evaluated += len(X)
+        ts = np.max(np.stack([m["settling_time_s"] for m in r.per_plant]), axis=0)
+        ts = np.where(r.feasible, ts, np.inf)
+        for j in np.flatnonzero(np.isfinite(ts)):
+            cands[X[j].tobytes()] = (float(ts[j]), X[j])
+        if not np.any(np.isfinite(ts)):
+            break
+        j = int(np.argmin(ts))
+        cell = (hi - lo) / (n - 1)
+        lo = np.maximum(box_lo, V[j, idx] - 2 * cell)
+        hi = np.minimum(box_hi, V[j, idx] + 2 * cell)
+        if np.all(hi - lo <= 1e-9 * np.maximum(1.0, np.abs(hi))):
+            break
+    t0 = _worst_settling(s0)
+    best_x, best_t, best_s = x0, t0, s0
+    verified = 0
+    for _, x in sorted(cands.values(), key=lambda c: c[0])[:CHECKED]:
+        s = engine.ev.score(x)
+        verified += 1
+        t = _worst_settling(s)
+        if t < best_t:
+            best_x, best_t, best_s = x, t, s
+    rec = SetpointStage(params=tuple(st.setpoint), before={p: float(x0[i]) for p, i in zip(st.setpoint, idx)},
+                        after={p: float(best_x[i]) for p, i in zip(st.setpoint, idx)}, settling_before_s=t0,
+                        settling_after_s=best_t, evaluated=evaluated, verified=verified)
+    return best_x, rec, best_s
+
+
+@dataclass(frozen=True)
+class LoadStage:
+    """What :func:`raise_integral` did: the integral gain and the setpoint parameters before and after, the fastest
+    design's worst settling time and the limit it set, the settling time after and the load objective (IE) before and
+    after (the verifier's, worst over the plants), and how many candidates the batch and the verifier scored."""
+
+    integral: str
+    before: dict[str, float]
+    after: dict[str, float]
+    fastest_settling_s: float
+    settling_limit_s: float
+    settling_after_s: float
+    objective_before: float
+    objective_after: float
+    evaluated: int
+    verified: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (the solver record's ``load_design``)."""
+        return {"integral": self.integral, "before": dict(self.before), "after": dict(self.after),
+                "fastest_settling_s": self.fastest_settling_s, "settling_limit_s": self.settling_limit_s,
+                "settling_after_s": self.settling_after_s, "objective_before": self.objective_before,
+                "objective_after": self.objective_after, "evaluated": self.evaluated, "verified": self.verified}
+
+
+def _merit(batch: Any, X: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(merit, worst settling)`` of candidates ``X``: the worst settling time over the plants where every constraint
+    holds, else a penalty above every settling time graded by the violation (the batch's). The horizon is three times
+    ``limit``: a candidate that has not settled by then is no candidate."""
+    r = batch.evaluate(X, incumbent_s=limit)
+    ts = np.max(np.stack([m["settling_time_s"] for m in r.per_plant]), axis=0)
+    merit = np.where(r.feasible & np.isfinite(ts), ts, PENALTY * (1.0 + np.nan_to_num(r.violation, nan=1e3,
+                                                                                      posinf=1e3)))
+    return np.where(np.isfinite(merit), merit, PENALTY * 1e3), ts
+
+
+def _settle_locally(batch: Any, space: Any, v: np.ndarray, free: list[int], limit: float, fixed: dict[int, float],
+                    counter: list[int]) -> tuple[np.ndarray, float]:
+    """A pattern search (Hooke-Jeeves polls along each free coordinate, both ways, the step halved when none improves)
+    over the coordinates ``free`` of ``v`` for the fastest reference step, the parameters ``fixed`` (index -> value)
+    held; ``(coordinates, merit)``."""
+    lo, hi = space.lo, space.hi
+
+    def params(V: np.ndarray) -> np.ndarray:
+        X = np.array([space.params(w) for w in V])
+        for i, val in fixed.items():
+            X[:, i] = val
+        return X
+
+    v = np.clip(np.asarray(v, float), lo, hi)
+    m, _ = _merit(batch, params(v[None, :]), limit)
+    best = float(m[0])
+    counter[0] += 1
+    step = POLL_STEP
+    for _ in range(POLL_ITERATIONS):
+        V = []
+        for i in free:
+            for sgn in (1.0, -1.0):
+                w = v.copy()
+                w[i] = min(max(w[i] + sgn * step, lo[i]), hi[i])
+                V.append(w)
+        V = np.array(V)
+        m, _ = _merit(batch, params(V), limit)
+        counter[0] += len(V)
+        j = int(np.argmin(m))
+        if m[j] < best - 1e-12 * max(1.0, abs(best)):
+            v, best = V[j], float(m[j])
+        else:
+            step /= 2
+            if step < POLL_MIN_STEP:
+                break
+    return v, best
+
+
+def raise_integral(problem: Any, engine: Any, x0: np.ndarray, *, slack: float
+                   ) -> tuple[np.ndarray, LoadStage, Any] | None:
+    """The load design from the fastest reference step ``x0`` (structure parameters; see the module docstring):
+    ``(x, record, scored)``, ``x`` the design with its integral gain raised (the other parameters re-chosen for the
+    reference step at each level), or ``x0`` itself when no level verified better; None when the structure has no
+    integral gain or setpoint parameters, or ``x0`` does not meet the spec. ``engine``'s full verifier judges
+    ``problem`` (its objective the load's IE)."""
+    from .batch import BatchEvaluator
+
+    st = problem.structure
+    if st.integral is None or not st.setpoint:
+        return None
+    ii = st.params.index(st.integral)
+    x0 = np.asarray(x0, float)
+    s0 = engine.ev.score(x0)
+    if not s0.feasible:
+        return None
+    ts0 = _worst_settling(s0)
+    limit = ts0 * (1.0 + slack)
+    if problem.spec.settling_time_max is not None:
+        limit = min(limit, float(problem.spec.settling_time_max))
+    space = engine.space
+    batch = BatchEvaluator(problem, space)
+    unit = space.units[ii]
+    floor = max(float(space.params(space.lo)[ii]), 1e-3 * unit)
+    top = float(space.params(space.hi)[ii])
+    free = [i for i in range(len(st.params)) if i != ii]
+    counter = [0]
+    found: list[tuple[float, np.ndarray, float]] = []  # (integral gain, coordinates, merit)
+    v = space.from_params(x0)
+
+    def at(level: float, start: np.ndarray) -> tuple[np.ndarray, float]:
+        return _settle_locally(batch, space, start, free, limit, {ii: level}, counter)
+
+    last, first_bad, v_last = float(x0[ii]), None, v
+    lv = max(float(x0[ii]), floor)
+    while True:
+        lv *= 10.0 ** LEVEL_STEP
+        if lv > top or lv > float(x0[ii]) * 10.0 ** LEVEL_DECADES and x0[ii] > 0:
+            break
+        w, m = at(lv, v_last)
+        if m <= limit:
+            found.append((lv, w, m))
+            last, v_last = lv, w
+        else:
+            first_bad = lv
+            break
+    if first_bad is not None:  # between the last level that holds and the first that does not, by bisection
+        a, b = math.log10(max(last, floor)), math.log10(first_bad)
+        for _ in range(BISECTIONS):
+            mid = 10.0 ** (0.5 * (a + b))
+            w, m = at(mid, v_last)
+            if m <= limit:
+                found.append((mid, w, m))
+                a, v_last = math.log10(mid), w
+            else:
+                b = math.log10(mid)
+    best_x, best_s, best_t = x0, s0, ts0
+    verified = 0
+    # the strongest integral action first (the load step's IE = 1/Ki), the verifier's word on each
+    for lv, w, _ in sorted(found, key=lambda f: -f[0])[:CHECKED]:
+        x = space.params(w)
+        x[ii] = lv
+        s = engine.ev.score(x)
+        verified += 1
+        t = _worst_settling(s)
+        if s.feasible and t <= limit and s.score < best_s.score:
+            best_x, best_s, best_t = x, s, t
+            break
+    names = [st.integral, *st.params[:0], *[p for p in st.params if p != st.integral]]
+    rec = LoadStage(integral=st.integral, before={p: float(x0[st.params.index(p)]) for p in names},
+                    after={p: float(best_x[st.params.index(p)]) for p in names}, fastest_settling_s=ts0,
+                    settling_limit_s=limit, settling_after_s=best_t, objective_before=float(s0.score),
+                    objective_after=float(best_s.score), evaluated=counter[0], verified=verified)
+    return best_x, rec, best_s
