@@ -65,6 +65,25 @@ class TuningProblem:
         """The plants as given (the set without the gain-variation members, :attr:`variation`)."""
         return self.plants[:len(self.plants) - len(self.variation)]
 
+    def plant_spec(self, i: int) -> Spec:
+        """The spec plant ``i`` is judged by: :attr:`spec`, except on a gain-variation member (its gain ``k`` times
+        the nominal's): its phase margin at least ``spec.gain_variation_pm_min_deg`` (at most the spec's own), its
+        gain margin the spec's less ``|20 log10 k|`` (what the gain change itself takes, which the nominal's margin
+        implies)."""
+        n = len(self.plants) - len(self.variation)
+        if i < n:
+            return self.spec
+        k = self.variation[i - n]
+        sp = self.spec
+        return sp.model_copy(update={
+            "phase_margin_min_deg": min(sp.phase_margin_min_deg, sp.gain_variation_pm_min_deg),
+            "gain_margin_min_db": max(0.0, sp.gain_margin_min_db - abs(20.0 * math.log10(k)))})
+
+    @property
+    def specs(self) -> tuple[Spec, ...]:
+        """:meth:`plant_spec` of every plant of the set."""
+        return tuple(self.plant_spec(i) for i in range(len(self.plants)))
+
     @property
     def labels(self) -> tuple[str, ...]:
         """A name for each plant of the set: ``nominal``, ``plant #2``, ..., ``nominal x0.8`` (a gain-variation
@@ -117,7 +136,7 @@ class TuningProblem:
         asked = spec
         spec, limits = resolve_limits(spec, st, plants, dt, scale)
         variation: tuple[float, ...] = ()
-        if spec.gain_variation is not None:  # the nominal's gain varied: members of the set (every constraint on each)
+        if spec.gain_variation is not None:  # the nominal's gain varied: members of the set (judged by plant_spec)
             variation = tuple(float(k) for k in spec.gain_variation if k != 1.0)
             plants = [*plants, *(plants[0].scaled(k) for k in variation)]
         guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale, spec=spec).values()), dt)
@@ -157,7 +176,8 @@ def resolve_limits(spec: Spec, st: Structure, plants: Sequence[Plant], dt: float
         limits.append({"field": "gain_variation", "value": [lo, hi], "default": spec.gain_variation ==
                        FIRMWARE_GAIN_VARIATION, "rule": f"gain variation: the nominal plant's gain x{lo:g} and "
                        f"x{hi:g} too (a rate loop's control effectiveness moves with battery voltage and payload): "
-                       "every constraint on each, the objective their worst case"})
+                       "every constraint on each (the phase margin "
+                       f"{spec.gain_variation_pm_min_deg:g} deg), the objective their worst case"})
     if spec.noise_gain_max is not None:
         k = noise_scale(plants, scale)
         budget = spec.noise_gain_max * k

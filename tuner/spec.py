@@ -87,9 +87,16 @@ class _SpecCore(BaseModel):
 
     gain_variation: Literal[AUTO] | tuple[float, float] | None = Field(
         AUTO, description="the plant-gain factors [lo, hi] the design must also hold at: the nominal plant's gain "
-        "times lo and times hi are added to the plant set, every constraint of the spec on each and the objective "
+        "times lo and times hi are added to the plant set, every constraint of the spec on each (the phase margin "
+        "gain_variation_pm_min_deg) and the objective "
         "their worst case (a rate loop's control effectiveness moves with battery voltage and payload); auto (the "
         "default): [0.8, 1.25] for the firmware rate laws px4_rate and ardupilot_rate, none otherwise; null lifts it")
+
+    gain_variation_pm_min_deg: float = Field(
+        45.0, ge=0, le=90, description="the phase margin each gain-variation member keeps (at most the spec's own): "
+        "the nominal plant keeps phase_margin_min_deg; a member's gain margin is the nominal's less the gain change "
+        "itself, which the nominal's implies; every other limit holds on the members as on the nominal. 45 deg: what a "
+        "rate loop keeps at the ends of its control effectiveness's range (issue 39's figure)")
 
     @field_validator("gain_variation")
     @classmethod

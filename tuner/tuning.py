@@ -623,7 +623,8 @@ def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> Tu
     if run.searched is not problem:  # the verifier's verdict on the asked spec (the impossible limit fails)
         from .optimize.scoring import Evaluator
 
-        eng.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=eng.space.w0)
+        eng.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=eng.space.w0,
+                           specs=problem.specs)
         best = eng.ev.score(best_x)
     run.t_verify = time.perf_counter() - t_verify
     info: dict[str, Any] = {
@@ -650,7 +651,7 @@ def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> Tu
         # the fastest reference step found: its integral action raised for the load, the reference step held
         from .optimize.setpoint import raise_integral
 
-        raised = raise_integral(problem, eng, best_x, slack=LOAD_SETTLING_SLACK)
+        raised = raise_integral(problem, eng, best_x)
         if raised is not None:
             best_x, stage, best = raised
             info["load_design"] = stage.to_dict()
@@ -830,8 +831,8 @@ def _with_current(res: TuneResult, problem: TuningProblem, vehicle: Any, gains: 
     from .firmware.bind import vehicle_dict
 
     ctrl = problem.structure.tf(gains, problem.dt)
-    current = tuple(analyze(p, ctrl, problem.spec, actuator=actuator, structure=problem.structure.name, gains=gains)
-                    for p in problem.plants)
+    current = tuple(analyze(p, ctrl, sp, actuator=actuator, structure=problem.structure.name, gains=gains)
+                    for p, sp in zip(problem.plants, problem.specs))
     if ident is not None:
         from .analysis.measured import measured_comparison
 
@@ -897,10 +898,6 @@ _OUTER_CAP: contextvars.ContextVar[float | None] = contextvars.ContextVar("tuner
 DEFAULT_BUDGET_S = 10.0  # the default budget's search time (the NLP builds not counted: see tune's time_budget_s)
 AUTO_WALL_CAP_S = 60.0  # ... and its wall-clock cap, builds included
 FAST_SHARE = 0.3  # of the budget: the fastest design, a candidate of the robustness objectives
-#: "auto" on a 2-DOF law: the load design's reference step may settle this much slower than the fastest design's
-#: (the settling time is flat in the integral gain until a strong integrator's slow tail leaves the band, where it
-#: jumps: PX4's law on a small quad, 0.14 s at I = 0.2 and 0.57 s at I = 0.3; the load design stops before the jump)
-LOAD_SETTLING_SLACK = 0.05
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
 # budget, at most this share of it (the reasons by definition need no time)

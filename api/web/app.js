@@ -119,6 +119,7 @@ function readForm() {
   const out = {};
   for (const n of NAMES) {
     const el = field(n);
+    if (!el) continue;  // a spec field the form does not offer (the service's default applies)
     out[n] = el.type === "checkbox" ? (el.checked ? "1" : "0") : el.value.trim();
   }
   out.plants = field("plants").value.split("\n").map((s) => s.trim()).filter(Boolean);
@@ -129,6 +130,7 @@ function writeForm(values) {
   const d = defaults();
   for (const n of NAMES) {
     const el = field(n);
+    if (!el) continue;
     const v = values[n] ?? d[n] ?? "";
     if (el.type === "checkbox") el.checked = v === "1" || v === "true" || v === true;
     else el.value = v;
@@ -166,6 +168,7 @@ function formParams(extra = {}) {
   const m = mode();
   for (const n of NAMES) {
     if ((n === "plant" && m !== "expr") || ((n === "num" || n === "den" || n === "var") && m !== "coeffs")) continue;
+    if (!(n in f)) continue;  // (no input for it on the form)
     // empty where the default is not (a lifted filter_n_max) is state too: written as "filter_n_max="
     if (f[n] !== (d[n] ?? "")) p.set(n, f[n]);
   }
@@ -280,6 +283,7 @@ function tuneBody() {
   const spec = {};
   for (const k of SPEC) {
     const el = field(k);
+    if (!el) continue;
     if (k === "gain_variation") spec[k] = el.checked ? "auto" : null;
     else if (el.type === "checkbox") spec[k] = el.checked;
     else if (el.tagName === "SELECT") spec[k] = f[k];

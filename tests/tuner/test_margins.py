@@ -348,9 +348,11 @@ def test_first_order_with_delay_margins_closed_form(frac):
     if K > 1:
         wc = math.sqrt(K * K - 1)
         assert m.crossover_rad_s == pytest.approx(wc, rel=1e-8)
-        # the signed classical value, whose magnitude is the distance in phase from -1 (negative beyond K_U)
+        # the signed classical value: 180 deg plus the phase unwrapped from low frequency (negative beyond K_U, where
+        # the phase lag at the crossing exceeds 180 deg; its magnitude is the distance in phase from -1)
         signed = 180 - math.degrees(math.atan(wc) + wc * TAU)
-        assert m.phase_margin_deg == pytest.approx(abs(signed), abs=1e-6)
+        assert m.phase_margin_deg == pytest.approx(signed, abs=1e-6)
+        assert (m.phase_margin_deg < 0) == (frac > 1)
     else:
         assert m.phase_margin_deg == math.inf  # |L| < 1 everywhere: no gain crossing
 

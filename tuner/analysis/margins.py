@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import TunerError
 from ..loop import Loop
 from ..tolerances import EXACT_ROOT_TOL, ROOT_AT_DC_TOL, ROOT_MAG_FLOOR
 
@@ -250,19 +251,63 @@ def _pm_at(L: complex) -> float:
     return 180.0 - abs(math.degrees(np.angle(L)))
 
 
+class _Phase:
+    """The loop's phase unwrapped along the frequency axis from its lowest frequency, in degrees: the sum of its
+    factors' phases (the gain's, each zero's ``angle(x - z)``, minus each pole's, a continuous delay's ``-w tau``), each
+    factor unwrapped on its own along the verifier's grid (a factor's phase moves by at most 180 degrees, and fast only
+    next to its own root: unwrapping the sum would take a lightly damped mode's swing for a jump). ``at(wc, i)`` is the
+    phase at ``wc`` between grid points ``i`` and ``i + 1``, each factor on the branch nearest its value at ``w[i]``.
+    The low-frequency branch: each factor's principal angle, a negative loop gain a lag of 180 degrees."""
+
+    def __init__(self, loop: Loop, w: np.ndarray) -> None:
+        self.loop = loop
+        zk = loop.zpk
+        self.roots = np.concatenate([np.asarray(zk.zeros, complex), np.asarray(zk.poles, complex)])
+        self.sign = np.concatenate([np.ones(len(zk.zeros)), -np.ones(len(zk.poles))])
+        self.k = 0.0 if zk.gain >= 0 else -math.pi
+        self.w = w
+        self.grid = np.unwrap(np.angle(self._x(w)[None, :] - self.roots[:, None]), axis=1) if self.roots.size else \
+            np.zeros((0, w.size))
+
+    def _x(self, w: np.ndarray) -> np.ndarray:
+        return 1j * w if self.loop.dt is None else np.exp(1j * w * self.loop.dt)
+
+    def at(self, wc: float, i: int) -> float:
+        """The unwrapped phase at ``wc`` (degrees), ``w[i] <= wc``."""
+        a = np.angle(self._x(np.array([wc]))[0] - self.roots) if self.roots.size else np.zeros(0)
+        ref = self.grid[:, min(max(i, 0), self.w.size - 1)]
+        a = a + 2 * np.pi * np.round((ref - a) / (2 * np.pi))
+        ph = self.k + float(np.sum(self.sign * a)) - (wc * self.loop.delay_s if self.loop.dt is None else 0.0)
+        return math.degrees(ph)
+
+
 def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, float]:
+    """The worst phase margin over every gain crossing: ``180 + phase(L)`` at the crossing, the phase unwrapped from
+    low frequency (:class:`_Phase`): negative where the phase lag at a crossing exceeds 180 degrees (a loop stable only
+    through its other crossings, the PX4 autotune's design on a flexible frame: -52 deg, where the distance of ``L``
+    from -1 alone, 52 deg, reads as a margin). A loop whose factors cannot be had gives that distance, unsigned."""
     with np.errstate(divide="ignore"):
         mag = np.log(np.abs(L))
     s = np.sign(mag)
     idx = np.flatnonzero((s[:-1] * s[1:] < 0) & np.isfinite(mag[:-1]) & np.isfinite(mag[1:]))
     brackets: list[tuple[float, float] | None] = [(w[i], w[i + 1]) for i in idx]
     brackets += _beyond_grid(loop, w, L)
+    try:
+        phase: _Phase | None = _Phase(loop, w)
+    except (TunerError, ValueError, FloatingPointError):
+        phase = None
     best, wbest = math.inf, math.nan
     for br in brackets:
         if br is None:  # a crossing beyond double precision's reach: the margin is unknown
             return math.nan, math.nan
         wc = _root(lambda x: np.log(np.abs(loop.freqresp(x))), *br)
         pm = _pm_at(complex(loop.freqresp(np.array([wc]))[0]))
+        if phase is not None and w[0] <= wc <= w[-1]:
+            signed = 180.0 + phase.at(wc, int(np.searchsorted(w, wc)) - 1)
+            # the unwrapped phase decides the side; where it and the factored value disagree by more than rounding
+            # (a crossing the realisation and the factors see differently) the distance stands
+            if math.isfinite(signed) and abs(abs(((signed + 180.0) % 360.0) - 180.0) - pm) < 1e-6 * max(1.0, pm):
+                pm = signed
         if pm < best:
             best, wbest = pm, wc
     return best, wbest

@@ -187,6 +187,11 @@ class BatchEvaluator:
         self.horizon_floor = MIN_HORIZON_W0 / w0
         self.n_evals = 0
         self.plants = [self._plant_data(p) for p in problem.plants]
+        #: compute the load step's recovery time too (``load_recovery_s``: as the verifier's, the last time |y| is above
+        #: 2 % of its peak; inf where not back within the horizon), the load stage's measure
+        self.load_recovery = False
+        #: per plant: the phase and gain margins it must keep (the spec's; a gain-variation member's its own)
+        self.margins = [(q.phase_margin_min_deg, q.gain_margin_min_db) for q in problem.specs]
         sp = self.spec
         # the figures the spec checks or optimises (the registry's batch keys of the limits it sets, its objective's)
         self._needs = frozenset({lim.batch for lim in LIMITS if lim.batch and getattr(sp, lim.field) is not None}
@@ -465,9 +470,9 @@ class BatchEvaluator:
                       ) -> dict[str, np.ndarray]:
         spec = self.spec
         Bn = cl.A.shape[0]
-        need_load = spec.objective == "iae"
+        need_load = spec.objective == "iae" or self.load_recovery
         res = {k: np.full(Bn, np.nan) for k in ("overshoot_pct", "steady_state_error", "control_peak", "iae",
-                                                   "itae")}
+                                                   "itae", "load_recovery_s")}
         res["settling_time_s"] = np.full(Bn, np.inf)
         idx = np.flatnonzero(stable)
         if idx.size == 0:
@@ -508,6 +513,8 @@ class BatchEvaluator:
                 if need_load:
                     yl, _, tl, _ = sim(*args, 1)
                     res["iae"][sel] = np.trapezoid(np.abs(yl), tl, axis=1)
+                    if self.load_recovery:
+                        res["load_recovery_s"][sel] = _recovery(tl, np.abs(yl))
         return res
 
     def _simulate(self, pd: _PlantData, cl: StackedLoops, T, K, inp):
@@ -567,16 +574,14 @@ class BatchEvaluator:
         outside = np.zeros(Bn)
         obj = np.full(Bn, -np.inf)
         g = GUARD
-        for m in per_plant:
+        for i, m in enumerate(per_plant):
             unstable |= ~m["stable"]
             outside = np.maximum(outside, m["outside"])
             v = np.zeros(Bn)
-            v += _viol_ge(m["pm"], spec.phase_margin_min_deg + g["margin_deg"] * (spec.phase_margin_min_deg > 0),
-                          max(spec.phase_margin_min_deg, 1.0))
-            v += _viol_ge(m["gm"], spec.gain_margin_min_db + g["margin_db"] * (spec.gain_margin_min_db > 0),
-                          max(spec.gain_margin_min_db, 1.0))
-            v += _viol_le(m["gml"], -spec.gain_margin_min_db - g["margin_db"] * (spec.gain_margin_min_db > 0),
-                          max(spec.gain_margin_min_db, 1.0))
+            pm_min, gm_min = self.margins[i]  # (a gain-variation member's: TuningProblem.plant_spec)
+            v += _viol_ge(m["pm"], pm_min + g["margin_deg"] * (pm_min > 0), max(pm_min, 1.0))
+            v += _viol_ge(m["gm"], gm_min + g["margin_db"] * (gm_min > 0), max(gm_min, 1.0))
+            v += _viol_le(m["gml"], -gm_min - g["margin_db"] * (gm_min > 0), max(gm_min, 1.0))
             v += _viol_le(m["overshoot_pct"], spec.overshoot_max_pct * g["overshoot"], max(spec.overshoot_max_pct, 1.0))
             if spec.zero_steady_state_error:
                 v += _viol_le(np.abs(m["steady_state_error"]), SSE_TOL * 0.5, 1.0)
@@ -696,6 +701,30 @@ def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
             Am = Am @ Am
             m *= 2
     return Z
+
+
+def _recovery(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per row: the last time ``|y|`` (rows of a load step's response, ``y >= 0``) is above
+    :data:`tuner.analysis.verify.LOAD_RECOVERY_SHARE` of its peak, interpolated as the verifier does; inf where the
+    last point is above it (not back within the horizon)."""
+    from ..analysis.verify import LOAD_RECOVERY_SHARE
+
+    peak = np.max(y, axis=1)
+    thr = LOAD_RECOVERY_SHARE * peak
+    above = y > thr[:, None]
+    K = y.shape[1]
+    last = K - 1 - np.argmax(above[:, ::-1], axis=1)  # the last index above (0 if none)
+    out = np.full(y.shape[0], np.inf)
+    back = ~above[:, -1]
+    j = np.clip(last, 0, K - 2)
+    rows = np.arange(y.shape[0])
+    t0, t1 = t[rows, j] if t.ndim == 2 else t[j], t[rows, j + 1] if t.ndim == 2 else t[j + 1]
+    e0, e1 = y[rows, j], y[rows, j + 1]
+    with np.errstate(all="ignore"):
+        rec = np.where(e0 > e1, t0 + (e0 - thr) / (e0 - e1) * (t1 - t0), t1)
+    out[back] = rec[back]
+    out[back & ~np.any(above, axis=1)] = 0.0
+    return out
 
 
 def _settling(t: np.ndarray, yn: np.ndarray, band: float) -> np.ndarray:

@@ -343,7 +343,8 @@ class Engine:
         self.problem = problem
         self.space = make_space(problem.structure, problem.nominal, problem.dt, scale=problem.scale,
                                 nyquist=problem.spec.filter_nyquist)
-        self.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=self.space.w0)
+        self.ev = Evaluator(list(problem.plants), problem.structure, problem.dt, problem.spec, w0=self.space.w0,
+                            specs=problem.specs)
         self.batch = BatchEvaluator(problem, self.space)
         # the local stage states the objectives it optimises exactly (the others: the global search alone)
         self.seed, self._deadline, self.solver = seed, deadline, solver

@@ -109,11 +109,13 @@ class Evaluator:
     between candidates (the search itself scores batches with :class:`~tuner.optimize.batch.BatchEvaluator`)."""
 
     def __init__(self, plants: Sequence[Plant], structure: Structure, dt: float | None, spec: Spec, *,
-                 w0: float | None = None) -> None:
+                 w0: float | None = None, specs: Sequence[Spec] | None = None) -> None:
         self.plants = tuple(plants)
         self.structure = structure
         self.dt = dt
         self.spec = spec
+        #: the spec each plant is judged by (a gain-variation member's margins: TuningProblem.plant_spec)
+        self.specs = tuple(specs) if specs is not None else (spec,) * len(self.plants)
         self.n_evals = 0
         self.w0 = w0  # the plant's characteristic frequency (the search space's), for the caller
         # what was verified already, by parameter vector: the search verifies the ray's best points and then its
@@ -144,7 +146,7 @@ class Evaluator:
         self.n_evals += 1
         try:
             ctrl = self.controller(x)
-            an = tuple(analyze_loop(build_loop(p, ctrl), self.spec) for p in self.plants)
+            an = tuple(analyze_loop(build_loop(p, ctrl), sp) for p, sp in zip(self.plants, self.specs))
         except (TunerError, ValueError, np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError):
             return Scored(UNSTABLE * 10, False, ())
         an = self._with_rules(an, x)

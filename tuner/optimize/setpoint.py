@@ -10,15 +10,19 @@ held on every plant. It scores a grid over their box with the batched verifier, 
 has the full verifier judge the best few; the feedback's parameters are never moved, so the load objective is what the
 search found.
 
-:func:`raise_integral` is the load design of ``objective="auto"`` on such a law (pid2, px4_rate, ardupilot_rate). A
-firmware law's setpoint path is a feed-forward ``FF >= 0`` alone: it cannot take back the slow overshoot tail that a
-strong integrator leaves in the reference step (a setpoint weight below 1 could), so the load design cannot ignore the
-reference step. From the search's fastest reference step it raises the integral gain along a ray (the other feedback
-gains kept), choosing the setpoint parameters afresh at each level (a strong integrator wants no feed-forward: PX4's
-law on a small quad settles in 0.14 s at I = 0.21 with FF = 0 and in 0.82 s with the FF of I = 0.09), and keeps the
-level with the smallest load IAE whose reference step settles within ``slack`` of the fastest one, on every plant of
-the set and with every constraint held. The settling time is flat in the integral gain until the integrator's tail
-leaves the band, where it jumps (there, 0.14 s to 0.57 s between I = 0.2 and 0.3): the stage stops before the jump.
+:func:`raise_integral` is the load design of ``objective="auto"`` on a firmware rate law (px4_rate, ardupilot_rate).
+Its setpoint path is a feed-forward ``FF >= 0`` alone: it cannot take back the slow overshoot tail that a strong
+integrator leaves in the reference step (a setpoint weight below 1 could), so the feedback cannot be designed for the
+load alone. From the search's fastest reference step the stage raises the integral gain along a ray (in steps of
+``LEVEL_STEP`` decades, and at the classical integral times ``Ti = k/wc``), re-choosing the other parameters at each
+level for the fastest reference step by a pattern search on the batched verifier (a strong integrator wants no
+feed-forward: PX4's law on a small quad settles in 0.14 s at I = 0.21 with FF = 0 and in 0.82 s with the FF of
+I = 0.09), every constraint held on every plant of the set. Of the levels, the one with the least :func:`balance`
+wins, the verifier's word on it taken: the later of the reference step's settling time and the load step's recovery
+time over :data:`LOAD_TIME_RATIO`. The settling time is flat in the integral gain until the integrator's tail leaves
+the band, where it jumps (there, 0.14 s to 0.57 s between I = 0.2 and 0.3): on a plant with damping the balance stops
+before the jump; on one that integrates (no aerodynamic damping) the reference step slows as the integrator grows, and
+the balance gives the load its time.
 """
 
 from __future__ import annotations
@@ -30,16 +34,26 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SetpointStage", "LoadStage", "shape_setpoint", "raise_integral", "GRID_1D", "GRID_2D", "ZOOMS", "CHECKED",
+__all__ = ["SetpointStage", "LoadStage", "shape_setpoint", "raise_integral", "balance", "LOAD_TIME_RATIO", "GRID_1D",
+           "GRID_2D", "ZOOMS", "CHECKED",
            "LEVEL_DECADES", "LEVEL_STEP"]
 
 GRID_1D = 65  # points over a single setpoint parameter's box (a firmware law's FF: log-like, 13 a decade)
 GRID_2D = 13  # points a side over two (pid2's b and c: linear)
 ZOOMS = 2  # finer grids around the best cell
 CHECKED = 4  # the best candidates the full verifier judges
-LEVEL_DECADES = 3.0  # the integral gain's ray: up to this many decades above the fastest design's
+LEVEL_DECADES = 4.0  # the integral gain's ray: up to this many decades above the fastest design's
 LEVEL_STEP = 0.1  # ... in steps of this many decades, then bisections between the last that holds and the next
 BISECTIONS = 3
+HORIZON_FACTOR = 10.0  # the ray's reference steps are simulated up to this many times the fastest's settling time
+MAX_HORIZON_FACTOR = 100.0  # ... or as far as the fastest's balance, up to this many times
+#: the load design gives a load step this many times as long to recover (back within 2 % of its peak) as the reference
+#: step to settle (within 2 %): a rate loop should absorb a step load (a CG shift, a weak motor) on the time scale of
+#: its reference step; PX4's and ArduPilot's autotunes recover (to 10 % of the peak) in 1 to 10 times their settling
+#: time on the five airframes of bench/autotune_h2h.py
+LOAD_TIME_RATIO = 5.0
+RAY_MISSES = 4  # the ray ends after this many levels in a row hold no design meeting the spec
+TI_CROSSOVERS = (2.0, 4.0, 8.0, 16.0)  # the classical integral times tried too: Ti = k/wc
 POLL_STEP = 0.04  # the pattern search's first step, in search coordinates (about decades of a gain)
 POLL_MIN_STEP = 0.003
 POLL_ITERATIONS = 25
@@ -139,27 +153,30 @@ def shape_setpoint(engine: Any, x0: np.ndarray) -> tuple[np.ndarray, SetpointSta
 
 @dataclass(frozen=True)
 class LoadStage:
-    """What :func:`raise_integral` did: the integral gain and the setpoint parameters before and after, the fastest
-    design's worst settling time and the limit it set, the settling time after and the load objective (IE) before and
-    after (the verifier's, worst over the plants), and how many candidates the batch and the verifier scored."""
+    """What :func:`raise_integral` did: the integral gain and the other parameters before and after, the fastest
+    design's worst settling time, how many integral levels held a design meeting the spec, the settling time after and
+    the load objective (IE) before and after (the verifier's, worst over the plants), the balance reached (settling
+    time over integral gain), and how many candidates the batch and the verifier scored."""
 
     integral: str
     before: dict[str, float]
     after: dict[str, float]
     fastest_settling_s: float
-    settling_limit_s: float
+    levels: int
     settling_after_s: float
     objective_before: float
     objective_after: float
+    balance: float
     evaluated: int
     verified: int
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (the solver record's ``load_design``)."""
         return {"integral": self.integral, "before": dict(self.before), "after": dict(self.after),
-                "fastest_settling_s": self.fastest_settling_s, "settling_limit_s": self.settling_limit_s,
+                "fastest_settling_s": self.fastest_settling_s, "levels": self.levels,
                 "settling_after_s": self.settling_after_s, "objective_before": self.objective_before,
-                "objective_after": self.objective_after, "evaluated": self.evaluated, "verified": self.verified}
+                "objective_after": self.objective_after, "balance": self.balance, "evaluated": self.evaluated,
+                "verified": self.verified}
 
 
 def _merit(batch: Any, X: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray]:
@@ -211,13 +228,11 @@ def _settle_locally(batch: Any, space: Any, v: np.ndarray, free: list[int], limi
     return v, best
 
 
-def raise_integral(problem: Any, engine: Any, x0: np.ndarray, *, slack: float
-                   ) -> tuple[np.ndarray, LoadStage, Any] | None:
+def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarray, LoadStage, Any] | None:
     """The load design from the fastest reference step ``x0`` (structure parameters; see the module docstring):
-    ``(x, record, scored)``, ``x`` the design with its integral gain raised (the other parameters re-chosen for the
-    reference step at each level), or ``x0`` itself when no level verified better; None when the structure has no
-    integral gain or setpoint parameters, or ``x0`` does not meet the spec. ``engine``'s full verifier judges
-    ``problem`` (its objective the load's IE)."""
+    ``(x, record, scored)``, ``x`` the balanced design (its integral gain raised, the other parameters re-chosen for
+    the reference step), or ``x0`` itself when nothing verified better; None when the structure has no integral gain
+    or setpoint parameters, or ``x0`` does not meet the spec. ``engine``'s full verifier judges ``problem``."""
     from .batch import BatchEvaluator
 
     st = problem.structure
@@ -229,60 +244,108 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray, *, slack: float
     if not s0.feasible:
         return None
     ts0 = _worst_settling(s0)
-    limit = ts0 * (1.0 + slack)
-    if problem.spec.settling_time_max is not None:
-        limit = min(limit, float(problem.spec.settling_time_max))
+    rec0 = _worst_recovery(s0)
     space = engine.space
     batch = BatchEvaluator(problem, space)
+    # (the ray's reference steps are simulated as far as a design could still beat the fastest one's balance)
+    horizon = max(HORIZON_FACTOR * ts0, min(rec0 / LOAD_TIME_RATIO, MAX_HORIZON_FACTOR * ts0))
+    if problem.spec.settling_time_max is not None:
+        horizon = min(horizon, float(problem.spec.settling_time_max))
     unit = space.units[ii]
     floor = max(float(space.params(space.lo)[ii]), 1e-3 * unit)
     top = float(space.params(space.hi)[ii])
     free = [i for i in range(len(st.params)) if i != ii]
     counter = [0]
-    found: list[tuple[float, np.ndarray, float]] = []  # (integral gain, coordinates, merit)
-    v = space.from_params(x0)
+    v0 = space.from_params(x0)
+    found: dict[float, tuple[np.ndarray, float]] = {}  # integral gain -> (coordinates, worst settling)
 
-    def at(level: float, start: np.ndarray) -> tuple[np.ndarray, float]:
-        return _settle_locally(batch, space, start, free, limit, {ii: level}, counter)
+    def at(level: float, starts: list[np.ndarray]) -> None:
+        best = None
+        for start in starts:
+            w, m = _settle_locally(batch, space, start, free, horizon / 3.0, {ii: level}, counter)
+            if m < PENALTY and (best is None or m < best[1]):
+                best = (w, m)
+        if best is not None:
+            found[level] = best
 
-    last, first_bad, v_last = float(x0[ii]), None, v
-    lv = max(float(x0[ii]), floor)
-    while True:
+    def nearest(level: float) -> list[np.ndarray]:
+        """Where a level's local search starts: the fastest design, and the found level nearest below it."""
+        below = [lv for lv in found if lv < level]
+        return [v0] + ([found[max(below)][0]] if below else [])
+
+    # the ray: from the fastest design's integral gain (or the box's floor) up in steps, on past levels that fail
+    # (a plant that integrates: its reference step slows as the integrator grows, then speeds up again once the
+    # integrator's own mode is fast), until RAY_MISSES fail in a row
+    i0 = float(x0[ii])
+    lv, misses = max(i0, floor), 0
+    while misses < RAY_MISSES:
         lv *= 10.0 ** LEVEL_STEP
-        if lv > top or lv > float(x0[ii]) * 10.0 ** LEVEL_DECADES and x0[ii] > 0:
+        if lv > top or lv > max(i0, floor) * 10.0 ** LEVEL_DECADES:
             break
-        w, m = at(lv, v_last)
-        if m <= limit:
-            found.append((lv, w, m))
-            last, v_last = lv, w
-        else:
-            first_bad = lv
-            break
-    if first_bad is not None:  # between the last level that holds and the first that does not, by bisection
-        a, b = math.log10(max(last, floor)), math.log10(first_bad)
-        for _ in range(BISECTIONS):
-            mid = 10.0 ** (0.5 * (a + b))
-            w, m = at(mid, v_last)
-            if m <= limit:
-                found.append((mid, w, m))
-                a, v_last = math.log10(mid), w
-            else:
-                b = math.log10(mid)
-    best_x, best_s, best_t = x0, s0, ts0
+        n = len(found)
+        at(lv, nearest(lv))
+        misses = 0 if len(found) > n else misses + 1
+    # the classical integral times, Ti = k/wc on the fastest design's worst crossover (Astrom & Hagglund: Ti of a
+    # few times 1/wc): starts the ray cannot reach from a design without integral action
+    r0 = batch.evaluate(x0[None, :])
+    wc = float(np.nanmin([m["wc"][0] for m in r0.per_plant])) if r0.per_plant else math.nan
+    p_gain = _proportional(st, x0)
+    if math.isfinite(wc) and wc > 0 and p_gain > 0:
+        for k in TI_CROSSOVERS:
+            lv = p_gain * wc / k
+            if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found):
+                at(lv, nearest(lv))
+    if not found:
+        return None
+
+    # the load step's recovery of each level's design (the batch at full horizon), then the balance
+    lv_list = sorted(found)
+    X = np.array([space.params(found[lv][0]) for lv in lv_list])
+    X[:, ii] = lv_list
+    batch.load_recovery = True
+    r = batch.evaluate(X)
+    batch.load_recovery = False
+    counter[0] += len(X)
+    rec = np.max(np.stack([m["load_recovery_s"] for m in r.per_plant]), axis=0)
+    cands = sorted(((balance(found[lv][1], float(rc)), lv, x) for lv, x, rc in zip(lv_list, X, rec)),
+                   key=lambda c: c[0])
+    best_x, best_s, best_f, best_t = x0, s0, balance(ts0, rec0), ts0
     verified = 0
-    # the strongest integral action first (the load step's IE = 1/Ki), the verifier's word on each
-    for lv, w, _ in sorted(found, key=lambda f: -f[0])[:CHECKED]:
-        x = space.params(w)
-        x[ii] = lv
+    for f, _, x in cands:
+        if f >= best_f or verified >= CHECKED:
+            break
         s = engine.ev.score(x)
         verified += 1
         t = _worst_settling(s)
-        if s.feasible and t <= limit and s.score < best_s.score:
-            best_x, best_s, best_t = x, s, t
+        fv = balance(t, _worst_recovery(s))
+        if s.feasible and fv < best_f:
+            best_x, best_s, best_f, best_t = x, s, fv, t
             break
-    names = [st.integral, *st.params[:0], *[p for p in st.params if p != st.integral]]
+    names = [st.integral, *[p for p in st.params if p != st.integral]]
     rec = LoadStage(integral=st.integral, before={p: float(x0[st.params.index(p)]) for p in names},
                     after={p: float(best_x[st.params.index(p)]) for p in names}, fastest_settling_s=ts0,
-                    settling_limit_s=limit, settling_after_s=best_t, objective_before=float(s0.score),
-                    objective_after=float(best_s.score), evaluated=counter[0], verified=verified)
+                    levels=len(found), settling_after_s=best_t, objective_before=float(s0.score),
+                    objective_after=float(best_s.score), balance=best_f, evaluated=counter[0], verified=verified)
     return best_x, rec, best_s
+
+
+def balance(settling_s: float, recovery_s: float) -> float:
+    """The load design's measure: the later of the reference step's settling and the load step's recovery given
+    :data:`LOAD_TIME_RATIO` times as long (both back within 2 %: the step's band, the load step's peak)."""
+    return max(settling_s, recovery_s / LOAD_TIME_RATIO)
+
+
+def _worst_recovery(scored: Any) -> float:
+    """The verifier's worst load recovery time over the plants (inf when one does not recover)."""
+    if not scored.analyses:
+        return math.inf
+    return max(float(a.metrics.load_recovery_s) for a in scored.analyses)
+
+
+def _proportional(st: Any, x: np.ndarray) -> float:
+    """The structure's proportional gain at ``x`` (the gain of unit 0 that is no setpoint parameter), or nan."""
+    units = st.gain_units or (0,) * len(st.params)
+    for p, k, u, v in zip(st.params, st.kinds, units, x):
+        if k == "gain" and u == 0 and p not in st.setpoint:
+            return float(v)
+    return math.nan

@@ -351,8 +351,6 @@ def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key
     values: dict[str, Any] = {
         "dt": ev.dt or grid.h, "h": grid.step, "band": spec.settling_band_pct / 100.0 * GUARD["band"],
         "os": min(spec.overshoot_max_pct / 100.0 * GUARD["overshoot"] * _TIGHT_OS, 10.0),
-        "cospm": math.cos(math.radians(min(spec.phase_margin_min_deg + 2 * GUARD["margin_deg"], 180.0))),
-        "g": 10 ** (-(spec.gain_margin_min_db + 2 * GUARD["margin_db"]) / 20.0),
         "cpk": (spec.control_peak_max or 1.0) * _TIGHT, "msinv": 1.0 / (spec.ms_max * _TIGHT) if spec.ms_max else 0.0,
         "mt": (spec.mt_max or 1.0) * _TIGHT, "mks": (spec.mks_max or 1.0) * _TIGHT,
         "alpha": (spec.disk_margin_min or 0.0) / _TIGHT,
@@ -360,6 +358,9 @@ def _values(ev: BatchEvaluator, space: Space, grid: _Grid, data: _PlantData, key
         "nmax": (spec.filter_n_max or 1.0) * _TIGHT, "kscale": space.k0,
         "kimin": (spec.ki_min or 1.0) / _TIGHT, "kisgn": _ki_sign(ev),
         "tw": _time_weights(grid, spec.objective)}
+    for i, (pm_min, gm_min) in enumerate(ev.margins):  # each plant's margins (a gain-variation member's its own)
+        values[f"cospm{i}"] = math.cos(math.radians(min(pm_min + 2 * GUARD["margin_deg"], 180.0)))
+        values[f"g{i}"] = 10 ** (-(gm_min + 2 * GUARD["margin_db"]) / 20.0)
     if key.settling_max:
         values.update({f"yoff{i}": np.zeros(grid.t.size) for i in range(len(ev.problem.plants))})
     for i, (p, lf) in enumerate(zip(ev.problem.plants, data.lifted)):
@@ -840,7 +841,8 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
         # asked), a second gain crossover (a pid_z on a lightly damped plant: 29.6 degrees there, which the batch's
         # grid missed too), a slow unstable pole past the horizon; the full verifier decides, and a solution it does
         # not confirm is not bisected on
-        full = Evaluator(list(ev.problem.plants), ev.st, ev.dt, spec, w0=space.w0)
+        full = Evaluator(list(ev.problem.plants), ev.st, ev.dt, spec, w0=space.w0,
+                         specs=[q.model_copy(update={"objective": spec.objective}) for q in ev.problem.specs])
 
         def accept(x: np.ndarray, ts: float) -> bool:
             s = full.score(space.params(r.to_search(x)))

@@ -172,7 +172,7 @@ class Problem:
 
 
 # the spec's numbers and the steps, in the parameter vector (see refine for their values)
-GLOBALS = ("dt", "h", "band", "os", "cospm", "g", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu", "nmax", "kscale",
+GLOBALS = ("dt", "h", "band", "os", "cpk", "msinv", "mt", "mks", "alpha", "eps", "kiu", "nmax", "kscale",
            "kimin", "kisgn")
 
 
@@ -184,7 +184,9 @@ def parameter_layout(key: ProblemKey, nv: int) -> Layout:
         blocks += [(f"Phi{i}", (n, n)), (f"Gam{i}", (n,)), (f"C{i}", (n,)), (f"D{i}", ()), (f"Cf{i}", (key.N, n)),
                    (f"Df{i}", (key.N,)), (f"zr{i}", (key.zeros[i],)), (f"zi{i}", (key.zeros[i],)),
                    (f"pr{i}", (key.poles[i],)), (f"pi{i}", (key.poles[i],)), (f"k{i}", ()), (f"tau{i}", ()),
-                   (f"Gre{i}", (ng,)), (f"Gim{i}", (ng,))]
+                   (f"Gre{i}", (ng,)), (f"Gim{i}", (ng,)),
+                   # the plant's margins (a gain-variation member's its own: TuningProblem.plant_spec)
+                   (f"cospm{i}", ()), (f"g{i}", ())]
     blocks += [("wgrid", (ng,)), ("tw", (key.points,)), ("mask", (key.points,))]
     if key.drb:  # 1 at the grid's frequencies up to the DRB limit, 0 above
         blocks += [("drbmask", (ng,))]
@@ -350,15 +352,15 @@ def _margin_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cd
     if wc is not None:
         re, im, nn2, dd2 = _open_loop_at(wc, key, i, cnum, cden, P)
         c.add((nn2 - dd2) / (nn2 + dd2), 0.0, 0.0)  # |L(j wc)| = 1
-        c.add((re + P["cospm"] * dd2) / (nn2 + dd2), 0.0, cs.inf)  # Re L >= -cos(PM)
+        c.add((re + P[f"cospm{i}"] * dd2) / (nn2 + dd2), 0.0, cs.inf)  # Re L >= -cos(PM)
     if key.gm:
         if wp is not None:
             re, im, nn2, dd2 = _open_loop_at(wp, key, i, cnum, cden, P)
             c.add(im / (nn2 + dd2), 0.0, 0.0)
-            c.add((re + P["g"] * dd2) / (nn2 + dd2), 0.0, cs.inf)
+            c.add((re + P[f"g{i}"] * dd2) / (nn2 + dd2), 0.0, cs.inf)
         if not key.continuous:
             re, im, nn2, dd2 = _open_loop_at(math.pi / P["dt"], key, i, cnum, cden, P)
-            c.add((re + P["g"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
+            c.add((re + P[f"g{i}"] * dd2) / (nn2 + dd2 + 1e-300), 0.0, cs.inf)
 
 
 def _grid_constraints(c: _Constraints, key: ProblemKey, i: int, cnum: list, cden: list, P: dict[str, Any],
