@@ -470,7 +470,7 @@ def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo
                          delay: Any) -> tuple[Any, Any, Any, int]:
     """An identification's plant set (its nominal model, or the ``robust``-sigma set), the identification, the robust
     design record and the Monte Carlo draws; other inputs as they are."""
-    from .robust import check_draws, is_identification, plant_set
+    from .robust import MC_SIGMA, check_draws, check_spread, is_identification, plant_set
 
     if is_identification(plant_or_plants):
         if delay is not None:
@@ -478,6 +478,8 @@ def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo
         ident = plant_or_plants
         plants, design = plant_set(ident, robust, dt=dt)
         n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
+        if n_mc:  # draws from bounds too wide are no plants of this airframe: refused before the tune
+            check_spread(ident, MC_SIGMA, dt=dt, field="monte_carlo")
         return plants, ident, design, n_mc
     if robust is not None or monte_carlo is not None:
         raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",

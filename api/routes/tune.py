@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse
 
 from tuner.errors import TunerError
 from tuner.jsonio import jsonable
-from tuner.robust import MONTE_CARLO_DRAWS
+from tuner.robust import MC_SIGMA, MONTE_CARLO_DRAWS, check_spread
 
 from ..convert import (
     FieldError,
@@ -94,6 +94,11 @@ async def post_tune(
     timeout_s = settings.solve_limit_s(budget)
     if ident is not None:
         n_mc = body.monte_carlo if body.monte_carlo is not None else (MONTE_CARLO_DRAWS if body.robust else 0)
+        if n_mc:  # draws from bounds too wide are no plants of this airframe: refused before the solve
+            try:
+                check_spread(ident, MC_SIGMA, dt=problem.dt, field="monte_carlo")
+            except TunerError as e:
+                raise FieldError.of(e, ("body", "monte_carlo")) from None
         payload.update(identification=ident, robust=body.robust, monte_carlo=n_mc)
         timeout_s += _SECONDS_PER_DRAW * n_mc
     await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)

@@ -88,3 +88,32 @@ def test_analyze_takes_a_fractional_delay_over_http(client):
     m = r.json()["metrics"]
     assert m["phase_margin_deg"] == pytest.approx(want.metrics.phase_margin_deg, abs=1e-9)
     assert m["overshoot_pct"] == pytest.approx(want.metrics.overshoot_pct, abs=1e-9)
+
+
+def _widened(client, ident, rel):
+    """The stored identification with every parameter's 1-sigma bound ``rel`` times its value (uncorrelated), stored
+    again: sample.ulg's roll fit had 767336 % on its pole frequency, and its robust set overflowed (a 500)."""
+    import copy
+
+    d = copy.deepcopy({k: v for k, v in ident.items() if k not in ("id", "created_at")})
+    names = d["covariance"]["parameters"]
+    vals = {n: d["uncertainty"][n]["value"] for n in names}
+    sig = [rel * abs(vals[n]) for n in names]
+    d["covariance"]["matrix"] = [[s * s if i == j else 0.0 for j, s in enumerate(sig)] for i in range(len(sig))]
+    for n, s in zip(names, sig):
+        d["uncertainty"][n].update(cr_bound=s, cr_bound_pct=100 * rel)
+    rec = client.app.state.store.add_identification(request={}, data={}, result=d)
+    return {**ident, "id": rec.id}
+
+
+@pytest.mark.parametrize("field_, extra", [("robust", {"robust": 2}), ("monte_carlo", {"monte_carlo": 5})])
+def test_bounds_too_wide_for_a_set_are_422_naming_them(client, ident, field_, extra):
+    wide = _widened(client, ident, 7673.0)
+    r = client.post("/tune", json=_body(wide, **extra))
+    assert r.status_code == 422, r.text
+    hit = [e for e in r.json()["detail"] if e["loc"] == ["body", field_]]
+    assert hit, r.json()
+    msg = hit[0]["msg"]
+    assert "too wide" in msg and "pole_wn_1_rad_s" in msg and "Fly an excitation" in msg
+    # the nominal model alone is tuned as before
+    assert client.post("/tune", json=_body(wide)).status_code == 200
