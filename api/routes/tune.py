@@ -129,9 +129,9 @@ async def post_tune(
     return JSONResponse(jsonable({"id": record.id, "created_at": record.created_at.isoformat(), **result}))
 
 
-async def _identification(body: TuneRequest, store: Store) -> tuple[Any, Any]:
-    """The stored identification a body names (``identification_id``), as an IdentifyResult, and its record (both
-    None without one); checks that the body gives exactly one of plant and identification_id, and
+async def _identification(body: Any, store: Store) -> tuple[Any, Any]:
+    """The stored identification a /tune or /analyze body names (``identification_id``), as an IdentifyResult, and
+    its record (both None without one); checks that the body gives exactly one of plant and identification_id, and
     robust/monte_carlo only with the latter."""
     if (body.plant is None) == (body.identification_id is None):
         raise FieldError(("body", "plant"), "give plant (a model) or identification_id (a stored identification, "
@@ -139,11 +139,11 @@ async def _identification(body: TuneRequest, store: Store) -> tuple[Any, Any]:
                          "model) or identification_id (a stored identification, POST /identify)")
     if body.identification_id is None:
         for name in ("robust", "monte_carlo"):
-            if getattr(body, name) is not None:
+            if getattr(body, name, None) is not None:
                 raise FieldError(("body", name), f"{name} needs identification_id: the uncertainty of an identified "
                                  "model (POST /identify)")
         return None, None
-    if body.plants:
+    if getattr(body, "plants", None):
         raise FieldError(("body", "plants"), "plants with identification_id: the plant set comes from the "
                          "identification (robust); leave plants out")
     rec = await run_in_threadpool(store.get_identification, body.identification_id)
