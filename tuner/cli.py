@@ -4,7 +4,8 @@ Exit codes, the same for every command (:data:`EXIT_CODES`, printed by ``--help`
 
 * 0: done, and every spec checked is met;
 * 1: done, but a spec is not met (``analyze``, ``tune``, ``verify``, ``study run``): the output (also
-  ``--json``, on stdout) says what fails;
+  ``--json``, on stdout) says what fails; on an identification also a margin below the spec on the measured
+  response, one not measured, or an identification rated below acceptable (the verdict "on the model only");
 * 2: bad input: one line on stderr naming the argument and what to change, no traceback;
 * 3: an internal error (a bug: please report it; ``-v`` prints the traceback).
 """
@@ -31,7 +32,8 @@ log = logging.getLogger("tuner")
 EXIT_OK, EXIT_SPEC_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 EXIT_CODES = """exit codes (every command):
   0  done, and every spec checked is met
-  1  done, but a spec is not met (the output, --json included, says what fails)
+  1  done, but a spec is not met (the output, --json included, says what fails); from an identification
+     also on its measured response, or when it is rated below acceptable ("on the model only")
   2  bad input: one line on stderr naming the argument and what to change
   3  internal error (a bug: please report it; -v prints the traceback)"""
 

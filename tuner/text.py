@@ -258,8 +258,7 @@ def _left(s: dict[str, Any], o: dict[str, Any]) -> str:
 def loop_eval_repr(e: Any) -> str:
     """A study's :class:`~tuner.studies.evaluate.LoopEval`: the loop, the verdict, each plant's metrics (a few)."""
     robust = f", {len(e.analyses)} plants" if len(e.analyses) > 1 else ""
-    fails = list(e.failing)
-    state = "meets the spec" if e.meets_spec else "does NOT meet the spec: " + ", ".join(fails)
+    state = e.verdict  # (a data loop's on the measured response too, a cascade's between samples)
     return "\n".join([f"LoopEval({e.loop.name}, {_loop_kind(e.analyses[0])}{robust}: {state})",
                       *_plant_lines(e.analyses)])
 

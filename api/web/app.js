@@ -627,6 +627,7 @@ function showAirframe(d) {
     p.id = "airframe-measured";
     for (const w of m.warnings || []) line(`warning: ${w}`, "bad");
   }
+  for (const w of d.vehicle?.warnings || []) line(`the vehicle's parameters: ${w}`, "bad");
   const changes = d.vehicle?.changes || [];
   if (changes.length) {
     const p = line(`the proposal changes the vehicle's current tune by more than 3×: ${changes.join("; ")}`, "bad");

@@ -98,11 +98,12 @@ class LoopEval:
     def verdict(self) -> str:
         """The verdict in words (:func:`tuner.text.verdict`; a data loop's on the measured response and its
         identification's rating too), and the cascade's between samples."""
-        from ..text import verdict
+        from ..text import verdict, verdict_met
 
         text = verdict(self.analyses)
         if not self.cascade_ok:
-            text += "; the cascade between samples fails its overshoot or settling"
+            cascade = "the cascade's output between samples fails its overshoot or settling"
+            text = f"does NOT meet the spec: {cascade}" if verdict_met(self.analyses) else f"{text}; and {cascade}"
         return text
 
     def to_dict(self) -> dict[str, Any]:
