@@ -207,10 +207,12 @@ def law_gains(body: AnalyzeRequest, vehicle: Any, dt: float | None) -> dict[str,
     return {**now, **gains}
 
 
-def analysis_inputs(body: AnalyzeRequest, vehicle: Any = None) -> tuple[Plant, ControllerTF, Spec]:
+def analysis_inputs(body: AnalyzeRequest, vehicle: Any = None, identification: Any = None
+                    ) -> tuple[Plant, ControllerTF, Spec]:
     """Plant, controller (at ``dt``, else at a discrete plant's dt, else the vehicle's loop rate) and spec of an
-    /analyze body, validated as one loop; ``vehicle``: the body's (:func:`vehicle_of`), read once by the caller."""
-    plant = _plant(body.plant, 0)
+    /analyze body, validated as one loop; ``vehicle``: the body's (:func:`vehicle_of`), read once by the caller;
+    ``identification`` (of ``identification_id``): its fitted model is the plant."""
+    plant = identification.plant() if identification is not None else _plant(body.plant, 0)
     dt = body.dt if body.dt is not None else plant.dt
     if dt is None and vehicle is not None and getattr(vehicle, "loop_hz", None):
         dt = 1.0 / float(vehicle.loop_hz)
@@ -227,6 +229,8 @@ def analysis_inputs(body: AnalyzeRequest, vehicle: Any = None) -> tuple[Plant, C
     try:
         build_loop(plant, ctrl)
     except TunerError as e:
+        if identification is not None and e.field[:1] == ("plant",):
+            raise FieldError.of(e, ("body", "identification_id")) from None
         raise FieldError.of(e, body_loc(("plants", 0, *e.field[1:]) if e.field[:1] == ("plant",) else e.field)) \
             from None
     return plant, ctrl, body.spec if body.spec is not None else Spec()

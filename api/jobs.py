@@ -64,10 +64,16 @@ def analyze_job(payload: dict[str, Any]) -> dict[str, Any]:
     the law's ``structure`` and ``gains``): the saturated step too."""
     from tuner.analysis import analyze
     from tuner.jsonio import jsonable
+    from tuner.text import verdict, verdict_basis
 
-    return jsonable(analyze(payload["plant"], payload["controller"], payload["spec"],
-                            actuator=payload.get("actuator"), structure=payload.get("structure"),
-                            gains=payload.get("gains")).to_dict())
+    a = analyze(payload["plant"], payload["controller"], payload["spec"], actuator=payload.get("actuator"),
+                structure=payload.get("structure"), gains=payload.get("gains"))
+    out = {**a.to_dict(), "verdict": verdict([a]), "basis": verdict_basis([a])}
+    if a.measured is not None:  # an identification: what the verdict rests on
+        from tuner.tuning import identification_summary
+
+        out["identification"] = identification_summary(payload["plant"])
+    return jsonable(out)
 
 
 def plot_job(payload: dict[str, Any]) -> bytes:

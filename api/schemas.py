@@ -211,7 +211,12 @@ class TradeoffRequest(TuneRequest):
 class AnalyzeRequest(_In):
     model_config = ConfigDict(extra="forbid", strict=True, json_schema_extra={"examples": [ROLL_ANALYZE_EXAMPLE]})
 
-    plant: PlantIn
+    plant: PlantIn | None = Field(None, description="the plant (or identification_id)")
+    identification_id: str | None = Field(
+        None, min_length=1, max_length=64,
+        description="instead of plant: the id of a stored identification (POST /identify): the controller is judged "
+                    "on its fitted model and on its measured frequency response (the margins by the worst end of "
+                    "their error range), and the identification's rating is part of the verdict")
     dt: SampleTime | None = Field(None, description="controller sample time, s; null = continuous controller")
     controller: ControllerIn
     spec: Spec | None = None

@@ -4,7 +4,8 @@ Exit codes, the same for every command (:data:`EXIT_CODES`, printed by ``--help`
 
 * 0: done, and every spec checked is met;
 * 1: done, but a spec is not met (``analyze``, ``tune``, ``verify``, ``study run``): the output (also
-  ``--json``, on stdout) says what fails;
+  ``--json``, on stdout) says what fails; on an identification also a margin below the spec on the measured
+  response, one not measured, or an identification rated below acceptable (the verdict "on the model only");
 * 2: bad input: one line on stderr naming the argument and what to change, no traceback;
 * 3: an internal error (a bug: please report it; ``-v`` prints the traceback).
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -30,7 +32,8 @@ log = logging.getLogger("tuner")
 EXIT_OK, EXIT_SPEC_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 EXIT_CODES = """exit codes (every command):
   0  done, and every spec checked is met
-  1  done, but a spec is not met (the output, --json included, says what fails)
+  1  done, but a spec is not met (the output, --json included, says what fails); from an identification
+     also on its measured response, or when it is rated below acceptable ("on the model only")
   2  bad input: one line on stderr naming the argument and what to change
   3  internal error (a bug: please report it; -v prints the traceback)"""
 
@@ -411,7 +414,9 @@ def print_table(title: str, rows: list[tuple[str, str]], checks: list[dict[str, 
         for col in ("constraint", "required", "achieved", "ok"):
             c.add_column(col)
         for ch in checks:
-            c.add_row(ch["name"], f"{ch['op']} {fmt(ch['required'])}", fmt(ch["achieved"]),
+            got = ch["achieved"]
+            unmeasured = ch["name"].startswith("measured_") and isinstance(got, float) and math.isnan(got)
+            c.add_row(ch["name"], f"{ch['op']} {fmt(ch['required'])}", "not measured" if unmeasured else fmt(got),
                       "[green]ok[/green]" if ch["ok"] else "[red]FAIL[/red]")
         con.print(c)
 
@@ -496,6 +501,14 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     if slip:
         print(f"warning: {slip}", file=sys.stderr)
     out = res.to_dict()
+    from .text import verdict, verdict_basis
+
+    out.update(verdict=verdict([res]), basis=verdict_basis([res]))
+    ident_info = None
+    if a.identified is not None:
+        from .tuning import identification_summary
+
+        ident_info = out["identification"] = identification_summary(plant)
     if vehicle is not None:
         from .firmware.bind import vehicle_dict
 
@@ -507,17 +520,28 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
         if vehicle is not None:
             print(f"the loop the vehicle flies: {st.name}, " + ", ".join(f"{k} = {v:.6g}" for k, v in now.items())
                   + f", dt = {dt:g} s (from {vehicle.source})")
+            for w in getattr(vehicle, "warnings", ()):
+                print(f"warning: {w}")
         print_table(label, analysis_rows(out["metrics"]), out["checks"])
         if res.saturated is not None:
             _print_saturated(res.saturated)
         if res.measured is not None:
             _print_measured(res.measured)
-        verdict = "meets the spec" if res.meets_spec else "does NOT meet the spec: " + ", ".join(
-            f"{c.name} = {fmt(c.achieved)} (required {c.op} {fmt(c.required)})" for c in res.failing
-        )
-        print(f"controller {verdict}")
+        if ident_info:
+            print(_identification_line(ident_info))
+        print(f"controller {out['verdict']}")
     _write_plot(res, a, plot_fmt, spec)
     return EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
+
+
+def _identification_line(info: dict[str, Any]) -> str:
+    """The identification a result rests on, in one line: its rating, J, the time-domain check."""
+    q = info.get("quality")
+    line = (f"identification: rated {q} (J {fmt(float(info['cost'])) if 'cost' in info else 'n/a'}, time-domain check "
+            f"{info.get('check', 'none')})")
+    if q not in ("good", "acceptable"):
+        line += ": below acceptable, so every figure here is the model's only"
+    return line
 
 
 def _print_measured(m: Any) -> None:
@@ -555,14 +579,15 @@ def _print_current(res: Any, out: dict[str, Any]) -> None:
     cur = out["current"]
     print(f"vehicle: {res.vehicle.get('firmware')} {res.vehicle.get('axis')} rate loop at "
           f"{fmt(res.vehicle.get('loop_hz'))} Hz (from {res.vehicle.get('source')})")
+    for w in res.vehicle.get("warnings", ()):
+        print(f"  warning: {w}")
     print("  current  " + ", ".join(f"{k} = {v:.6g}" for k, v in cur["gains"].items()))
     print("  proposed " + ", ".join(f"{k} = {v:.6g}" for k, v in res.gains.items()))
     keys = [k for k in out["metrics"] if k in cur["metrics"]]
     print(f"  {'metric':<28} {'current':>12} {'proposed':>12}")
     for k in keys:
         print(f"  {k:<28} {fmt(cur['metrics'][k]):>12} {fmt(out['metrics'][k]):>12}")
-    print("  current tune " + ("meets the spec" if cur["meets_spec"] else "does NOT meet the spec: failing "
-                               + ", ".join(c["name"] for c in cur["checks"] if not c["ok"])))
+    print(f"  current tune {cur['verdict']}")
 
 
 def _weights_note(gains: dict[str, float]) -> str:
@@ -668,13 +693,22 @@ def _cmd_tune(a: argparse.Namespace) -> int:
                                                  else ""))
     for e in out["at_bounds"]:
         print(f"at a bound: {e['text']}")
-    if res.meets_spec:
-        print("meets the spec on every plant" if many else "meets the spec")
-    else:
-        print("does NOT meet the spec (best found): failing " + ", ".join(out["failing"]))
-        for r in out["reasons"]:
-            hint = suggestion_flags(r["suggest"])
-            print(f"  why: {in_flags(r['message'])}" + (f" [try {hint}]" if hint else ""))
+    if res.identification is not None:
+        print(_identification_line(res.identification))
+    text = res.verdict
+    if many and res.meets_spec:
+        text = text.replace("meets the spec", "meets the spec on every plant", 1)
+    elif out["reasons"] or any(not c.name.startswith("measured_") and c.name != "identification_quality"
+                               for c in res.failing):
+        text += " (best found)"
+    print(text)
+    for r in out["reasons"]:
+        hint = suggestion_flags(r["suggest"])
+        print(f"  why: {in_flags(r['message'])}" + (f" [try {hint}]" if hint else ""))
+    from .text import changes_line
+
+    if res.vehicle and res.vehicle.get("changes"):
+        print(f"warning: {changes_line(res.vehicle['changes'])}")
     _write_plot(res, a, plot_fmt, res.spec)
     return code
 

@@ -24,6 +24,16 @@ with the reported covariance (mapped to log space for the log-parameters), each 
 verifier (:func:`tuner.analysis.verify.analyze_loop`, on a 1000-point grid refined by root finding) against
 the spec (a loop the verifier cannot decide counts as failing): the fraction of draws meeting each constraint and the
 whole spec, and the worst (and 5th-percentile) margins and step metrics.
+
+**Bounds too wide for a set** (:func:`check_spread`): a parameter whose ``K``-sigma change, either way, moves the
+model's response at ``w0 / 2`` or ``w0`` by more than a decade, ``|log G(jw; theta +- K sigma_i) - log G(jw; theta)|
+> ln 10`` (a factor of 10, 20 dB, in gain; or 132 deg of phase; or a combination), is not identified near the
+crossover: the corners of such a box are not plants of one airframe, and a controller for all of them is no design
+for the one flown (a 2-sigma box spanning two decades of gain asks for a loop whose gain may drop or rise 100-fold).
+The robust set (at ``K``) and the Monte Carlo draws (at ``MC_SIGMA``: one standard deviation already spanning a
+decade makes the draws meaningless) are then refused before any work, naming each such parameter, its value and
+bound, and what to fly. (A delay's change is a pure phase ``w * K sigma``, taken exactly; the log-parameters'
+changes are evaluated in double precision, and a value beyond it, ``exp(K sigma)`` overflowing, counts as too wide.)
 """
 
 from __future__ import annotations
@@ -38,8 +48,8 @@ import numpy as np
 from ._lazy import is_instance_of
 from .errors import TunerError
 
-__all__ = ["CORNERS", "MONTE_CARLO_DRAWS", "MonteCarlo", "RobustDesign", "is_identification", "plant_set",
-           "parameter_draws", "plant_of", "monte_carlo"]
+__all__ = ["CORNERS", "MONTE_CARLO_DRAWS", "MAX_SPREAD", "MC_SIGMA", "MonteCarlo", "RobustDesign",
+           "is_identification", "check_spread", "plant_set", "parameter_draws", "plant_of", "monte_carlo"]
 
 CORNERS = 4  # parameters whose K-sigma corners are all in the set
 MONTE_CARLO_DRAWS = 200
@@ -48,6 +58,11 @@ MAX_DRAWS = 10_000
 # the verifier's frequency grid for the draws: its crossings and peaks are refined by root finding either way
 # (the margins of a 1000-point grid agree with the default 3000 to 1e-10 deg on the loops tried), 3x cheaper
 MC_GRID_POINTS = 1000
+#: the most a parameter's K-sigma change may move the model's response near the crossover (|d log G|): a decade
+MAX_SPREAD = math.log(10.0)
+#: the reach of the Monte Carlo draws checked against MAX_SPREAD, in standard deviations
+MC_SIGMA = 1.0
+_EXP_MAX = 709.0  # exp() of more overflows a double
 
 
 def is_identification(obj: Any) -> bool:
@@ -76,29 +91,123 @@ def _names(res: Any) -> list[str]:
     return list(res.uncertainty)
 
 
-def _log_covariance(res: Any) -> tuple[list[str], np.ndarray, np.ndarray]:
+def _log_covariance(res: Any, field: str = "robust") -> tuple[list[str], np.ndarray, np.ndarray]:
     """Names, nominal values and the covariance with the log-parameters in log space (the delay linear)."""
     names = _names(res)
     cov = res.covariance
     if cov is None or np.shape(cov) != (len(names), len(names)) or not np.all(np.isfinite(cov)):
         raise TunerError("the identification carries no finite parameter covariance (re-identify with this "
                          "version; a singular fit has none): the uncertainty cannot enter the design",
-                         field="robust")
+                         field=field)
     values = res.model.values()
     v0 = np.array([float(values[n]) for n in names])
     d = np.array([1.0 if n == "delay_s" else abs(v) for n, v in zip(names, v0)])
     if np.any(d == 0):
-        raise TunerError("a parameter of the identified model is 0: no relative uncertainty", field="robust")
+        raise TunerError("a parameter of the identified model is 0: no relative uncertainty", field=field)
     c = np.asarray(cov, float) / np.outer(d, d)
     return names, v0, 0.5 * (c + c.T)
 
 
 def _apply(names: list[str], v0: np.ndarray, dx: np.ndarray) -> dict[str, float]:
-    """Parameter values at the offset ``dx`` (log space for the log-parameters, linear for the delay)."""
+    """Parameter values at the offset ``dx`` (log space for the log-parameters, linear for the delay); a value
+    beyond double precision is ``inf`` (such a parameter set is no plant: :func:`plant_of` refuses it)."""
     out = {}
     for n, v, x in zip(names, v0, dx):
-        out[n] = max(v + x, 0.0) if n == "delay_s" else v * math.exp(x)
+        out[n] = max(v + x, 0.0) if n == "delay_s" else (v * math.exp(x) if x <= _EXP_MAX else math.copysign(
+            math.inf, v))
     return out
+
+
+def _w0(res: Any, nominal: Any, dt: float | None) -> float:
+    """The frequency the loop will cross over near: the nominal model's ultimate frequency with the hold at ``dt``
+    (:func:`tuner.design.plant_scale`), else the middle of the identification's band (log scale)."""
+    from .design import plant_scale
+
+    try:
+        w0 = float(plant_scale(nominal, dt)[1])
+    except TunerError:
+        w0 = math.nan
+    if not (math.isfinite(w0) and w0 > 0):
+        w0 = math.sqrt(res.band_rad_s[0] * res.band_rad_s[1])
+    return w0
+
+
+def _spread(res: Any, names: list[str], v0: np.ndarray, sd: np.ndarray, k: float, w: np.ndarray) -> list[float]:
+    """Per parameter: the largest ``|log G(jw; theta +- k sigma_i) - log G(jw; theta)|`` over ``w`` (either way; inf
+    where the changed model has no finite response)."""
+    from .identify.model import Model
+
+    o = res.model.structure
+    full = dict(res.model.values())
+    g0 = res.model.freqresp(w)
+    out = []
+    for i, n in enumerate(names):
+        x = k * float(sd[i])
+        if n == "delay_s":  # a pure phase change, exact: w * dtau (the lower side clipped at a zero delay)
+            out.append(float(np.max(w)) * max(x, 0.0))
+            continue
+        if not math.isfinite(x) or x > _EXP_MAX:
+            out.append(math.inf)
+            continue
+        worst = 0.0
+        for s in (-1.0, 1.0):
+            dx = np.zeros(len(names))
+            dx[i] = s * x
+            vals = {**full, **_apply(names, v0, dx)}
+            try:
+                with np.errstate(all="ignore"):
+                    g = Model.from_values(o.poles, o.zeros, vals).freqresp(w)
+                    d = np.abs(np.log(g / g0))
+            except (ValueError, OverflowError, ZeroDivisionError, FloatingPointError):
+                d = np.array([math.inf])
+            worst = max(worst, float(np.max(d)) if np.all(np.isfinite(d)) else math.inf)
+        out.append(worst)
+    return out
+
+
+def check_spread(res: Any, k: float, *, dt: float | None = None, field: str = "robust") -> None:
+    """Refuse (:class:`~tuner.errors.TunerError` at ``field``) an identification whose ``k``-sigma parameter box is
+    too wide for a plant set (the module's docstring): each parameter whose ``k``-sigma change moves the model's
+    response at ``w0 / 2`` or ``w0`` by more than :data:`MAX_SPREAD` is named, with its value and 1-sigma bound,
+    and what to fly instead.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from tuner import identify
+    >>> from tuner.robust import check_spread
+    >>> u = np.random.default_rng(0).standard_normal(3000)
+    >>> y = np.convolve(u, 0.05 * 0.95 ** np.arange(200))[:3000]  # a first-order lag at 100 Hz, no noise
+    >>> res = identify(u, y, rate_hz=100, poles=1, delay=None, n_starts=2)
+    >>> check_spread(res, 2.0, dt=0.01)  # a well-determined fit: nothing to refuse
+    """
+    names, v0, c = _log_covariance(res, field=field)
+    sd = np.sqrt(np.maximum(np.diag(c), 0.0))
+    w0 = _w0(res, res.plant(), dt)
+    w = np.array([0.5 * w0, w0])
+    effect = _spread(res, names, v0, sd, float(k), w)
+    wide = [i for i, e in enumerate(effect) if not e <= MAX_SPREAD]
+    if not wide:
+        return
+    sigma = {n: float(res.uncertainty[n].cr_bound) for n in names}
+    parts = []
+    for i in wide:
+        n = names[i]
+        unit = " s" if n == "delay_s" else " rad/s" if n.endswith("_rad_s") else ""
+        rel = "" if n == "delay_s" or v0[i] == 0 else f", {100 * sigma[n] / abs(v0[i]):.3g} %"
+        parts.append(f"{n} = {v0[i]:.4g}{unit} +- {sigma[n]:.3g}{unit} (1 sigma{rel})")
+    lo, hi = w0 / 3.0, 3.0 * w0
+    what = (f"the {k:g}-sigma set of the identified parameters is" if field == "robust" else
+            "the identified parameters' bounds are")
+    use = "a robust set" if field == "robust" else "the Monte Carlo draws"
+    raise TunerError(
+        f"{what} too wide for one airframe ({use}): {'; '.join(parts)}: at {k:g} sigma each moves the model's response "
+        f"near the crossover ({w0:.3g} rad/s) by more than a decade of gain or 132 deg of phase: the log does not "
+        f"determine {'it' if len(wide) == 1 else 'them'}. Fly an excitation of the loop over about {lo:.3g}-{hi:.3g} "
+        f"rad/s ({lo / (2 * math.pi):.3g}-{hi / (2 * math.pi):.3g} Hz: a frequency sweep or doublets on the rate "
+        "setpoint, logged and identified with it as the reference) for long enough to average several windows, or fit "
+        "fewer poles and zeros; or tune the nominal model "
+        + ("alone (no robust set)" if field == "robust" else "without the Monte Carlo check"), field=field)
 
 
 def plant_of(res: Any, values: dict[str, float]):
@@ -176,14 +285,10 @@ def plant_set(res: Any, k: float | None, *, dt: float | None = None) -> tuple[li
     if k is None:
         return [nominal], RobustDesign(None, "nominal model only", params, sigma, (), (), 1)
     k = check_robust(k)
+    check_spread(res, k, dt=dt, field="robust")  # (before any plant: a box too wide overflowed here)
     names, v0, c = _log_covariance(res)
     sd = np.sqrt(np.maximum(np.diag(c), 0.0))
-    from .design import plant_scale
-
-    try:
-        w0 = plant_scale(nominal, dt)[1]
-    except TunerError:
-        w0 = math.sqrt(res.band_rad_s[0] * res.band_rad_s[1])
+    w0 = _w0(res, nominal, dt)
     w = np.array([0.5 * w0, w0])
     g0 = res.model.freqresp(w)
     effect = []
@@ -230,6 +335,8 @@ def monte_carlo(res: Any, controller: Any, spec: Any = None, *, n: int = MONTE_C
     spec = spec or Spec()
     n = check_draws(n)
     controller = as_controller(controller)
+    if n:
+        check_spread(res, MC_SIGMA, dt=controller.dt, field="monte_carlo")
     ok: dict[str, list[bool]] = {}
     meets, unstable = [], 0
     keys = ("phase_margin_deg", "gain_margin_db", "overshoot_pct", "settling_time_s")

@@ -12,8 +12,8 @@ import html
 import math
 from typing import Any
 
-__all__ = ["metrics_line", "verdict", "metrics_repr", "margins_repr", "check_repr", "loop_eval_repr",
-           "step_response_repr", "analysis_repr", "optimality_line", "design_lines"]
+__all__ = ["metrics_line", "verdict", "verdict_met", "verdict_basis", "changes_line", "metrics_repr", "margins_repr",
+           "check_repr", "loop_eval_repr", "step_response_repr", "analysis_repr", "optimality_line", "design_lines"]
 
 _MAX_LISTED = 4  # plants listed in a repr; the rest counted
 
@@ -86,20 +86,84 @@ def check_repr(c: Any) -> str:
     return f"Check({c.name} {_g(c.achieved)} {c.op} {_g(c.required)}: {state})"
 
 
+#: the checks of a result from an identification that judge the airframe, not the model (tuner.analysis.measured)
+_MEASURED = {"measured_phase_margin_deg": ("phase margin", " deg"), "measured_gain_margin_db": ("gain margin", " dB"),
+             "measured_ms": ("Ms", "")}
+_IDENTIFICATION = "identification_quality"
+
+
 def _failing(analyses: Any) -> list[str]:
     seen, out = set(), []
     for a in analyses:
         for c in a.failing:
-            if c.name not in seen:
+            if c.name not in seen and c.name not in _MEASURED and c.name != _IDENTIFICATION:
                 seen.add(c.name)
                 out.append(f"{c.name} = {_g(c.achieved)} (required {c.op} {_g(c.required)})")
     return out
 
 
+def _airframe(analyses: Any) -> tuple[list[Any], list[Any], Any]:
+    """The measured-response checks, those failing, and the identification's check (None without one)."""
+    checks = [c for a in analyses for c in a.checks]
+    measured = [c for c in checks if c.name in _MEASURED]
+    ident = next((c for c in checks if c.name == _IDENTIFICATION), None)
+    return measured, [c for c in measured if not c.ok], ident
+
+
+def _measured_text(c: Any) -> str:
+    what, unit = _MEASURED[c.name]
+    if isinstance(c.achieved, float) and math.isnan(c.achieved):
+        return f"{what} not measured (its crossing lies outside the coherent data)"
+    end = "lower" if c.op == ">=" else "upper"
+    return f"{what} {_g(c.achieved)}{unit} at the {end} end of its error range (required {c.op} {_g(c.required)}{unit})"
+
+
 def verdict(analyses: Any) -> str:
-    """``meets the spec``, or ``does NOT meet the spec:`` and every failing check (once) with its values."""
+    """The verdict in words: ``meets the spec``, or ``does NOT meet the spec:`` and every failing check (once) with
+    its values. A result from an identification (its checks on the measured response and of the identification's
+    rating, :mod:`tuner.analysis.measured`) is judged on the airframe too: ``meets the spec, on the model and on the
+    measured response``; ``does NOT meet the spec on the measured response: ...`` (a figure below the spec at the
+    worst end of its error range, or not measured); ``... on the model only: the identification is rated poor``."""
     fails = _failing(analyses)
-    return "meets the spec" if not fails else "does NOT meet the spec: " + "; ".join(fails)
+    measured, mfails, ident = _airframe(analyses)
+    poor = ident is not None and not ident.ok
+    on_data = "; ".join(_measured_text(c) for c in mfails)
+    if fails:
+        text = "does NOT meet the spec: " + "; ".join(fails) + (f"; nor on the measured response: {on_data}"
+                                                                if mfails else "")
+    elif mfails:
+        text = f"does NOT meet the spec on the measured response: {on_data}"
+    elif poor:
+        text = "meets the spec on the model only"
+    else:
+        text = "meets the spec" + (", on the model and on the measured response" if measured else "")
+    if poor:
+        text += (f"{'; on the model only' if fails or mfails else ''}: the identification is rated {ident.achieved} "
+                 "(below acceptable): neither its model nor its measured response is confirmed to be the airframe")
+    return text
+
+
+def verdict_basis(analyses: Any) -> str:
+    """What a verdict rests on: ``model`` (no flight data), ``model and measured response`` (checked on an
+    identification's measured response too), ``model only`` (its identification is rated below acceptable)."""
+    measured, _, ident = _airframe(analyses)
+    if ident is not None and not ident.ok:
+        return "model only"
+    return "model and measured response" if measured else "model"
+
+
+def changes_line(changes: Any) -> str:
+    """The changes against the vehicle's current tune by more than 3x (:func:`tuner.tuning.big_changes`) in one
+    sentence, or ``""``."""
+    if not changes:
+        return ""
+    return ("the proposal changes the vehicle's current tune by more than 3x: " + "; ".join(changes)
+            + ": fly it in steps from the current tune, or check the identification (its units, its band, its rating)")
+
+
+def verdict_met(analyses: Any) -> bool:
+    """Every check holds on every analysis (the model's, the measured response's, the identification's)."""
+    return all(c.ok for a in analyses for c in a.checks)
 
 
 def _loop_kind(a: Any) -> str:
@@ -216,8 +280,7 @@ def _left(s: dict[str, Any], o: dict[str, Any]) -> str:
 def loop_eval_repr(e: Any) -> str:
     """A study's :class:`~tuner.studies.evaluate.LoopEval`: the loop, the verdict, each plant's metrics (a few)."""
     robust = f", {len(e.analyses)} plants" if len(e.analyses) > 1 else ""
-    fails = list(e.failing)
-    state = "meets the spec" if e.meets_spec else "does NOT meet the spec: " + ", ".join(fails)
+    state = e.verdict  # (a data loop's on the measured response too, a cascade's between samples)
     return "\n".join([f"LoopEval({e.loop.name}, {_loop_kind(e.analyses[0])}{robust}: {state})",
                       *_plant_lines(e.analyses)])
 
@@ -257,10 +320,13 @@ def _table(head: list[str], rows: list[list[str]], left: int = 1) -> str:
 def _checks_table(analyses: Any) -> str:
     names = ["nominal", *(f"plant {i + 1}" for i in range(1, len(analyses)))] if len(analyses) > 1 else ["achieved"]
     rows = []
-    for j, c in enumerate(analyses[0].checks):
+    for c in analyses[0].checks:  # (the checks on the measured response are the nominal plant's alone)
         cells = [_e(c.name), _e(f"{c.op} {_g(c.required)}")]
         for a in analyses:
-            ck = a.checks[j]
+            ck = next((k for k in a.checks if k.name == c.name), None)
+            if ck is None:
+                cells.append("")
+                continue
             mark = '<span class="ok">&#10003;</span>' if ck.ok else '<span class="bad">&#10007;</span>'
             cells.append(f"{_e(_g(ck.achieved))} {mark}")
         rows.append(cells)
@@ -270,5 +336,5 @@ def _checks_table(analyses: Any) -> str:
 
 def _verdict_html(analyses: Any) -> str:
     v = verdict(analyses)
-    cls = "ok" if v == "meets the spec" else "bad"
+    cls = "ok" if verdict_met(analyses) else "bad"
     return f'<span class="{cls}">{_e(v)}</span>'

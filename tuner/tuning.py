@@ -108,6 +108,9 @@ class TuneResult:
     #: a name for each plant of ``analyses`` (``nominal``, ``plant #2``, ``nominal x0.8`` for a gain-variation
     #: member: :attr:`tuner.problem.TuningProblem.labels`); empty: ``nominal``, ``plant #2``, ...
     plant_labels: tuple[str, ...] = ()
+    #: a design from an identification: its rating and fit (``quality``, ``cost``, ``check``, ``band_rad_s``,
+    #: ``verdict``), None otherwise
+    identification: dict[str, Any] | None = None
 
     def label(self, i: int) -> str:
         """The name of plant ``i`` of the set (``nominal``, ``plant #2``, ``nominal x1.25``)."""
@@ -117,8 +120,25 @@ class TuneResult:
 
     @property
     def meets_spec(self) -> bool:
-        """True when every check holds on every plant of the set."""
+        """True when every check holds on every plant of the set (from an identification, the checks on the measured
+        response and of the identification's rating too: :mod:`tuner.analysis.measured`)."""
         return all(a.meets_spec for a in self.analyses)
+
+    @property
+    def verdict(self) -> str:
+        """The verdict in words (:func:`tuner.text.verdict`): what holds on the model, on the measured response, and
+        whether the identification lets it count for the airframe (``on the model only``)."""
+        from .text import verdict
+
+        return verdict(self.analyses)
+
+    @property
+    def basis(self) -> str:
+        """What the verdict rests on: ``model`` (no flight data), ``model and measured response`` (an identification
+        rated good or acceptable), ``model only`` (an identification rated below acceptable)."""
+        from .text import verdict_basis
+
+        return verdict_basis(self.analyses)
 
     @property
     def metrics(self) -> Metrics:
@@ -221,6 +241,8 @@ class TuneResult:
             "metrics": nominal["metrics"],
             "checks": nominal["checks"],
             "meets_spec": self.meets_spec,
+            "verdict": self.verdict,
+            "basis": self.basis,
             "objective": {"name": self.spec.objective, "value": self.objective},
             "reasons": [r.to_dict() for r in self.reasons],
             "at_bounds": [dict(e, text=describe(e)) for e in self.at_bounds],
@@ -239,13 +261,18 @@ class TuneResult:
             out["measured"] = nominal["measured"]
         if "saturated_step" in nominal:
             out["saturated_step"] = nominal["saturated_step"]
+        if self.identification is not None:
+            out["identification"] = dict(self.identification)
         if self.vehicle is not None:
             out["vehicle"] = dict(self.vehicle)
         if self.current:
+            from .text import verdict
+
             cur = self.current[0].to_dict()
             out["current"] = {"gains": dict(self.vehicle["current_gains_law"]) if self.vehicle else {},
                               "metrics": cur["metrics"], "checks": cur["checks"],
-                              "meets_spec": all(a.meets_spec for a in self.current)}
+                              "meets_spec": all(a.meets_spec for a in self.current),
+                              "verdict": verdict(self.current)}
             for k in ("measured", "saturated_step"):
                 if k in cur:
                     out["current"][k] = cur[k]
@@ -490,7 +517,7 @@ def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo
                          delay: Any) -> tuple[Any, Any, Any, int]:
     """An identification's plant set (its nominal model, or the ``robust``-sigma set), the identification, the robust
     design record and the Monte Carlo draws; other inputs as they are."""
-    from .robust import check_draws, is_identification, plant_set
+    from .robust import MC_SIGMA, check_draws, check_spread, is_identification, plant_set
 
     if is_identification(plant_or_plants):
         if delay is not None:
@@ -498,6 +525,8 @@ def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo
         ident = plant_or_plants
         plants, design = plant_set(ident, robust, dt=dt)
         n_mc = check_draws(200 if (monte_carlo is None and robust is not None) else (monte_carlo or 0))
+        if n_mc:  # draws from bounds too wide are no plants of this airframe: refused before the tune
+            check_spread(ident, MC_SIGMA, dt=dt, field="monte_carlo")
         return plants, ident, design, n_mc
     if robust is not None or monte_carlo is not None:
         raise TunerError("robust= and monte_carlo= need an identification result: tune(identify(...), robust=2)",
@@ -720,8 +749,12 @@ def _annotated(res: TuneResult, problem: TuningProblem, ident: Any, actuator: An
     for note in (_integral_note(res, problem), _derivative_note(res, problem)):
         if note:
             res.solver.setdefault("notes", []).append(note)
-    if ident is not None:  # the nominal loop on the measured response too, next to the model's
+    if ident is not None:  # the nominal loop on the measured response too, next to the model's, and its checks
         res = _with_measured(res, ident)
+        res = replace(res, identification=identification_summary(ident))
+        note = _measured_note(res)
+        if note:
+            res.solver.setdefault("notes", []).append(note)
         if getattr(ident, "unreliable_feedback", False):
             res.solver.setdefault("notes", []).insert(0, (
                 "the identification was flown under feedback and fitted without a reference (quality "
@@ -817,11 +850,88 @@ def _derivative_note(res: TuneResult, problem: TuningProblem) -> str | None:
 
 
 def _with_measured(res: TuneResult, ident: Any) -> TuneResult:
-    """``res`` with its nominal analysis' loop also on the identification's measured frequency response."""
-    from .analysis.measured import measured_comparison
+    """``res`` with its nominal analysis' loop also on the identification's measured frequency response, and the
+    verdict's checks on the airframe (:func:`tuner.analysis.measured.with_measured`: the measured margins by the
+    worst end of their error range, the identification's rating)."""
+    from .analysis.measured import with_measured
 
     a0 = res.analyses[0]
-    return replace(res, analyses=(replace(a0, measured=measured_comparison(ident, a0)), *res.analyses[1:]))
+    return replace(res, analyses=(with_measured(a0, ident, res.spec), *res.analyses[1:]))
+
+
+def identification_summary(ident: Any) -> dict[str, Any]:
+    """What a result records of the identification it was designed on: its rating (``quality``), CIFER's ``cost``
+    J, the time-domain ``check``, the coherent band and its one-line ``verdict``."""
+    out: dict[str, Any] = {}
+    for k in ("quality", "cost", "check", "verdict", "rate_hz"):
+        v = getattr(ident, k, None)
+        if v is not None:
+            out[k] = v
+    band = getattr(ident, "band_rad_s", None)
+    if band is not None:
+        out["band_rad_s"] = [float(x) for x in band]
+    return out
+
+
+def _measured_note(res: TuneResult) -> str | None:
+    """Why a design that meets the spec on the model fails on the measured response (the search designs on the
+    model; the data say the airframe differs where the margins are taken), and what would help."""
+    a0 = res.analyses[0]
+    bad = [c for c in a0.failing if c.name.startswith("measured_")]
+    model_ok = all(c.ok for a in res.analyses for c in a.checks
+                   if not c.name.startswith("measured_") and c.name != "identification_quality")
+    if not bad or not model_ok:
+        return None
+    unmeasured = [c.name for c in bad if isinstance(c.achieved, float) and math.isnan(c.achieved)]
+    lo, hi = a0.measured.band_rad_s if a0.measured is not None else (math.nan, math.nan)
+    parts = []
+    if len(unmeasured) < len(bad):
+        parts.append("the measured response gives margins below the spec: the model is not the airframe near the "
+                     "crossover (a mode, a delay or a gain it misses); identify again with more poles or a longer, "
+                     "richer excitation there, and tune on that")
+    if unmeasured:
+        parts.append(f"{', '.join(unmeasured)}: the crossing lies outside the coherent data ({lo:.3g}-{hi:.3g} "
+                     "rad/s): excite the loop there (a sweep over that range) so the data can confirm it, or ask for "
+                     "a crossover inside the band (--wc)")
+    return "the design meets the spec on the model but not on the measured response: " + "; ".join(parts)
+
+
+#: a change of the crossover or a gain by more than this factor against the vehicle's current tune is said in words
+BIG_CHANGE = 3.0
+
+
+def big_changes(current: dict[str, float], proposed: dict[str, float], params: Sequence[str],
+                wc_current: float = math.nan, wc_proposed: float = math.nan) -> list[str]:
+    """Each change of the crossover or of a gain of ``params`` by more than :data:`BIG_CHANGE` (either way), in words;
+    a gain the vehicle flies at 0 that the proposal sets, or the reverse, counts (an unbounded factor).
+
+    Examples
+    --------
+    >>> from tuner.tuning import big_changes
+    >>> for line in big_changes({"P": 0.14, "I": 0.1, "FF": 0.0}, {"P": 0.15, "I": 0.0284, "FF": 0.27},
+    ...                         ["P", "I", "FF"], 0.443, 0.0109):
+    ...     print(line)
+    crossover 0.443 -> 0.0109 rad/s (41x lower)
+    I 0.1 -> 0.0284 (3.5x lower)
+    FF 0 -> 0.27 (the vehicle flies without it)
+    """
+    def one(name: str, a: float, b: float, unit: str = "") -> str | None:
+        if not (math.isfinite(a) and math.isfinite(b)) or a == b:
+            return None
+        if a == 0:
+            return f"{name} 0 -> {b:.3g}{unit} (the vehicle flies without it)"
+        if b == 0:
+            return f"{name} {a:.3g} -> 0{unit} (removed)"
+        r = abs(b / a)
+        if r > BIG_CHANGE:
+            return f"{name} {a:.3g} -> {b:.3g}{unit} ({r:.2g}x higher)"
+        if r < 1.0 / BIG_CHANGE:
+            return f"{name} {a:.3g} -> {b:.3g}{unit} ({1 / r:.2g}x lower)"
+        return None
+
+    out = [one("crossover", float(wc_current), float(wc_proposed), " rad/s")]
+    out += [one(k, float(current[k]), float(proposed[k])) for k in params if k in current and k in proposed]
+    return [x for x in out if x]
 
 
 def _with_current(res: TuneResult, problem: TuningProblem, vehicle: Any, gains: dict[str, float],
@@ -834,10 +944,13 @@ def _with_current(res: TuneResult, problem: TuningProblem, vehicle: Any, gains: 
     current = tuple(analyze(p, ctrl, sp, actuator=actuator, structure=problem.structure.name, gains=gains)
                     for p, sp in zip(problem.plants, problem.specs))
     if ident is not None:
-        from .analysis.measured import measured_comparison
+        from .analysis.measured import with_measured
 
-        current = (replace(current[0], measured=measured_comparison(ident, current[0])), *current[1:])
-    return replace(res, vehicle={**vehicle_dict(vehicle), "current_gains_law": dict(gains)}, current=current)
+        current = (with_measured(current[0], ident, problem.spec), *current[1:])
+    changes = big_changes(gains, res.gains, problem.structure.params, current[0].metrics.crossover_rad_s,
+                          res.analyses[0].metrics.crossover_rad_s)
+    return replace(res, vehicle={**vehicle_dict(vehicle), "current_gains_law": dict(gains), "changes": changes},
+                   current=current)
 
 
 _POOLS: dict[str, Any] = {"controller": None, "builds": -1}

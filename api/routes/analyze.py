@@ -11,12 +11,13 @@ from fastapi.responses import JSONResponse
 from tuner.jsonio import jsonable
 
 from ..convert import FieldError, analysis_inputs, body_loc, law_gains, vehicle_of
-from ..deps import client_id, get_analyze_job, get_pool
+from ..deps import client_id, get_analyze_job, get_pool, get_store
 from ..jobrun import run_job
 from ..pool import WorkerPool
 from ..schemas import ROLL_ANALYZE_EXAMPLE, AnalyzeRequest, AnalyzeResponse
 from ..settings import Settings, get_settings
-from .tune import ERRORS
+from ..store import Store
+from .tune import ERRORS, _identification
 
 __all__ = ["router"]
 
@@ -39,12 +40,15 @@ async def post_analyze(
     request: Request,
     settings: Settings = Depends(get_settings),
     pool: WorkerPool = Depends(get_pool),
+    store: Store = Depends(get_store),
     job: Callable[[dict[str, Any]], Any] = Depends(get_analyze_job),
     client: str = Depends(client_id),
 ) -> JSONResponse:
-    vehicle = vehicle_of(body)  # read once: the controller's fixed values and the law's gains both come from it
-    plant, ctrl, spec = analysis_inputs(body, vehicle)
-    payload = {"plant": plant, "controller": ctrl, "spec": spec}
+    ident, record = await _identification(body, store)
+    vehicle = vehicle_of(body, record)  # read once: the controller's fixed values and the law's gains both come from it
+    plant, ctrl, spec = analysis_inputs(body, vehicle, identification=ident)
+    # (an identification is analysed as such: its model, and the loop on its measured response with their checks)
+    payload = {"plant": plant if ident is None else ident, "controller": ctrl, "spec": spec}
     if body.actuator is not None:
         if ctrl.dt is None:
             raise FieldError(("body", "dt"), "actuator: the saturated step runs the law at its sample time: give dt "

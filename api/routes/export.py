@@ -29,8 +29,10 @@ _DOC = ("The stored controller as it runs on the target, in direct form II trans
         "`update(r, y)`), D on c r - y (c = 0: on the measurement), anti-windup by `anti_windup` (conditional "
         "integration or back-calculation with tracking time `tt`). The header of the text says all of this. "
         "`px4` and `ardupilot` give a `px4_rate` / `ardupilot_rate` result as the parameter file its ground station "
-        "loads (QGroundControl `.params`, Mission Planner `.parm`) for `axis` (default the vehicle's, else roll), "
-        "every value inside the firmware's documented range or a 422. "
+        "loads (QGroundControl `.params`, Mission Planner `.parm`) for the result's axis (another `axis` is a 422; "
+        "without a vehicle, `axis`, default roll), every value as the firmware stores it (float32) and inside its "
+        "documented range; a design that does not meet its spec (or meets it on the model only), or a value outside "
+        "its range, needs `force=true` (a 422 at `force` otherwise), and the file's header then says so. "
         "422 (with `loc`) for a bad format, name, dt, method or limits.")
 _SUFFIX = {"c": "c", "python": "py", "text": "txt", "px4": "params", "ardupilot": "parm"}
 _QUERY = {"name", "dt", "method", "u_min", "u_max", "format", "anti_windup", "tt"}
@@ -55,6 +57,9 @@ async def export_tune(
         "conditional", description="pid2 results (N_update(s, r, y)): conditional integration or back-calculation "
         "with tracking time tt (default sqrt(Ti Td), Ti for a PI); 1-DOF controllers: conditional"),
     tt: float | None = Query(None, description="back-calculation tracking time, s (>= dt)"),
+    force: bool = Query(False, description="px4/ardupilot: write the file even for a design that does not meet its "
+                        "spec (or meets it on the model only), or with a value outside the documented range; the "
+                        "header says so"),
     store: Store = Depends(get_store),
 ) -> PlainTextResponse:
     from tuner.export import check_name, equation_of, render
@@ -66,7 +71,9 @@ async def export_tune(
         raise FieldError(("query", "name"), str(e), type=error_type(e)) from None
     rec = await _record(store, tune_id)
     if format in ("px4", "ardupilot"):
-        return _param_file(rec.result, format, axis, {"dt": dt, "u_min": u_min, "u_max": u_max, "tt": tt})
+        return _param_file(rec.result, format, axis, force, {"dt": dt, "u_min": u_min, "u_max": u_max, "tt": tt})
+    if force:
+        raise FieldError(("query", "force"), "force: only for format px4 or ardupilot (a parameter file)")
     try:
         de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)
         text = render(de, format, name)
@@ -83,15 +90,21 @@ async def export_tune(
     return PlainTextResponse(text, headers=headers)
 
 
-def _param_file(result: dict, format: str, axis: str | None, unused: dict) -> PlainTextResponse:
-    from tuner.export.paramfile import param_file
+def _param_file(result: dict, format: str, axis: str | None, force: bool, unused: dict) -> PlainTextResponse:
+    from tuner.export.paramfile import clean, make_param_file
 
     for k, v in unused.items():
         if v is not None:
             raise FieldError(("query", k), f"{k}: not for format {format} (a parameter file holds the law's gains)")
     try:
-        text, filename = param_file(result, format, axis=axis)
+        pf = make_param_file(result, format, axis=axis, force=force)
     except TunerError as e:
         f = str(e.field[0]) if e.field else "format"
-        raise FieldError(("query", "axis" if f == "axis" else "format"), str(e), type=error_type(e)) from None
-    return PlainTextResponse(text, headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+        # the choice the caller has: the axis, force (the verdict, a value outside its range), else the format
+        forceable = f == "force" or (f == "gains" and "--force" in str(e))
+        loc = "axis" if f == "axis" else "force" if forceable else "format"
+        raise FieldError(("query", loc), str(e), type=error_type(e)) from None
+    headers = {"Content-Disposition": f'attachment; filename="{pf.name}"'}
+    if pf.warnings:  # in the header of the file too; here for the page and scripts (one line)
+        headers["X-Tuner-Warning"] = clean("; ".join(pf.warnings), 2000)
+    return PlainTextResponse(pf.text, headers=headers)

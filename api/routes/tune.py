@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse
 
 from tuner.errors import TunerError
 from tuner.jsonio import jsonable
-from tuner.robust import MONTE_CARLO_DRAWS
+from tuner.robust import MC_SIGMA, MONTE_CARLO_DRAWS, check_spread
 
 from ..convert import (
     FieldError,
@@ -94,6 +94,11 @@ async def post_tune(
     timeout_s = settings.solve_limit_s(budget)
     if ident is not None:
         n_mc = body.monte_carlo if body.monte_carlo is not None else (MONTE_CARLO_DRAWS if body.robust else 0)
+        if n_mc:  # draws from bounds too wide are no plants of this airframe: refused before the solve
+            try:
+                check_spread(ident, MC_SIGMA, dt=problem.dt, field="monte_carlo")
+            except TunerError as e:
+                raise FieldError.of(e, ("body", "monte_carlo")) from None
         payload.update(identification=ident, robust=body.robust, monte_carlo=n_mc)
         timeout_s += _SECONDS_PER_DRAW * n_mc
     await run_in_threadpool(store.require_ready)  # no solve whose result could not be stored (503)
@@ -124,9 +129,9 @@ async def post_tune(
     return JSONResponse(jsonable({"id": record.id, "created_at": record.created_at.isoformat(), **result}))
 
 
-async def _identification(body: TuneRequest, store: Store) -> tuple[Any, Any]:
-    """The stored identification a body names (``identification_id``), as an IdentifyResult, and its record (both
-    None without one); checks that the body gives exactly one of plant and identification_id, and
+async def _identification(body: Any, store: Store) -> tuple[Any, Any]:
+    """The stored identification a /tune or /analyze body names (``identification_id``), as an IdentifyResult, and
+    its record (both None without one); checks that the body gives exactly one of plant and identification_id, and
     robust/monte_carlo only with the latter."""
     if (body.plant is None) == (body.identification_id is None):
         raise FieldError(("body", "plant"), "give plant (a model) or identification_id (a stored identification, "
@@ -134,11 +139,11 @@ async def _identification(body: TuneRequest, store: Store) -> tuple[Any, Any]:
                          "model) or identification_id (a stored identification, POST /identify)")
     if body.identification_id is None:
         for name in ("robust", "monte_carlo"):
-            if getattr(body, name) is not None:
+            if getattr(body, name, None) is not None:
                 raise FieldError(("body", name), f"{name} needs identification_id: the uncertainty of an identified "
                                  "model (POST /identify)")
         return None, None
-    if body.plants:
+    if getattr(body, "plants", None):
         raise FieldError(("body", "plants"), "plants with identification_id: the plant set comes from the "
                          "identification (robust); leave plants out")
     rec = await run_in_threadpool(store.get_identification, body.identification_id)

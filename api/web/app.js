@@ -32,7 +32,7 @@ $("#effort").replaceChildren(...CONFIG.efforts.map((e) => new Option(e, e, e ===
 const ROLL = { plant: "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", dt: "0.04", structure: "pid_z" };
 const HIST = 10;
 const KEY = "tuner.apiKey";
-const state = { id: null, running: null, urls: [], histOffset: 0, exportFormat: "c", curve: null };
+const state = { id: null, running: null, urls: [], histOffset: 0, exportFormat: "c", curve: null, ident: null };
 
 // -- talking to the service ----------------------------------------------------------------------
 
@@ -185,7 +185,7 @@ function fromParams(p) {
 }
 
 function syncURL(extra = {}) {
-  const q = formParams(extra).toString();
+  const q = formParams({ identification: identPlant()?.id, ...extra }).toString();
   history.replaceState(null, "", q ? `/?${q}` : "/");
 }
 
@@ -264,7 +264,23 @@ function numbers(text, loc, errs) {
   return out;
 }
 
-function tuneBody() {
+// The identification the form's plant came from (POST /identify, or identification=ID in the URL): sent with a tune
+// as identification_id, so the result is judged on the airframe's measured response and the identification's rating
+// too; forgotten as soon as the plant in the form is edited (or more plants are given).
+function identPlant() {
+  const id = state.ident;
+  if (!id) return null;
+  const f = readForm();
+  return mode() === "coeffs" && f.num === id.num && f.den === id.den && f.delay === id.delay && !f.plants.length
+    ? id : null;
+}
+
+function rememberIdent(id) {
+  const f = readForm();
+  state.ident = { id, num: f.num, den: f.den, delay: f.delay };
+}
+
+function tuneBody({ identification = false } = {}) {
   const f = readForm();
   const errs = [];
   const dt = number(f.dt, ["body", "dt"], errs);
@@ -295,6 +311,8 @@ function tuneBody() {
   }
   const body = { plant, dt: dt ?? null, structure: f.structure, spec,
                  options: { seed: number(f.seed, ["body", "options", "seed"], errs, { int: true }) ?? 0 } };
+  const ident = identification ? identPlant() : null;
+  if (ident) { delete body.plant; body.identification_id = ident.id; }
   if (FIRMWARE.has(f.structure)) {  // a firmware law: the vehicle's parameters, if given (else its defaults)
     const text = $("#vehicle-from-log").checked && csv.params ? csv.params : state.vehicleText;
     if (text) body.vehicle = { params: text, axis: $("#vehicle-axis").value };
@@ -334,9 +352,9 @@ function busy(on, budget = 0, what = "tuning") {
 }
 
 // POST the form to path (with extra fields in the body); d => the answer when it is a 200, else null.
-async function post(path, extra, what) {
+async function post(path, extra, what, opts = {}) {
   clearErrors(form);
-  const { body, errs, budget } = tuneBody();
+  const { body, errs, budget } = tuneBody(opts);
   if (errs.length) { showErrors(form, errs, $("#form-error")); return null; }
   Object.assign(body, extra(errs));
   if (errs.length) { showErrors(form, errs, $("#form-error")); return null; }
@@ -366,7 +384,7 @@ async function post(path, extra, what) {
 }
 
 async function runTune() {
-  const d = await post("/tune", () => ({}), "tuning");
+  const d = await post("/tune", () => ({}), "tuning", { identification: true });
   if (!d) return;
   $("#progress").textContent = `done in ${fmt(d.solver?.wall_time_s)} s`;
   showResult(d);
@@ -502,6 +520,8 @@ function polynomial(c) { return `[${c.map((x) => fmt(x)).join(", ")}]`; }
 
 // d: a tune result (stored: it has an id; a trade-off point's result has none: no plots, no export).
 function showResult(d, { title = "Result" } = {}) {
+  state.result = d;
+  $("#export-force").checked = false;  // a file for a design that fails its verdict is asked for each time
   const stored = Boolean(d.id);
   state.id = stored ? d.id : null;
   $("#result").hidden = false;
@@ -513,9 +533,11 @@ function showResult(d, { title = "Result" } = {}) {
   if (stored) for (const c of $$("#curve circle.pt.on")) c.classList.remove("on");  // not a point of the curve
   const v = $("#verdict");
   const several = (d.plants || []).length > 1;
-  v.textContent = d.meets_spec ? (several ? `meets spec on all ${d.plants.length} plants` : "meets spec")
+  v.textContent = d.verdict ? (several && d.meets_spec ? d.verdict.replace("meets the spec", `meets the spec on all ${d.plants.length} plants`) : d.verdict)
+    : d.meets_spec ? (several ? `meets spec on all ${d.plants.length} plants` : "meets spec")
     : `does NOT meet spec: failing ${d.failing.map(label).join(", ")}`;
   v.className = d.meets_spec ? "ok" : "bad";
+  showAirframe(d);
   const bounds = $("#at-bounds");  // the parameters on a search bound or a default limit, and the rule that decides
   bounds.replaceChildren();
   for (const b of d.at_bounds || []) {
@@ -550,7 +572,8 @@ function showResult(d, { title = "Result" } = {}) {
     const tr = body.insertRow();
     cell(tr, label(ch.name));
     cell(tr, `${OPS[ch.op] || ch.op} ${fmt(ch.required)}${ch.name === "crossover_rad_s" ? " ± 1 %" : ""}`, "num");
-    cell(tr, fmt(ch.achieved), "num");
+    const unmeasured = ch.name.startsWith("measured_") && (ch.achieved === "NaN" || Number.isNaN(ch.achieved));
+    cell(tr, unmeasured ? "not measured" : fmt(ch.achieved), "num");
     cell(tr, ch.ok ? "✓ met" : "✗ not met", ch.ok ? "met" : "unmet");
   }
   const members = $("#members");
@@ -569,7 +592,7 @@ function showResult(d, { title = "Result" } = {}) {
   $("#current-block").hidden = !d.current;
   if (d.current) {  // the vehicle's current tune next to the proposed one
     const rows = [["gains", Object.entries(d.current.gains).filter(([k]) => ["P", "I", "D", "FF"].includes(k)).map(([k, x]) => `${k} ${fmt(x)}`).join(", ")],
-                  ["verdict", d.current.meets_spec ? "meets spec" : "does NOT meet spec"]];
+                  ["verdict", d.current.verdict || (d.current.meets_spec ? "meets spec" : "does NOT meet spec")]];
     for (const k of ["phase_margin_deg", "gain_margin_db", "ms", "overshoot_pct", "settling_time_s"]) rows.push([label(k), `${fmt(d.current.metrics[k])} (proposed ${fmt(d.metrics[k])})`]);
     table($("#current"), rows);
   }
@@ -587,6 +610,38 @@ function showResult(d, { title = "Result" } = {}) {
   if (!stored) return;
   showPlots(d.id);
   loadExport();
+}
+
+// What the verdict rests on, next to it: the identification's rating, the loop on its measured response (the margins
+// with the range their error spans; the checks judge the worst end), and a proposal far from the vehicle's current tune.
+function showAirframe(d) {
+  const box = $("#airframe");
+  box.replaceChildren();
+  const line = (text, cls) => { const p = document.createElement("p"); p.textContent = text; if (cls) p.className = cls; box.append(p); return p; };
+  const id = d.identification;
+  if (id) {
+    const ok = id.quality === "good" || id.quality === "acceptable";
+    const p = line(`identification: rated ${id.quality} (J ${fmt(id.cost)}, time-domain check ${id.check || "none"})` +
+                   (ok ? "" : ": below acceptable, so every figure here is the model's only"), ok ? "hint" : "bad");
+    p.id = "airframe-identification";
+  }
+  const m = d.measured;
+  if (m) {
+    const fig = (name, v, r, unit) => (v === "NaN" || Number.isNaN(v) ? `${name} not measured` : `${name} ${fmt(v)}${unit} (${fmt(r[0])}…${fmt(r[1])})`);
+    const f = m.measured;
+    const p = line(`on the measured response (${fmt(m.band_rad_s[0])}–${fmt(m.band_rad_s[1])} rad/s, ${m.points} coherent points): ` +
+                   [fig("PM", f.phase_margin_deg, f.phase_margin_range, "°"), fig("GM", f.gain_margin_db, f.gain_margin_range, " dB"),
+                    fig("Ms", f.ms, f.ms_range, "")].join(", "));
+    p.id = "airframe-measured";
+    for (const w of m.warnings || []) line(`warning: ${w}`, "bad");
+  }
+  for (const w of d.vehicle?.warnings || []) line(`the vehicle's parameters: ${w}`, "bad");
+  const changes = d.vehicle?.changes || [];
+  if (changes.length) {
+    const p = line(`the proposal changes the vehicle's current tune by more than 3×: ${changes.join("; ")}`, "bad");
+    p.id = "airframe-changes";
+  }
+  box.hidden = !box.childElementCount;
 }
 
 async function showPlots(id) {
@@ -614,7 +669,9 @@ async function loadExport() {
   const f = state.exportFormat;
   const root = $("#export");
   for (const b of $$("#export .tabs button[data-format]")) b.classList.toggle("on", b.dataset.format === f);
+  $("#export-force-field").hidden = !(f === "px4" || f === "ardupilot");
   if (f === "px4" || f === "ardupilot") { await loadParamFile(f); return; }
+  $("#export-warnings").hidden = true;
   clearErrors(root);
   for (const b of $$(".tabs button[data-format]", root)) b.classList.toggle("on", b.dataset.format === f);
   const name = $("#export-name").value.trim() || "controller";
@@ -657,7 +714,12 @@ function offer(text, filename) {
 async function loadParamFile(f) {
   clearErrors($("#export"));
   $("#export-error").hidden = true;
-  const q = new URLSearchParams({ format: f, axis: $("#vehicle-axis").value });
+  const warn = $("#export-warnings");
+  warn.replaceChildren();
+  warn.hidden = true;
+  // the result's own axis when it was tuned for a vehicle (another one is refused), else the form's
+  const q = new URLSearchParams({ format: f, axis: state.result?.vehicle?.axis || $("#vehicle-axis").value });
+  if ($("#export-force").checked) q.set("force", "true");
   const pre = $("#export-code");
   const link = $("#export-download");
   pre.textContent = "…";
@@ -666,6 +728,12 @@ async function loadParamFile(f) {
     const name = (r.headers.get("content-disposition") || "").match(/filename="([^"]+)"/)?.[1] || `${f}.txt`;
     offer(await r.text(), name);
     link.textContent = `download ${name}`;
+    for (const w of (r.headers.get("x-tuner-warning") || "").split("; ").filter(Boolean)) {
+      const li = document.createElement("li");
+      li.textContent = `warning: ${w}`;
+      warn.append(li);
+    }
+    warn.hidden = !warn.childElementCount;
     return;
   }
   const d = await answer(r);
@@ -677,7 +745,17 @@ async function loadStored(id) {
   const r = await api(`/tunes/${encodeURIComponent(id)}`);
   const d = await answer(r);
   if (!r.ok) { showGeneral($("#form-error"), `stored result ${id}: ${r.status}: ${detailText(d)}`); return; }
-  writeForm(fromRequest(d.request || {}));
+  const q = d.request || {};
+  const v = fromRequest(q);
+  if (q.identification_id && (d.plants || []).length) {  // its plant was the identification's fitted model
+    const p = d.plants[0];
+    Object.assign(v, { plant: "", num: p.num.map((x) => String(Number(x.toPrecision(8)))).join(", "),
+                       den: p.den.map((x) => String(Number(x.toPrecision(8)))).join(", "), var: "s",
+                       delay: p.delay ? String(Number(p.delay.toPrecision(6))) : "", plants: [] });
+  }
+  writeForm(v);
+  state.ident = null;
+  if (q.identification_id) rememberIdent(q.identification_id);
   showResult(d);
   syncURL({ id: d.id });
 }
@@ -849,6 +927,7 @@ async function identify() {
     writeForm({ ...readForm(), plant: "", num: m.num.map((x) => String(Number(x.toPrecision(8)))).join(", "),
                 den: m.den.map((x) => String(Number(x.toPrecision(8)))).join(", "), var: "s",
                 delay: m.delay ? String(Number(m.delay.toPrecision(6))) : "", plants: readForm().plants });
+    rememberIdent(d.id);  // the tune is sent with it: judged on the measured response too
     const res = $("#ident-result");
     res.hidden = false;
     res.replaceChildren();
@@ -870,7 +949,7 @@ async function identify() {
     const p = document.createElement("p");
     const others = d.warnings.filter((w) => w !== d.closed_loop?.message);
     p.textContent = `J's verdict and the time-domain check (${d.check || "none"}): ${d.verdict}` + (others.length ? ` — ${others.join("; ")}` : "") +
-      ". The plant below is the fitted model.";
+      ". The plant below is the fitted model; a tune is sent with this identification, and judged on its measured response too.";
     side.append(p);
     const pr = await api(`/identifications/${encodeURIComponent(d.id)}/plot.svg`);
     if (pr.ok) { const img = document.createElement("img"); img.alt = "identification fit"; img.src = URL.createObjectURL(await pr.blob()); img.className = "fit"; res.append(img); }
@@ -906,6 +985,7 @@ function init() {
   const given = fromParams(params);
   const empty = !NAMES.some((n) => params.has(n)) && !params.has("id");
   writeForm(empty ? { ...ROLL } : given);
+  if (params.get("identification")) rememberIdent(params.get("identification"));
 
   form.addEventListener("input", (e) => {
     const t = e.target;
@@ -938,7 +1018,7 @@ function init() {
   vehicleRow();
   $("#identify-btn").addEventListener("click", identify);
   for (const b of $$("#export .tabs button[data-format]")) b.addEventListener("click", () => { state.exportFormat = b.dataset.format; loadExport(); });
-  for (const id of ["#export-name", "#export-dt", "#export-method", "#export-umin", "#export-umax"]) $(id).addEventListener("change", loadExport);
+  for (const id of ["#export-name", "#export-dt", "#export-method", "#export-umin", "#export-umax", "#export-force"]) $(id).addEventListener("change", loadExport);
   $("#export-copy").addEventListener("click", () => navigator.clipboard?.writeText($("#export-code").textContent));
   $("#hist-prev").addEventListener("click", () => loadHistory(Math.max(0, state.histOffset - HIST)));
   $("#hist-next").addEventListener("click", () => loadHistory(state.histOffset + HIST));

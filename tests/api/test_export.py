@@ -162,9 +162,33 @@ def test_parameter_file_of_a_stored_rate_law(client, tmp_path):
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "u_max"]
     bad = dict(g, P=0.9)
     rid = client.app.state.store.add(request={}, plants=[], result={"structure": "px4_rate", "gains": bad,
-                                                                    "controller": c.to_dict()}).id
+                                                                    "controller": c.to_dict(), "meets_spec": True}).id
     r = client.get(f"/tunes/{rid}/export", params={"format": "px4"})
     assert r.status_code == 422 and "MC_ROLLRATE_P = 0.9" in r.json()["detail"][0]["msg"]
+    assert r.json()["detail"][0]["loc"] == ["query", "force"]  # written only when asked for
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4", "force": "true"})
+    assert r.status_code == 200 and "MC_ROLLRATE_P = 0.9 is outside" in r.headers["x-tuner-warning"]
+
+
+def test_a_parameter_file_is_for_the_results_axis_and_its_verdict(client):
+    """Issue 42: a result tuned for the roll axis is not written as yaw's (422 at axis); one that does not meet its
+    spec needs force=true (422 at force), and then says so in the header and in X-Tuner-Warning."""
+    g = {"P": 0.13, "I": 0.2, "D": 0.002, "FF": 0.01, "K": 1.0, "dgyro_hz": 20.0, "int_lim": 0.3}
+    c = controller_tf("px4_rate", g, dt=0.0025)
+    vehicle = {"firmware": "px4", "axis": "roll", "loop_hz": 400.0, "source": "quad.params\n1\t1\tX\t1\t9",
+               "current_gains": {"P": 0.15, "I": 0.2, "D": 0.003, "FF": 0.0}}
+    rid = client.app.state.store.add(request={}, plants=[], result={
+        "structure": "px4_rate", "gains": g, "controller": c.to_dict(), "meets_spec": False, "vehicle": vehicle,
+        "verdict": "does NOT meet the spec: overshoot_pct = 12 (required <= 10)"}).id
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4", "axis": "yaw", "force": "true"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "axis"]
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "force"]
+    r = client.get(f"/tunes/{rid}/export", params={"format": "px4", "axis": "roll", "force": "true"})
+    assert r.status_code == 200 and "written with --force" in r.headers["x-tuner-warning"]
+    assert "# WARNING: written with --force" in r.text and "\tX\t" not in r.text
+    r = client.get(f"/tunes/{rid}/export", params={"format": "c", "force": "true"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "force"]
 
 
 def test_a_pid2_result_is_plotted_as_the_2dof_loop_that_was_tuned():

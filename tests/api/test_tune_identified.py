@@ -88,3 +88,60 @@ def test_analyze_takes_a_fractional_delay_over_http(client):
     m = r.json()["metrics"]
     assert m["phase_margin_deg"] == pytest.approx(want.metrics.phase_margin_deg, abs=1e-9)
     assert m["overshoot_pct"] == pytest.approx(want.metrics.overshoot_pct, abs=1e-9)
+
+
+def _widened(client, ident, rel):
+    """The stored identification with every parameter's 1-sigma bound ``rel`` times its value (uncorrelated), stored
+    again: sample.ulg's roll fit had 767336 % on its pole frequency, and its robust set overflowed (a 500)."""
+    import copy
+
+    d = copy.deepcopy({k: v for k, v in ident.items() if k not in ("id", "created_at")})
+    names = d["covariance"]["parameters"]
+    vals = {n: d["uncertainty"][n]["value"] for n in names}
+    sig = [rel * abs(vals[n]) for n in names]
+    d["covariance"]["matrix"] = [[s * s if i == j else 0.0 for j, s in enumerate(sig)] for i in range(len(sig))]
+    for n, s in zip(names, sig):
+        d["uncertainty"][n].update(cr_bound=s, cr_bound_pct=100 * rel)
+    rec = client.app.state.store.add_identification(request={}, data={}, result=d)
+    return {**ident, "id": rec.id}
+
+
+@pytest.mark.parametrize("field_, extra", [("robust", {"robust": 2}), ("monte_carlo", {"monte_carlo": 5})])
+def test_bounds_too_wide_for_a_set_are_422_naming_them(client, ident, field_, extra):
+    wide = _widened(client, ident, 7673.0)
+    r = client.post("/tune", json=_body(wide, **extra))
+    assert r.status_code == 422, r.text
+    hit = [e for e in r.json()["detail"] if e["loc"] == ["body", field_]]
+    assert hit, r.json()
+    msg = hit[0]["msg"]
+    assert "too wide" in msg and "pole_wn_1_rad_s" in msg and "Fly an excitation" in msg
+    # the nominal model alone is tuned as before
+    assert client.post("/tune", json=_body(wide)).status_code == 200
+
+
+def test_the_verdict_includes_the_airframe_over_http(client, ident):
+    """/tune, /tunes/{id} and /analyze with an identification: the checks on the measured response and the
+    identification's rating are in the checks, the verdict and meets_spec (issue 39)."""
+    r = client.post("/tune", json=_body(ident))
+    assert r.status_code == 200, r.text
+    d = r.json()
+    names = {c["name"]: c for c in d["checks"]}
+    assert {"measured_phase_margin_deg", "measured_gain_margin_db", "identification_quality"} <= set(names)
+    assert d["meets_spec"] == all(c["ok"] for c in d["checks"])
+    assert d["basis"] == "model and measured response" and d["identification"]["quality"] == ident["quality"]
+    assert d["verdict"].startswith("meets the spec, on the model and on the measured response" if d["meets_spec"]
+                                   else "does NOT meet the spec")
+    stored = client.get(f"/tunes/{d['id']}").json()
+    assert stored["verdict"] == d["verdict"] and stored["checks"] == d["checks"]
+    a = client.post("/analyze", json={"identification_id": ident["id"], "dt": DT, "controller": {
+        "num": d["controller"]["num"], "den": d["controller"]["den"]}})
+    assert a.status_code == 200, a.text
+    da = a.json()
+    airframe = [c for c in d["checks"] if c["name"].startswith(("measured_", "identification_"))]
+    assert [c for c in da["checks"] if c["name"].startswith(("measured_", "identification_"))] == airframe
+    assert da["basis"] == d["basis"] and da["identification"] == d["identification"]
+    assert da["measured"]["measured"]["phase_margin_deg"] == pytest.approx(
+        d["measured"]["measured"]["phase_margin_deg"], abs=1e-6)
+    both = client.post("/analyze", json={"identification_id": ident["id"], "plant": {"expr": "1/(s+1)"}, "dt": DT,
+                                         "controller": {"expr": "1"}})
+    assert both.status_code == 422 and both.json()["detail"][0]["loc"] == ["body", "plant"]

@@ -44,7 +44,7 @@ def test_table_reports_pitch_x27_failing_with_values(capsys):
     assert out.count("FAIL") == 2
     verdict = [line for line in out.splitlines() if line.startswith("controller")]
     assert verdict == [
-        "controller does NOT meet the spec: phase_margin_deg = 51.37 (required >= 60), "
+        "controller does NOT meet the spec: phase_margin_deg = 51.37 (required >= 60); "
         "overshoot_pct = 18.87 (required <= 10)"
     ]
 
@@ -70,7 +70,8 @@ def test_spec_options_change_the_verdict(capsys):
 def test_json_pitch_x27(capsys):
     assert main(PITCH_X27 + ["--json"]) == 1  # spec not met: exit 1, the JSON still on stdout
     doc = _strict_json(capsys.readouterr().out)
-    assert set(doc) == {"metrics", "checks", "meets_spec"}
+    assert set(doc) == {"metrics", "checks", "meets_spec", "verdict", "basis"}
+    assert doc["basis"] == "model" and doc["verdict"].startswith("does NOT meet the spec: phase_margin_deg")
     m = doc["metrics"]
     assert set(m) == METRIC_KEYS
     assert m["stable"] is True

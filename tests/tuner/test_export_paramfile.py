@@ -15,7 +15,7 @@ from tuner.firmware import read_params
 PX4 = {"structure": "px4_rate", "controller": {"dt": 0.0025}, "meets_spec": True,
        "metrics": {"phase_margin_deg": 60.0, "gain_margin_db": 11.0, "overshoot_pct": 1.7, "settling_time_s": 0.08},
        "gains": {"P": 0.127, "I": 0.21, "D": 0.0017, "FF": 0.0023, "K": 0.9, "dgyro_hz": 25.0, "int_lim": 0.35}}
-ARDU = {"structure": "ardupilot_rate", "controller": {"dt": 0.0025},
+ARDU = {"structure": "ardupilot_rate", "controller": {"dt": 0.0025}, "meets_spec": True,
         "gains": {"P": 0.123, "I": 0.081, "D": 0.0025, "FF": 0.0, "fltt_hz": 20.0, "flte_hz": 0.0, "fltd_hz": 20.0,
                   "imax": 0.5}}
 

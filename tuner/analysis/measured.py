@@ -13,7 +13,23 @@ composite (the fewest averages any of its windows has). Each figure comes with t
 moves by its error (magnitude times ``1 +- eps``, phase ``+- asin(eps)``).
 
 Crossings are interpolated between neighbouring coherent points (linear in log frequency); a crossing outside the
-coherent band, or in a gap of incoherent points, is not measured: the figure is then ``nan`` with a note.
+coherent band, or in a gap of incoherent points, is not measured: the figure is then ``nan`` with a note. A phase
+crossing where ``|L| > 1`` counts as a negative gain margin: the data alone cannot tell a conditionally stable loop
+from an unstable one.
+
+The hold is counted once, at the loop's sample time: an identification with ``hold = "zoh"`` (a ULog's default: the
+input held on the log's grid) measured the plant times the log's zero-order hold, which is replaced by the loop's
+(``zoh(w, dt_loop) / zoh(w, dt_log)``, the first-order factor of :func:`tuner.identify.core.zoh_factor`, alias terms
+neglected); one without (``hold`` None: a continuous input sampled) measured the plant alone, to which the loop's
+hold is added. (Before, a log at 49.9 Hz under a loop at 400 Hz kept the log's 10 ms hold: 57 deg at 100 rad/s.)
+
+**The measured figures are checks** (:func:`with_measured`, issue 39): on an identified plant the verdict includes
+the airframe. The phase and gain margins measured (and Ms, when the spec limits it) are judged by the worst end of
+their error range, which the data cannot exclude (``measured_phase_margin_deg``, ``measured_gain_margin_db``,
+``measured_ms`` in the analysis' checks); a figure not measured (``nan``) does not pass. An identification rated
+below acceptable (J's verdict ``poor``, or ``closed-loop``: fitted from data flown under feedback without a
+reference) makes the result one on the model only (the check ``identification_quality``): whatever the figures, the
+model is not confirmed to be the airframe.
 """
 
 from __future__ import annotations
@@ -24,7 +40,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LoopFigures", "MeasuredComparison", "loop_figures", "measured_comparison"]
+__all__ = ["LoopFigures", "MeasuredComparison", "loop_figures", "measured_comparison", "measured_checks",
+           "identification_check", "with_measured", "MEASURED_CHECKS", "IDENTIFICATION_CHECK", "QUALITY_OK"]
+
+#: the checks on the measured response (the prefix of their names: ``measured_`` and the model's metric)
+MEASURED_CHECKS = ("measured_phase_margin_deg", "measured_gain_margin_db", "measured_ms")
+#: the check of the identification's rating, and the ratings that pass it (tuner.identify: J's verdict)
+IDENTIFICATION_CHECK = "identification_quality"
+QUALITY_OK = ("good", "acceptable")
 
 
 @dataclass(frozen=True)
@@ -151,12 +174,16 @@ def measured_comparison(ident: Any, analysis: Any, *, coherence_min: float | Non
     """
     fr = ident.frequency_response
     lo, hi = (float(v) for v in ident.band_rad_s)
-    cmin = float(coherence_min if coherence_min is not None else ident.options.get("coherence_min", 0.6))
+    options = getattr(ident, "options", None) or {}
+    cmin = float(coherence_min if coherence_min is not None else options.get("coherence_min", 0.6))
     w = np.asarray(fr.w, float)
     g2 = np.asarray(fr.coherence, float)
     h = np.asarray(fr.h, complex)
     ok = (w >= lo * (1 - 1e-9)) & (w <= hi * (1 + 1e-9)) & (g2 >= cmin) & np.isfinite(h)
     loop = analysis.loop
+    dt = loop.dt
+    dt_log = 1.0 / float(ident.rate_hz) if getattr(ident, "rate_hz", None) else None
+    h, hold_note = _held_at_loop(h, w, options.get("hold", "zoh"), dt_log, dt)
     C = loop.controller.freqresp(w)
     L_meas = C * h
     L_model = loop.freqresp(w)
@@ -166,11 +193,7 @@ def measured_comparison(ident: Any, analysis: Any, *, coherence_min: float | Non
         eps = np.sqrt(np.clip(1.0 - g2, 0.0, 1.0) / (2.0 * n_d * np.maximum(g2, 1e-12)))
     meas = loop_figures(w, L_meas, ok, eps)
     model = loop_figures(w, L_model, ok)
-    notes = []
-    dt = loop.dt
-    if dt is not None and ident.rate_hz and abs(1.0 / float(ident.rate_hz) - dt) > 1e-6 * dt:
-        notes.append(f"the log was identified at {float(ident.rate_hz):g} Hz and the loop runs at {1 / dt:g} Hz: "
-                     "the measured response holds the log's sampling, not the loop's")
+    notes = [hold_note] if hold_note else []
     warnings = []
     full = analysis.metrics  # the model's loop over every frequency (the verifier's)
     for name, m_v, (a, b), mod, whole, unit in (
@@ -188,3 +211,95 @@ def measured_comparison(ident: Any, analysis: Any, *, coherence_min: float | Non
                             "check the identification (band, model order, delay)")
     return MeasuredComparison(band_rad_s=(lo, hi), points=int(ok.sum()), measured=meas, model=model,
                               warnings=tuple(warnings), notes=tuple(notes))
+
+
+def _held_at_loop(h: np.ndarray, w: np.ndarray, hold: Any, dt_log: float | None, dt: float | None
+                  ) -> tuple[np.ndarray, str | None]:
+    """The measured response with the loop's zero-order hold in place of the log's (the module's docstring), and a
+    note when the two sample times differ."""
+    from ..identify.core import zoh_factor
+
+    same = dt is not None and dt_log is not None and abs(dt_log - dt) <= 1e-6 * dt
+    if same and hold == "zoh":
+        return h, None
+    out = h
+    if hold == "zoh" and dt_log is not None:
+        out = out / zoh_factor(w, dt_log)
+    if dt is not None:
+        out = out * zoh_factor(w, dt)
+    note = None
+    if dt_log is not None and not same:
+        note = (f"the log was identified at {1 / dt_log:g} Hz and the loop runs at "
+                + (f"{1 / dt:g} Hz" if dt is not None else "continuously")
+                + ": the measured response is taken with the loop's hold in place of the log's (its first-order "
+                "factor; the alias terms neglected)")
+    return out, note
+
+
+def _worst(value: float, rng: tuple[float, float], low_is_bad: bool) -> float:
+    """The end of a figure's error range the data cannot exclude (the figure itself where its range is unknown)."""
+    end = rng[0] if low_is_bad else rng[1]
+    return float(end) if not math.isnan(end) else float(value)
+
+
+def measured_checks(cmp: MeasuredComparison, spec: Any) -> list[Any]:
+    """The spec's phase and gain margin limits (and ``ms_max`` when set) judged on the measured response, by the
+    worst end of each figure's error range: ``measured_phase_margin_deg`` (>=), ``measured_gain_margin_db`` (>=),
+    ``measured_ms`` (<=). A figure not measured (``nan``: its crossing outside the coherent data) does not pass.
+
+    Examples
+    --------
+    >>> from tuner import Spec
+    >>> from tuner.analysis.measured import LoopFigures, MeasuredComparison, measured_checks
+    >>> fig = LoopFigures(40.0, 2.0, 9.0, 1.5, (35.0, 44.0), (8.0, 10.0), (1.4, 1.6))
+    >>> cmp = MeasuredComparison((1.0, 10.0), 50, fig, fig)
+    >>> [(c.name, c.achieved, c.ok) for c in measured_checks(cmp, Spec(phase_margin_min_deg=30))]
+    [('measured_phase_margin_deg', 35.0, True), ('measured_gain_margin_db', 8.0, True)]
+    """
+    from ..spec import Check
+
+    m = cmp.measured
+    out = []
+    for name, value, rng, limit, low_is_bad in (
+            ("measured_phase_margin_deg", m.phase_margin_deg, m.phase_margin_range,
+             getattr(spec, "phase_margin_min_deg", None), True),
+            ("measured_gain_margin_db", m.gain_margin_db, m.gain_margin_range,
+             getattr(spec, "gain_margin_min_db", None), True),
+            ("measured_ms", m.ms, m.ms_range, getattr(spec, "ms_max", None), False)):
+        if limit is None:
+            continue
+        got = _worst(value, rng, low_is_bad)
+        if math.isnan(got):
+            out.append(Check(name, ">=" if low_is_bad else "<=", float(limit), got, False, math.inf))
+            continue
+        ok = bool(got >= limit) if low_is_bad else bool(got <= limit)
+        viol = 0.0 if ok else (abs(got - limit) if math.isfinite(got) else math.inf)
+        out.append(Check(name, ">=" if low_is_bad else "<=", float(limit), got, ok, viol))
+    return out
+
+
+def identification_check(ident: Any) -> Any:
+    """The check that the identification is rated good or acceptable (``identification_quality``), None for a
+    record without a rating."""
+    from ..spec import Check
+
+    q = getattr(ident, "quality", None)
+    if not isinstance(q, str):
+        return None
+    ok = q in QUALITY_OK
+    return Check(IDENTIFICATION_CHECK, ">=", "acceptable", q, ok, 0.0 if ok else math.inf)
+
+
+def with_measured(analysis: Any, ident: Any, spec: Any = None) -> Any:
+    """``analysis`` (of a controller on ``ident``'s model) with its loop on the measured response (``measured``)
+    and the verdict's checks on the airframe appended to its own: :func:`measured_checks` against ``spec`` (default
+    ``Spec()``) and :func:`identification_check`. Applied again, it replaces them."""
+    from dataclasses import replace
+
+    from ..spec import Spec
+
+    cmp = measured_comparison(ident, analysis)
+    own = [c for c in analysis.checks if c.name not in MEASURED_CHECKS and c.name != IDENTIFICATION_CHECK]
+    extra = measured_checks(cmp, spec if spec is not None else Spec())
+    q = identification_check(ident)
+    return replace(analysis, measured=cmp, checks=[*own, *extra, *([q] if q is not None else [])])

@@ -107,9 +107,10 @@ def _refine_delay_roots(loop: Loop, roots: np.ndarray, count: int = 6) -> np.nda
     for i in order[:count]:
         s = roots[i]
         for _ in range(30):
-            f = _delay_characteristic(loop, np.array([s]))[0]
-            ds = 1e-7 * max(1.0, abs(s))
-            df = (_delay_characteristic(loop, np.array([s + ds]))[0] - f) / ds
+            with np.errstate(over="ignore", invalid="ignore"):  # e^{-s tau} beyond double range: no step (below)
+                f = _delay_characteristic(loop, np.array([s]))[0]
+                ds = 1e-7 * max(1.0, abs(s))
+                df = (_delay_characteristic(loop, np.array([s + ds]))[0] - f) / ds
             if not np.isfinite(df) or df == 0:
                 break
             step = f / df

@@ -479,12 +479,10 @@ def analyze(
     res = analyze_loop(loop, spec, horizon_s=horizon_s, poles=poles)
     if actuator is not None:
         res = res.with_saturation(actuator, spec, structure=structure, gains=gains)
-    if ident is not None:  # the loop on the measured response too, next to the model's
-        from dataclasses import replace
+    if ident is not None:  # the loop on the measured response too, next to the model's, and its checks
+        from .measured import with_measured
 
-        from .measured import measured_comparison
-
-        res = replace(res, measured=measured_comparison(ident, res))
+        res = with_measured(res, ident, spec)
     return res
 
 

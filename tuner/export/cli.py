@@ -1,7 +1,8 @@
 """``tuner export``: a controller as C99, a Python class or its difference equation.
 
 Registered in :mod:`tuner.cli` through ``_EXTRA_COMMANDS``. Exit codes: 0 written; 2 bad input (one
-line naming the argument).
+line naming the argument), a parameter file refused included (another axis than the result's, a value no vehicle
+can hold, and without ``--force`` a design that does not meet its spec or a value outside its documented range).
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ def add_parser(sub: Any) -> None:
                    help="px4/ardupilot: the axis whose parameters (default: the result's vehicle's, else roll)")
     p.add_argument("--att-p", type=float, default=None, metavar="P",
                    help="px4/ardupilot: the attitude loop's P of a cascade, written too (MC_ROLL_P, ATC_ANG_RLL_P)")
+    p.add_argument("--force", action="store_true",
+                   help="px4/ardupilot: write the file even for a design that does not meet its spec (or meets it on "
+                        "the model only: its identification rated below acceptable), or with a value outside the "
+                        "firmware's documented range; the header says so")
     p.add_argument("--name", default="controller", metavar="N", help="C identifier for N_state, N_init, "
                    "N_update (and the Python class) (controller)")
     p.add_argument("--method", default="tustin", choices=["tustin", "zoh", "structure"],
@@ -89,7 +94,7 @@ def _source(a: argparse.Namespace) -> Any:
 
 
 def _cmd_param_file(a: argparse.Namespace) -> str:
-    from .paramfile import param_file
+    from .paramfile import make_param_file
 
     if a.result is None:
         raise TunerError(f"--format {a.format}: needs --result FILE.json (a {a.format} rate-law tune's result)")
@@ -100,12 +105,15 @@ def _cmd_param_file(a: argparse.Namespace) -> str:
     if not isinstance(src, dict):
         raise TunerError(f"--result {a.result}: not a result (a JSON object)")
     try:
-        return param_file(src, a.format, axis=a.axis, att_p=a.att_p)[0]
+        pf = make_param_file(src, a.format, axis=a.axis, att_p=a.att_p, force=a.force)
     except TunerError as e:
         opt = {"axis": "--axis", "format": "--format"}.get(str(e.field[0]) if e.field else "")
         if opt is not None:
             raise TunerError(f"{opt}: {e}") from e
         raise TunerError(f"--result {a.result}: {e}", field=("result", *e.field)) from e
+    for w in pf.warnings:  # said before the file is written (and in its header)
+        print(f"tuner: warning: {w}", file=sys.stderr)
+    return pf.text
 
 
 def _cmd_export(a: argparse.Namespace) -> int:
@@ -114,8 +122,9 @@ def _cmd_export(a: argparse.Namespace) -> int:
 
     if a.format in ("px4", "ardupilot"):
         return _write(a, _cmd_param_file(a))
-    if a.axis is not None or a.att_p is not None:
-        raise TunerError(f"{'--axis' if a.axis is not None else '--att-p'}: only for --format px4 or ardupilot")
+    if a.axis is not None or a.att_p is not None or a.force:
+        flag = "--axis" if a.axis is not None else "--att-p" if a.att_p is not None else "--force"
+        raise TunerError(f"{flag}: only for --format px4 or ardupilot")
     try:
         check_name(a.name)
         src = _source(a)

@@ -79,4 +79,7 @@ def vehicle_dict(vehicle: Any) -> dict[str, Any]:
     notes = getattr(vehicle, "notes", ())
     if notes:
         out["notes"] = list(notes)
+    warnings = getattr(vehicle, "warnings", ())
+    if warnings:
+        out["warnings"] = list(warnings)
     return out

@@ -10,7 +10,15 @@ its current gains, read from the files ground stations save and logs store.
 Text files go through the bounded reader (:func:`tuner.fileio.read_text`, :data:`MAX_PARAMS_BYTES`); a ULog is
 size-checked before it is opened. Every error is a :class:`~tuner.errors.TunerError` whose ``field`` is the
 caller's (``"params"`` by default): a missing file, a file of neither format, a parameter the law needs that the
-file lacks (named), ArduPilot parameters given for PX4's law (or the reverse), a value that is not a finite number.
+file lacks (named), ArduPilot parameters given for PX4's law (or the reverse), a value that is not a finite number
+or that no vehicle can hold (beyond single precision: the firmware stores these as float32).
+
+A value of the law's parameters outside the range the firmware documents for it
+(:data:`tuner.firmware.names.RANGES`; ``K`` 50, ``IMAX`` 5, a loop rate of 0.001 Hz) is read and warned about, not
+refused: it is the vehicle's own, flown as it is (the metadata is what ground stations check edits against; the
+firmware does not enforce it), except ArduPilot's loop rate, which its scheduler clamps to 50-2000 Hz at start: that
+clamped rate is taken. Each warning names the parameter, its value, the range and its source
+(:attr:`VehicleParams.warnings`).
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ from pathlib import Path
 
 from ..errors import TunerError
 from .laws import ARDUPILOT_FIXED, PX4_FIXED
-from .names import AXES, law_names
+from .names import AXES, FLOAT32_MAX, RANGES, law_names, range_problem
 
 __all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_params", "vehicle_from_text",
            "vehicle_from_raw", "detect_firmware"]
@@ -66,6 +74,9 @@ class VehicleParams:
     source: str = "parameters"
     raw: Mapping[str, float] = field(default_factory=dict, repr=False)
     notes: tuple[str, ...] = ()
+    #: each value of the law's parameters outside its documented range (or not a whole number where the firmware
+    #: stores an integer), in words: read as it is, not refused
+    warnings: tuple[str, ...] = ()
 
     @property
     def dt(self) -> float | None:
@@ -169,8 +180,22 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     defaults = dict(PX4_FIXED if fw == "px4" else ARDUPILOT_FIXED)
     fixed = {k: get(k, v) for k, v in defaults.items()}
     loop_hz = get("loop_hz", _DEFAULT_LOOP_HZ[fw])
+    for name in names.values():  # no vehicle holds more than single precision
+        if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
+            raise TunerError(f"{source}: {name} = {float(raw[name]):g} cannot be a {fw} parameter: the firmware stores "
+                             f"it in single precision (at most {FLOAT32_MAX:.4g} in magnitude), so no vehicle holds "
+                             "it; correct the file (a vehicle's own parameters, as its ground station saved them)",
+                             field=field)
+    warnings = _range_warnings(fw, axis, names, raw, source)
+    if loop_hz is not None and fw == "px4" and loop_hz == 0:
+        notes.append(f"{names['loop_hz']} = 0: PX4 then runs the rate loop at the gyro's own rate, which the "
+                     "parameters do not say: give dt (the rate loop's sample time)")
+        loop_hz = None
     if loop_hz is not None and not loop_hz > 0:
-        raise TunerError(f"{source}: {names['loop_hz']} = {loop_hz:g}: the loop rate must be > 0 Hz", field=field)
+        raise TunerError(f"{source}: {names['loop_hz']} = {loop_hz:g}: a loop rate is > 0 Hz", field=field)
+    lo_hz, hi_hz = RANGES[fw][axis]["loop_hz"]
+    if loop_hz is not None and fw == "ardupilot" and not lo_hz <= loop_hz <= hi_hz:
+        loop_hz = min(max(loop_hz, lo_hz), hi_hz)  # what the vehicle runs (AP_Scheduler's clamp, at start)
     for k, v in fixed.items():
         if v is not None and (v < 0 or (k == "K" and v <= 0)):
             raise TunerError(f"{source}: {names[k]} = {v:g} must be " + ("> 0" if k == "K" else ">= 0"), field=field)
@@ -183,7 +208,37 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     return VehicleParams(firmware=fw, axis=axis, loop_hz=loop_hz, gains=gains, fixed=fixed,
                          gyro_cutoff_hz=get("gyro_hz", None), att_p=get("att_p", None),
                          rate_max_dps=get("rate_max_dps", None) if "rate_max_dps" in names else None,
-                         source=source, raw=dict(raw), notes=tuple(notes))
+                         source=source, raw=dict(raw), notes=tuple(notes), warnings=tuple(warnings))
+
+
+def range_warning(fw: str, name: str, value: float, problem: dict, what: str = "the tune uses it as read") -> str:
+    """A value outside its documented range (``problem``: :func:`tuner.firmware.names.range_problem`), in words."""
+    lo, hi = problem["lo"], problem["hi"]
+    if problem["side"] == "integer":
+        return (f"{name} = {value:g} is not a whole number: the firmware stores it as an integer ({problem['source']}: "
+                f"{lo:g}-{hi:g}); {what}")
+    rng = f"[{lo:g}, {hi:g}]" if math.isfinite(hi) else f">= {lo:g}"
+    where = (problem["enforced"] if problem.get("enforced") else
+             "metadata that ground stations check edits against; the firmware flies the value as it is")
+    return f"{name} = {value:g} is outside its documented range {rng} ({problem['source']}: {where}); {what}"
+
+
+def _range_warnings(fw: str, axis: str, names: Mapping[str, str], raw: Mapping[str, float], source: str
+                    ) -> list[str]:
+    """Each value of the law's parameters in ``raw`` outside its documented range, in words (read, not refused)."""
+    out = []
+    for key in RANGES[fw][axis]:
+        name = names.get(key)
+        if name is None or name not in raw:
+            continue
+        v = float(raw[name])
+        prob = range_problem(fw, axis, key, v)
+        if prob is None or (fw == "px4" and key == "loop_hz" and v == 0):
+            continue
+        what = ("the vehicle runs at the clamped rate, and the tune too" if prob.get("enforced")
+                else "the tune uses it as read")
+        out.append(f"{source}: " + range_warning(fw, name, v, prob, what))
+    return out
 
 
 def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", firmware: str | None = None,

@@ -169,6 +169,8 @@ def _progress_loop(study: Any, storage: Any, stop: threading.Event) -> None:
                     r = st.result or {}
                     ts = (r.get("metrics") or {}).get("settling_time_s")
                     verdict = "meets spec" if r.get("meets_spec") else ("ERROR" if "error" in r else "FAILS spec")
+                    if r.get("basis") == "model only":
+                        verdict += " (on the model only)"
                     prog.update(tasks[lp.name], completed=100,
                                 status=f"done: settling {_short(ts)} s, {verdict}")
                 elif st.state == "running":
@@ -418,7 +420,7 @@ def _print_verify_table(study: Any, evals: dict[str, Any]) -> None:
     con.print(t)
     for name, e in evals.items():
         if not e.meets_spec:
-            con.print(f"{name}: failing {', '.join(e.failing)}")
+            con.print(f"{name}: {e.verdict}", markup=False)
 
 
 def make_dir(path: Path, option: str) -> None:

@@ -94,11 +94,29 @@ class LoopEval:
                                       "ok": self.cascade_ok}
         return out
 
+    @property
+    def verdict(self) -> str:
+        """The verdict in words (:func:`tuner.text.verdict`; a data loop's on the measured response and its
+        identification's rating too), and the cascade's between samples."""
+        from ..text import verdict, verdict_met
+
+        text = verdict(self.analyses)
+        if not self.cascade_ok:
+            cascade = "the cascade's output between samples fails its overshoot or settling"
+            text = f"does NOT meet the spec: {cascade}" if verdict_met(self.analyses) else f"{text}; and {cascade}"
+        return text
+
     def to_dict(self) -> dict[str, Any]:
-        """The nominal plant's metrics and checks, the verdict, the controller; ``plants`` and ``cascade``."""
+        """The nominal plant's metrics and checks, the verdict, the controller; ``plants``, ``measured`` (a data
+        loop's loop on the measured response) and ``cascade``."""
+        from ..text import verdict_basis
+
         d = self.nominal.to_dict()
         out: dict[str, Any] = {"metrics": d["metrics"], "checks": d["checks"], "meets_spec": self.meets_spec,
+                               "verdict": self.verdict, "basis": verdict_basis(self.analyses),
                                "failing": self.failing, "controller": self.controller.to_dict()}
+        if "measured" in d:
+            out["measured"] = d["measured"]
         if len(self.analyses) > 1:
             out["plants"] = [a.to_dict() for a in self.analyses]
         c = self.cascade_dict()
@@ -126,9 +144,15 @@ def evaluate_loop(
     study: StudyDef, lp: LoopDef, controller: ControllerTF, controllers: Mapping[str, ControllerTF], *,
     analyses: tuple[Analysis, ...] | None = None, inner_bandwidth_rad_s: float | None = None,
 ) -> LoopEval:
-    """Verify ``controller`` on every plant of the loop (``analyses`` if already verified)."""
+    """Verify ``controller`` on every plant of the loop (``analyses`` if already verified); a data loop's nominal
+    plant also on the identification's measured response, with its checks
+    (:func:`tuner.analysis.measured.with_measured`: the verdict includes the airframe)."""
     if analyses is None:
         analyses = tuple(analyze(p, controller, lp.spec) for p in loop_plants(study, lp, controllers))
+    if lp.data is not None and lp.inner is None:  # (a cascade's outer plant is not what the log measured)
+        from ..analysis.measured import with_measured
+
+        analyses = (with_measured(analyses[0], identified(lp), lp.spec), *analyses[1:])
     if lp.inner is None:
         return LoopEval(loop=lp, controller=controller, analyses=analyses)
     inner = study.get(lp.inner)

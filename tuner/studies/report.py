@@ -70,6 +70,7 @@ def render_report(
           f"Storage: `{storage}`; seed {study.seed}.", ""]
 
     L += _identified_section(study, results, plots, out_dir)
+    L += _measured_section(study, tuned)
     L += _uncertainty_section(study, results)
     L += ["## Tuned loops", ""]
     rows = []
@@ -226,6 +227,35 @@ def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
         p = plots.get(lp.name, {}).get("fit")
         if p is not None:
             L += [f"![{lp.name} fit]({p.relative_to(out_dir).as_posix()})", ""]
+    return L
+
+
+def _measured_section(study: StudyDef, tuned: Mapping[str, LoopEval]) -> list[str]:
+    """Data loops judged on the airframe: the tuned loop on the identification's measured response (the margins by
+    the worst end of their error range, not measured where the crossing lies outside the coherent data) and the
+    identification's rating; the verdict in words."""
+    loops = [lp for lp in study.order() if lp.data is not None and lp.inner is None and lp.name in tuned
+             and tuned[lp.name].nominal.measured is not None]
+    if not loops:
+        return []
+    L = ["## On the airframe", "",
+         "Each data loop's tuned controller on the identification's measured frequency response (the coherent "
+         "points; `tuner.analysis.measured`): the phase and gain margins with the range their random error spans. "
+         "They are checks: a margin below the spec at the worst end of its range, or not measured (its crossing "
+         "outside the coherent data), fails the loop; an identification rated below acceptable makes its verdict "
+         "one on the model only.", ""]
+    rows = []
+    for lp in loops:
+        e = tuned[lp.name]
+        m = e.nominal.measured.measured
+
+        def fig(v: float, rng: tuple[float, float]) -> str:
+            return "not measured" if math.isnan(v) else f"{num(v)} ({num(rng[0])}–{num(rng[1])})"
+
+        q = next((c.achieved for c in e.nominal.checks if c.name == "identification_quality"), "—")
+        rows.append([lp.name, str(q), fig(m.phase_margin_deg, m.phase_margin_range),
+                     fig(m.gain_margin_db, m.gain_margin_range), e.verdict])
+    L += _table(["loop", "identification", "measured PM [°] (range)", "measured GM [dB] (range)", "verdict"], rows)
     return L
 
 
