@@ -321,10 +321,18 @@ class BatchEvaluator:
         smin = np.min(sig, axis=1)
         m.update(self._time_metrics(pd, cl, stable, smin, num, den, num_r))
         if num_r is not None and self.spec.zero_steady_state_error and not self.problem.variation:
-            # (a set with gain-variation members checks each member's own error: :attr:`TuningProblem.variation`)
-            # a separate setpoint path: zero error must not rest on a feed-forward matched to the nominal gain
-            m["steady_state_error"] = np.fmax(np.abs(m["steady_state_error"]),
-                                              self._gain_varied_error(pd, num, den, num_r))
+            # a separate setpoint path: zero error must not rest on a feed-forward matched to the nominal gain (a set
+            # with gain-variation members checks each member's own error: :attr:`TuningProblem.variation`). With
+            # integral action the error is zero at every gain (the reference and the feedback share the integrator):
+            # only the rows without it (no pole at DC, or one its zero cancels) can rest on a matched feed-forward
+            dc = 1.0 if self.dt is not None else 0.0
+            with np.errstate(all="ignore"):
+                none = np.abs(np.polyval(den.T, dc)) > 1e-12 * np.max(np.abs(den), axis=1)
+                none |= np.abs(np.polyval(num.T, dc)) <= 1e-12 * np.max(np.abs(num), axis=1)
+            if none.any():
+                sel = np.flatnonzero(none)
+                err = self._gain_varied_error(pd, num[sel], den[sel], num_r[sel])
+                m["steady_state_error"][sel] = np.fmax(np.abs(m["steady_state_error"][sel]), err)
         return m
 
     def _gain_varied_error(self, pd: _PlantData, num, den, num_r) -> np.ndarray:
