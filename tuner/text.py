@@ -200,10 +200,11 @@ def design_lines(s: dict[str, Any] | None) -> list[str]:
         b, a = ld["before"], ld["after"]
         moved = ", ".join(f"{p} {_g(b[p], 4)} -> {_g(a[p], 4)}" for p in a if p != k and a[p] != b[p])
         out.append(f"design: the fastest reference step (settling {_g(ld['fastest_settling_s'], 4)} s, worst over the "
-                   f"plants), then its integral gain raised for the load to the balance of the two (the settling time "
-                   f"times the load step's IE = 1/Ki least, over {ld['levels']} integral levels): {k} {_g(b[k], 4)} -> "
-                   f"{_g(a[k], 4)}" + (f" ({moved})" if moved else "") + f", load IE {_g(ld['objective_before'], 4)} "
-                   f"-> {_g(ld['objective_after'], 4)}, settling {_g(ld['settling_after_s'], 4)} s")
+                   f"plants), then its integral gain raised for the load to the balance of the two (the least of the "
+                   f"later of the settling and the load recovery over 5, over {ld['levels']} integral levels): "
+                   f"{k} {_g(b[k], 4)} -> {_g(a[k], 4)}" + (f" ({moved})" if moved else "")
+                   + f", load IE {_g(ld['objective_before'], 4)} -> {_g(ld['objective_after'], 4)}, settling "
+                   f"{_g(ld['settling_after_s'], 4)} s, balance {_g(ld['balance'], 4)} s")
     sp = s.get("setpoint_stage")
     if sp and sp["after"] != sp["before"]:
         ch = ", ".join(f"{p} {_g(sp['before'][p], 4)} -> {_g(sp['after'][p], 4)}" for p in sp["params"])

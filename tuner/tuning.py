@@ -947,7 +947,17 @@ def _with_current(res: TuneResult, problem: TuningProblem, vehicle: Any, gains: 
         from .analysis.measured import with_measured
 
         current = (with_measured(current[0], ident, problem.spec), *current[1:])
-    changes = big_changes(gains, res.gains, problem.structure.params, current[0].metrics.crossover_rad_s,
+    st = problem.structure
+    proposed = dict(res.gains)
+    if st.firmware is not None:  # the values the vehicle would store (a gain at the optimum's zero is 0 there)
+        from .firmware.names import stored_value
+
+        for k in st.params:
+            try:
+                proposed[k] = stored_value(st.firmware, st.axis or "roll", k, proposed[k])
+            except ValueError:
+                pass
+    changes = big_changes(gains, proposed, st.params, current[0].metrics.crossover_rad_s,
                           res.analyses[0].metrics.crossover_rad_s)
     return replace(res, vehicle={**vehicle_dict(vehicle), "current_gains_law": dict(gains), "changes": changes},
                    current=current)
