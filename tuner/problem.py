@@ -23,7 +23,7 @@ from .rules import has_filter_rule
 from .spec import FILTER_N_MAX, NOISE_GAIN_MAX, Spec
 from .tolerances import SAME_DT_RTOL
 
-__all__ = ["TuningProblem", "MAX_PLANTS"]
+__all__ = ["TuningProblem", "MAX_PLANTS", "gain_variation", "member_spec"]
 
 MAX_PLANTS = 50
 #: the plant's ultimate gain K0 a tune accepts: a controller's gains scale as K0, and the loop's products of gains
@@ -73,11 +73,7 @@ class TuningProblem:
         n = len(self.plants) - len(self.variation)
         if i < n:
             return self.spec
-        k = self.variation[i - n]
-        sp = self.spec
-        return sp.model_copy(update={
-            "phase_margin_min_deg": min(sp.phase_margin_min_deg, sp.gain_variation_pm_min_deg),
-            "gain_margin_min_db": max(0.0, sp.gain_margin_min_db - abs(20.0 * math.log10(k)))})
+        return member_spec(self.spec, self.variation[i - n])
 
     @property
     def specs(self) -> tuple[Spec, ...]:
@@ -135,10 +131,8 @@ class TuningProblem:
                                     "units for its input or output)", field=("plants", 0))
         asked = spec
         spec, limits = resolve_limits(spec, st, plants, dt, scale)
-        variation: tuple[float, ...] = ()
-        if spec.gain_variation is not None:  # the nominal's gain varied: members of the set (judged by plant_spec)
-            variation = tuple(float(k) for k in spec.gain_variation if k != 1.0)
-            plants = [*plants, *(plants[0].scaled(k) for k in variation)]
+        variation = gain_variation(spec, st)  # the nominal's gain varied: members of the set (judged by plant_spec)
+        plants = [*plants, *(plants[0].scaled(k) for k in variation)]
         guess = st.tf(list(initial_guess(st, plants[0], dt, scale=scale, spec=spec).values()), dt)
         for i, p in enumerate(plants):  # a plant that cannot form a loop fails here, with its own message
             try:
@@ -147,6 +141,35 @@ class TuningProblem:
                 raise _at_plant(e, i) from None
         return cls(plants=tuple(plants), structure=st, dt=dt, spec=spec, scale=scale, asked=asked, limits=limits,
                    variation=variation)
+
+
+def gain_variation(spec: Spec, structure: Structure) -> tuple[float, ...]:
+    """The plant-gain factors of ``spec``'s gain-variation members for ``structure`` (``"auto"``: the firmware laws'
+    default, none for the others; 1 left out): what :meth:`TuningProblem.build` adds to the plant set, and what a
+    study's verification checks too.
+
+    Examples
+    --------
+    >>> from tuner import Spec, get_structure
+    >>> from tuner.problem import gain_variation
+    >>> gain_variation(Spec(), get_structure("px4_rate")), gain_variation(Spec(), get_structure("pid"))
+    ((0.8, 1.25), ())
+    """
+    from .spec import AUTO, FIRMWARE_GAIN_VARIATION
+
+    gv = spec.gain_variation
+    if gv == AUTO:
+        gv = FIRMWARE_GAIN_VARIATION if structure.firmware else None
+    return () if gv is None else tuple(float(k) for k in gv if k != 1.0)
+
+
+def member_spec(spec: Spec, k: float) -> Spec:
+    """The spec a gain-variation member (the nominal plant's gain times ``k``) is judged by: ``spec`` with its phase
+    margin at least ``gain_variation_pm_min_deg`` (at most the spec's own) and its gain margin less ``|20 log10 k|``
+    (what the gain change itself takes, which the nominal's margin implies)."""
+    return spec.model_copy(update={
+        "phase_margin_min_deg": min(spec.phase_margin_min_deg, spec.gain_variation_pm_min_deg),
+        "gain_margin_min_db": max(0.0, spec.gain_margin_min_db - abs(20.0 * math.log10(k)))})
 
 
 def noise_scale(plants: Sequence[Plant], scale: PlantScale) -> float:

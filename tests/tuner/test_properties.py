@@ -203,8 +203,15 @@ def assert_honest(an) -> None:
     d = jsonable(an.to_dict())  # JSON-ready whatever the values
     assert isinstance(d["meets_spec"], bool)
     if math.isfinite(m.phase_margin_deg):
-        assert 0.0 <= m.phase_margin_deg <= 180.0 + 1e-9 and math.isfinite(m.crossover_rad_s) \
-            and m.crossover_rad_s > 0
+        # signed (180 + the phase unwrapped from low frequency, at most 180): its magnitude the distance in phase of
+        # L (the loop's own response, the realisations') from -1 at the reported crossover, where |L| = 1
+        assert m.phase_margin_deg <= 180.0 + 1e-9 and math.isfinite(m.crossover_rad_s) and m.crossover_rad_s > 0
+        with np.errstate(all="ignore"):
+            L = complex(an.loop.freqresp(np.array([m.crossover_rad_s]))[0])
+        if np.isfinite(L) and abs(abs(L) - 1.0) < 1e-6:
+            dist = 180.0 - abs(math.degrees(np.angle(L)))
+            assert abs(abs(((m.phase_margin_deg + 180.0) % 360.0) - 180.0) - dist) < 1e-4 * max(1.0, dist), \
+                (m.phase_margin_deg, dist)
     else:  # no gain crossing: "inf" means exactly that
         # nan: a crossing beyond the grid's reach, unknown (said so, not claimed absent)
         assert m.phase_margin_deg == math.inf or math.isnan(m.phase_margin_deg)

@@ -93,7 +93,7 @@ def _contract(loops: list[tuple]) -> tuple[int, int, list[str]]:
     checked, compared, bad = 0, 0, []
     KNOWN_SEEN.clear()
     base = Spec(ms_max=2.0, mt_max=2.0, mks_max=1e3, disk_margin_min=0.1, bandwidth_min_rad_s=1e-3,
-                drb_min_rad_s=1e-3, control_peak_max=1e3)
+                drb_min_rad_s=1e-3, control_peak_max=1e3, gain_variation=None)
     for plant, st, dt, gain in loops:
         # ki_min where the structure has an integrator (a problem refuses it otherwise)
         spec = base.model_copy(update={"ki_min": 1e-9}) if get_structure(st).integrating else base
@@ -195,10 +195,12 @@ def _nlp_contract(loops: list[tuple]) -> tuple[int, list[str]]:
         # controller's fastest pole (the settling time's bisection, which the batch judges step by step, follows the
         # crossover only: there a Tustin controller can ring, 26 % of the step on a PID with 1/Tf = 20.7 rad/s at
         # h = 0.144 s, and the batch rejects what it gets wrong)
-        prob = TuningProblem.build([plant], structure=st, spec=Spec(objective="itae"), dt=dt)
+        # (one plant: a firmware law's default adds the gain-variation members, which the NLP stacks)
+        prob = TuningProblem.build([plant], structure=st, spec=Spec(objective="itae", gain_variation=None), dt=dt)
         space = make_space(prob.structure, prob.nominal, prob.dt, scale=prob.scale)
         x = np.array(space.params(designed_starts(space, prob.nominal, prob.dt)[0]), float)
         x[[i for i, k in enumerate(prob.structure.kinds) if k == "gain"]] *= gain
+        x = space.params(space.from_params(x))  # inside the box (a firmware law's documented ranges), as the NLP's
         loop = build_loop(plant, prob.structure.tf(x, dt))
         a = analyze_loop(loop)
         if not a.metrics.stable:

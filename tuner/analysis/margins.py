@@ -285,7 +285,8 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
     """The worst phase margin over every gain crossing: ``180 + phase(L)`` at the crossing, the phase unwrapped from
     low frequency (:class:`_Phase`): negative where the phase lag at a crossing exceeds 180 degrees (a loop stable only
     through its other crossings, the PX4 autotune's design on a flexible frame: -52 deg, where the distance of ``L``
-    from -1 alone, 52 deg, reads as a margin). A loop whose factors cannot be had gives that distance, unsigned."""
+    from -1 alone, 52 deg, reads as a margin); at most 180 (a phase lead at the crossing: the distance from -1, the
+    nearer way round). A loop whose factors cannot be had gives that distance, unsigned."""
     with np.errstate(divide="ignore"):
         mag = np.log(np.abs(L))
     s = np.sign(mag)
@@ -305,8 +306,10 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
         if phase is not None and w[0] <= wc <= w[-1]:
             signed = 180.0 + phase.at(wc, int(np.searchsorted(w, wc)) - 1)
             # the unwrapped phase decides the side; where it and the factored value disagree by more than rounding
-            # (a crossing the realisation and the factors see differently) the distance stands
-            if math.isfinite(signed) and abs(abs(((signed + 180.0) % 360.0) - 180.0) - pm) < 1e-6 * max(1.0, pm):
+            # (a crossing the realisation and the factors see differently) the distance stands, and so it does for a
+            # phase lead at the crossing (signed above 180: the distance from -1 is then the nearer way round)
+            if math.isfinite(signed) and signed <= 180.0 and \
+                    abs(abs(((signed + 180.0) % 360.0) - 180.0) - pm) < 1e-6 * max(1.0, pm):
                 pm = signed
         if pm < best:
             best, wbest = pm, wc

@@ -148,7 +148,14 @@ def evaluate_loop(
     plant also on the identification's measured response, with its checks
     (:func:`tuner.analysis.measured.with_measured`: the verdict includes the airframe)."""
     if analyses is None:
-        analyses = tuple(analyze(p, controller, lp.spec) for p in loop_plants(study, lp, controllers))
+        plants = loop_plants(study, lp, controllers)
+        analyses = tuple(analyze(p, controller, lp.spec) for p in plants)
+        if lp.inner is None:  # a firmware law's gain-variation members, judged as tune judges them
+            from ..controllers import get_structure
+            from ..problem import gain_variation, member_spec
+
+            ks = gain_variation(lp.spec, get_structure(lp.structure))
+            analyses += tuple(analyze(plants[0].scaled(k), controller, member_spec(lp.spec, k)) for k in ks)
     if lp.data is not None and lp.inner is None:  # (a cascade's outer plant is not what the log measured)
         from ..analysis.measured import with_measured
 
