@@ -134,15 +134,10 @@ def _plot_format(a: argparse.Namespace) -> str | None:
 def _write_plot(obj: Any, a: argparse.Namespace, fmt: str | None, spec: Any) -> None:
     if fmt is None:
         return
-    from pathlib import Path
-
     from .analysis.plots import render
+    from .fileio import write_output
 
-    data = render(obj, a.plot_kind, fmt, spec=spec)
-    try:
-        Path(a.plot).write_bytes(data)
-    except OSError as e:
-        raise TunerError(f"--plot {a.plot}: cannot write: {e.strerror or e}") from None
+    write_output(a.plot, render(obj, a.plot_kind, fmt, spec=spec), label=f"--plot {a.plot}")  # a file, all of it
     if not a.json:
         print(f"wrote {a.plot}")
 

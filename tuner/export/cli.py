@@ -145,9 +145,7 @@ def _write(a: argparse.Namespace, text: str) -> int:
     if a.out is None:
         print(text, end="")
         return 0
-    try:
-        with open(a.out, "w", encoding="utf-8") as f:
-            f.write(text)
-    except OSError as e:
-        raise TunerError(f"--out {a.out}: cannot write: {e.strerror or e}") from None
+    from ..fileio import write_output
+
+    write_output(a.out, text, label=f"--out {a.out}")  # a regular file, all of it, or exit 2 (never a FIFO's hang)
     return 0

@@ -209,11 +209,17 @@ def _cmd_identify(a: argparse.Namespace) -> int:
 
     res = _run(a)
     if a.plot:
-        fig = res.plot()
-        try:
-            fig.savefig(a.plot, dpi=110)
-        except (ValueError, OSError) as e:
-            raise TunerError(f"--plot {a.plot}: cannot write: {e}") from None
+        import io
+        from pathlib import Path
+
+        from ..fileio import write_output
+
+        buf = io.BytesIO()
+        try:  # the format from the name's suffix, as savefig to a path would (png without one)
+            res.plot().savefig(buf, format=Path(a.plot).suffix[1:].lower() or None, dpi=110)
+        except ValueError as e:
+            raise TunerError(f"--plot {a.plot}: {e}") from None
+        write_output(a.plot, buf.getvalue(), label=f"--plot {a.plot}")  # a regular file, all of it, or exit 2
     if a.json:
         print(json.dumps(jsonable(res.to_dict()), indent=2))
     else:
