@@ -73,6 +73,8 @@ def test_ulog_errors_are_422_naming_the_field(client, ulog_b64, log):
     _422(client, {**base, "ulog": {**base["ulog"], "data": "not base64!" * 4}}, ["body", "ulog", "data"], "not base64")
     junk = base64.b64encode(b"\x00" * 64).decode()
     _422(client, {**base, "ulog": {**base["ulog"], "data": junk}}, ["body", "ulog", "data"], "not a readable ULog")
+    damaged = base64.b64encode(b"ULog\x01\x12\x35\x01" + bytes(8) + bytes(2_000_000)).decode()  # issue 42
+    _422(client, {**base, "ulog": {**base["ulog"], "data": damaged}}, ["body", "ulog", "data"], "a damaged ULog file")
     _422(client, {**base, "input": log.u.tolist()}, ["body", "input"], "give either ulog or input")
     _422(client, {"poles": 2, "rate_hz": 50.0}, ["body", "input"], "give input and output samples (or a ulog log)")
 

@@ -58,3 +58,15 @@ def test_a_bad_upload_is_422_at_the_data(client, data, words):
 def test_an_upload_over_the_limit_is_refused_before_it_is_read(client):
     r = client.post("/ulog/signals", json={"data": "A" * 2_100_000})
     assert r.status_code == 413, r.text
+
+
+def test_a_damaged_log_is_422_at_the_data_at_once(client):
+    """A valid header then 1.5 MB of zeros: pyulog would step through it byte by byte (issue 42: 17 MB held a
+    solver 15-22 s); the bounded reader calls it damaged within its first 64 kB."""
+    import struct
+
+    data = b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0) + bytes(1_400_000)
+    r = client.post("/ulog/signals", json={"data": base64.b64encode(data).decode()})
+    assert r.status_code == 422, r.text
+    item = r.json()["detail"][0]
+    assert item["loc"] == ["body", "data"] and "a damaged ULog file" in item["msg"], item

@@ -15,8 +15,6 @@ file lacks (named), ArduPilot parameters given for PX4's law (or the reverse), a
 
 from __future__ import annotations
 
-import contextlib
-import io
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -30,7 +28,6 @@ __all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_param
            "vehicle_from_raw", "detect_firmware"]
 
 MAX_PARAMS_BYTES = 4 << 20  # a full PX4 .params is about 60 kB
-MAX_PARAMS_ULOG_BYTES = 2_000_000_000  # the identification's ULog limit (only the header is parsed)
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
 _FILES = {"px4": "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)",
           "ardupilot": "ArduPilot parameters (a Mission Planner .parm file)"}
@@ -198,21 +195,9 @@ def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", fi
 
 
 def _ulog_parameters(path: Path, field: str) -> dict[str, float]:
-    from pyulog import ULog
+    from ..identify.ulog import read_parameters  # the definitions section only, a damaged log refused at once
 
-    try:
-        size = path.stat().st_size
-    except OSError as e:
-        raise TunerError(f"{path}: cannot read: {e.strerror or e}", field=field) from None
-    if size > MAX_PARAMS_ULOG_BYTES:
-        raise TunerError(f"{path}: {size} bytes; a ULog is read up to {MAX_PARAMS_ULOG_BYTES} bytes", field=field)
-    try:
-        with contextlib.redirect_stdout(io.StringIO()):
-            ul = ULog(str(path), message_name_filter_list=[], parse_header_only=True)
-    except Exception as e:  # pyulog raises its own and struct errors for a file it cannot parse
-        raise TunerError(f"{path}: not a readable ULog file ({type(e).__name__}: {e})", field=field) from None
-    params = {str(k): float(v) for k, v in dict(ul.initial_parameters).items()
-              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    params = read_parameters(path, field=field)
     if not params:
         raise TunerError(f"{path}: the log stores no parameters (a ULog logged with parameters, or the vehicle's "
                          ".params file)", field=field)
