@@ -48,6 +48,9 @@ def _check(body: IdentifyRequest) -> None:
             if getattr(body, name) is not None:
                 raise FieldError(("body", name), f"give either ulog or {name} (the samples come from the log; a "
                                  "reference: ulog.reference)")
+        if body.time_unit != "auto":
+            raise FieldError(("body", "time_unit"), "time_unit is the unit of time samples; a ulog's timestamps "
+                                                    "are read as the log gives them")
     else:
         if body.input is None or body.output is None:
             raise FieldError(("body", "input" if body.input is None else "output"),

@@ -194,3 +194,21 @@ def test_stored_identifications_have_a_quota(client, body, stored, override_sett
     r = client.post("/identify", json=body)
     assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATION_SAMPLES" in r.json()["detail"]
     assert client.get("/identifications").json()["total"] == listed  # nothing was stored
+
+
+def test_a_time_column_in_microseconds_is_422_at_time_unit_until_said(client):
+    """Issue 42: PX4's timestamps (µs) read as seconds; the unit is asked for, then used."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal(600)
+    y = np.convolve(u, [0.0, 0.5, 0.3, 0.1])[:600]
+    body = {"input": u.tolist(), "output": y.tolist(), "time": (5_000_000 + 4000 * np.arange(600)).tolist(),
+            "poles": 1, "holdout": 0}
+    r = client.post("/identify", json=body)
+    assert r.status_code == 422, r.text
+    item = r.json()["detail"][0]
+    assert item["loc"] == ["body", "time_unit"] and "microseconds" in item["msg"], item
+    r = client.post("/identify", json={**body, "time_unit": "us"})
+    assert r.status_code == 200, r.text
+    assert r.json()["rate_hz"] == 250.0
