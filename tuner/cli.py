@@ -706,9 +706,9 @@ def _load_identified(path: str) -> Any:
     if not isinstance(d, dict):
         raise TunerError(f"--identified {path}: not the JSON of 'tuner identify --json' (not an object)")
     try:
-        return IdentifyResult.from_dict(d)
+        return IdentifyResult.from_dict(d)  # its fields checked first (tuner.identify.resultfile)
     except TunerError as e:
-        raise TunerError(f"--identified {path}: {e}") from None
+        raise TunerError(f"--identified {path}: {e}; give the JSON of 'tuner identify --json'") from None
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
         raise TunerError(f"--identified {path}: not the JSON of 'tuner identify --json' (missing or bad "
                          f"{e})") from None

@@ -69,10 +69,17 @@ def add_parser(sub: Any) -> None:
 
 
 def _load(path: str) -> Any:
+    """The result file, its fields checked against the schema export reads (:mod:`tuner.export.resultfile`) before
+    anything is formatted: a crafted one is exit 2 naming the field."""
     from ..fileio import read_json
+    from .resultfile import check_result
 
-    return read_json(path, label=f"--result {path}", field="result",
-                     hint="give the output of 'tuner tune --json' or the answer of GET /tunes/{id}")
+    doc = read_json(path, label=f"--result {path}", field="result",
+                    hint="give the output of 'tuner tune --json' or the answer of GET /tunes/{id}")
+    try:
+        return check_result(doc)
+    except TunerError as e:
+        raise TunerError(f"--result {path}: {e}", field=("result", *e.field)) from None
 
 
 def _source(a: argparse.Namespace) -> Any:
@@ -97,8 +104,6 @@ def _cmd_param_file(a: argparse.Namespace) -> str:
         if v is not None:
             raise TunerError(f"{flag}: not for --format {a.format} (a parameter file holds the law's gains only)")
     src = _load(a.result)
-    if not isinstance(src, dict):
-        raise TunerError(f"--result {a.result}: not a result (a JSON object)")
     try:
         return param_file(src, a.format, axis=a.axis, att_p=a.att_p)[0]
     except TunerError as e:
