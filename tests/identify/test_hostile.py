@@ -179,3 +179,12 @@ def test_the_delimiter_is_sniffed_on_a_capped_sample(tmp_path, monkeypatch, caps
     got = read_columns(wide, {"input": "signal_0003", "output": "signal_0599"})
     assert got["input"].tolist() == [3.0, 4.0, 5.0] and got["output"].tolist() == [599.0, 600.0, 601.0]
     assert max(seen) <= SNIFF_CHARS
+
+
+@pytest.mark.parametrize("cell", ["1_5", "١٢"])
+def test_a_csv_cell_python_reads_but_no_log_writes_is_not_a_number(tmp_path, cell, capsys):
+    """float() reads '1_5' as 15 (issue 42) and other scripts' digits as numbers."""
+    p = tmp_path / "u.csv"
+    p.write_text("t,cmd,angle\n0,1,2\n0.02," + cell + ",3\n")
+    assert main(["identify", str(p), *ARGS]) == 2
+    assert f"line 3, column 'cmd': not a number: '{cell}'" in _err(capsys)

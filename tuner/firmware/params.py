@@ -72,6 +72,8 @@ class VehicleParams:
 
 def _num(text: str, name: str, where: str, fld: str) -> float:
     try:
+        if "_" in text or not text.isascii():  # float() takes '1_5' as 15 and other scripts' digits: no file's number
+            raise ValueError(text)
         v = float(text)
     except ValueError:
         raise TunerError(f"{where}: {name} = {text!r} is not a number", field=fld) from None
@@ -98,6 +100,7 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
     if fmt is None:
         fmt = "qgc" if lines and len(lines[0][1].split("\t")) == 5 else "parm"
     out: dict[str, float] = {}
+    first: dict[str, int] = {}  # the line each name was first read on
     for i, ln in lines:
         where = f"{source} line {i}"
         if fmt == "qgc":
@@ -113,7 +116,12 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
             name, value = cols
         if not name.replace("_", "").isalnum() or len(name) > 64:
             raise TunerError(f"{where}: {name[:64]!r} is not a parameter name", field=field)
-        out[name] = _num(value, name, where, field)
+        v = _num(value, name, where, field)
+        if name in out and v != out[name]:  # which one the vehicle flies cannot be told: the file is refused
+            raise TunerError(f"{where}: {name} = {v:g} again, after {out[name]:g} on line {first[name]}: keep one "
+                             "of the two lines", field=field)
+        first.setdefault(name, i)
+        out[name] = v
     if not out:
         raise TunerError(f"{source}: no parameters in it (lines NAME,value for ArduPilot, or QGroundControl's "
                          "tab-separated vehicle-id component-id NAME value type)", field=field)

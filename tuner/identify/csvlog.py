@@ -157,6 +157,8 @@ def _parse(p: Path, lines: Iterator[str], columns: Mapping[str, str]) -> dict[st
         for role, i in idx.items():
             cell = row[i].strip() if i < len(row) else ""
             try:
+                if "_" in cell or not cell.isascii():  # float() takes '1_5' as 15 (and other scripts' digits)
+                    raise ValueError(cell)
                 v = float(cell)
             except ValueError:
                 what = "empty" if not cell else f"not a number: {cell!r}"
