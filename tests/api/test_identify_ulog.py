@@ -96,3 +96,14 @@ def test_a_verification_record_and_the_verdicts_side_by_side(client, log):
     it = _422(client, {**body, "verify": {"input": [0.5] * 200, "output": ver.y.tolist()[:200]}},
               ["body", "verify", "input"], "verify: input is constant")
     assert it["type"] == "invalid_data"
+
+
+def test_a_ulog_upload_counts_against_the_sample_quota(client, ulog_b64, override_settings):
+    """Issue 42: an upload's samples were not counted (its count is known only after parsing): ULog uploads were
+    stored to 163 % of TUNER_MAX_IDENTIFICATION_SAMPLES. They are checked once parsed: 507, nothing stored."""
+    before = client.get("/identifications").json()["total"]
+    _, used = client.app.state.store.identification_usage()
+    override_settings(max_identification_samples=used + 1000)  # room before the upload; its grid holds 3000
+    r = client.post("/identify", json={"ulog": {"data": ulog_b64, "input": IN, "output": OUT}, "poles": 2})
+    assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATION_SAMPLES" in r.json()["detail"], r.text
+    assert client.get("/identifications").json()["total"] == before

@@ -447,6 +447,9 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
                        references=refs if tr is not None else None, parameters=params)
 
 
+#: a name a parameter file may hold (PX4's and ArduPilot's: upper case, digits and '_', at most 16 characters): a
+#: log's other names (a tab or a newline in one added lines to the .params text) are not passed on
+_PARAM_NAME = re.compile(r"[A-Z][A-Z0-9_]{0,15}")
 #: the parameters of the rate laws a page passes on (the vehicle of a tune), by prefix
 _LAW_PARAMS = ("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "MC_RR_", "MC_PR_", "MC_YR_", "MC_ROLL_P",
                "MC_PITCH_P", "MC_YAW_P", "IMU_GYRO_", "IMU_DGYRO_", "ATC_RAT_", "ATC_ANG_", "SCHED_LOOP_RATE",
@@ -479,7 +482,8 @@ def signals(src: str | Path | bytes) -> dict[str, Any]:
             if np.asarray(v).dtype.kind in "fiu":
                 out.append({"name": f"{name}.{k}", "rate_hz": rate})
     params = {str(k): v for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
-              if str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float)) and math.isfinite(float(v))}
+              if _PARAM_NAME.fullmatch(str(k)) and str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float))
+              and not isinstance(v, bool) and math.isfinite(float(v))}
     lines = [f"1\t1\t{k}\t{v!r}\t{6 if isinstance(v, int) else 9}" for k, v in sorted(params.items())]
     loop = params.get("IMU_GYRO_RATEMAX") or params.get("SCHED_LOOP_RATE")
     return {"signals": out, "params_text": "\n".join(lines) + ("\n" if lines else ""), "loop_hz": loop,
