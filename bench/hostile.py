@@ -356,7 +356,22 @@ def ulog_service(tree: Path, work: Path) -> list[dict[str, Any]]:
 
     hdr = b"ULog\x01\x12\x35\x01" + bytes(8)
     rows = []
-    for mb, settings in ((17, {}), (100, {"max_identify_body_bytes": "200000000", "identify_timeout_s": "600"})):
+    # the worker's share alone: the jobs a solver runs, on 100 MB (past the request limits: a body of 24 MB, 18 MB
+    # of log), in a process of the tree's code (bench/hostile_cases.py: worker_share)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TUNER_")}
+    env["PYTHONPATH"] = str(tree)
+    code = (f"import sys; sys.path.insert(0, {str(ROOT / 'bench')!r}); import hostile_cases; "
+            "hostile_cases.worker_share()")
+    try:
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800, cwd=tree,
+                           env=env)
+        rows += [json.loads(ln) for ln in p.stdout.splitlines() if ln.startswith("{")]
+    except subprocess.TimeoutExpired:
+        rows.append({"case": "100 MB in-process", "answer": "(no answer within 1800 s)"})
+    for r in rows:
+        print(json.dumps(r), flush=True)
+    for mb, settings in ((17, {}), (100, {}), (100, {"max_identify_body_bytes": "200000000",
+                                                      "identify_timeout_s": "600"})):
         b64 = base64.b64encode(hdr + bytes(mb * 1_000_000)).decode()
         bodies = {"/ulog/signals": {"data": b64},
                   "/identify": {"ulog": {"data": b64, "input": "a.b[0]", "output": "c.d[0]"}, "poles": 2}}

@@ -243,3 +243,22 @@ def _summary(stdout: str) -> str:
     if "vehicle" in d:
         return f"the vehicle's gains as read: {d['vehicle'].get('current_gains')}"
     return str(list(d))[:200]
+
+
+def worker_share(mb: int = 100) -> None:
+    """What a solver spends on a header and ``mb`` MB of zeros: the service's two ULog jobs run in this process (the
+    code of whatever tree is first on the path); one JSON line each."""
+    from api.jobs import identify_job, ulog_signals_job
+
+    data = HEADER + bytes(mb * 1_000_000)
+    for name, job, payload in (("ulog_signals_job", ulog_signals_job, {"data": data}),
+                               ("identify_job", identify_job, {"ulog": {"data": data, "input": "a.b[0]",
+                                                                        "output": "c.d[0]"}, "poles": 2})):
+        t0 = time.perf_counter()
+        try:
+            job(payload)
+            what = "answered"
+        except Exception as e:
+            what = f"{type(e).__name__}: {e}"
+        print(json.dumps({"case": f"{mb} MB header + zeros: {name} in-process (a solver's share)",
+                          "wall_s": round(time.perf_counter() - t0, 2), "answer": what[:300]}), flush=True)

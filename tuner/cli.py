@@ -128,6 +128,9 @@ def _plot_format(a: argparse.Namespace) -> str | None:
     suffix = a.plot.rsplit(".", 1)[-1].lower() if "." in a.plot else ""
     if suffix not in ("png", "svg"):
         raise TunerError(f"--plot {a.plot}: the file name must end in .png or .svg")
+    from .fileio import check_output
+
+    check_output(a.plot, label=f"--plot {a.plot}")  # a device, a FIFO or a directory: refused before the work
     return suffix
 
 

@@ -32,8 +32,8 @@ from typing import Any, BinaryIO
 from .errors import TunerError
 
 __all__ = ["CHUNK_BYTES", "MAX_CSV_BYTES", "MAX_JSON_BYTES", "MAX_NESTING", "MAX_STUDY_BYTES", "check_input",
-           "nesting_depth", "open_checked", "open_input", "read_head", "read_text", "read_text_from", "read_json",
-           "write_output"]
+           "check_output", "nesting_depth", "open_checked", "open_input", "read_head", "read_text", "read_text_from",
+           "read_json", "write_output"]
 
 CHUNK_BYTES = 1 << 20
 MAX_CSV_BYTES = 256 << 20
@@ -210,6 +210,31 @@ def nesting_depth(obj: Any, level: int = 0) -> int:
     return deepest
 
 
+def check_output(path: str | Path, *, field: str | Sequence[str | int] = "out", label: str | None = None) -> None:
+    """Refuse, before any work, an output path :func:`write_output` would refuse by what is there now: a directory,
+    a FIFO or pipe, a device or a socket (a path that does not exist yet is fine)."""
+    import os
+
+    name = label or str(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise TunerError(f"{name}: cannot write: {e.strerror or e}", field=field) from None
+    _refuse_output(st, name, field)
+
+
+def _refuse_output(st: Any, name: str, field: str | Sequence[str | int]) -> None:
+    import stat
+
+    if stat.S_ISDIR(st.st_mode):
+        raise TunerError(f"{name}: a directory: give a file's path", field=field)
+    if not stat.S_ISREG(st.st_mode):
+        raise TunerError(f"{name}: not a regular file ({_kind(st.st_mode)}): give a file's path (nothing is written to "
+                         "a pipe or a device)", field=field)
+
+
 def write_output(path: str | Path, data: bytes | str, *, field: str | Sequence[str | int] = "out",
                  label: str | None = None) -> None:
     """Write ``data`` (text as UTF-8) to ``path``, a regular file (made, or replaced): a directory, a FIFO or pipe, a
@@ -227,24 +252,10 @@ def write_output(path: str | Path, data: bytes | str, *, field: str | Sequence[s
     tuner.errors.TunerError: /dev/full: not a regular file (a character device): ...
     """
     import os
-    import stat
 
     name = label or str(path)
     buf = data.encode("utf-8") if isinstance(data, str) else bytes(data)
-
-    def refuse(st: Any) -> None:
-        if stat.S_ISDIR(st.st_mode):
-            raise TunerError(f"{name}: a directory: give a file's path", field=field)
-        if not stat.S_ISREG(st.st_mode):
-            raise TunerError(f"{name}: not a regular file ({_kind(st.st_mode)}): give a file's path (nothing is "
-                             "written to a pipe or a device)", field=field)
-
-    try:
-        refuse(os.stat(path))
-    except FileNotFoundError:
-        pass
-    except OSError as e:
-        raise TunerError(f"{name}: cannot write: {e.strerror or e}", field=field) from None
+    check_output(path, field=field, label=label)
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC, 0o666)
     except OSError as e:
@@ -253,7 +264,7 @@ def write_output(path: str | Path, data: bytes | str, *, field: str | Sequence[s
         why = "a FIFO or pipe with no reader" if e.errno == errno.ENXIO else (e.strerror or str(e))
         raise TunerError(f"{name}: cannot write: {why}", field=field) from None
     try:
-        refuse(os.fstat(fd))
+        _refuse_output(os.fstat(fd), name, field)
         os.set_blocking(fd, True)
     except BaseException:
         os.close(fd)

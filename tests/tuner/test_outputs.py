@@ -102,3 +102,20 @@ def test_the_input_check_is_made_on_the_opened_handle(tmp_path):
             "    print(e)\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert p.returncode == 0 and "not a regular file (a FIFO or pipe)" in p.stdout, (p.stdout, p.stderr)
+
+
+@pytest.mark.parametrize("cmd", list(WRITERS))
+def test_a_target_that_cannot_take_it_is_refused_before_the_work(cmd, tmp_path, monkeypatch, capsys):
+    """The identification, the analysis, the export are not run for an output that would be refused."""
+    import importlib
+
+    args, opt = WRITERS[cmd]
+    ran = []
+    for mod, name in (("tuner.identify.cli", "_run"), ("tuner.analysis.verify", "analyze"),
+                      ("tuner.export.cli", "_source")):
+        m = importlib.import_module(mod)
+        if hasattr(m, name):
+            monkeypatch.setattr(m, name, lambda *a, **k: ran.append(1))
+    (tmp_path / "out.png").symlink_to("/dev/full")
+    assert main([*args, str(tmp_path / "out.png")]) == 2
+    assert "not a regular file (a character device)" in capsys.readouterr().err and not ran

@@ -117,6 +117,10 @@ def _cmd_export(a: argparse.Namespace) -> int:
     from .codegen import check_name, render
     from .source import clamp_note, equation_of
 
+    if a.out is not None:  # a target that cannot take it is refused before the result is read
+        from ..fileio import check_output
+
+        check_output(a.out, label=f"--out {a.out}")
     if a.format in ("px4", "ardupilot"):
         return _write(a, _cmd_param_file(a))
     if a.axis is not None or a.att_p is not None:

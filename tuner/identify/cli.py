@@ -212,6 +212,10 @@ def _run(a: argparse.Namespace):
 def _cmd_identify(a: argparse.Namespace) -> int:
     from ..jsonio import jsonable
 
+    if a.plot:  # a target that cannot take it (a device, a FIFO, a directory) is refused before the work
+        from ..fileio import check_output
+
+        check_output(a.plot, label=f"--plot {a.plot}")
     res = _run(a)
     if a.plot:
         import io
