@@ -132,6 +132,7 @@ def test_a_200000_sample_log_is_accepted_on_identify_but_other_routes_keep_their
     assert big.status_code == 413
     detail = big.json()["detail"]  # the byte cap, and how to send a longer record (the record limit is the CLI's)
     assert detail.startswith(f"request body larger than {MAX_IDENTIFY_BODY} bytes") and "ULog upload" in detail
+    assert "(ulog.data, base64)" in detail  # the field the body has (issue 42: it named ulog.data_base64)
     tune = client.post("/tune", content=b"x" * (MAX_BODY + 1), headers={"content-type": "application/json"})
     assert tune.status_code == 413 and tune.json() == {"detail": f"request body larger than {MAX_BODY} bytes"}
 
