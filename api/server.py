@@ -96,10 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m api", description=__doc__.split("\n\n")[0])
     ap.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1)")
     ap.add_argument("--port", type=int, default=8000, help="port (8000)")
-    ap.add_argument("--proxy-headers", action="store_true",
-                    help="behind a proxy: take the client's address from X-Forwarded-For (with --forwarded-allow-ips)")
+    ap.add_argument("--proxy-headers", action=argparse.BooleanOptionalAction, default=True,
+                    help="take the client's address from X-Forwarded-For when a trusted proxy sends it (uvicorn's "
+                         "default: on, trusting 127.0.0.1 unless --forwarded-allow-ips says otherwise)")
     ap.add_argument("--forwarded-allow-ips", default=None, metavar="IPS",
-                    help="the proxies whose X-Forwarded-For is trusted (comma-separated)")
+                    help="the proxies whose X-Forwarded-For is trusted (comma-separated; uvicorn's default 127.0.0.1)")
     ap.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     a = ap.parse_args(argv)
     from pydantic import ValidationError
