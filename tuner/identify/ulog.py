@@ -140,21 +140,15 @@ def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
 
 def is_ulog(path: str | Path) -> bool:
     """Whether the file is named ``.ulg`` or starts with the ULog magic bytes. A path that is no regular file (a
-    FIFO, a device, a directory) is refused here, before anything opens it (it could hang or never end)."""
-    from ..fileio import check_input
+    FIFO, a device, a directory) is refused, on the path and on the opened handle (it could hang or never end)."""
+    from ..fileio import check_input, read_head
 
     p = Path(path)
     try:
         check_input(p, field="file")
+        return p.suffix.lower() == ".ulg" or read_head(p, len(MAGIC), field="file") == MAGIC
     except TunerError as e:
         raise InvalidDataError(str(e), field="file") from None
-    if p.suffix.lower() == ".ulg":
-        return True
-    try:
-        with p.open("rb") as f:
-            return f.read(7) == MAGIC
-    except OSError:
-        return False
 
 
 def parse_signal(text: str, role: str) -> tuple[str, int, str]:
