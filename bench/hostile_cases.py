@@ -169,9 +169,12 @@ def build(work: Path, big: bool = True) -> list[Case]:
                                                            "--plot", str(w / "fifo.png")], timeout_s=60))
     cases.append(Case("output: export --out to a FIFO", ["export", "--controller", "2*(z-0.5)/(z-1)", "--dt", "0.01",
                                                          "--format", "c", "--out", str(w / "fifo.png")], timeout_s=60))
+    # the issue's --plot /dev/full, through a link in the work directory: before, matplotlib appended '.png' to a
+    # name without a suffix and wrote a new file beside it (run as root, /dev/full.png), saying 'wrote /dev/full'
+    (w / "dev_full").symlink_to("/dev/full")
     cases.append(Case("output: identify --plot /dev/full", ["identify", str(ROOT / "studies/data/pitch_sweep.csv"),
                                                             "--time", "t", "--input", "pitch_cmd", "--output", "pitch",
-                                                            "--poles", "2", "--plot", "/dev/full"]))
+                                                            "--poles", "2", "--plot", str(w / "dev_full")]))
     cases.append(Case("output: analyze --plot to a link to /dev/full", ["analyze", "--plant", "1/(s+1)",
                                                                          "--controller", "2", "--plot",
                                                                          str(w / "full.png")]))
