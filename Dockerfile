@@ -1,4 +1,8 @@
-# The tuning service: docker build -t tuner . && docker run -p 8000:8000 -v tuner-data:/data tuner
+# The tuning service, on this machine only:
+#   docker build -t tuner . && docker run -p 127.0.0.1:8000:8000 -e TUNER_ALLOW_NO_KEY=1 -v tuner-data:/data tuner
+# In its container it listens on 0.0.0.0 (how a published port reaches it), so it starts only with an API key
+# (-e TUNER_API_KEY=...: clients send it as X-API-Key) or the explicit TUNER_ALLOW_NO_KEY=1 (logged), which the
+# command above gives because -p 127.0.0.1: publishes the port to this machine alone. Serving others: set a key.
 # Results go to the SQLite file /data/tuner.db unless TUNER_DATABASE_URL points elsewhere
 # (e.g. postgresql+psycopg://user:password@db:5432/tuner); settings: TUNER_* (see api/settings.py).
 FROM python:3.11-slim
@@ -25,4 +29,4 @@ VOLUME ["/data"]
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=60s --retries=3 \
     CMD python -c "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/health', timeout=4)"
-CMD ["uvicorn", "api.main:create_app", "--factory", "--host", "0.0.0.0", "--port", "8000"]
+CMD ["python", "-m", "api", "--host", "0.0.0.0", "--port", "8000"]

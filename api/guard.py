@@ -2,6 +2,10 @@
 
 In order, for every HTTP request:
 
+0. **No key, loopback only**: without ``TUNER_API_KEY`` (and without ``TUNER_ALLOW_NO_KEY=1``), a request that
+   reached the service on an address other than loopback (its connection's local address: a container's or a
+   machine's LAN address) gets 403, ``/health`` excepted. A client that sets ``Host: localhost`` itself passes the
+   host allow-list; it does not change the address it connected to.
 1. **Host allow-list** (``TUNER_ALLOWED_HOSTS``, loopback by default): another ``Host`` gets 400.
    Without it a page on another site could reach a service on 127.0.0.1 by DNS rebinding (the
    browser then sends that site's name as ``Host``). ``*`` allows any host (behind a proxy that
@@ -26,14 +30,18 @@ from __future__ import annotations
 import asyncio
 import base64
 import hashlib
+import ipaddress
 import json
+import logging
 import re
 import secrets
 import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["Guard", "PUBLIC_PATHS", "PUBLIC_PREFIXES", "POOL_PATHS", "docs_csp", "host_name"]
+__all__ = ["Guard", "PUBLIC_PATHS", "PUBLIC_PREFIXES", "POOL_PATHS", "docs_csp", "host_name", "is_loopback"]
+
+log = logging.getLogger("api")
 
 PUBLIC_PATHS = frozenset({"/", "/health", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"})
 PUBLIC_PREFIXES = ("/web/", "/static-offline-docs/")
@@ -78,8 +86,10 @@ class _BodyTimeout(Exception):
 class Guard:
     def __init__(self, app: Callable[..., Any], *, allowed_hosts: frozenset[str] | None, api_key: str | None,
                  body_timeout_s: float, client_of: Callable[[str, str | None], str] | None = None,
-                 pool_of: Callable[[], Any] | None = None) -> None:
+                 pool_of: Callable[[], Any] | None = None, loopback_only: bool = False) -> None:
         self.app = app
+        self.loopback_only = loopback_only  # no key and no opt-in: answer connections to loopback addresses only
+        self._said = False
         self.allowed_hosts = allowed_hosts  # None: any
         self.api_key = api_key.encode() if api_key is not None else None
         self.body_timeout_s = body_timeout_s
@@ -93,6 +103,15 @@ class Guard:
         path = scope.get("path", "")
         headers = _headers(scope)
         send = self._headered(send, path)
+        if self.loopback_only and path != "/health" and not _local(scope.get("server")):
+            if not self._said:  # (once: a scan of the address would fill the log)
+                self._said = True
+                log.warning("a request to %s on %s refused: no TUNER_API_KEY, and only connections to a loopback "
+                            "address are answered (TUNER_ALLOW_NO_KEY=1 to serve others without a key)", path,
+                            scope["server"][0])
+            await _answer(send, 403, "this service has no API key and answers only on its loopback address; its "
+                                     "operator sets TUNER_API_KEY (then send it as X-API-Key), or TUNER_ALLOW_NO_KEY=1")
+            return
         n_keys = sum(1 for k, _ in scope.get("headers", ()) if k.lower() == b"x-api-key")
         if n_keys > 1:  # one credential, read once: the guard and the route must not read different ones
             await _answer(send, 400, f"{n_keys} X-API-Key headers: send exactly one")
@@ -181,6 +200,33 @@ class Guard:
             await send(msg)
 
         return headered
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an address or a name to listen on, or a connection's local address) is loopback only:
+    ``127.0.0.0/8``, ``::1`` (also as ``::ffff:127.0.0.1``), ``localhost``. ``0.0.0.0`` and ``::`` are every
+    address, not loopback."""
+    h = host.strip().strip("[]").lower()
+    if h in ("localhost", "localhost.", "ip6-localhost"):
+        return True
+    try:
+        ip = ipaddress.ip_address(h.split("%", 1)[0])
+    except ValueError:
+        return False
+    mapped = getattr(ip, "ipv4_mapped", None)
+    return bool((mapped or ip).is_loopback)
+
+
+def _local(server: Any) -> bool:
+    """Whether a connection's local address (ASGI ``server``) is loopback; a name that is no address (a Unix socket,
+    a test client's) is local: only this machine reaches it."""
+    if not server:
+        return True
+    try:
+        ipaddress.ip_address(str(server[0]).split("%", 1)[0])
+    except ValueError:
+        return True
+    return is_loopback(str(server[0]))
 
 
 def _public(path: str) -> bool:

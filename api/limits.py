@@ -69,8 +69,8 @@ class BodySizeLimit:
         await self.app(scope, replay, send)
 
     async def _refuse(self, send: Callable[..., Any], cap: int, path: str = "") -> None:
-        more = (": a longer record goes as a ULog upload (ulog.data_base64) or through the command line "
-                "('tuner identify', the same record limit)") if path in _RECORD_PATHS else ""
+        more = (": samples that many go as a ULog upload (ulog.data, base64), a longer log through the command "
+                "line ('tuner identify', the same record limit)") if path in _RECORD_PATHS else ""
         body = json.dumps({"detail": f"request body larger than {cap} bytes{more}"}).encode()
         await send({"type": "http.response.start", "status": 413,
                     "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),

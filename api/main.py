@@ -1,6 +1,9 @@
 """The tuning service. Start it with::
 
-    uvicorn api.main:create_app --factory --host 127.0.0.1 --port 8000
+    python -m api --host 127.0.0.1 --port 8000
+
+(:mod:`api.server`: uvicorn with a header deadline and a connection cap; ``uvicorn api.main:create_app --factory``
+serves the same app without them.)
 
 Nothing heavy happens at import time: :func:`create_app` builds the routes, and the app's
 lifespan starts the solver and plot processes and opens the database (creating the table if
@@ -94,6 +97,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         connecting = asyncio.get_running_loop().create_task(_connect(store, settings.db_retry_s))
         log.info("tuner service: %d solver processes, %d plot process(es), database %s", settings.workers,
                  settings.plot_workers, store.backend)
+        if settings.api_key is None and settings.allow_no_key:
+            log.warning("TUNER_ALLOW_NO_KEY: no API key, and connections to every address are answered: anyone who "
+                        "reaches this service can tune, and read every stored result and log")
+        elif settings.api_key is None:
+            log.info("no TUNER_API_KEY: only connections to a loopback address are answered")
         try:
             yield
         finally:
@@ -121,7 +129,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(Guard, allowed_hosts=settings.allowed_host_set,
                        api_key=None if settings.api_key is None else settings.api_key.get_secret_value(),
                        body_timeout_s=settings.body_timeout_s, client_of=client_key,
-                       pool_of=lambda: getattr(app.state, "pool", None))
+                       pool_of=lambda: getattr(app.state, "pool", None),
+                       loopback_only=settings.api_key is None and not settings.allow_no_key)
     return app
 
 

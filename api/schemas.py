@@ -11,7 +11,8 @@ from __future__ import annotations
 import datetime as _dt
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from tuner.controllers import DEPRECATED_STRUCTURES, MAX_CONTROLLER_ORDER, STRUCTURES
 from tuner.limits import EFFORT_NAMES
@@ -55,6 +56,13 @@ class _In(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
 
+def _at(field: str, msg: str, value: Any = None, *, kind: str = "value_error") -> ValidationError:
+    """A check across a model's fields that is about one of them, located there (``loc`` ending in ``field``, not the
+    model: the page shows a 422 at the field it names); raised from a model validator."""
+    return ValidationError.from_exception_data("request", [InitErrorDetails(
+        type=PydanticCustomError(kind, msg), loc=(field,), input=value)])
+
+
 class PlantIn(_In):
     """A plant: ``expr`` (in ``s``, or in ``z`` with ``dt``), or coefficients ``num``/``den``."""
 
@@ -73,6 +81,8 @@ class PlantIn(_In):
         coeffs = self.num is not None or self.den is not None
         if self.expr is not None and coeffs:
             raise ValueError("give either expr or num and den, not both")
+        if self.expr is None and (self.num is None) != (self.den is None):  # one of the two: the other is missing
+            raise _at("den" if self.den is None else "num", "give both num and den (or expr)", kind="missing")
         if self.expr is None and (self.num is None or self.den is None):
             raise ValueError("give expr, or both num and den")
         return self
@@ -102,9 +112,9 @@ class ControllerIn(_In):
         if sum(forms) != 1:
             raise ValueError("give exactly one of: expr; num and den; structure and gains")
         if forms[1] and (self.num is None or self.den is None):
-            raise ValueError("give both num and den")
+            raise _at("den" if self.den is None else "num", "give both num and den", kind="missing")
         if forms[2] and (self.structure is None or self.gains is None):
-            raise ValueError("give both structure and gains")
+            raise _at("gains" if self.gains is None else "structure", "give both structure and gains", kind="missing")
         return self
 
 
@@ -141,13 +151,14 @@ class ActuatorIn(_In):
     @model_validator(mode="after")
     def _limits(self) -> ActuatorIn:
         if self.u_min is None and self.u_max is None:
-            raise ValueError("give the actuator's limit: u_max (and u_min; u_max alone is symmetric)")
+            raise _at("u_max", "give the actuator's limit: u_max (and u_min; u_max alone is symmetric)", kind="missing")
         hi = self.u_max if self.u_max is not None else -self.u_min
         lo = self.u_min if self.u_min is not None else -hi
         if not lo < hi:
-            raise ValueError(f"u_min ({lo:g}) must be below u_max ({hi:g})")
+            raise _at("u_min" if self.u_min is not None else "u_max", f"u_min ({lo:g}) must be below u_max ({hi:g})",
+                      self.u_min if self.u_min is not None else self.u_max)
         if self.step_size == 0:
-            raise ValueError("step_size must be non-zero")
+            raise _at("step_size", "step_size must be non-zero", self.step_size)
         return self
 
     def to_actuator(self) -> Any:

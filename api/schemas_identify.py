@@ -132,7 +132,12 @@ class IdentifyRequest(IdentifyOptions):
     reference: Samples | None = Field(None, description="data flown under feedback: the exogenous signal's samples "
                                       "(an injected excitation, or the setpoint), as many as input; the response is "
                                       "then the joint estimate S_ry/S_ru")
-    time: Samples | None = Field(None, description="sample times, s (strictly increasing, uniform); or rate_hz")
+    time: Samples | None = Field(None, description="sample times, in time_unit (strictly increasing, uniform); or "
+                                 "rate_hz")
+    time_unit: Literal["auto", "s", "ms", "us"] = Field(
+        "auto", description="the unit of time (and of verify.time): s, ms, or us (a microsecond timestamp, as PX4's "
+                            "CSV exports have); auto: seconds, and times whose steps look like another unit (whole "
+                            "numbers of 100 and more, or 0.1 to 1) are refused (422 at time_unit) until it is given")
     rate_hz: Positive | None = Field(None, description="sample rate, Hz; or time. With ulog: the grid the topics "
                                      "are resampled onto (default: the slower topic's rate)")
     ulog: ULogUpload | None = Field(None, description="a PX4 ULog log instead of input/output/time; a log split "

@@ -6,7 +6,17 @@ variable                       default                     meaning
 ``TUNER_DATABASE_URL``         ``sqlite:///./tuner.db``    SQLAlchemy URL; e.g. ``postgresql+psycopg://
                                                            user@host:5432/db``
 ``TUNER_API_KEY``              unset                       if set, ``/tune``, ``/analyze`` and ``/tunes``
-                                                           need a matching ``X-API-Key`` header
+                                                           need a matching ``X-API-Key`` header (one key
+                                                           reads every result and log: keys are not scoped)
+``TUNER_ALLOW_NO_KEY``         unset                       without a key, only connections to a loopback
+                                                           address are answered (and ``python -m api``
+                                                           does not start on another); ``1``: answer every
+                                                           address without a key, on purpose (logged)
+``TUNER_HEADER_TIMEOUT_S``     ``10``                      request headers must arrive within this from the
+                                                           connection's start or its last answer, else 408
+                                                           and closed (``python -m api``)
+``TUNER_MAX_CONNECTIONS``      ``512``                     open connections; beyond: 503 and closed at
+                                                           once (``python -m api``)
 ``TUNER_WORKERS``              number of usable CPUs       solver processes
 ``TUNER_QUEUE_SIZE``           ``16 * workers``            requests that may wait for a solver; beyond
                                                            workers + queue: 503 with ``Retry-After``
@@ -108,6 +118,9 @@ class Settings(BaseSettings):
     allowed_hosts: str = Field("127.0.0.1,localhost,::1", min_length=1,
                                description="Host names served, comma-separated; '*' for any")
     body_timeout_s: float = Field(60.0, gt=0, le=3600)
+    allow_no_key: bool = Field(False, description="without a key, answer connections to any address (on purpose)")
+    header_timeout_s: float = Field(10.0, gt=0, le=600, description="request headers must arrive within this")
+    max_connections: int = Field(512, ge=1, le=100_000, description="open connections served at once")
     max_identifications: int = Field(1000, ge=0)
     max_identification_samples: int = Field(20_000_000, ge=0)
 

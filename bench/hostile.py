@@ -1,6 +1,6 @@
 """The hostile-user campaign of issue 11, on loopback: hand-made and generated requests, faults, read-back.
 
-Starts the service as deployed (``uvicorn api.main:create_app --factory`` on 127.0.0.1, 2 solvers) on
+Starts the service as deployed (``python -m api`` on 127.0.0.1, 2 solvers) on
 SQLite and on PostgreSQL (a schema of its own, created and dropped here; the server itself is never
 touched), and for each database:
 
@@ -18,6 +18,15 @@ database and a summary table; ``--out FILE`` writes the JSON too.
 
     .venv/bin/python bench/hostile.py                      # SQLite and PostgreSQL, 150 generated
     .venv/bin/python bench/hostile.py --db sqlite --generated 30 --kills 1
+
+Issue 42's hostile files instead (``bench/hostile_cases.py``: damaged ULogs, CSV sniffer and clock cases, crafted
+results, outputs to FIFOs and devices, parameter files, a study's free text), through the command line of a source
+tree (``--tree``, default this one; e.g. an export of the commit before the fixes), each case's exit code and time:
+
+    .venv/bin/python bench/hostile.py --files [--tree DIR] [--small] [--only TEXT] [--out FILE]
+
+and the service's side (``--ulog-service``): damaged ULog uploads to ``/identify`` and ``/ulog/signals`` (17 MB
+under the default body cap; 100 MB with the cap raised), time to the answer, on a uvicorn of the tree.
 """
 
 from __future__ import annotations
@@ -41,6 +50,7 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
 from api.testing import HOSTILE_REQUESTS  # noqa: E402
 
@@ -154,9 +164,8 @@ class Service:
         self.starts += 1
         log = open(self.log_dir / f"uvicorn-{self.port}-{self.starts}.log", "wb")
         t0 = time.monotonic()
-        self.proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "api.main:create_app", "--factory", "--host",
-                                      "127.0.0.1", "--port", str(self.port)], cwd=ROOT, env=env, stdout=log,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
+        self.proc = subprocess.Popen([sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(self.port)],
+                                     cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         while time.monotonic() - t0 < timeout_s:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"uvicorn exited with {self.proc.returncode}; see {log.name}")
@@ -338,6 +347,49 @@ def campaign(db: str, n_generated: int, kills: int, seed: int, time_limit_s: flo
     return stats
 
 
+def ulog_service(tree: Path, work: Path) -> list[dict[str, Any]]:
+    """Damaged ULog uploads (a valid header, then zeros) to a uvicorn of ``tree``: the time to each answer."""
+    import base64
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    from service_load import serve
+
+    hdr = b"ULog\x01\x12\x35\x01" + bytes(8)
+    rows = []
+    # the worker's share alone: the jobs a solver runs, on 100 MB (past the request limits: a body of 24 MB, 18 MB
+    # of log), in a process of the tree's code (bench/hostile_cases.py: worker_share)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TUNER_")}
+    env["PYTHONPATH"] = str(tree)
+    code = (f"import sys; sys.path.insert(0, {str(ROOT / 'bench')!r}); import hostile_cases; "
+            "hostile_cases.worker_share()")
+    try:
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800, cwd=tree,
+                           env=env)
+        rows += [json.loads(ln) for ln in p.stdout.splitlines() if ln.startswith("{")]
+    except subprocess.TimeoutExpired:
+        rows.append({"case": "100 MB in-process", "answer": "(no answer within 1800 s)"})
+    for r in rows:
+        print(json.dumps(r), flush=True)
+    for mb, settings in ((17, {}), (100, {}), (100, {"max_identify_body_bytes": "200000000",
+                                                      "identify_timeout_s": "600"})):
+        b64 = base64.b64encode(hdr + bytes(mb * 1_000_000)).decode()
+        bodies = {"/ulog/signals": {"data": b64},
+                  "/identify": {"ulog": {"data": b64, "input": "a.b[0]", "output": "c.d[0]"}, "poles": 2}}
+        with serve(2, tree=tree, **settings) as url:
+            for path, body in bodies.items():
+                t0 = time.perf_counter()
+                try:
+                    r = httpx.post(f"{url}{path}", json=body, timeout=700)
+                    code, msg = r.status_code, r.text[:300]
+                except httpx.HTTPError as e:
+                    code, msg = None, type(e).__name__
+                row = {"case": f"{mb} MB header + zeros to {path}", "settings": settings, "status": code,
+                       "wall_s": round(time.perf_counter() - t0, 2), "answer": msg}
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--db", choices=["sqlite", "postgres", "both"], default="both")
@@ -347,7 +399,21 @@ def main() -> None:
     ap.add_argument("--time-limit", type=float, default=1200.0, help="seconds of requests per database (1200)")
     ap.add_argument("--no-load", action="store_true", help="skip the 16-concurrent load test")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--files", action="store_true", help="issue 42's hostile files through the command line instead")
+    ap.add_argument("--ulog-service", action="store_true", help="issue 42's damaged ULog uploads to a service instead")
+    ap.add_argument("--tree", type=Path, default=ROOT, help="the source tree whose code runs (--files, --ulog-service)")
+    ap.add_argument("--small", action="store_true", help="--files: skip the 100 MB logs")
+    ap.add_argument("--only", default=None, help="--files: the cases whose name holds this text")
     a = ap.parse_args()
+    if a.files or a.ulog_service:
+        import hostile_cases
+
+        with tempfile.TemporaryDirectory(prefix="tuner-hostile42-") as tmp:
+            rows = (hostile_cases.run(a.tree.resolve(), Path(tmp), big=not a.small, only=a.only) if a.files else
+                    ulog_service(a.tree.resolve(), Path(tmp)))
+        if a.out:
+            a.out.write_text(json.dumps({"tree": str(a.tree), "cases": rows}, indent=2) + "\n")
+        return
     a.generated, a.kills = max(0, min(a.generated, 2000)), max(0, min(a.kills, 10))
     results = []
     with tempfile.TemporaryDirectory(prefix="tuner-hostile-") as tmp:

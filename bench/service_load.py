@@ -11,6 +11,17 @@
    p50 / p99, total time;
 4. 30 concurrent ``GET /tunes/{id}/plot.png`` beside one ``POST /tune``: status codes.
 
+Issue 42's run instead (``--mixed S``): for S seconds, ``--clients`` clients send a mix of ``POST /tune`` (the yaw
+pi, budget 2 s), ``POST /identify`` (the API's example record) and ``POST /ulog/signals`` (a 60 s two-topic log, 0.7
+MB), while a poller times ``GET /health`` every 0.2 s and ``--slow-clients N`` connections each send half a request's
+headers and then nothing (``--tree DIR``: another checkout's service, e.g. the commit before the fixes):
+
+    .venv/bin/python bench/service_load.py --mixed 60 --slow-clients 300 [--tree DIR] [--out FILE]
+
+It reports /health p50/p99/max, every request's answer (a status, or the client's timeout: 120 s), and for the slow
+connections how many the server answered or closed, when, and how many were still open at the end (the run waits
+for them at most 60 s after the load).
+
 Only loopback addresses are used; every loop is bounded. Nothing here asserts a timing. The functions
 (:func:`serve`, :func:`single`, :func:`load_test`) are what ``bench/tune_speed.py`` runs.
 """
@@ -68,19 +79,23 @@ def client(i: int, n_clients: int) -> httpx.Client:
 
 
 @contextlib.contextmanager
-def serve(workers: int = 2, **settings: str) -> Iterator[str]:
+def serve(workers: int = 2, *, tree: Path = ROOT, **settings: str) -> Iterator[str]:
     """A uvicorn on a free loopback port with a fresh SQLite database and ``workers`` solver processes
-    (other settings as ``TUNER_*`` keyword arguments); yields its URL once every pool is ready."""
+    (other settings as ``TUNER_*`` keyword arguments), running the code of ``tree`` (default this one); yields its
+    URL once every pool is ready."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory() as tmp:
         env = {k: v for k, v in os.environ.items() if not k.startswith("TUNER_")}
-        env.update(TUNER_DATABASE_URL=f"sqlite:///{tmp}/tuner.db", TUNER_WORKERS=str(workers),
+        env.update(TUNER_DATABASE_URL=f"sqlite:///{tmp}/tuner.db", TUNER_WORKERS=str(workers), PYTHONPATH=str(tree),
                    **{f"TUNER_{k.upper()}": str(v) for k, v in settings.items()})
         log = open(Path(tmp) / "server.log", "wb")
-        server = subprocess.Popen([sys.executable, "-m", "uvicorn", "api.main:create_app", "--factory", "--host",
-                                   "127.0.0.1", "--port", str(port)], cwd=ROOT, env=env, stdout=log,
-                                  stderr=subprocess.STDOUT, start_new_session=True)
+        # the documented start (python -m api: uvicorn with a header deadline and a connection cap); a tree from
+        # before it (no api/server.py) as it was started then
+        start = (["-m", "api"] if (tree / "api" / "server.py").exists() else
+                 ["-m", "uvicorn", "api.main:create_app", "--factory"])
+        server = subprocess.Popen([sys.executable, *start, "--host", "127.0.0.1", "--port", str(port)], cwd=tree,
+                                  env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         try:
             end = time.monotonic() + 180
             while True:
@@ -165,13 +180,160 @@ def burst(url: str, n: int, n_clients: int) -> tuple[collections.Counter, list[f
     return collections.Counter(s for s, _ in out), [t for _, t in out], time.perf_counter() - t0
 
 
+def _ulog_body() -> dict[str, Any]:
+    """A 60 s pitch sweep logged at 250 Hz as a ULog (tests/flight.py, tests/ulog_writer.py), base64."""
+    import base64
+
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from flight import AXES, fly
+    from ulog_writer import Topic, write_ulog
+
+    fl = fly(*AXES["pitch"], seed=8, duration_s=60.0, log_hz=250.0)
+    t = 5_000_000 + np.round(fl.t * 1e6).astype(np.int64)
+    vec = lambda x: np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    xyz = [("float", "xyz", 3)]
+    with tempfile.TemporaryDirectory() as d:
+        p = write_ulog(Path(d) / "f.ulg", [Topic("vehicle_torque_setpoint", xyz, t, {"xyz": vec(fl.u)}),
+                                           Topic("vehicle_angular_velocity", xyz, t + 100, {"xyz": vec(fl.y)})])
+        return {"data": base64.b64encode(p.read_bytes()).decode()}
+
+
+def _slow_clients(url: str, n: int, stop: threading.Event, out: dict[str, Any]) -> None:
+    """``n`` connections that send half a request's headers, then nothing; when the server answers or closes each."""
+    import selectors
+
+    host, port = url.rsplit("//", 1)[1].split(":")
+    sel = selectors.DefaultSelector()
+    opened, t0 = {}, time.monotonic()
+    for i in range(n):
+        try:
+            s = socket.create_connection((host, int(port)), timeout=10)
+        except OSError as e:
+            out.setdefault("connect_errors", collections.Counter())[type(e).__name__] += 1
+            continue
+        s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+        s.setblocking(False)
+        sel.register(s, selectors.EVENT_READ, i)
+        opened[i] = time.monotonic()
+    out["opened"] = len(opened)
+    closed: dict[int, tuple[float, str]] = {}
+    while opened.keys() - closed.keys() and not (stop.is_set() and time.monotonic() > out.get("stop_by", 1e18)):
+        for key, _ in sel.select(timeout=0.5):
+            s = key.fileobj
+            try:
+                data = s.recv(4096)
+            except OSError:
+                data = b""
+            first = data.split(b"\r\n", 1)[0].decode("latin-1") if data else "closed"
+            if key.data not in closed:
+                closed[key.data] = (time.monotonic() - opened[key.data], first)
+            if not data:
+                sel.unregister(s)
+                s.close()
+    still = opened.keys() - closed.keys()
+    for key in list(sel.get_map().values()):
+        key.fileobj.close()
+    waits = sorted(w for w, _ in closed.values())
+    out.update(answered_or_closed=len(closed), still_open_at_end=len(still),
+               first_lines=dict(collections.Counter(f for _, f in closed.values())),
+               closed_after_s=({"min": waits[0], "median": statistics.median(waits), "max": waits[-1]} if waits
+                               else None),
+               wall_s=time.monotonic() - t0)
+
+
+def mixed(url: str, seconds: float, clients: int, slow: int) -> dict[str, Any]:
+    """Issue 42's load: a mix of tune, identify and ulog/signals, /health timed, ``slow`` half-header connections."""
+    sys.path.insert(0, str(ROOT))
+    from api.schemas_identify import IDENTIFY_EXAMPLE
+
+    bodies = {"/tune": {"plant": {"expr": YAW}, "dt": 0.04, "structure": "pi", "options": {"time_budget_s": 2}},
+              "/identify": IDENTIFY_EXAMPLE, "/ulog/signals": _ulog_body()}
+    stop, lock = threading.Event(), threading.Lock()
+    answers: collections.Counter = collections.Counter()
+    lat: dict[str, list[float]] = collections.defaultdict(list)
+    health: list[float] = []
+    slow_out: dict[str, Any] = {}
+
+    def client_loop(i: int) -> None:
+        routes = list(bodies)
+        k = i
+        with client(i, max(1, clients)) as c:
+            while not stop.is_set():
+                route = routes[k % len(routes)]
+                k += 1
+                t0 = time.perf_counter()
+                try:
+                    code = str(c.post(f"{url}{route}", json=bodies[route], timeout=120).status_code)
+                except httpx.TimeoutException:
+                    code = "client timeout (120 s)"
+                except httpx.HTTPError as e:
+                    code = type(e).__name__
+                with lock:
+                    answers[(route, code)] += 1
+                    lat[route].append(time.perf_counter() - t0)
+
+    def poll() -> None:
+        with httpx.Client(timeout=60) as c:
+            while not stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    code = c.get(f"{url}/health").status_code
+                except httpx.HTTPError as e:
+                    code = type(e).__name__
+                dt = time.perf_counter() - t0
+                with lock:
+                    health.append(dt)
+                    answers[("/health", str(code))] += 1
+                time.sleep(max(0.0, 0.2 - dt))
+
+    threads = [threading.Thread(target=client_loop, args=(i,)) for i in range(clients)]
+    threads.append(threading.Thread(target=poll))
+    slow_thread = threading.Thread(target=_slow_clients, args=(url, slow, stop, slow_out)) if slow else None
+    t0 = time.perf_counter()
+    if slow_thread:
+        slow_thread.start()
+    for t in threads:
+        t.start()
+    time.sleep(seconds)
+    stop.set()
+    slow_out["stop_by"] = time.monotonic() + 60.0  # the slow connections: at most 60 s more
+    for t in threads:
+        t.join()
+    if slow_thread:
+        slow_thread.join()
+    return {"seconds": seconds, "clients": clients, "wall_s": time.perf_counter() - t0,
+            "health": {"n": len(health), "p50_s": statistics.median(health), "p99_s": pct(health, 99),
+                       "max_s": max(health)} if health else None,
+            "answers": {f"{r} {c}": n for (r, c), n in sorted(answers.items())},
+            "latency_p50_s": {r: statistics.median(v) for r, v in lat.items()},
+            "slow_clients": {k: v for k, v in slow_out.items() if k != "stop_by"},
+            "load_average": os.getloadavg()[0]}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--single", type=int, default=30, help="sequential requests of one client")
     ap.add_argument("--clients", type=int, default=8, help="clients of the load test")
     ap.add_argument("--requests", type=int, default=100, help="requests of the load test")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--mixed", type=float, default=None, metavar="S", help="issue 42's mixed load for S seconds")
+    ap.add_argument("--slow-clients", type=int, default=0, metavar="N", help="with --mixed: half-header connections")
+    ap.add_argument("--tree", type=Path, default=ROOT, help="the source tree whose service runs (--mixed)")
+    ap.add_argument("--out", type=Path, default=None, help="--mixed: write the JSON here too")
     a = ap.parse_args(argv)
+    if a.mixed is not None:
+        import json
+
+        seconds, slow = min(max(a.mixed, 5.0), 600.0), min(max(a.slow_clients, 0), 1000)
+        with serve(a.workers, tree=a.tree.resolve()) as url:
+            r = mixed(url, seconds, min(max(a.clients, 1), 32), slow)
+        r["tree"] = str(a.tree)
+        print(json.dumps(r, indent=2))
+        if a.out:
+            a.out.write_text(json.dumps(r, indent=2) + "\n")
+        return 0
     with serve(a.workers) as url:
         print(f"uvicorn, {a.workers} solver processes; load average {os.getloadavg()[0]:.2f}")
         s = single(url, a.single)

@@ -1,8 +1,9 @@
 """A real uvicorn process serving the app on a free loopback port, for end-to-end and browser tests.
 
-``uvicorn api.main:create_app --factory`` (the documented command) in its own process group, with
-the settings given as ``TUNER_*`` environment variables; :meth:`Server.stop` sends SIGTERM and
-checks that nothing of the service (solver processes included) is left.
+``python -m api --host 127.0.0.1 --port P`` (the documented command: uvicorn with the header deadline and the
+connection cap of :mod:`api.server`) in its own process group, with the settings given as ``TUNER_*`` environment
+variables; :meth:`Server.stop` sends SIGTERM and checks that nothing of the service (solver processes included) is
+left.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def free_port() -> int:
 
 
 class Server:
-    """``uvicorn api.main:create_app --factory`` in its own process group, settings by environment."""
+    """``python -m api`` in its own process group, settings by environment."""
 
     def __init__(self, tmp: Path, env: dict[str, str]) -> None:
         self.port = free_port()
@@ -41,8 +42,7 @@ class Server:
         full_env.update(env)
         self.log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "api.main:create_app", "--factory", "--host", "127.0.0.1",
-             "--port", str(self.port)],
+            [sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(self.port)],
             cwd=ROOT, env=full_env, stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
 
     def wait_ready(self, timeout_s: float = 120.0, *, workers: bool = True) -> None:

@@ -139,21 +139,19 @@ def _plot_format(a: argparse.Namespace) -> str | None:
     suffix = a.plot.rsplit(".", 1)[-1].lower() if "." in a.plot else ""
     if suffix not in ("png", "svg"):
         raise TunerError(f"--plot {a.plot}: the file name must end in .png or .svg")
+    from .fileio import check_output
+
+    check_output(a.plot, label=f"--plot {a.plot}")  # a device, a FIFO or a directory: refused before the work
     return suffix
 
 
 def _write_plot(obj: Any, a: argparse.Namespace, fmt: str | None, spec: Any) -> None:
     if fmt is None:
         return
-    from pathlib import Path
-
     from .analysis.plots import render
+    from .fileio import write_output
 
-    data = render(obj, a.plot_kind, fmt, spec=spec)
-    try:
-        Path(a.plot).write_bytes(data)
-    except OSError as e:
-        raise TunerError(f"--plot {a.plot}: cannot write: {e.strerror or e}") from None
+    write_output(a.plot, render(obj, a.plot_kind, fmt, spec=spec), label=f"--plot {a.plot}")  # a file, all of it
     if not a.json:
         print(f"wrote {a.plot}")
 
@@ -769,9 +767,9 @@ def _load_identified(path: str) -> Any:
     if not isinstance(d, dict):
         raise TunerError(f"--identified {path}: not the JSON of 'tuner identify --json' (not an object)")
     try:
-        return IdentifyResult.from_dict(d)
+        return IdentifyResult.from_dict(d)  # its fields checked first (tuner.identify.resultfile)
     except TunerError as e:
-        raise TunerError(f"--identified {path}: {e}") from None
+        raise TunerError(f"--identified {path}: {e}; give the JSON of 'tuner identify --json'") from None
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
         raise TunerError(f"--identified {path}: not the JSON of 'tuner identify --json' (missing or bad "
                          f"{e})") from None

@@ -333,6 +333,11 @@ def build_loop(plant: Plant, controller: ControllerTF) -> Loop:
         return _finite(Loop(plant=plant, controller=controller, dt=None, delay_s=plant.delay_s, delay_samples=0,
                             plant_ct=plant, plant_d=None))
     dt = controller.dt
+    if not plant.delay_s / dt <= MAX_DELAY_SAMPLES + 1:  # before the discretisation (a delay of 1e308 s overflowed it)
+        raise InvalidPlantError(
+            f"delay of {plant.delay_s:g} s is {plant.delay_s / dt:.4g} samples of dt={dt:g} s, above the limit of "
+            f"{MAX_DELAY_SAMPLES} samples (each sample of delay is a state of the closed loop): give a larger sample "
+            "time, or a continuous controller", field=("plant", "delay"))
     try:
         pd = plant.zoh(dt)  # validates dt match for discrete plants; any delay (fraction in the realisation)
     except TunerError as e:

@@ -48,6 +48,9 @@ def _check(body: IdentifyRequest) -> None:
             if getattr(body, name) is not None:
                 raise FieldError(("body", name), f"give either ulog or {name} (the samples come from the log; a "
                                  "reference: ulog.reference)")
+        if body.time_unit != "auto":
+            raise FieldError(("body", "time_unit"), "time_unit is the unit of time samples; a ulog's timestamps "
+                                                    "are read as the log gives them")
     else:
         if body.input is None or body.output is None:
             raise FieldError(("body", "input" if body.input is None else "output"),
@@ -118,7 +121,7 @@ async def post_identify(
     client: str = Depends(client_id),
 ) -> JSONResponse:
     _check(body)
-    # the quota before any work (a ULog upload's sample count is known only after parsing: its bytes count then)
+    # the quota before any work (a ULog upload's sample count is known only after parsing: checked again then)
     await run_in_threadpool(check_identification_quota, store, settings,
                             len(body.input) if body.input is not None else 0)
     options = body.model_dump(exclude={*_SAMPLES, "ulog", "verify", "reference"})
@@ -146,7 +149,8 @@ async def post_identify(
                                  "stopped; decimate the record or fit fewer poles")
     samples = result.pop("_samples", None)  # a ULog log's records on the grid
     log_parameters = result.pop("_parameters", None)  # and the parameters it stores (a tune's vehicle)
-    if samples is not None:
+    if samples is not None:  # a ULog's samples are known now: they count against the quota as an array's do
+        await run_in_threadpool(check_identification_quota, store, settings, int(result["n_samples"]))
         request = {**options, "n_samples": result["n_samples"], "sampling": "ulog",
                    "ulog": {"input": body.ulog.input, "output": body.ulog.output, "reference": body.ulog.reference,
                             "bytes": len(raw or b"")}}

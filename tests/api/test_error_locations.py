@@ -72,3 +72,21 @@ def test_a_controller_zero_beyond_double_precision_is_a_422_at_the_controller(cl
     assert r.status_code == 422, r.text
     assert r.json()["detail"][0]["loc"] == loc, r.text
     assert "double precision" in r.json()["detail"][0]["msg"], r.text
+
+
+@pytest.mark.parametrize("body, loc, kind", [
+    ({"actuator": {"u_max": 1.0, "step_size": 0.0}}, ["body", "actuator", "step_size"], "value_error"),
+    ({"actuator": {"u_min": 1.0, "u_max": 0.5}}, ["body", "actuator", "u_min"], "value_error"),
+    ({"actuator": {"step_size": 2.0}}, ["body", "actuator", "u_max"], "missing"),
+    ({"controller": {"num": [1.0]}}, ["body", "controller", "den"], "missing"),
+    ({"controller": {"gains": {"Kp": 1.0}}}, ["body", "controller", "structure"], "missing"),
+    ({"plant": {"den": [1.0, 1.0]}}, ["body", "plant", "num"], "missing"),
+])
+def test_a_check_across_fields_points_at_the_field_it_is_about(client, body, loc, kind):
+    """Issue 42: these 422s named the object (["body", "actuator"], with "Value error, " before the message), not the
+    field to change; the page shows a 422 at the field its loc names."""
+    base = {"plant": {"expr": "1/(s+1)"}, "dt": 0.1, "controller": {"expr": "2"}}
+    r = client.post("/analyze", json={**base, **body})
+    assert r.status_code == 422, r.text
+    d = r.json()["detail"][0]
+    assert d["loc"] == loc and d["type"] == kind and not d["msg"].startswith("Value error"), d

@@ -181,3 +181,38 @@ def test_a_body_that_stops_arriving_gets_408():
     asyncio.run(go())
     assert sent[0]["status"] == 408 and (b"connection", b"close") in sent[0]["headers"]
     assert b"TUNER_BODY_TIMEOUT_S" in sent[1]["body"]
+
+
+def _at(app, server_host: str, path: str, headers: dict[str, str] | None = None) -> httpx.Response:
+    """A request that reached the service on ``server_host`` (its connection's local address), from 127.0.0.1."""
+    async def go() -> httpx.Response:
+        transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 5000))
+        async with httpx.AsyncClient(transport=transport, base_url=f"http://{server_host}:8000") as c:
+            return await c.get(path, headers=headers or {})
+    return asyncio.run(go())
+
+
+@pytest.mark.parametrize("server_host", ["10.1.2.3", "172.17.0.2", "[2001:db8::1]"])
+def test_without_a_key_only_connections_to_loopback_are_answered(tmp_path, server_host):
+    """Issue 42: the Docker image started with no key on 0.0.0.0, and a client that set Host: localhost itself was
+    answered. Without a key (and without TUNER_ALLOW_NO_KEY) a request that reached another address is 403,
+    whatever its Host; /health stays open (a health check from outside the container)."""
+    app = create_app(_settings(tmp_path))
+    r = _at(app, server_host, "/tunes", {"Host": "localhost"})
+    assert r.status_code == 403 and "TUNER_API_KEY" in r.json()["detail"], r.text
+    assert _at(app, "127.0.0.1", "/nowhere").status_code == 404  # loopback: served (no such route)
+    assert _at(app, "[::1]", "/nowhere").status_code == 404
+    assert _at(app, server_host, "/health").status_code != 403
+    keyed = create_app(_settings(tmp_path, api_key=SecretStr("k")))  # a key: every address, behind the key
+    assert _at(keyed, server_host, "/nowhere", {"Host": "localhost", "X-API-Key": "k"}).status_code == 404
+    open_ = create_app(_settings(tmp_path, allow_no_key=True))  # the explicit opt-in
+    assert _at(open_, server_host, "/nowhere", {"Host": "localhost"}).status_code == 404
+
+
+def test_is_loopback():
+    from api.guard import is_loopback
+
+    for h in ("127.0.0.1", "127.5.6.7", "::1", "[::1]", "::ffff:127.0.0.1", "localhost"):
+        assert is_loopback(h), h
+    for h in ("0.0.0.0", "::", "10.0.0.1", "example.com", "::ffff:10.0.0.1", ""):
+        assert not is_loopback(h), h

@@ -132,6 +132,7 @@ def test_a_200000_sample_log_is_accepted_on_identify_but_other_routes_keep_their
     assert big.status_code == 413
     detail = big.json()["detail"]  # the byte cap, and how to send a longer record (the record limit is the CLI's)
     assert detail.startswith(f"request body larger than {MAX_IDENTIFY_BODY} bytes") and "ULog upload" in detail
+    assert "(ulog.data, base64)" in detail  # the field the body has (issue 42: it named ulog.data_base64)
     tune = client.post("/tune", content=b"x" * (MAX_BODY + 1), headers={"content-type": "application/json"})
     assert tune.status_code == 413 and tune.json() == {"detail": f"request body larger than {MAX_BODY} bytes"}
 
@@ -194,3 +195,21 @@ def test_stored_identifications_have_a_quota(client, body, stored, override_sett
     r = client.post("/identify", json=body)
     assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATION_SAMPLES" in r.json()["detail"]
     assert client.get("/identifications").json()["total"] == listed  # nothing was stored
+
+
+def test_a_time_column_in_microseconds_is_422_at_time_unit_until_said(client):
+    """Issue 42: PX4's timestamps (µs) read as seconds; the unit is asked for, then used."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal(600)
+    y = np.convolve(u, [0.0, 0.5, 0.3, 0.1])[:600]
+    body = {"input": u.tolist(), "output": y.tolist(), "time": (5_000_000 + 4000 * np.arange(600)).tolist(),
+            "poles": 1, "holdout": 0}
+    r = client.post("/identify", json=body)
+    assert r.status_code == 422, r.text
+    item = r.json()["detail"][0]
+    assert item["loc"] == ["body", "time_unit"] and "microseconds" in item["msg"], item
+    r = client.post("/identify", json={**body, "time_unit": "us"})
+    assert r.status_code == 200, r.text
+    assert r.json()["rate_hz"] == 250.0

@@ -73,6 +73,8 @@ def test_ulog_errors_are_422_naming_the_field(client, ulog_b64, log):
     _422(client, {**base, "ulog": {**base["ulog"], "data": "not base64!" * 4}}, ["body", "ulog", "data"], "not base64")
     junk = base64.b64encode(b"\x00" * 64).decode()
     _422(client, {**base, "ulog": {**base["ulog"], "data": junk}}, ["body", "ulog", "data"], "not a readable ULog")
+    damaged = base64.b64encode(b"ULog\x01\x12\x35\x01" + bytes(8) + bytes(2_000_000)).decode()  # issue 42
+    _422(client, {**base, "ulog": {**base["ulog"], "data": damaged}}, ["body", "ulog", "data"], "a damaged ULog file")
     _422(client, {**base, "input": log.u.tolist()}, ["body", "input"], "give either ulog or input")
     _422(client, {"poles": 2, "rate_hz": 50.0}, ["body", "input"], "give input and output samples (or a ulog log)")
 
@@ -94,3 +96,14 @@ def test_a_verification_record_and_the_verdicts_side_by_side(client, log):
     it = _422(client, {**body, "verify": {"input": [0.5] * 200, "output": ver.y.tolist()[:200]}},
               ["body", "verify", "input"], "verify: input is constant")
     assert it["type"] == "invalid_data"
+
+
+def test_a_ulog_upload_counts_against_the_sample_quota(client, ulog_b64, override_settings):
+    """Issue 42: an upload's samples were not counted (its count is known only after parsing): ULog uploads were
+    stored to 163 % of TUNER_MAX_IDENTIFICATION_SAMPLES. They are checked once parsed: 507, nothing stored."""
+    before = client.get("/identifications").json()["total"]
+    _, used = client.app.state.store.identification_usage()
+    override_settings(max_identification_samples=used + 1000)  # room before the upload; its grid holds 3000
+    r = client.post("/identify", json={"ulog": {"data": ulog_b64, "input": IN, "output": OUT}, "poles": 2})
+    assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATION_SAMPLES" in r.json()["detail"], r.text
+    assert client.get("/identifications").json()["total"] == before

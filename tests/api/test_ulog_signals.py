@@ -58,3 +58,33 @@ def test_a_bad_upload_is_422_at_the_data(client, data, words):
 def test_an_upload_over_the_limit_is_refused_before_it_is_read(client):
     r = client.post("/ulog/signals", json={"data": "A" * 2_100_000})
     assert r.status_code == 413, r.text
+
+
+def test_a_damaged_log_is_422_at_the_data_at_once(client):
+    """A valid header then 1.5 MB of zeros: pyulog would step through it byte by byte (issue 42: 17 MB held a
+    solver 15-22 s); the bounded reader calls it damaged within its first 64 kB."""
+    import struct
+
+    data = b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0) + bytes(1_400_000)
+    r = client.post("/ulog/signals", json={"data": base64.b64encode(data).decode()})
+    assert r.status_code == 422, r.text
+    item = r.json()["detail"][0]
+    assert item["loc"] == ["body", "data"] and "a damaged ULog file" in item["msg"], item
+
+
+def test_only_names_a_parameter_file_may_hold_are_passed_on(client, tmp_path):
+    """Issue 42: a log's parameter names went raw into params_text; a name holding tabs and a newline added lines
+    (here MC_ROLLRATE_K = 5) to the page's "vehicle from the log". Only [A-Z][A-Z0-9_]{0,15} names pass."""
+    n = 50
+    ts = 1_000_000 + np.arange(n) * 2500
+    z = np.zeros((n, 3))
+    crafted = "MC_ROLLRATE_D\t0.004\t9\n1\t1\tMC_ROLLRATE_K"
+    p = write_ulog(tmp_path / "crafted.ulg", [Topic("vehicle_angular_velocity", [("float", "xyz", 3)], ts, {"xyz": z})],
+                   params={"MC_ROLLRATE_P": 0.18, crafted: 5.0, "MC_ROLLRATE_I": 0.2, "MC_ROLLRATE_D": 0.004,
+                           "mc_rollrate_ff": 0.1, "MC_ROLLRATE_FF_TOO_LONG_NAME": 0.3})
+    r = client.post("/ulog/signals", json={"data": base64.b64encode(p.read_bytes()).decode()})
+    assert r.status_code == 200, r.text
+    text = r.json()["params_text"]
+    names = [ln.split("\t")[2] for ln in text.splitlines()]
+    assert names == ["MC_ROLLRATE_D", "MC_ROLLRATE_I", "MC_ROLLRATE_P"], text
+    assert vehicle_from_text(text, axis="roll").fixed["K"] == 1.0  # the firmware's default, not the crafted 5

@@ -68,11 +68,15 @@ def test_dockerfile_shape():
     assert user not in ("root", "0") and any(o == "RUN" and "useradd" in a and user in a for o, a in instructions())
     assert one("EXPOSE") == "8000"
     cmd = json.loads(one("CMD"))
-    assert cmd[:4] == ["uvicorn", "api.main:create_app", "--factory", "--host"] and cmd[-2:] == ["--port", "8000"]
+    assert cmd[:4] == ["python", "-m", "api", "--host"] and cmd[-2:] == ["--port", "8000"]
     hc = one("HEALTHCHECK")
     assert "CMD" in hc and "http://127.0.0.1:8000/health" in hc
     readme = (ROOT / "README.md").read_text()
-    assert "uvicorn api.main:create_app --factory" in readme  # the one documented start command
+    assert ".venv/bin/python -m api --host 127.0.0.1 --port 8000" in readme  # the one documented start command
+    # the documented docker run publishes on this machine only, with the explicit opt-in the image needs
+    assert "docker run -p 127.0.0.1:8000:8000 -e TUNER_ALLOW_NO_KEY=1 -v tuner-data:/data tuner" in readme
+    assert "docker run -p 127.0.0.1:8000:8000 -e TUNER_ALLOW_NO_KEY=1 -v tuner-data:/data tuner" in \
+        DOCKERFILE.read_text()
 
 
 @pytest.mark.slow
@@ -146,3 +150,15 @@ def test_install_and_start_as_the_image_would(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(10)
         log.close()
+
+
+def test_the_image_does_not_start_without_a_key_or_the_opt_in(tmp_path):
+    """Issue 42: the image started with no key on 0.0.0.0. Its CMD, with its ENV and nothing else, refuses to start
+    (the documented docker run gives TUNER_ALLOW_NO_KEY=1, and publishes on 127.0.0.1 only)."""
+    cmd = json.loads(one("CMD"))
+    assert cmd[cmd.index("--host") + 1] == "0.0.0.0"
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("TUNER_", "PYTHON"))}
+    env.update(env_vars())
+    env["TUNER_DATABASE_URL"] = f"sqlite:///{tmp_path / 'tuner.db'}"
+    p = subprocess.run([sys.executable, *cmd[1:]], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "TUNER_API_KEY is not set" in p.stderr, (p.returncode, p.stderr)

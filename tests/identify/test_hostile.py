@@ -149,3 +149,42 @@ def test_every_cli_file_input_goes_through_the_bounded_reader(tmp_path, capsys):
     from tuner.optimize import batch
 
     assert batch.MAX_SAMPLES is response.MAX_SAMPLES  # one source for the verifier's and the search's limit
+
+
+def test_the_delimiter_is_sniffed_on_a_capped_sample(tmp_path, monkeypatch, capsys):
+    """Issue 42: csv.Sniffer takes time quadratic in a line's length (a 64 kB line of '",' held identify 19 s, 200 kB
+    92 s); it sees at most SNIFF_CHARS characters (the header and the rows that fit)."""
+    import csv as csv_module
+
+    from tuner.identify.csvlog import SNIFF_CHARS, read_columns
+
+    seen: list[int] = []
+    real = csv_module.Sniffer.sniff
+
+    def spy(self, sample, delimiters=None):
+        seen.append(len(sample))
+        return real(self, sample, delimiters)
+
+    monkeypatch.setattr(csv_module.Sniffer, "sniff", spy)
+    p = tmp_path / "long.csv"
+    p.write_text("t,cmd,angle\n" + '",' * 32_768 + "\n")
+    assert main(["identify", str(p), *ARGS]) == 2
+    assert "line 2" in _err(capsys)
+    assert seen and max(seen) <= SNIFF_CHARS, seen
+    # a header wider than the sample (600 columns, ';'): still told from its first SNIFF_CHARS characters
+    names = [f"signal_{i:04d}" for i in range(600)]
+    wide = tmp_path / "wide.csv"
+    rows = ["\n" + ";".join(str(i + k) for i in range(600)) for k in range(3)]
+    wide.write_text(";".join(names) + "".join(rows) + "\n")
+    got = read_columns(wide, {"input": "signal_0003", "output": "signal_0599"})
+    assert got["input"].tolist() == [3.0, 4.0, 5.0] and got["output"].tolist() == [599.0, 600.0, 601.0]
+    assert max(seen) <= SNIFF_CHARS
+
+
+@pytest.mark.parametrize("cell", ["1_5", "١٢"])
+def test_a_csv_cell_python_reads_but_no_log_writes_is_not_a_number(tmp_path, cell, capsys):
+    """float() reads '1_5' as 15 (issue 42) and other scripts' digits as numbers."""
+    p = tmp_path / "u.csv"
+    p.write_text("t,cmd,angle\n0,1,2\n0.02," + cell + ",3\n")
+    assert main(["identify", str(p), *ARGS]) == 2
+    assert f"line 3, column 'cmd': not a number: '{cell}'" in _err(capsys)

@@ -198,6 +198,7 @@ def test_a_log_file_is_opened_once(tmp_path, flight, capsys, monkeypatch):
     a sniff that consumed a pipe's first buffer made a data row the header)."""
     import builtins
     import io
+    import os
 
     t, u, y = flight.t[::20], flight.u[::20], flight.y[::20]
     ulg = str(write_ulog(tmp_path / "pitch.ulg", _topics(t, u, t, y)))
@@ -210,8 +211,16 @@ def test_a_log_file_is_opened_once(tmp_path, flight, capsys, monkeypatch):
             opened.append(str(file))
         return real(file, *args, **kw)
 
+    real_os_open = os.open
+
+    def counting_os(path, *args, **kw):  # (tuner.fileio opens with os.open, to check the opened handle)
+        if str(path) in (ulg, csv_path):
+            opened.append(str(path))
+        return real_os_open(path, *args, **kw)
+
     monkeypatch.setattr(builtins, "open", counting)
     monkeypatch.setattr(io, "open", counting)  # (pathlib opens through io.open)
+    monkeypatch.setattr(os, "open", counting_os)
     _cli_json(capsys, ["identify", csv_path, "--time", "t", "--input", "cmd", "--output", "rate"])
     assert opened == [csv_path]
     opened.clear()

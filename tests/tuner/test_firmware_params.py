@@ -118,3 +118,27 @@ def test_files_that_are_not_parameters(tmp_path):
 def test_qgc_lines_must_have_five_columns():
     with pytest.raises(TunerError, match="5 tab-separated columns"):
         parse_params_text("1\t1\tMC_ROLLRATE_P\t0.1\t9\n1\t1\tMC_ROLLRATE_I\n")
+
+
+def test_a_name_twice_with_two_values_is_refused_naming_both_lines():
+    """Issue 42: the second value was taken silently; which one the vehicle flies cannot be told."""
+    from tuner.errors import TunerError
+    from tuner.firmware.params import parse_params_text
+
+    qgc = "1\t1\tMC_ROLLRATE_P\t0.15\t9\n1\t1\tMC_ROLLRATE_I\t0.2\t9\n1\t1\tMC_ROLLRATE_P\t0.9\t9\n"
+    with pytest.raises(TunerError, match=r"quad.params line 3: MC_ROLLRATE_P = 0.9 again, after 0.15 on line 1: "
+                                         r"keep one of the two lines") as e:
+        parse_params_text(qgc, source="quad.params")
+    assert e.value.field == ("params",)
+    same = "ATC_RAT_RLL_P,0.1\n# saved twice\nATC_RAT_RLL_P,0.1\n"  # the same value twice says nothing new
+    assert parse_params_text(same) == ({"ATC_RAT_RLL_P": 0.1}, "parm")
+
+
+@pytest.mark.parametrize("value", ["1_5", "0.1_5", "١٢", "１"])
+def test_numbers_python_reads_but_no_file_writes_are_refused(value):
+    """float() reads '1_5' as 15 and other scripts' digits as numbers; a parameter file's value is plain ASCII."""
+    from tuner.errors import TunerError
+    from tuner.firmware.params import parse_params_text
+
+    with pytest.raises(TunerError, match=f"MC_ROLLRATE_P = '{value}' is not a number"):
+        parse_params_text(f"MC_ROLLRATE_P,{value}\n")

@@ -198,3 +198,12 @@ def test_a_singular_steady_state_in_a_batch_costs_only_its_own_candidate():
     b = np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]])
     z = _solve_dc(M, b)
     assert z[0].tolist() == [1.0, 2.0] and np.all(np.isnan(z[1])) and z[2].tolist() == [2.5, 3.0]
+
+
+@pytest.mark.parametrize("delay", [1e308, 1e20, 8.1])
+def test_a_delay_beyond_the_sample_limit_is_refused_before_the_discretisation(delay):
+    """Issue 42 (found mutating an identification's delay): a delay of 1e308 s at dt 0.04 overflowed the plant's
+    discretisation (OverflowError: exit 3); the 200-sample limit is checked first."""
+    with pytest.raises(InvalidPlantError, match="above the limit of 200 samples") as e:
+        build_loop(make_plant([1.0], [1.0, 1.0], delay=delay), controller_from_expr("2*(z-0.5)/(z-1)", dt=0.04))
+    assert e.value.field == ("plant", "delay")

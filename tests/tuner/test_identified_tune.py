@@ -203,7 +203,7 @@ def test_cli_identified_not_an_identification(tmp_path, capsys):
     f = tmp_path / "x.json"
     f.write_text('{"metrics": {}}')
     assert main(["tune", "--identified", str(f), "--structure", "pid_z", "--dt", "0.04"]) == 2
-    assert "not the JSON of 'tuner identify --json'" in capsys.readouterr().err
+    assert "x.json: model: missing; give the JSON of 'tuner identify --json'" in capsys.readouterr().err
     f.write_text("{")
     assert main(["tune", "--identified", str(f), "--structure", "pid_z", "--dt", "0.04"]) == 2
     assert "not valid JSON" in capsys.readouterr().err

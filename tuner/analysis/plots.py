@@ -398,12 +398,14 @@ def render(obj: Any, kind: str = "all", fmt: str = "png", *, dpi: float = 100, *
 def loop_plots(obj: Any, out_dir: str | Path, name: str, *, spec: Spec | None = None,
                cascade: CascadeResponse | None = None, fmt: str = "png") -> dict[str, Path]:
     """The three plots of one loop as ``<name>_step.png``, ``<name>_bode.png``, ``<name>_nyquist.png``."""
+    from ..fileio import write_output
+
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
     titles = {"step": f"{name}: unit step response", "bode": f"{name}: open loop L", "nyquist": f"{name}: Nyquist"}
     out = {}
     for kind, title in titles.items():
         p = d / f"{name}_{kind}.{fmt}"
-        p.write_bytes(render(obj, kind, fmt, dpi=110, spec=spec, cascade=cascade, title=title))
+        write_output(p, render(obj, kind, fmt, dpi=110, spec=spec, cascade=cascade, title=title))
         out[kind] = p
     return out

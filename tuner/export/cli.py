@@ -74,10 +74,17 @@ def add_parser(sub: Any) -> None:
 
 
 def _load(path: str) -> Any:
+    """The result file, its fields checked against the schema export reads (:mod:`tuner.export.resultfile`) before
+    anything is formatted: a crafted one is exit 2 naming the field."""
     from ..fileio import read_json
+    from .resultfile import check_result
 
-    return read_json(path, label=f"--result {path}", field="result",
-                     hint="give the output of 'tuner tune --json' or the answer of GET /tunes/{id}")
+    doc = read_json(path, label=f"--result {path}", field="result",
+                    hint="give the output of 'tuner tune --json' or the answer of GET /tunes/{id}")
+    try:
+        return check_result(doc)
+    except TunerError as e:
+        raise TunerError(f"--result {path}: {e}", field=("result", *e.field)) from None
 
 
 def _source(a: argparse.Namespace) -> Any:
@@ -102,8 +109,6 @@ def _cmd_param_file(a: argparse.Namespace) -> str:
         if v is not None:
             raise TunerError(f"{flag}: not for --format {a.format} (a parameter file holds the law's gains only)")
     src = _load(a.result)
-    if not isinstance(src, dict):
-        raise TunerError(f"--result {a.result}: not a result (a JSON object)")
     try:
         pf = make_param_file(src, a.format, axis=a.axis, att_p=a.att_p, force=a.force)
     except TunerError as e:
@@ -120,6 +125,10 @@ def _cmd_export(a: argparse.Namespace) -> int:
     from .codegen import check_name, render
     from .source import clamp_note, equation_of
 
+    if a.out is not None:  # a target that cannot take it is refused before the result is read
+        from ..fileio import check_output
+
+        check_output(a.out, label=f"--out {a.out}")
     if a.format in ("px4", "ardupilot"):
         return _write(a, _cmd_param_file(a))
     if a.axis is not None or a.att_p is not None or a.force:
@@ -154,9 +163,7 @@ def _write(a: argparse.Namespace, text: str) -> int:
     if a.out is None:
         print(text, end="")
         return 0
-    try:
-        with open(a.out, "w", encoding="utf-8") as f:
-            f.write(text)
-    except OSError as e:
-        raise TunerError(f"--out {a.out}: cannot write: {e.strerror or e}") from None
+    from ..fileio import write_output
+
+    write_output(a.out, text, label=f"--out {a.out}")  # a regular file, all of it, or exit 2 (never a FIFO's hang)
     return 0

@@ -23,8 +23,6 @@ clamped rate is taken. Each warning names the parameter, its value, the range an
 
 from __future__ import annotations
 
-import contextlib
-import io
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -38,7 +36,6 @@ __all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_param
            "vehicle_from_raw", "detect_firmware"]
 
 MAX_PARAMS_BYTES = 4 << 20  # a full PX4 .params is about 60 kB
-MAX_PARAMS_ULOG_BYTES = 2_000_000_000  # the identification's ULog limit (only the header is parsed)
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
 _FILES = {"px4": "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)",
           "ardupilot": "ArduPilot parameters (a Mission Planner .parm file)"}
@@ -86,6 +83,8 @@ class VehicleParams:
 
 def _num(text: str, name: str, where: str, fld: str) -> float:
     try:
+        if "_" in text or not text.isascii():  # float() takes '1_5' as 15 and other scripts' digits: no file's number
+            raise ValueError(text)
         v = float(text)
     except ValueError:
         raise TunerError(f"{where}: {name} = {text!r} is not a number", field=fld) from None
@@ -112,6 +111,7 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
     if fmt is None:
         fmt = "qgc" if lines and len(lines[0][1].split("\t")) == 5 else "parm"
     out: dict[str, float] = {}
+    first: dict[str, int] = {}  # the line each name was first read on
     for i, ln in lines:
         where = f"{source} line {i}"
         if fmt == "qgc":
@@ -127,7 +127,12 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
             name, value = cols
         if not name.replace("_", "").isalnum() or len(name) > 64:
             raise TunerError(f"{where}: {name[:64]!r} is not a parameter name", field=field)
-        out[name] = _num(value, name, where, field)
+        v = _num(value, name, where, field)
+        if name in out and v != out[name]:  # which one the vehicle flies cannot be told: the file is refused
+            raise TunerError(f"{where}: {name} = {v:g} again, after {out[name]:g} on line {first[name]}: keep one "
+                             "of the two lines", field=field)
+        first.setdefault(name, i)
+        out[name] = v
     if not out:
         raise TunerError(f"{source}: no parameters in it (lines NAME,value for ArduPilot, or QGroundControl's "
                          "tab-separated vehicle-id component-id NAME value type)", field=field)
@@ -253,21 +258,9 @@ def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", fi
 
 
 def _ulog_parameters(path: Path, field: str) -> dict[str, float]:
-    from pyulog import ULog
+    from ..identify.ulog import read_parameters  # the definitions section only, a damaged log refused at once
 
-    try:
-        size = path.stat().st_size
-    except OSError as e:
-        raise TunerError(f"{path}: cannot read: {e.strerror or e}", field=field) from None
-    if size > MAX_PARAMS_ULOG_BYTES:
-        raise TunerError(f"{path}: {size} bytes; a ULog is read up to {MAX_PARAMS_ULOG_BYTES} bytes", field=field)
-    try:
-        with contextlib.redirect_stdout(io.StringIO()):
-            ul = ULog(str(path), message_name_filter_list=[], parse_header_only=True)
-    except Exception as e:  # pyulog raises its own and struct errors for a file it cannot parse
-        raise TunerError(f"{path}: not a readable ULog file ({type(e).__name__}: {e})", field=field) from None
-    params = {str(k): float(v) for k, v in dict(ul.initial_parameters).items()
-              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    params = read_parameters(path, field=field)
     if not params:
         raise TunerError(f"{path}: the log stores no parameters (a ULog logged with parameters, or the vehicle's "
                          ".params file)", field=field)

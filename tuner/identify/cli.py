@@ -19,7 +19,8 @@ __all__ = ["add_parser", "parse_delay", "parse_holdout", "read_records"]
 _OPTION = {"input": "--input", "output": "--output", "time": "--time", "rate_hz": "--rate", "band": "--band",
            "poles": "--poles", "zeros": "--zeros", "delay": "--delay", "delay_step": "--delay-step",
            "holdout": "--holdout", "coherence_min": "--coherence-min", "n_points": "--points", "seed": "--seed",
-           "windows_s": "--windows", "verify": "--verify", "reference": "--reference", "hold": "--hold"}
+           "windows_s": "--windows", "verify": "--verify", "reference": "--reference", "hold": "--hold",
+           "time_unit": "--time-unit"}
 
 
 def parse_delay(text: str) -> str | float | None:
@@ -126,6 +127,10 @@ def add_parser(sub: Any) -> None:
                    help="another log fitted with the others (repeatable)")
     base = p.add_mutually_exclusive_group()
     base.add_argument("--time", metavar="COL", help="CSV: time column, s (uniformly sampled)")
+    p.add_argument("--time-unit", choices=("auto", "s", "ms", "us"), default="auto",
+                   help="CSV: the time column's unit: s, ms, or us (a microsecond timestamp, as PX4's CSV exports "
+                        "have); auto (default): seconds, and a column whose steps look like another unit (whole "
+                        "numbers of 100 and more, or 0.1 to 1) is refused until its unit is given")
     base.add_argument("--rate", type=float, metavar="HZ",
                       help="CSV: sample rate, when there is no time column; ULog: the grid the topics are "
                            "resampled onto (default: the slower topic's rate)")
@@ -195,7 +200,7 @@ def _run(a: argparse.Namespace):
                         zeros=a.zeros, delay=a.delay, delay_step=a.delay_step, band=a.band, holdout=a.holdout,
                         verify=verify, coherence_min=a.coherence_min, n_points=a.points, seed=a.seed,
                         reference=data["reference"], controller=controller, closed_loop_signs=data["signs"],
-                        hold=hold)
+                        hold=hold, time_unit=a.time_unit)
     except TunerError as e:
         opt = _OPTION.get(str(e.field[0]) if e.field else "")
         if opt is None or any(str(e).startswith(str(f)) for f in files + [a.verify]):
@@ -207,13 +212,23 @@ def _run(a: argparse.Namespace):
 def _cmd_identify(a: argparse.Namespace) -> int:
     from ..jsonio import jsonable
 
+    if a.plot:  # a target that cannot take it (a device, a FIFO, a directory) is refused before the work
+        from ..fileio import check_output
+
+        check_output(a.plot, label=f"--plot {a.plot}")
     res = _run(a)
     if a.plot:
-        fig = res.plot()
-        try:
-            fig.savefig(a.plot, dpi=110)
-        except (ValueError, OSError) as e:
-            raise TunerError(f"--plot {a.plot}: cannot write: {e}") from None
+        import io
+        from pathlib import Path
+
+        from ..fileio import write_output
+
+        buf = io.BytesIO()
+        try:  # the format from the name's suffix, as savefig to a path would (png without one)
+            res.plot().savefig(buf, format=Path(a.plot).suffix[1:].lower() or None, dpi=110)
+        except ValueError as e:
+            raise TunerError(f"--plot {a.plot}: {e}") from None
+        write_output(a.plot, buf.getvalue(), label=f"--plot {a.plot}")  # a regular file, all of it, or exit 2
     if a.json:
         print(json.dumps(jsonable(res.to_dict()), indent=2))
     else:

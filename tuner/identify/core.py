@@ -93,6 +93,7 @@ def identify(
     controller: Any = None,
     closed_loop_signs: Sequence[str] = (),
     hold: str | None = None,
+    time_unit: str = "auto",
 ) -> IdentifyResult:
     """Identify a continuous transfer function (with a delay) from logged input/output data.
 
@@ -111,7 +112,7 @@ def identify(
         their auto- and cross-spectra are averaged over all their windows (as CIFER concatenates
         sweeps); they share the sample rate.
     time : sequence of float (or a list of them, one per record), optional
-        Sample times in seconds: strictly increasing and uniform within 1 %. Give this or
+        Sample times (in ``time_unit``): strictly increasing and uniform within 1 %. Give this or
         ``rate_hz``.
     rate_hz : float, optional
         Sample rate of a uniformly sampled record, Hz. Give this or ``time``.
@@ -176,6 +177,12 @@ def identify(
         hold once (``options["hold_check"]`` says how closely). ``None`` (default): the input was a continuous
         signal sampled (a pilot's stick), fitted as measured.
 
+    time_unit : {"auto", "s", "ms", "us"}
+        The unit of ``time`` (and of a ``verify`` record's). ``"auto"`` (default) reads seconds, and refuses a
+        column whose steps say it is in another unit until it is said: steps in whole numbers of 100 and more
+        (a timestamp in microseconds, as PX4's CSV exports have), or of 0.1 to 1 (a kHz log in milliseconds, or a
+        1-10 Hz log in seconds); steps of 1 to 100 get a warning (milliseconds?).
+
     Returns
     -------
     IdentifyResult
@@ -228,17 +235,18 @@ def identify(
 
     if hold not in ("zoh", None):
         raise InvalidDataError(f"hold must be 'zoh' or None, got {hold!r}", field="hold")
-    recs = _records(input, output, time, rate_hz)
+    recs = _records(input, output, time, rate_hz, time_unit)
     joint = None
     if reference is not None:
         try:
-            joint = (_records(reference, output, time, rate_hz), _records(reference, input, time, rate_hz))
+            joint = (_records(reference, output, time, rate_hz, time_unit),
+                     _records(reference, input, time, rate_hz, time_unit))
         except InvalidDataError as e:
             raise InvalidDataError(f"reference: {e}", field="reference") from None
         if [r.n for r in joint[0]] != [r.n for r in recs]:
             raise InvalidDataError("reference must have as many samples as input and output (per record)",
                                    field="reference")
-    ver = None if verify is None else _verify_record(verify, recs[0].dt)
+    ver = None if verify is None else _verify_record(verify, recs[0].dt, time_unit)
     if ver is not None and auto:
         holdout = 0.0
     rec = recs[-1]
@@ -337,7 +345,7 @@ def identify(
     warns = _warnings(out.cost, points, used, model, unc, val, n_points=n_points, tau_max=tau_max,
                       delay=delay, check=check_u, fit_u=np.concatenate([r.u for r in fit_recs]),
                       want_check=holdout > 0 or ver is not None)
-    if time is not None and dt_log >= 1.0 and 1e-4 <= dt_log / 1000.0 <= 0.1:  # a log's clock in milliseconds?
+    if time is not None and time_unit == "auto" and 1.0 <= dt_log <= 100.0:  # a log's clock in milliseconds?
         warns.insert(0, f"the time column steps by {dt_log:.4g} (a sample every {dt_log:.4g} s, {1 / dt_log:.3g} Hz): "
                         f"if it is in milliseconds, divide it by 1000 ({1000 / dt_log:.4g} Hz); the model's time "
                         "constants and delay are in the time column's units")
@@ -561,11 +569,11 @@ def _check(model: Any, spectra: list[Any], fit_recs: list[Record], rec: Record, 
     return None, None
 
 
-def _records(input: Any, output: Any, time: Any, rate_hz: Any) -> list[Record]:
+def _records(input: Any, output: Any, time: Any, rate_hz: Any, time_unit: str = "auto") -> list[Record]:
     """One record, or several (lists of sequences), validated; several share the sample time."""
     multi = _is_multi(input) or _is_multi(output)
     if not multi:
-        return [make_record(input, output, time=time, rate_hz=rate_hz)]
+        return [make_record(input, output, time=time, rate_hz=rate_hz, time_unit=time_unit)]
     if not (_is_multi(input) and _is_multi(output)) or len(input) != len(output):
         raise InvalidDataError("several records: give input and output as lists of the same number of records",
                                field="output")
@@ -577,7 +585,8 @@ def _records(input: Any, output: Any, time: Any, rate_hz: Any) -> list[Record]:
     recs = []
     for i, (u, y) in enumerate(zip(input, output)):
         try:
-            recs.append(make_record(u, y, time=None if time is None else time[i], rate_hz=rate_hz))
+            recs.append(make_record(u, y, time=None if time is None else time[i], rate_hz=rate_hz,
+                                    time_unit=time_unit))
         except InvalidDataError as e:
             raise InvalidDataError(f"record {i + 1} of {len(input)}: {e}", field=e.field) from None
     for i, r in enumerate(recs[1:], 2):
@@ -594,7 +603,7 @@ def _is_multi(x: Any) -> bool:
     return isinstance(x, (list, tuple)) and len(x) > 0 and np.ndim(x[0]) == 1
 
 
-def _verify_record(verify: Any, dt: float) -> Record:
+def _verify_record(verify: Any, dt: float, time_unit: str = "auto") -> Record:
     if not isinstance(verify, Mapping) or "input" not in verify or "output" not in verify:
         raise InvalidDataError("verify must be a mapping with input and output (and optionally time or rate_hz)",
                                field="verify")
@@ -605,7 +614,7 @@ def _verify_record(verify: Any, dt: float) -> Record:
     t, r = verify.get("time"), verify.get("rate_hz")
     try:
         return make_record(verify["input"], verify["output"], time=t,
-                           rate_hz=(1.0 / dt if t is None and r is None else r))
+                           rate_hz=(1.0 / dt if t is None and r is None else r), time_unit=time_unit)
     except InvalidDataError as e:
         raise InvalidDataError(f"verify: {e}", field=("verify", *e.field)) from None
 

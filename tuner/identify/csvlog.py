@@ -23,14 +23,30 @@ from ..errors import InvalidDataError, TunerError
 from ..fileio import MAX_CSV_BYTES, open_checked
 from .data import MAX_SAMPLES
 
-__all__ = ["MAX_ROWS", "read_columns"]
+__all__ = ["MAX_ROWS", "SNIFF_CHARS", "read_columns"]
 
 MAX_ROWS = MAX_SAMPLES  # the record limit (tuner.identify.data.MAX_SAMPLES), the same for the CLI and the service
 
 
-def _dialect(sample: str) -> type[csv.Dialect] | csv.Dialect:
+#: the delimiter is sniffed on at most this many characters of the header and the first rows: csv.Sniffer's
+#: regular expressions take time quadratic in a line's length (a 64 kB line of '",' held it 19 s; 4096 characters:
+#: 0.15 s at worst, bench/hostile.py --files), and a log's header and first rows fit many times over
+SNIFF_CHARS = 4096
+
+
+def _dialect(lines: list[str]) -> type[csv.Dialect] | csv.Dialect:
+    """The dialect of the header and first rows, sniffed on their first whole lines within SNIFF_CHARS characters
+    (a longer header: its first SNIFF_CHARS characters)."""
+    sample, n = [], 0
+    for ln in lines:
+        if n + len(ln) > SNIFF_CHARS:
+            if not sample:
+                sample.append(ln[:SNIFF_CHARS])
+            break
+        sample.append(ln)
+        n += len(ln)
     try:
-        return csv.Sniffer().sniff(sample, delimiters=",;\t")
+        return csv.Sniffer().sniff("".join(sample), delimiters=",;\t")
     except csv.Error:
         return csv.excel
 
@@ -121,7 +137,7 @@ def _parse(p: Path, lines: Iterator[str], columns: Mapping[str, str]) -> dict[st
     if not head:
         raise InvalidDataError(f"{p}: empty (no header row)", field="file")
     ahead = list(itertools.islice(lines, 19))  # the sniffer's sample: the header and 19 rows
-    reader = csv.reader(itertools.chain(head, ahead, lines), _dialect("".join(head + ahead)))
+    reader = csv.reader(itertools.chain(head, ahead, lines), _dialect(head + ahead))
     header = [h.strip() for h in next(reader)]
     idx: dict[str, int] = {}
     for role, name in columns.items():
@@ -141,6 +157,8 @@ def _parse(p: Path, lines: Iterator[str], columns: Mapping[str, str]) -> dict[st
         for role, i in idx.items():
             cell = row[i].strip() if i < len(row) else ""
             try:
+                if "_" in cell or not cell.isascii():  # float() takes '1_5' as 15 (and other scripts' digits)
+                    raise ValueError(cell)
                 v = float(cell)
             except ValueError:
                 what = "empty" if not cell else f"not a number: {cell!r}"

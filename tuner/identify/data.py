@@ -21,8 +21,8 @@ import numpy as np
 from ..errors import InvalidDataError
 from ..tolerances import CONSTANT_SIGNAL_RTOL
 
-__all__ = ["MAX_ABS", "MAX_SAMPLES", "MIN_ABS", "MIN_SAMPLES", "TIME_JITTER", "Record", "lowest_frequency_rad_s",
-           "make_record"]
+__all__ = ["MAX_ABS", "MAX_SAMPLES", "MIN_ABS", "MIN_SAMPLES", "TIME_JITTER", "TIME_UNITS", "Record",
+           "lowest_frequency_rad_s", "make_record"]
 
 MIN_SAMPLES = 128
 MAX_SAMPLES = 2_000_000  # a record's samples: a CSV's rows, a ULog's grid, the service's arrays (one limit); 83 min
@@ -31,6 +31,9 @@ MAX_SAMPLES = 2_000_000  # a record's samples: a CSV's rows, a ULog's grid, the 
 TIME_JITTER = 0.01  # sample intervals may differ from the mean by this fraction
 MAX_ABS = 1e60  # larger samples would overflow the spectra (the coherence has fourth powers of samples)
 MIN_ABS = 1e-60  # a signal whose samples are all smaller would underflow them (a record of zeros is "constant")
+#: the units a time column may be read in (seconds a unit); "auto": seconds, but a column whose steps look like another
+#: unit is refused until the unit is said (see :func:`make_record`)
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 
 
 def lowest_frequency_rad_s(duration_s: float) -> float:
@@ -112,12 +115,32 @@ def _rate_from_time(t: np.ndarray, n: int) -> tuple[float, float]:
     return dt, float(t[0])
 
 
+def _unit_of(t: np.ndarray, step: float) -> None:
+    """Refuse a time column (read in seconds) whose steps say it is in another unit: whole-number steps of 100 and
+    more are a timestamp in microseconds (PX4's CSV exports: 4000 at 250 Hz, read as seconds the model's time
+    constants come out a million times too slow); steps of 0.1 to 1 a kHz log in milliseconds (or a 1-10 Hz log in
+    seconds: it cannot be told, so the unit must be said)."""
+    if step >= 100.0 and bool(np.all(t == np.floor(t))):
+        raise InvalidDataError(f"the time column steps by {step:.6g} in whole numbers: a timestamp in microseconds "
+                               f"(as PX4 logs one: {1e6 / step:.4g} Hz)? say which unit it is: 'us' to read it so, "
+                               f"or 's' if the samples are {step:.6g} s apart", field="time_unit")
+    if 0.1 <= step < 1.0:
+        raise InvalidDataError(f"the time column steps by {step:.6g}: milliseconds (a {1e3 / step:.4g} Hz log)? say "
+                               f"which unit it is: 'ms' to read it so, or 's' if the samples are {step:.6g} s apart "
+                               f"(a {1 / step:.4g} Hz log)", field="time_unit")
+
+
 def make_record(input: Sequence[float], output: Sequence[float], *, time: Sequence[float] | None = None,
-                rate_hz: float | None = None) -> Record:
+                rate_hz: float | None = None, time_unit: str = "auto") -> Record:
     """Validate a logged record: equal lengths, finite values, a varying input, a uniform time base.
 
-    Give exactly one of ``time`` (s, strictly increasing, uniform within 1 %) or ``rate_hz``.
+    Give exactly one of ``time`` (strictly increasing, uniform within 1 %) or ``rate_hz``. ``time_unit`` is the
+    time column's unit (:data:`TIME_UNITS`: ``"s"``, ``"ms"``, ``"us"``); ``"auto"`` reads seconds, and refuses a
+    column whose steps say it is in another unit (whole numbers of 100 and more: microseconds; 0.1 to 1: a kHz log
+    in milliseconds) until the unit is said.
     """
+    if time_unit != "auto" and time_unit not in TIME_UNITS:
+        raise InvalidDataError(f"time_unit must be 'auto', 's', 'ms' or 'us', got {time_unit!r}", field="time_unit")
     u = _signal(input, "input")
     y = _signal(output, "output")
     if u.size != y.size:
@@ -132,7 +155,12 @@ def make_record(input: Sequence[float], output: Sequence[float], *, time: Sequen
         raise InvalidDataError("give exactly one of time (a time column, s) or rate_hz (the sample rate)",
                                field="time" if time is not None else "rate_hz")
     if time is not None:
-        dt, t0 = _rate_from_time(_signal(time, "time"), u.size)
+        t = _signal(time, "time")
+        if time_unit == "auto":
+            dt, t0 = _rate_from_time(t, u.size)
+            _unit_of(t, dt)
+        else:
+            dt, t0 = _rate_from_time(t * TIME_UNITS[time_unit], u.size)
     else:
         try:
             r = float(rate_hz)  # type: ignore[arg-type]

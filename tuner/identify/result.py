@@ -201,7 +201,11 @@ class IdentifyResult:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> IdentifyResult:
-        """Rebuild from :meth:`to_dict` (e.g. a stored result, to redraw its plot)."""
+        """Rebuild from :meth:`to_dict` (e.g. a stored result, to redraw its plot); a file that does not hold what it
+        needs is refused naming the field (:func:`tuner.identify.resultfile.check_identification`)."""
+        from .resultfile import check_identification
+
+        check_identification(d)
         m = d["model"]
         model = Model.from_values(int(m["poles"]), int(m["zeros"]), {k: _num(v) for k, v in m["parameters"].items()})
         unc = {k: ParameterUncertainty(**{f: _num(x) for f, x in v.items()}) for k, v in d["uncertainty"].items()}

@@ -30,6 +30,7 @@ log, a wrong field the fields of the topic.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import io
 import math
@@ -45,7 +46,8 @@ from ..errors import InvalidDataError, TunerError
 from ..tolerances import SAMPLE_COUNT_TOL
 from .data import MAX_SAMPLES, MIN_SAMPLES
 
-__all__ = ["GAP_FACTOR", "MAX_ULOG_BYTES", "ULogRecords", "is_ulog", "parse_signal", "read_ulog", "signals"]
+__all__ = ["CORRUPT_SPAN_MESSAGES", "GAP_FACTOR", "MAX_READS_OVER", "MAX_ULOG_BYTES", "MIN_BYTES_PER_MESSAGE",
+           "ULogRecords", "is_ulog", "parse_signal", "read_parameters", "read_ulog", "signals"]
 
 GAP_FACTOR = 5.0
 MAX_ULOG_BYTES = 2_000_000_000
@@ -138,21 +140,15 @@ def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
 
 def is_ulog(path: str | Path) -> bool:
     """Whether the file is named ``.ulg`` or starts with the ULog magic bytes. A path that is no regular file (a
-    FIFO, a device, a directory) is refused here, before anything opens it (it could hang or never end)."""
-    from ..fileio import check_input
+    FIFO, a device, a directory) is refused, on the path and on the opened handle (it could hang or never end)."""
+    from ..fileio import check_input, read_head
 
     p = Path(path)
     try:
         check_input(p, field="file")
+        return p.suffix.lower() == ".ulg" or read_head(p, len(MAGIC), field="file") == MAGIC
     except TunerError as e:
         raise InvalidDataError(str(e), field="file") from None
-    if p.suffix.lower() == ".ulg":
-        return True
-    try:
-        with p.open("rb") as f:
-            return f.read(7) == MAGIC
-    except OSError:
-        return False
 
 
 def parse_signal(text: str, role: str) -> tuple[str, int, str]:
@@ -164,33 +160,131 @@ def parse_signal(text: str, role: str) -> tuple[str, int, str]:
     return m["topic"], int(m["inst"] or 0), m["field"]
 
 
-def _load(src: str | Path | bytes | LogHandle, topics: list[str] | None) -> Any:
-    from pyulog import ULog
+#: a damaged log: over a span of this many messages (pyulog's reads of a 3-byte message header) pyulog's position
+#: advanced by less than MIN_BYTES_PER_MESSAGE bytes a message. A real log's messages are 50-90 bytes on average
+#: (pyulog's sample logs), a data message at least 13 (a header, a topic id and a timestamp); in a region that holds
+#: no valid message pyulog steps one byte at a time and takes each byte for a header (about 1 s per 2 MB: a 100 MB
+#: log of zeros held it for a minute). Such a region is refused within CORRUPT_SPAN_MESSAGES bytes (64 KiB, 0.05 s),
+#: and pyulog's work is bounded by the log's size: at most one message per 12 bytes, and every byte read at most
+#: MAX_READS_OVER times (a real log's once; where pyulog searches for a sync sequence after corrupt data, twice).
+CORRUPT_SPAN_MESSAGES = 1 << 16
+MIN_BYTES_PER_MESSAGE = 12
+MAX_READS_OVER = 4
+_BLOCK = CORRUPT_SPAN_MESSAGES >> 4  # the span is checked every _BLOCK messages, over the last 16 blocks
+
+
+class _Damaged(Exception):
+    """Raised from inside pyulog by :class:`_Bounded` (an exception of its own: pyulog takes ValueError, IndexError,
+    KeyError, OverflowError and struct.error for corruption it steps over); ``start``: where the damage begins (the
+    end of the last block of messages that advanced as a log's do), ``end``: where pyulog was."""
+
+    def __init__(self, start: int, end: int) -> None:
+        super().__init__(start, end)
+        self.start, self.end = start, end
+
+
+class _Bounded:
+    """The reader pyulog parses: the file's reads and seeks, and two checks that bound pyulog's work by the log's
+    size, whatever its bytes: over the last CORRUPT_SPAN_MESSAGES message headers it read, the position must have
+    advanced MIN_BYTES_PER_MESSAGE bytes a header (no region of the log holds pyulog byte by byte), and the bytes it
+    read stay within MAX_READS_OVER times the log's size (:class:`_Damaged` otherwise)."""
+
+    __slots__ = ("_f", "_headers", "_check_at", "_marks", "_read", "_budget")
+
+    def __init__(self, f: Any, size: int) -> None:
+        self._f = f
+        self._headers = 0
+        self._check_at = _BLOCK
+        self._marks = collections.deque([f.tell()], maxlen=17)  # the position every _BLOCK headers
+        self._read = 0
+        self._budget = MAX_READS_OVER * size + (1 << 20)
+
+    def read(self, n: int = -1) -> bytes:
+        """Up to ``n`` bytes (all that is left with -1); :class:`_Damaged` when a check fails."""
+        if n == 3:  # a message header (uint16 size, uint8 type): the checks, every _BLOCK headers
+            self._headers += 1
+            if self._headers >= self._check_at:
+                self._check_at += _BLOCK
+                m = self._marks
+                m.append(self._f.tell())
+                if (len(m) == m.maxlen and m[-1] - m[0] < MIN_BYTES_PER_MESSAGE * CORRUPT_SPAN_MESSAGES) \
+                        or self._read > self._budget:
+                    raise _Damaged(self._damage_start(), m[-1])
+        b = self._f.read(n)
+        self._read += len(b)
+        return b
+
+    def _damage_start(self) -> int:
+        m = list(self._marks)
+        for i in range(len(m) - 2, -1, -1):  # the end of the newest block that advanced as a log's messages do
+            if m[i + 1] - m[i] >= MIN_BYTES_PER_MESSAGE * _BLOCK:
+                return m[i + 1]
+        return m[0]
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        """Move to ``pos`` (from ``whence``); the new position."""
+        return self._f.seek(pos, whence)
+
+    def tell(self) -> int:
+        """The position."""
+        return self._f.tell()
+
+    def close(self) -> None:
+        """Nothing: the file is closed by whoever opened it."""
+
+
+@contextlib.contextmanager
+def _reader(src: str | Path | bytes | LogHandle) -> Iterator[tuple[_Bounded, str]]:
+    """``(reader, name)``: the log as pyulog will parse it, from its start, bounded (:class:`_Bounded`)."""
+    import os
 
     if isinstance(src, LogHandle):  # a log file opened once by the caller (open_log): parsed from it
+        size = src.seek(0, os.SEEK_END)
         src.seek(0)
+        yield _Bounded(src._f, size), src.name  # (its file: pyulog's reads through one Python layer, not two)
+        return
+    if isinstance(src, bytes):
+        yield _Bounded(io.BytesIO(src), len(src)), "the upload"
+        return
+    from ..fileio import open_checked
+
+    try:  # a regular file within the limit, checked on the opened file (nothing that could hang)
+        f = open_checked(src, limit=MAX_ULOG_BYTES, field="file")
+    except TunerError as e:
+        raise InvalidDataError(str(e), field="file") from None
+    with f:
+        yield _Bounded(f, os.fstat(f.fileno()).st_size), str(src)
+
+
+def _load(src: str | Path | bytes | LogHandle, topics: list[str] | None, *, header_only: bool = False) -> Any:
+    """pyulog's ``ULog`` of the log (only ``topics``' data; with ``header_only`` its definitions section: formats,
+    info and parameters), read through :class:`_Bounded`: a damaged region is refused as such, at once."""
+    from pyulog import ULog
+
+    with _reader(src) as (reader, name):
         try:
-            with contextlib.redirect_stdout(io.StringIO()):
-                return ULog(src, message_name_filter_list=topics)
-        except Exception as e:  # as below
-            raise InvalidDataError(f"{src.name}: not a readable ULog file ({type(e).__name__}: {e})",
+            with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its corruption notices
+                return ULog(reader, message_name_filter_list=topics, parse_header_only=header_only)
+        except _Damaged as e:
+            where = ("after its header (the rest is not a log's data)" if e.start <= 16 else
+                     f"from about byte {e.start} (the log was written over there; a copy of its first {e.start} bytes "
+                     "is readable, if they hold the flight)")
+            raise InvalidDataError(f"{name}: a damaged ULog file: no readable message in bytes {e.start}-{e.end}, "
+                                   f"{where}; it is not read further", field="file") from None
+        except Exception as e:  # pyulog raises its own and struct/value errors for a file it cannot parse
+            raise InvalidDataError(f"{name}: not a readable ULog file ({type(e).__name__}: {e})",
                                    field="file") from None
-    name = "the upload" if isinstance(src, bytes) else str(src)
-    if not isinstance(src, bytes):
-        p = Path(src)
-        try:
-            size = p.stat().st_size
-            if not p.is_file():
-                raise InvalidDataError(f"{p}: not a regular file", field="file")
-        except OSError as e:
-            raise InvalidDataError(f"{p}: cannot read: {e.strerror or e}", field="file") from None
-        if size > MAX_ULOG_BYTES:
-            raise InvalidDataError(f"{p}: {size} bytes; at most {MAX_ULOG_BYTES} (cut the log)", field="file")
+
+
+def read_parameters(src: str | Path | bytes | LogHandle, *, field: str = "file") -> dict[str, float]:
+    """The parameters a ULog stores (its definitions section only: the data are not read), finite numbers by name;
+    a damaged log refused as :func:`read_ulog` refuses it (``field``: the caller's name for the file)."""
     try:
-        with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its corruption notices
-            return ULog(io.BytesIO(src) if isinstance(src, bytes) else str(src), message_name_filter_list=topics)
-    except Exception as e:  # pyulog raises its own and struct/value errors for a file it cannot parse
-        raise InvalidDataError(f"{name}: not a readable ULog file ({type(e).__name__}: {e})", field="file") from None
+        ul = _load(src, [], header_only=True)
+    except InvalidDataError as e:
+        raise InvalidDataError(str(e), field=field) from None
+    return {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
+            if isinstance(v, (int, float)) and math.isfinite(float(v))}
 
 
 def _topics_in(src: str | Path | bytes | LogHandle) -> list[str]:
@@ -209,6 +303,10 @@ def _series(ul: Any, src: Any, role: str, spec: str) -> tuple[np.ndarray, np.nda
             insts = sorted(d.multi_id for d in found)
             raise InvalidDataError(f"{role} {spec!r}: topic {topic!r} has instances {insts}, not {inst}",
                                    field=role)
+        if not ul.data_list or getattr(ul, "file_corruption", False):  # not the name's fault: say what the log is
+            what = "holds no data" if not ul.data_list else "is damaged (pyulog skipped corrupt data)"
+            raise InvalidDataError(f"{role} {spec!r}: no topic {topic!r} in the log, which {what}; topics: "
+                                   f"{_topics_in(src)}", field=role if ul.data_list else "file")
         raise InvalidDataError(f"{role} {spec!r}: no topic {topic!r} in the log; topics: {_topics_in(src)}",
                                field=role)
     if fld not in data.data or fld in ("timestamp", "timestamp_sample"):
@@ -343,6 +441,9 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
                        references=refs if tr is not None else None, parameters=params)
 
 
+#: a name a parameter file may hold (PX4's and ArduPilot's: upper case, digits and '_', at most 16 characters): a
+#: log's other names (a tab or a newline in one added lines to the .params text) are not passed on
+_PARAM_NAME = re.compile(r"[A-Z][A-Z0-9_]{0,15}")
 #: the parameters of the rate laws a page passes on (the vehicle of a tune), by prefix
 _LAW_PARAMS = ("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "MC_RR_", "MC_PR_", "MC_YR_", "MC_ROLL_P",
                "MC_PITCH_P", "MC_YAW_P", "IMU_GYRO_", "IMU_DGYRO_", "ATC_RAT_", "ATC_ANG_", "SCHED_LOOP_RATE",
@@ -375,7 +476,8 @@ def signals(src: str | Path | bytes) -> dict[str, Any]:
             if np.asarray(v).dtype.kind in "fiu":
                 out.append({"name": f"{name}.{k}", "rate_hz": rate})
     params = {str(k): v for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
-              if str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float)) and math.isfinite(float(v))}
+              if _PARAM_NAME.fullmatch(str(k)) and str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float))
+              and not isinstance(v, bool) and math.isfinite(float(v))}
     lines = [f"1\t1\t{k}\t{v!r}\t{6 if isinstance(v, int) else 9}" for k, v in sorted(params.items())]
     loop = params.get("IMU_GYRO_RATEMAX") or params.get("SCHED_LOOP_RATE")
     return {"signals": out, "params_text": "\n".join(lines) + ("\n" if lines else ""), "loop_hz": loop,

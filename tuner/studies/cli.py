@@ -286,6 +286,9 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
                   plots: bool = True, jobs: int = 1) -> dict[str, Any]:
     """results.json, gains.json, report.md and plots/ from the stored results (re-verified, ``jobs``
     loops at a time)."""
+    import io
+
+    from ..fileio import write_output
     from ..jsonio import jsonable
     from .evaluate import evaluate_thesis, gains_entry
     from .report import render_report
@@ -306,17 +309,19 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
         for lp in study.order():  # the identification of data loops: Bode of data and fit, coherence
             if lp.data is not None and lp.name in figs:
                 path = out_dir / "plots" / f"{lp.name}_fit.png"
-                identified(lp).plot().savefig(path, dpi=100)
+                buf = io.BytesIO()
+                identified(lp).plot().savefig(buf, format="png", dpi=100)
+                write_output(path, buf.getvalue())
                 figs[lp.name] = {**figs[lp.name], "fit": path}
     doc = {"study": study.name, "file": source, "storage": storage,
            "meets_spec": all(e.meets_spec for e in tuned.values()) and len(tuned) == len(study.loop),
            "order": [lp.name for lp in study.order()], "loops": results,
            "thesis_as_printed": {n: e.to_dict() for n, e in thesis.items()}}
-    (out_dir / "results.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
+    write_output(out_dir / "results.json", json.dumps(jsonable(doc), indent=2) + "\n")
     gains = {lp.name: gains_entry(lp, results[lp.name]["gains"]) for lp in study.order() if "gains" in results[lp.name]}
-    (out_dir / "gains.json").write_text(json.dumps(gains, indent=2) + "\n")
-    (out_dir / "report.md").write_text(render_report(study, results, tuned, thesis, figs, out_dir=out_dir,
-                                                     storage=storage))
+    write_output(out_dir / "gains.json", json.dumps(gains, indent=2) + "\n")
+    write_output(out_dir / "report.md", render_report(study, results, tuned, thesis, figs, out_dir=out_dir,
+                                                      storage=storage))
     return doc
 
 

@@ -1,12 +1,16 @@
 """The study report (Markdown): what was tuned, how it verifies, and how it compares.
 
 Every figure comes from the verifier re-run on the stored gains (:mod:`tuner.studies.evaluate`),
-so the report, ``results.json`` and ``tuner verify`` agree.
+so the report, ``results.json`` and ``tuner verify`` agree. Text from the study file or the user (its description,
+notes, file and column names, the storage URL, error messages) is written as text: HTML and Markdown's markup
+escaped (:func:`text`), expressions as code spans (:func:`code`), so a report rendered as HTML shows it as written.
 """
 
 from __future__ import annotations
 
+import html
 import math
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -14,7 +18,7 @@ from typing import Any
 from .evaluate import LoopEval
 from .schema import StudyDef
 
-__all__ = ["render_report", "num"]
+__all__ = ["render_report", "num", "text", "code"]
 
 
 def num(v: Any, digits: int = 3) -> str:
@@ -37,8 +41,31 @@ def num(v: Any, digits: int = 3) -> str:
     return f"{x:.{digits}g}"
 
 
+def text(s: Any, *, inline: bool = False) -> str:
+    """User text as Markdown text: ``&``, ``<``, ``>`` as HTML entities, Markdown's markup characters and ``|``
+    backslash-escaped (no tag, link, image, emphasis or table is made of it); ``inline``: on one line.
+
+    Examples
+    --------
+    >>> from tuner.studies.report import text
+    >>> text("<script>x</script> *a* [b](c)")
+    '&lt;script&gt;x&lt;/script&gt; \\\\*a\\\\* \\\\[b\\\\](c)'
+    """
+    t = re.sub(r"([\\`*_\[\]#!~|])", r"\\\1", html.escape(str(s), quote=False))
+    return " ".join(t.split("\n")) if inline else t
+
+
+def code(s: Any) -> str:
+    """User text as a Markdown code span (shown as written, HTML included), on one line: fenced by more backticks
+    than it holds in a row."""
+    t = " ".join(str(s).splitlines())
+    fence = "`" * (max((len(m) for m in re.findall(r"`+", t)), default=0) + 1)
+    pad = " " if t.startswith("`") or t.endswith("`") else ""
+    return f"{fence}{pad}{t}{pad}{fence}"
+
+
 def _row(cells: list[str]) -> str:
-    return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+    return "| " + " | ".join(" ".join(c.splitlines()).replace("\\|", "|").replace("|", "\\|") for c in cells) + " |"
 
 
 def _table(head: list[str], rows: list[list[str]]) -> list[str]:
@@ -62,12 +89,12 @@ def render_report(
 ) -> str:
     """The study's report as Markdown, from the loops' stored results, the verified tuned and published
     controllers (``tuned``, ``thesis``) and the plots."""
-    L: list[str] = [f"# Study `{study.name}`", ""]
+    L: list[str] = [f"# Study {code(study.name)}", ""]
     if study.description:
-        L += [study.description, ""]
+        L += [text(study.description), ""]
     n_ok = sum(1 for lp in study.loop if lp.name in tuned and tuned[lp.name].meets_spec)
     L += [f"{n_ok} of {len(study.loop)} loops meet their spec as judged by the verifier. "
-          f"Storage: `{storage}`; seed {study.seed}.", ""]
+          f"Storage: {code(storage)}; seed {study.seed}.", ""]
 
     L += _identified_section(study, results, plots, out_dir)
     L += _measured_section(study, tuned)
@@ -77,7 +104,7 @@ def render_report(
     for lp in study.order():
         r = results.get(lp.name, {})
         if lp.name not in tuned:
-            rows.append([lp.name, lp.structure, f"error: {r.get('error', 'no result')}"] + ["—"] * 9)
+            rows.append([lp.name, lp.structure, f"error: {text(r.get('error', 'no result'))}"] + ["—"] * 9)
             continue
         m = tuned[lp.name].nominal.metrics
         rows.append([lp.name, f"{lp.structure} @ {num(lp.dt)} s" if lp.dt else lp.structure, _gains(r["gains"]),
@@ -131,7 +158,7 @@ def render_report(
             if lp.name not in thesis or lp.name not in tuned:
                 continue
             a, b = thesis[lp.name].nominal.metrics, tuned[lp.name].nominal.metrics
-            rows.append([lp.name, f"`{lp.thesis_controller}`", num(lp.thesis_settling_s),
+            rows.append([lp.name, code(lp.thesis_controller), num(lp.thesis_settling_s),
                          num(a.phase_margin_deg), num(a.gain_margin_db), num(a.overshoot_pct), num(a.settling_time_s),
                          f"{num(a.mt)} / {num(a.mks)} / {num(a.control_peak)}", num(thesis[lp.name].meets_spec),
                          num(b.phase_margin_deg), num(b.gain_margin_db), num(b.overshoot_pct), num(b.settling_time_s),
@@ -169,7 +196,7 @@ def render_report(
 
     notes = [(lp.name, lp.note) for lp in study.order() if lp.note]
     if notes:
-        L += ["## Notes", ""] + [f"- **{n}**: {t}" for n, t in notes] + [""]
+        L += ["## Notes", ""] + [f"- **{n}**: {text(t, inline=True)}" for n, t in notes] + [""]
 
     L += ["## Plots", "", "Step response (continuous output and samples, settling band), Bode (gain and "
           "phase margins marked), Nyquist (unit circle and −1).", ""]
@@ -205,20 +232,21 @@ def _identified_section(study: StudyDef, results: Mapping[str, dict[str, Any]],
     for lp in loops:
         ident = results.get(lp.name, {}).get("identification")
         d = lp.data
-        src = f"`{d.file}`: {d.input} → {d.output}" if d else ""
+        src = f"{code(d.file)}: {text(d.input)} → {text(d.output)}" if d else ""
         if not ident:
-            rows.append([lp.name, src, f"error: {results.get(lp.name, {}).get('error', 'no result')}"] + ["—"] * 7)
+            rows.append([lp.name, src, f"error: {text(results.get(lp.name, {}).get('error', 'no result'))}"]
+                        + ["—"] * 7)
             continue
         unc = ident.get("uncertainty", {})
         worst = max(unc.items(), key=lambda kv: _as_float(kv[1].get("cr_bound_pct")), default=None)
         val = ident.get("validation") or {}
         band = ident.get("band_rad_s") or [None, None]
-        rows.append([lp.name, src, f"`{ident.get('plant', '')}`", f"{num(band[0])}–{num(band[1])}",
+        rows.append([lp.name, src, code(ident.get("plant", "")), f"{num(band[0])}–{num(band[1])}",
                      num(ident.get("cost")), ident.get("quality", "—"),
                      f"{num(worst[1].get('cr_bound_pct'))} ({worst[0]})" if worst else "—",
                      f"{ident.get('check', '—')} ({val.get('source', '—')})" if val else "none",
                      num(val.get("theil_u")), num(val.get("noise_ratio"))])
-        notes += [f"- **{lp.name}**: {w}" for w in ident.get("warnings", [])]
+        notes += [f"- **{lp.name}**: {text(w, inline=True)}" for w in ident.get("warnings", [])]
     L += _table(["loop", "log", "identified model", "band [rad/s]", "J", "J's verdict", "largest CR bound [%]",
                  "time-domain check (on)", "Theil", "rms error / noise floor"], rows)
     if notes:
@@ -276,7 +304,7 @@ def _uncertainty_section(study: StudyDef, results: Mapping[str, dict[str, Any]])
     for lp in loops:
         r = results.get(lp.name, {})
         if "error" in r or not r:
-            rows.append([lp.name, f"error: {r.get('error', 'no result')}"] + ["—"] * 9)
+            rows.append([lp.name, f"error: {text(r.get('error', 'no result'))}"] + ["—"] * 9)
             continue
         rb = r.get("robust")
         design = f"{num(rb['k'])}-sigma set, {rb['n_plants']} plants" if rb else "nominal model"
@@ -285,7 +313,7 @@ def _uncertainty_section(study: StudyDef, results: Mapping[str, dict[str, Any]])
         mc = r.get("monte_carlo")
         mc_s = (f"{100 * float(mc['fraction_meeting_spec']):.1f} % of {mc['n']}" if mc else "—")
         worst = mc["worst"] if mc else {}
-        rows.append([lp.name, design, f"`{t['plant']}`" if t else "—", num(tm.get("phase_margin_deg")),
+        rows.append([lp.name, design, code(t["plant"]) if t else "—", num(tm.get("phase_margin_deg")),
                      num(tm.get("gain_margin_db")), num(tm.get("overshoot_pct")), num(tm.get("settling_time_s")),
                      num(t["meets_spec"]) if t else "—", mc_s,
                      f"{num(worst.get('phase_margin_deg'))} / {num(worst.get('gain_margin_db'))}" if mc else "—",

@@ -121,6 +121,8 @@ class PlantData(BaseModel):
     hold: Literal["auto", "zoh", "none"] = Field("auto", description="how the plant saw the input: zoh (held, a "
                                                  "controller's output), none (sampled); auto: zoh for a ULog")
     time: str | None = Field(None, min_length=1, description="time column, s (or rate_hz); not for ULog")
+    time_unit: Literal["auto", "s", "ms", "us"] = Field("auto", description="the time column's unit; auto: seconds, "
+                                                        "refused where its steps look like another unit")
     rate_hz: float | None = Field(None, gt=0, description="sample rate, Hz (or time); ULog: the resampling grid "
                                   "(default: the slower topic's rate)")
     verify: str | None = Field(None, min_length=1, description="a separate verification log (same columns or "
@@ -471,7 +473,7 @@ def _identify_cached(path: str, digest: str, options: str, dt: float | None, ver
                     zeros=o["zeros"], delay=delay, delay_step=o.get("delay_step"), band=o["band"],
                     holdout=o["holdout"], verify=ver, coherence_min=o["coherence_min"], n_points=o["n_points"],
                     reference=data["reference"], controller=data["controller"],
-                    closed_loop_signs=data["closed_loop_signs"], hold=hold)
+                    closed_loop_signs=data["closed_loop_signs"], hold=hold, time_unit=o.get("time_unit", "auto"))
 
 
 def identified(lp: LoopDef) -> Any:
@@ -596,8 +598,9 @@ def loop_key(study: StudyDef, name: str) -> str:
     file gives a new key, so results are reused only for the study as it is now."""
     parts = []
     for lp in study.chain(name):
-        d = lp.model_dump(mode="json", exclude={"note", "thesis_controller", "thesis_settling_s", "effort", "params",
-                                                "axis", "actuator"})
+        d = lp.model_dump(mode="json", exclude={**dict.fromkeys(("note", "thesis_controller", "thesis_settling_s",
+                                                                 "effort", "params", "axis", "actuator"), True),
+                                                "data": {"time_unit": True}})
         entry = {k: _canon(v) for k, v in d.items()}
         effort = lp.effort or study.effort
         if effort != "default":  # (only then: the keys of studies that never name an effort stay as they were)
@@ -611,6 +614,8 @@ def loop_key(study: StudyDef, name: str) -> str:
                 entry["params_sha256"] = None
             entry["axis"] = lp.axis
         if lp.data is not None:  # the log's contents, not where it lies
+            if lp.data.time_unit != "auto":  # (only then: the keys of data loops that never name one stay as they were)
+                entry["time_unit"] = lp.data.time_unit
             try:
                 entry["data_sha256"] = _digest(data_path(lp.data))
             except OSError:
