@@ -43,10 +43,37 @@ class _Vehicle(_Part):
     fixed: dict[str, Real] | None = None
     current_gains_law: dict[str, Real] | None = None
     notes: list[StrictStr] | None = None
+    warnings: list[StrictStr] | None = None
+    changes: list[StrictStr] | None = None
+
+
+class _Check(_Part):
+    name: StrictStr | None = None
+    ok: StrictBool | None = None
+    achieved: Figure = None
+    required: Figure = None
+    op: StrictStr | None = None
+
+
+class _Measured(_Part):
+    band_rad_s: Annotated[list[Figure], Field(min_length=2, max_length=2)] | None = None
+    points: Real | None = None
+
+
+class _Identification(_Part):
+    quality: StrictStr | None = None
+    cost: Figure = None
+    check: StrictStr | None = None
 
 
 class _Result(_Part):
     structure: StrictStr | None = None
+    axis: Literal["roll", "pitch", "yaw"] | None = None
+    verdict: StrictStr | None = None
+    basis: StrictStr | None = None
+    checks: list[_Check] | None = None
+    measured: _Measured | None = None
+    identification: _Identification | None = None
     gains: dict[str, Real] | None = None
     controller: _Controller | None = None
     dt: Real | None = None
