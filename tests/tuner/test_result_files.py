@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from tuner.cli import main
+from tuner.export.resultfile import check_result
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ("1\t1\tMC_ROLLRATE_P\t0.15\t9\n1\t1\tMC_ROLLRATE_I\t0.2\t9\n1\t1\tMC_ROLLRATE_D\t0.003\t9\n"
@@ -43,15 +44,31 @@ def saved(tmp_path_factory) -> dict[str, dict[str, Any]]:
     d = tmp_path_factory.mktemp("saved")
     (d / "quad.params").write_text(PARAMS)
     fast = ["--budget", "3", "--effort", "fast"]
+    ident = _tuner_json("identify", str(ROOT / "studies/data/pitch_sweep.csv"), "--time", "t", "--input",
+                        "pitch_cmd", "--output", "pitch", "--poles", "2", "--holdout", "0", cwd=d)
+    (d / "ident.json").write_text(json.dumps(ident))
     return {
         "px4": _tuner_json("tune", "--plant", "200/(s*(0.02*s+1))", "--structure", "px4_rate", "--params",
                            "quad.params", *fast, cwd=d),
         "pid_z": _tuner_json("tune", "--plant", "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "--dt", "0.04",
                              "--structure", "pid_z", *fast, cwd=d),
         "pid2": _tuner_json("tune", "--plant", "1/(s+1)^3", "--structure", "pid2", *fast, cwd=d),
-        "identified": _tuner_json("identify", str(ROOT / "studies/data/pitch_sweep.csv"), "--time", "t", "--input",
-                                  "pitch_cmd", "--output", "pitch", "--poles", "2", "--holdout", "0", cwd=d),
+        "identified": ident,
+        # a tune of an identified model: its checks include the measured response's and the identification's rating
+        "px4 identified": _tuner_json("tune", "--identified", "ident.json", "--structure", "px4_rate", "--dt",
+                                      "0.0025", *fast, cwd=d),
     }
+
+
+@pytest.mark.slow
+def test_every_saved_result_passes_the_schema_as_written(saved):
+    """The schema is no stricter than what tune and identify write (an identification's rating is a string where
+    the other checks have figures): export reads every result the command line saved."""
+    assert any(c["name"] == "identification_quality" and isinstance(c["achieved"], str)
+               for c in saved["px4 identified"]["checks"])
+    for kind, result in saved.items():
+        if kind != "identified":
+            assert check_result(result) is result, kind
 
 
 def _paths(d: Any, pre: tuple = (), depth: int = 4) -> list[tuple]:

@@ -50,8 +50,8 @@ class _Vehicle(_Part):
 class _Check(_Part):
     name: StrictStr | None = None
     ok: StrictBool | None = None
-    achieved: Figure = None
-    required: Figure = None
+    achieved: Figure | StrictStr = None  # a figure, or a rating ('closed-loop' for identification_quality)
+    required: Figure | StrictStr = None
     op: StrictStr | None = None
 
 
