@@ -357,6 +357,30 @@ def test_first_order_with_delay_margins_closed_form(frac):
         assert m.phase_margin_deg == math.inf  # |L| < 1 everywhere: no gain crossing
 
 
+def test_a_lag_of_more_than_a_turn_is_the_distance_from_minus_one():
+    """0.5 wn^2/(s^2 + 0.02 wn s + wn^2) e^{-0.0765 s}, wn = 226: a lightly damped mode's peak crosses |L| = 1 after
+    the delay has lagged the phase by more than a turn (180 + the unwrapped phase is -522 and -1210 deg at the two
+    crossings). The sign of 180 + phase says nothing there: the margin is the distance in phase from -1,
+    180 - |principal angle|, at the nearer crossing (an identified pitch loop of a closed-loop PX4 log was reported at
+    PM -634.9 deg with Ms 1.5 and a disk margin of 0.93). The crossings are found here from the closed form."""
+    wn, zeta, tau, k = 226.0, 0.01, 0.0765, 0.5
+
+    def G(w):
+        return k * wn**2 / ((1j * w) ** 2 + 2 * zeta * wn * 1j * w + wn**2) * np.exp(-1j * w * tau)
+
+    grid = np.linspace(1.0, 400.0, 400001)
+    side = np.abs(G(grid)) - 1.0
+    idx = np.flatnonzero(np.sign(side[:-1]) != np.sign(side[1:]))
+    wcs = [optimize.brentq(lambda x: abs(G(x)) - 1.0, grid[i], grid[i + 1]) for i in idx]
+    assert len(wcs) == 2
+    unwrapped = [-math.degrees(math.atan2(2 * zeta * wn * w, wn**2 - w**2) + w * tau) for w in wcs]
+    assert all(180 + u < -180 for u in unwrapped)  # the case: more than a turn of lag at every crossing
+    distance = min(180 - abs(math.degrees(np.angle(G(w)))) for w in wcs)
+    loop = build_loop(make_plant([k * wn**2], [1, 2 * zeta * wn, wn**2], delay=tau),
+                      controller_tf("p", {"Kp": 1.0}, dt=None))
+    assert margins(loop).phase_margin_deg == pytest.approx(distance, abs=1e-6)
+
+
 @pytest.mark.parametrize("frac, stable", [(0.9, True), pytest.param(1.1, False, marks=pytest.mark.slow)])
 def test_first_order_with_delay_stability_flips_at_the_ultimate_gain(frac, stable):
     # a P controller with a delay: regression for the static gain that Tustin turned into k(z-1)/(z-1)

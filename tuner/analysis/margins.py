@@ -286,7 +286,9 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
     low frequency (:class:`_Phase`): negative where the phase lag at a crossing exceeds 180 degrees (a loop stable only
     through its other crossings, the PX4 autotune's design on a flexible frame: -52 deg, where the distance of ``L``
     from -1 alone, 52 deg, reads as a margin); at most 180 (a phase lead at the crossing: the distance from -1, the
-    nearer way round). A loop whose factors cannot be had gives that distance, unsigned."""
+    nearer way round) and at least -180 (a lag of more than a turn, a delay's before a resonance's peak crosses 1:
+    an identified pitch loop's 180 - 814.9 deg is the distance, 85.1 deg). A loop whose factors cannot be had gives
+    that distance, unsigned."""
     with np.errstate(divide="ignore"):
         mag = np.log(np.abs(L))
     s = np.sign(mag)
@@ -308,7 +310,9 @@ def _phase_margin(loop: Loop, w: np.ndarray, L: np.ndarray) -> tuple[float, floa
             # the unwrapped phase decides the side; where it and the factored value disagree by more than rounding
             # (a crossing the realisation and the factors see differently) the distance stands, and so it does for a
             # phase lead at the crossing (signed above 180: the distance from -1 is then the nearer way round)
-            if math.isfinite(signed) and signed <= 180.0 and \
+            # beyond one turn of lag (signed below -180: a delay's lag accumulated while |L| < 1, before a lightly
+            # damped mode's peak crosses 1) the sign says nothing about the side and the distance stands too
+            if math.isfinite(signed) and -180.0 <= signed <= 180.0 and \
                     abs(abs(((signed + 180.0) % 360.0) - 180.0) - pm) < 1e-6 * max(1.0, pm):
                 pm = signed
         if pm < best:

@@ -804,7 +804,7 @@ def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantDa
         pmv = 180.0 - np.abs(np.degrees(np.angle(Lc)))
         # the sign as the verifier's (tuner.analysis.margins._phase_margin): 180 + the phase unwrapped along the grid
         # from its lowest frequency (the principal angle there, less 360 above +90: a loop's phase at low frequency
-        # is 0, -90 or -180 deg, not its alias just below +180), where it is at most 180
+        # is 0, -90 or -180 deg, not its alias just below +180), where it is within +-180 (else the distance)
         if r.size:
             ph = np.unwrap(np.angle(L[np.unique(r)]), axis=1)
             row = np.searchsorted(np.unique(r), r)
@@ -812,7 +812,7 @@ def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantDa
             ph = ph - np.where(a0 > np.pi / 2 + 1e-9, 2 * np.pi, 0.0)
             pc = ph[row, c] + f * (ph[row, c + 1] - ph[row, c])
             signed = 180.0 + np.degrees(pc)
-            pmv = np.where(np.isfinite(signed) & (signed <= 180.0) & (np.abs(np.abs(((signed + 180.0) % 360.0)
+            pmv = np.where(np.isfinite(signed) & (np.abs(signed) <= 180.0) & (np.abs(np.abs(((signed + 180.0) % 360.0)
                                                                                      - 180.0) - pmv) < 1e-3),
                            signed, pmv)
         pm = np.full(Bn, np.inf)
