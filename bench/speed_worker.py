@@ -101,12 +101,14 @@ class Worker:
         return {"tuner_file": tuner.__file__, "efforts": "effort" in inspect.signature(self.tune).parameters}
 
     def cmd_tune_expr(self, plant: str, structure: str, dt: float | None, seed: int, time_budget_s: float,
-                      effort: str | None = None) -> dict:
+                      effort: str | None = None, delay: float | None = None) -> dict:
         """A tune of a plant expression (built fresh, outside the timed call), at ``effort`` where the tree has
-        efforts."""
+        efforts (``delay``: the plant's input delay, s, where given)."""
         from tuner import plant_from_expr
 
         kw = {"effort": effort} if effort and self.cmd_hello()["efforts"] else {}
+        if delay is not None:
+            kw["delay"] = delay
         return self._timed(plant_from_expr(plant), structure=structure, dt=dt, seed=seed,
                            time_budget_s=time_budget_s, **kw)
 
