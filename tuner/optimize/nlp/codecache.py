@@ -12,7 +12,8 @@ the entry's ``meta.npz``. An entry whose files do not match the checksums writte
 load, is deleted and built again, never used. The compiled solver gives bitwise the interpreted solver's answers
 (tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE=off`` turns the cache off (interpreted NLPs only).
 
-``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times.
+``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--warm`` compiles the
+shapes of :data:`WARM_LOOPS` now (the Docker image's build).
 """
 
 from __future__ import annotations
@@ -186,7 +187,36 @@ def build_entry(key: Any, st: Any, space: Any, *, timeout_s: float = COMPILE_TIM
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+# the loops whose NLP shapes ``--warm`` compiles (the Docker image's build): the README's roll loop, the px4_rate loop
+WARM_LOOPS = (("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "pid_z", 0.04, None),
+              ("200/((s+2)*(0.03*s+1))", "px4_rate", 0.0025, 0.006))
+
+
+def warm(loops: Any = WARM_LOOPS) -> list[dict[str, float]]:
+    """Tune each loop (``(plant expression, structure, dt, delay)``) and compile every NLP shape it built, now (not
+    in the background): the build times of the new entries."""
+    from ... import plant_from_expr, tune
+
+    asked: list[tuple] = []
+    real = globals()["schedule"]
+    globals()["schedule"] = lambda key, st, space: asked.append((key, st, space)) or False
+    try:  # (transcribe asks through this module's schedule: here, collected)
+        for expr, structure, dt, delay in loops:
+            tune(plant_from_expr(expr), structure=structure, dt=dt, delay=delay, seed=0, time_budget_s=30)
+    finally:
+        globals()["schedule"] = real
+    return [t for t in (build_entry(*a) for a in asked) if t]
+
+
 def _main(argv: list[str]) -> int:
+    if argv == ["--warm"]:
+        os.environ["TUNER_NLP_COMPILE"] = "auto"
+        import importlib
+
+        # the package's module (run as __main__, this file is a second copy that transcribe does not call)
+        for t in importlib.import_module("tuner.optimize.nlp.codecache").warm():
+            print(f"compiled an NLP shape: build {t['build_s']:.1f} s, generate {t['generate_s']:.1f} s, "
+                  f"compile {t['compile_s']:.1f} s")
     if len(argv) == 2 and argv[0] == "--build":
         job = Path(argv[1])
         lock = job.with_suffix(".lock")
