@@ -107,9 +107,8 @@ class Worker:
         from tuner import plant_from_expr
 
         kw = {"effort": effort} if effort and self.cmd_hello()["efforts"] else {}
-        if delay is not None:
-            kw["delay"] = delay
-        return self._timed(plant_from_expr(plant), structure=structure, dt=dt, seed=seed,
+        built = plant_from_expr(plant) if delay is None else plant_from_expr(plant, delay=delay)
+        return self._timed(built, structure=structure, dt=dt, seed=seed,
                            time_budget_s=time_budget_s, **kw)
 
     def cmd_tune_tf(self, num: list[float], den: list[float], delay_s: float, structure: str, dt: float | None,

@@ -40,7 +40,8 @@ COMPILE_TIMEOUT_S = 1800.0  # a compile that takes longer is abandoned (the shap
 STALE_LOCK_S = 2 * COMPILE_TIMEOUT_S
 FILES = ("nlp.so", "step.so", "meta.npz")
 _SCHEDULED: set[str] = set()  # the entries this process asked for (each once)
-_SOURCES = ("transcribe.py", "layout.py", "../space.py", "../../controllers.py", "codecache.py")
+_SOURCES = ("transcribe.py", "layout.py", "../space.py", "../../controllers.py")  # what writes the NLP
+FORMAT = 1  # the entry's files and how they are compiled (a change here: bump it)
 
 
 _MEMO: dict[Any, Any] = {}  # the sources' hash, gcc's presence, each shape's entry name (per process)
@@ -64,7 +65,7 @@ def _digest(key: Any, space: Any) -> str:
         if "src" not in _MEMO:  # the code that writes the NLP: a change makes new entries
             here = Path(__file__).parent
             _MEMO["src"] = hashlib.sha256(b"".join((here / f).resolve().read_bytes() for f in _SOURCES)).hexdigest()
-        h = hashlib.sha256((_MEMO["src"] + repr((*memo, casadi.__version__, CFLAGS))).encode())
+        h = hashlib.sha256((_MEMO["src"] + repr((*memo, casadi.__version__, CFLAGS, FORMAT))).encode())
         _MEMO[memo] = h.hexdigest()[:24]
     return _MEMO[memo]
 
@@ -89,15 +90,14 @@ def load(key: Any, st: Any, space: Any) -> Any:
     try:
         import casadi as cs
 
-        from .transcribe import Problem, parameter_layout, sqp_options, variable_layout
+        from .transcribe import Problem, _solver, parameter_layout, variable_layout
 
         sums = json.loads((d / "sums.json").read_text())
         if any(_sha(d / f) != sums[f] for f in FILES):
             raise ValueError("checksum")
         meta = np.load(d / "meta.npz")
         nv = int(meta["n_v"])
-        name = f"tune_{key.structure.partition('(')[0]}"
-        solver = cs.nlpsol(name, "sqpmethod", str(d / "nlp.so"), sqp_options())
+        solver = _solver(key, str(d / "nlp.so"))  # (the interpreted solver's own options, from the library)
         step = cs.external("step", str(d / "step.so"))
         prob = Problem(key=key, solver=solver, n_v=nv, lbg=np.array(meta["lbg"], float),
                        ubg=np.array(meta["ubg"], float), params=parameter_layout(key, nv),
@@ -202,7 +202,7 @@ def warm(loops: Any = WARM_LOOPS) -> list[dict[str, float]]:
     globals()["schedule"] = lambda key, st, space: asked.append((key, st, space)) or False
     try:  # (transcribe asks through this module's schedule: here, collected)
         for expr, structure, dt, delay in loops:
-            tune(plant_from_expr(expr), structure=structure, dt=dt, delay=delay, seed=0, time_budget_s=30)
+            tune(plant_from_expr(expr, delay=delay or 0.0), structure=structure, dt=dt, seed=0, time_budget_s=30)
     finally:
         globals()["schedule"] = real
     return [t for t in (build_entry(*a) for a in asked) if t]

@@ -504,7 +504,8 @@ def sqp_options() -> dict[str, Any]:
             "qpsol_options": {"error_on_fail": False}}
 
 
-def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
+def _solver(key: ProblemKey, nlp: dict[str, Any] | str) -> Any:
+    """The NLP's solver: ``nlp`` the expressions, or the shared library of their compiled code (codecache)."""
     if key.solver == "sqp":
         return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "sqpmethod", nlp, sqp_options())
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
