@@ -10,7 +10,8 @@ rename, so a reader sees a whole entry or none. The run that asked is not slowed
 load the entry (:func:`load`) instead of building: the solver from the shared library, the constraint bounds from
 the entry's ``meta.npz``. An entry whose files do not match the checksums written with it, or that CasADi cannot
 load, is deleted and built again, never used. The compiled solver gives bitwise the interpreted solver's answers
-(tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE=off`` turns the cache off (interpreted NLPs only).
+(tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE=off`` turns the cache off (interpreted NLPs only); ``load``
+uses the entries there are and compiles none.
 
 ``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--warm`` compiles the
 shapes of :data:`WARM_LOOPS` now (the Docker image's build).
@@ -112,7 +113,7 @@ def load(key: Any, st: Any, space: Any) -> Any:
 def schedule(key: Any, st: Any, space: Any) -> bool:
     """Ask for the compiled code of ``key`` in the background (a detached process; nothing if it is in the cache,
     being built, or asked for already by this process). True if a build was started."""
-    if not enabled():
+    if not enabled() or os.environ.get("TUNER_NLP_COMPILE", "").strip().lower() == "load":
         return False
     d = entry_dir(key, st, space)
     if d.name in _SCHEDULED or (d / "sums.json").exists():
