@@ -15,10 +15,18 @@ WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY tuner ./tuner
 COPY api ./api
+# gcc: the NLPs' compiled code (tuner.optimize.nlp.codecache), built here for the README's loops and at run time
+# for new problem shapes (in the background)
+RUN apt-get update && apt-get install -y --no-install-recommends gcc libc6-dev && rm -rf /var/lib/apt/lists/*
 RUN pip install --no-cache-dir .
+# the compiled core's caches, built at build time: the batch's kernels (numba) and the NLP shapes of the README's
+# loops; writable by the service's user for the shapes it meets later
+ENV TUNER_CACHE_DIR=/opt/tuner-cache
+RUN python -m tuner.optimize.kernels && python -m tuner.optimize.nlp.codecache --warm \
+    && python -m tuner.optimize.nlp.codecache
 
 RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin tuner \
-    && mkdir -p /data && chown tuner:tuner /data
+    && mkdir -p /data && chown tuner:tuner /data && chown -R tuner:tuner /opt/tuner-cache
 USER tuner
 WORKDIR /data
 ENV TUNER_DATABASE_URL=sqlite:////data/tuner.db

@@ -101,13 +101,14 @@ class Worker:
         return {"tuner_file": tuner.__file__, "efforts": "effort" in inspect.signature(self.tune).parameters}
 
     def cmd_tune_expr(self, plant: str, structure: str, dt: float | None, seed: int, time_budget_s: float,
-                      effort: str | None = None) -> dict:
+                      effort: str | None = None, delay: float | None = None) -> dict:
         """A tune of a plant expression (built fresh, outside the timed call), at ``effort`` where the tree has
-        efforts."""
+        efforts (``delay``: the plant's input delay, s, where given)."""
         from tuner import plant_from_expr
 
         kw = {"effort": effort} if effort and self.cmd_hello()["efforts"] else {}
-        return self._timed(plant_from_expr(plant), structure=structure, dt=dt, seed=seed,
+        built = plant_from_expr(plant) if delay is None else plant_from_expr(plant, delay=delay)
+        return self._timed(built, structure=structure, dt=dt, seed=seed,
                            time_budget_s=time_budget_s, **kw)
 
     def cmd_tune_tf(self, num: list[float], den: list[float], delay_s: float, structure: str, dt: float | None,

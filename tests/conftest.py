@@ -17,6 +17,9 @@ sys.path.insert(0, os.path.dirname(__file__))
 # FastAPI's TestClient sends ``Host: testserver``: serve it too (the service's default is loopback only,
 # api.guard). Servers started as processes (tests/uvicorn_server.py) drop TUNER_* and keep the default.
 os.environ.setdefault("TUNER_ALLOWED_HOSTS", "127.0.0.1,localhost,::1,testserver")
+# The NLPs' compiled-code cache (tuner.optimize.nlp.codecache) would start a background gcc for every problem shape
+# the suite builds: off here (tests/tuner/test_codecache.py turns it on in its own cache folder)
+os.environ.setdefault("TUNER_NLP_COMPILE", "off")
 
 
 def pytest_runtest_makereport(item, call):

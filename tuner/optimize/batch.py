@@ -67,6 +67,77 @@ INFEASIBLE = _INFEASIBLE  # (the registry's: tuner.limits.INFEASIBLE)
 UNSTABLE = 1e5
 
 
+# the compiled kernels (tuner.optimize.kernels): loaded on a batch's first use, never by importing tuner
+_KERNELS: dict[str, Any] = {"module": None, "spawned": False, "one_shot": False}
+
+
+def kernels(*, compile_now: bool = False) -> Any:
+    """The compiled kernels module, or None for the numpy path.
+
+    ``TUNER_KERNELS``: ``off`` (numpy always), ``on`` (compile in this process if they are not in the cache yet) or
+    ``auto`` (the default): the kernels where this machine has compiled them (the cache's ready mark); where it has
+    not, this process stays on numpy and a background process compiles them once for the machine (``python -m
+    tuner.optimize.kernels``). A one-shot command (``tuner tune``: :func:`one_shot`) stays on numpy in ``auto``:
+    importing numba costs it more than its one search gains. ``compile_now``: as ``on``."""
+    mod = _KERNELS["module"]
+    if mod is not None:
+        return mod
+    import importlib.util
+    import os
+
+    mode = os.environ.get("TUNER_KERNELS", "auto").strip().lower()
+    if mode in ("off", "0", "no", "false") or importlib.util.find_spec("numba") is None:
+        return None
+    if not compile_now and mode not in ("on", "1", "yes", "true"):
+        if _KERNELS["one_shot"]:
+            return None
+        from .cachedir import kernels_ready_mark
+
+        if not kernels_ready_mark().exists():
+            _spawn_kernel_build()
+            return None
+    from . import kernels as mod
+
+    _KERNELS["module"] = mod
+    return mod
+
+
+def one_shot(flag: bool = True) -> None:
+    """This process runs one search and ends (the command line): ``TUNER_KERNELS=auto`` keeps it on numpy."""
+    _KERNELS["one_shot"] = flag
+
+
+def _spawn_kernel_build() -> None:
+    """Compile the kernels into the machine's cache in a detached background process (once per process; a lock
+    file keeps concurrent processes from compiling twice; a lock older than ten minutes is taken as stale)."""
+    if _KERNELS["spawned"]:
+        return
+    _KERNELS["spawned"] = True
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from .cachedir import cache_root
+
+    lock = cache_root() / "numba" / "build.lock"
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        if lock.exists() and time.time() - lock.stat().st_mtime > 600:
+            lock.unlink(missing_ok=True)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        os.close(fd)
+    except OSError:
+        return  # another process compiles them (or the cache is not writable: numpy it stays)
+    code = ("import pathlib,sys\ntry:\n from tuner.optimize.kernels import warm; warm()\n"
+            f"finally:\n pathlib.Path({str(lock)!r}).unlink(missing_ok=True)")
+    try:
+        subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, start_new_session=True)
+    except OSError:
+        lock.unlink(missing_ok=True)
+
+
 @dataclass(frozen=True)
 class StackedLoops:
     """The closed loops of a batch of candidates around one plant, stacked on the first axis (B): the state
@@ -196,6 +267,8 @@ class BatchEvaluator:
         # the figures the spec checks or optimises (the registry's batch keys of the limits it sets, its objective's)
         self._needs = frozenset({lim.batch for lim in LIMITS if lim.batch and getattr(sp, lim.field) is not None}
                                 | {objective(sp.objective).batch})
+        #: the compiled kernels (:func:`kernels`), or None: the numpy path (the reference; set None to use it)
+        self.kernels = kernels()
 
     @staticmethod
     def _slowest(p) -> float:
@@ -219,6 +292,7 @@ class BatchEvaluator:
         G = lp.freqresp(self.w)
         G_nyq = lp.value_at(-1.0) if self.dt else None
         G_dc = None if lp.integrating else lp.value_at(0.0 if self.dt is None else 1.0)
+        G = np.ascontiguousarray(G, dtype=complex)
         return _PlantData(g.A, g.B, g.C, float(g.D), lp.delay_samples, lp.delay_s, Cf, Df, G, G_nyq, G_dc,
                           float(g.D) if self.dt is None else 0.0, offsets=offsets)
 
@@ -288,10 +362,15 @@ class BatchEvaluator:
     def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None) -> dict[str, np.ndarray]:
         """One plant's metrics; ``num_r``: the 2-DOF reference path (the frequency metrics are the feedback's)."""
         x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
-        C = self._c_at(num, den, x)
-        L = C * pd.G[None, :]
         m: dict[str, np.ndarray] = {}
-        m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs))
+        if self.kernels is not None:
+            with np.errstate(all="ignore"):
+                C, L = self.kernels.c_and_l(num, den, x, pd.G)
+            m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs, kernels=self.kernels))
+        else:
+            C = self._c_at(num, den, x)
+            L = C * pd.G[None, :]
+            m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs))
         cl = self._closed_loop(pd, num, den, num_r)
         if self.dt is None and pd.tau:
             A_eig = self._fine_delay_dense(pd, num, den, num_r=num_r)[0]
@@ -501,6 +580,9 @@ class BatchEvaluator:
         for K, rows in groups:
             sel = idx[rows]
             Tr = T[rows]
+            if self.kernels is not None and self.dt is not None:
+                self._time_kernel(pd, cl.rows(sel), K, sel, res, band, need_load)
+                continue
             if self.dt is None and pd.tau:
                 sim, args = self._simulate_fine_delay, (pd, num[sel], den[sel], float(Tr.max()),
                                                         None if num_r is None else num_r[sel])
@@ -524,6 +606,44 @@ class BatchEvaluator:
                     if self.load_recovery:
                         res["load_recovery_s"][sel] = _recovery(tl, np.abs(yl))
         return res
+
+    def _time_kernel(self, pd: _PlantData, cl: StackedLoops, K: int, sel: np.ndarray, res: dict[str, np.ndarray],
+                     band: float, need_load: bool) -> None:
+        """:meth:`_time_metrics` of sampled-data loops by the compiled kernel (the same figures as the numpy path's
+        :meth:`_simulate` and :func:`_settling`, :func:`_recovery`), into ``res``'s rows ``sel``."""
+        from ..analysis.verify import LOAD_RECOVERY_SHARE
+
+        f = np.ascontiguousarray
+        nf = 0 if pd.Cf is None else pd.Cf.shape[0]
+        Cf = f(pd.Cf, dtype=float) if nf else np.zeros((0, cl.n_plant))
+        Df = f(pd.Df, dtype=float) if nf else np.zeros(0)
+        off = f(pd.offsets, dtype=float) if nf else np.zeros(0)
+
+        def args(inp: int) -> tuple:
+            return (f(cl.A), f(cl.Bm[:, :, inp]), f(cl.Cy), f(cl.Dy[:, inp]), f(cl.Cu), f(cl.Du[:, inp]), f(cl.Ca),
+                    f(cl.Da[:, inp]), Cf, Df, int(cl.n_plant), int(K), float(self.dt), off)
+
+        yf = self._final(cl, 0)
+        with np.errstate(all="ignore"):
+            ts, ov, cpk, itae, _, _ = self.kernels.step_sampled(*args(0), f(yf), band, True, False, False, 0.0)
+            res["settling_time_s"][sel] = ts
+            res["overshoot_pct"][sel] = ov
+            res["steady_state_error"][sel] = 1.0 - yf
+            res["control_peak"][sel] = cpk
+            res["itae"][sel] = itae
+            if need_load:
+                _, _, _, _, iae, rec = self.kernels.step_sampled(*args(1), np.ones(len(sel)), band, False, True,
+                                                                 bool(self.load_recovery), LOAD_RECOVERY_SHARE)
+                res["iae"][sel] = iae
+                if self.load_recovery:
+                    res["load_recovery_s"][sel] = rec
+
+    def _final(self, cl: StackedLoops, inp: int) -> np.ndarray:
+        """The final value of each loop's output after a unit step at input ``inp`` (nan where not defined)."""
+        nz = cl.A.shape[1]
+        Mdc = (np.eye(nz)[None] - cl.A) if self.dt is not None else -cl.A
+        zf = _solve_dc(Mdc, cl.Bm[:, :, inp])
+        return np.einsum("bz,bz->b", zf, cl.Cy) + cl.Dy[:, inp]
 
     def _simulate(self, pd: _PlantData, cl: StackedLoops, T, K, inp):
         """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points)."""
@@ -553,10 +673,7 @@ class BatchEvaluator:
                 t = np.broadcast_to((np.arange(K)[:, None] * self.dt + pd.offsets[None, :]).ravel(), y.shape)
             else:
                 y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
-        Mdc = (np.eye(nz)[None] - A) if self.dt is not None else -A
-        zf = _solve_dc(Mdc, Bm[:, :, inp])
-        yf = np.einsum("bz,bz->b", zf, Cy) + Dy[:, inp]
-        return y, u, t, yf
+        return y, u, t, self._final(cl, inp)
 
     def _simulate_fine_delay(self, pd, num, den, T, num_r, inp):
         """Continuous loop with delay at the fine step T/CONTINUOUS_STEPS (plant exact, controller Tustin)."""
@@ -785,15 +902,48 @@ def _first_crossing(w: np.ndarray, f: np.ndarray, *, falling: bool) -> np.ndarra
     return np.where(any_, np.where(i > 0, x, w[0]), np.inf)
 
 
+def _ends(pd: _PlantData, num, den, dt) -> list[np.ndarray]:
+    """Re L at DC (a plant that does not integrate) and at Nyquist (sampled loops), where the plant is finite there:
+    gain factors for the gain margins, with no phase-crossover frequency."""
+    ends = []
+    x_dc = 0.0 if dt is None else 1.0
+    if pd.G_dc is not None and np.isfinite(pd.G_dc):
+        c_dc = np.polyval(num.T, x_dc) / np.polyval(den.T, x_dc)
+        ends.append((c_dc * pd.G_dc).real)
+    if dt is not None and pd.G_nyq is not None and np.isfinite(pd.G_nyq):
+        c_ny = np.polyval(num.T, -1.0) / np.polyval(den.T, -1.0)
+        ends.append((c_ny * pd.G_nyq).real)
+    return ends
+
+
 def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantData, num, den, dt,
-                       needs: frozenset[str] = frozenset({"ms", "mt", "mks", "dm", "bw", "drb"})) -> dict[str, Any]:
+                       needs: frozenset[str] = frozenset({"ms", "mt", "mks", "dm", "bw", "drb"}), *,
+                       kernels: Any = None) -> dict[str, Any]:
     """Phase margin, upper/lower gain margins and the crossover frequencies on the grid; Ms, Mt, Mks, disk
     margin and bandwidth where ``needs`` asks for them (nan otherwise). Crossings are found on the whole
-    grid at once and interpolated only where they are (a few per candidate)."""
+    grid at once and interpolated only where they are (a few per candidate); ``kernels``: the margins by the
+    compiled kernel (:func:`tuner.optimize.kernels.margins`, the same rules row by row)."""
+    Bn = L.shape[0]
+    nan = np.full(Bn, np.nan)
+    lw = np.log(w)
+    with np.errstate(all="ignore"):
+        if kernels is not None:
+            ends = _ends(pd, num, den, dt)
+            E = np.stack(ends, axis=1) if ends else np.zeros((Bn, 0))
+            pm, wc, gm, gml, wp = kernels.margins(L, lw, np.ascontiguousarray(E, dtype=float))
+        else:
+            pm, wc, gm, gml, wp = _margins(L, lw, pd, num, den, dt)
+        out = {"pm": pm, "gm": gm, "gml": gml, "wc": wc, "wp": wp, "ms": nan, "mt": nan, "mks": nan, "dm": nan,
+               "bw": nan, "drb": nan.copy()}
+        _peak_metrics(out, L, C, w, pd, num, den, dt, needs)
+    return out
+
+
+def _margins(L: np.ndarray, lw: np.ndarray, pd: _PlantData, num, den, dt) -> tuple[np.ndarray, ...]:
+    """The numpy path of :func:`_frequency_metrics`'s margins: ``(pm, wc, gm, gml, wp)`` per row."""
     Bn = L.shape[0]
     rows = np.arange(Bn)
     nan = np.full(Bn, np.nan)
-    lw = np.log(w)
     with np.errstate(all="ignore"):
         absL = np.abs(L)
         lm = np.log(absL)
@@ -827,17 +977,10 @@ def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantDa
         g = im[r2, c2] / (im[r2, c2] - im[r2, c2 + 1])
         re = L.real[r2, c2] + g * (L.real[r2, c2 + 1] - L.real[r2, c2])
         wpv = np.exp(lw[c2] + g * (lw[c2 + 1] - lw[c2]))
-        ends = []
-        x_dc = 0.0 if dt is None else 1.0
-        if pd.G_dc is not None and np.isfinite(pd.G_dc):
-            c_dc = np.polyval(num.T, x_dc) / np.polyval(den.T, x_dc)
-            ends.append((c_dc * pd.G_dc).real)
-        if dt is not None and pd.G_nyq is not None and np.isfinite(pd.G_nyq):
-            c_ny = np.polyval(num.T, -1.0) / np.polyval(den.T, -1.0)
-            ends.append((c_ny * pd.G_nyq).real)
+        ends = _ends(pd, num, den, dt)
         rr = np.concatenate([r2] + [rows for _ in ends])
         res = np.concatenate([re] + ends)
-        wps = np.concatenate([wpv] + [nan for _ in ends])  # the ends have no phase-crossover frequency
+        wps = np.concatenate([wpv] + [nan for _ in ends])  # (ends: _ends)  # the ends have no phase-crossover frequency
         k = np.where(res < 0, -1.0 / res, np.nan)
         kup = np.where(k > 1.0, k, np.inf)
         up = np.full(Bn, np.inf)
@@ -849,8 +992,12 @@ def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantDa
         np.maximum.at(lo, rr, np.where(k <= 1.0, k, 0.0))
         gm = 20 * np.log10(up)
         gml = np.where(lo > 0, 20 * np.log10(lo), -np.inf)
-        out = {"pm": pm, "gm": gm, "gml": gml, "wc": wc, "wp": wp, "ms": nan, "mt": nan, "mks": nan, "dm": nan,
-               "bw": nan, "drb": nan.copy()}
+    return pm, wc, gm, gml, wp
+
+
+def _peak_metrics(out: dict[str, Any], L, C, w, pd: _PlantData, num, den, dt, needs: frozenset[str]) -> None:
+    """Ms, Mt, Mks, the disk margin, the bandwidth and the DRB into ``out``, where ``needs`` asks for them."""
+    with np.errstate(all="ignore"):
         if needs & {"ms", "mt", "mks", "dm", "bw", "drb"}:
             finL = np.isfinite(L)
             S = 1.0 / (1.0 + L)
@@ -881,4 +1028,3 @@ def _frequency_metrics(L: np.ndarray, C: np.ndarray, w: np.ndarray, pd: _PlantDa
                 out["mks"] = mks
             if "dm" in needs:
                 out["dm"] = np.min(np.where(finL, 2 * np.abs(1 + L) / np.abs(1 - L), np.inf), axis=1)
-    return out

@@ -63,6 +63,7 @@ import numpy as np
 from ...controllers import Structure
 from ..builds import timed_build
 from ..space import Space
+from . import codecache
 from .layout import Layout
 
 __all__ = ["ProblemKey", "Problem", "get_problem", "working_set", "estimated_build_s", "is_built", "cached_count",
@@ -169,6 +170,7 @@ class Problem:
     params: Layout  # the parameter vector p
     variables: Layout  # the decision vector x
     step: Any = None  # casadi Function (x, p) -> the reference-step outputs of every plant, stacked (key.points each)
+    compiled: bool = False  # the solver and step are the cache's compiled code (codecache), not the interpreted graph
 
 
 # the spec's numbers and the steps, in the parameter vector (see refine for their values)
@@ -502,7 +504,8 @@ def sqp_options() -> dict[str, Any]:
             "qpsol_options": {"error_on_fail": False}}
 
 
-def _solver(key: ProblemKey, nlp: dict[str, Any]) -> Any:
+def _solver(key: ProblemKey, nlp: dict[str, Any] | str) -> Any:
+    """The NLP's solver: ``nlp`` the expressions, or the shared library of their compiled code (codecache)."""
     if key.solver == "sqp":
         return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "sqpmethod", nlp, sqp_options())
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
@@ -622,9 +625,21 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
         hit = _CACHE.get(key)
         if hit is not None:
             _CACHE.move_to_end(key)
+    if hit is not None:
+        if hit[0].compiled or not codecache.enabled():
             return hit[0]
+        # built interpreted here: its compiled code may have landed in the cache since (bitwise the same answers)
+        prob = codecache.load(key, st, space)
+        if prob is None:
+            return hit[0]
+        with _LOCK:
+            _CACHE[key] = (prob, hit[1])
+        return prob
     with timed_build():
-        prob = _build(key, st, space)
+        prob = codecache.load(key, st, space) if codecache.enabled() else None
+        if prob is None:
+            prob = _build(key, st, space)
+            codecache.schedule(key, st, space)  # compiled in the background, for the next use (any process)
     with _LOCK:
         _CACHE[key] = (prob, BYTES_PER_NODE * _estimated_nodes(key, len(st.params)))
         _trim()

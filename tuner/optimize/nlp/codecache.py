@@ -1,0 +1,243 @@
+"""The NLPs' compiled code, on disk: CasADi's generated C of each problem shape, compiled once per machine and
+shared by the command line, the service and the study workers (:func:`tuner.optimize.cachedir.cache_root`
+``/nlp``, ``TUNER_CACHE_DIR`` to move it).
+
+A shape's first use builds the interpreted NLP as before (:func:`tuner.optimize.nlp.transcribe.get_problem`) and
+asks for its compiled code (:func:`schedule`): a detached background process builds the same problem again,
+generates its C (``generate_dependencies``, the step's ``generate``), compiles it with gcc (at most one compile at
+a time per machine, each bounded by :data:`COMPILE_TIMEOUT_S`) and moves the finished entry into place by one
+rename, so a reader sees a whole entry or none. The run that asked is not slowed by it. Later uses, in any process,
+load the entry (:func:`load`) instead of building: the solver from the shared library, the constraint bounds from
+the entry's ``meta.npz``. An entry whose files do not match the checksums written with it, or that CasADi cannot
+load, is deleted and built again, never used. The compiled solver gives bitwise the interpreted solver's answers
+(tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE=off`` turns the cache off (interpreted NLPs only); ``load``
+uses the entries there are and compiles none.
+
+``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--warm`` compiles the
+shapes of :data:`WARM_LOOPS` now (the Docker image's build).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cachedir import cache_root
+
+__all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "COMPILE_TIMEOUT_S", "CFLAGS"]
+
+CFLAGS = ("-O1", "-fPIC", "-shared")  # -O1: 1.85-2.2x the interpreted evaluation; -O2 compiles far longer
+COMPILE_TIMEOUT_S = 1800.0  # a compile that takes longer is abandoned (the shape stays interpreted)
+STALE_LOCK_S = 2 * COMPILE_TIMEOUT_S
+FILES = ("nlp.so", "step.so", "meta.npz")
+_SCHEDULED: set[str] = set()  # the entries this process asked for (each once)
+_SOURCES = ("transcribe.py", "layout.py", "../space.py", "../../controllers.py")  # what writes the NLP
+FORMAT = 1  # the entry's files and how they are compiled (a change here: bump it)
+
+
+_MEMO: dict[Any, Any] = {}  # the sources' hash, gcc's presence, each shape's entry name (per process)
+
+
+def enabled() -> bool:
+    """The compiled-code cache is on (``TUNER_NLP_COMPILE`` not ``off``) and gcc is there."""
+    if os.environ.get("TUNER_NLP_COMPILE", "auto").strip().lower() in ("off", "0", "no", "false"):
+        return False
+    cc = os.environ.get("CC", "gcc")
+    if ("cc", cc) not in _MEMO:
+        _MEMO[("cc", cc)] = shutil.which(cc) is not None
+    return _MEMO[("cc", cc)]
+
+
+def _digest(key: Any, space: Any) -> str:
+    memo = (key, space.names, space._ratio_of)
+    if memo not in _MEMO:
+        import casadi
+
+        if "src" not in _MEMO:  # the code that writes the NLP: a change makes new entries
+            here = Path(__file__).parent
+            _MEMO["src"] = hashlib.sha256(b"".join((here / f).resolve().read_bytes() for f in _SOURCES)).hexdigest()
+        h = hashlib.sha256((_MEMO["src"] + repr((*memo, casadi.__version__, CFLAGS, FORMAT))).encode())
+        _MEMO[memo] = h.hexdigest()[:24]
+    return _MEMO[memo]
+
+
+def entry_dir(key: Any, st: Any, space: Any) -> Path:
+    """The cache entry of the problem shape ``key`` (structure ``st``, search space ``space``)."""
+    return cache_root() / "nlp" / _digest(key, space)
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def load(key: Any, st: Any, space: Any) -> Any:
+    """The compiled :class:`~tuner.optimize.nlp.transcribe.Problem` of ``key`` from the cache, or None (not there,
+    or corrupt: then deleted, to be built again)."""
+    if not enabled():
+        return None
+    d = entry_dir(key, st, space)
+    if not (d / "sums.json").exists():
+        return None
+    try:
+        import casadi as cs
+
+        from .transcribe import Problem, _solver, parameter_layout, variable_layout
+
+        sums = json.loads((d / "sums.json").read_text())
+        if any(_sha(d / f) != sums[f] for f in FILES):
+            raise ValueError("checksum")
+        meta = np.load(d / "meta.npz")
+        nv = int(meta["n_v"])
+        solver = _solver(key, str(d / "nlp.so"))  # (the interpreted solver's own options, from the library)
+        step = cs.external("step", str(d / "step.so"))
+        prob = Problem(key=key, solver=solver, n_v=nv, lbg=np.array(meta["lbg"], float),
+                       ubg=np.array(meta["ubg"], float), params=parameter_layout(key, nv),
+                       variables=variable_layout(key, nv), step=step,
+                       compiled=True)
+        return prob
+    except Exception:  # a corrupt or foreign entry: never trusted, built again
+        shutil.rmtree(d, ignore_errors=True)
+        return None
+
+
+def schedule(key: Any, st: Any, space: Any) -> bool:
+    """Ask for the compiled code of ``key`` in the background (a detached process; nothing if it is in the cache,
+    being built, or asked for already by this process). True if a build was started."""
+    if not enabled() or os.environ.get("TUNER_NLP_COMPILE", "").strip().lower() == "load":
+        return False
+    d = entry_dir(key, st, space)
+    if d.name in _SCHEDULED or (d / "sums.json").exists():
+        return False
+    _SCHEDULED.add(d.name)
+    lock = d.with_name(d.name + ".lock")
+    try:
+        d.parent.mkdir(parents=True, exist_ok=True)
+        if lock.exists() and time.time() - lock.stat().st_mtime > STALE_LOCK_S:
+            lock.unlink(missing_ok=True)
+        os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except OSError:
+        return False  # another process builds it (or the cache is not writable)
+    job = d.with_name(d.name + ".job")
+    try:
+        job.write_bytes(pickle.dumps((key, st, space)))
+        subprocess.Popen([sys.executable, "-m", "tuner.optimize.nlp.codecache", "--build", str(job)],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    except (OSError, pickle.PicklingError):
+        lock.unlink(missing_ok=True)
+        job.unlink(missing_ok=True)
+        return False
+    return True
+
+
+def build_entry(key: Any, st: Any, space: Any, *, timeout_s: float = COMPILE_TIMEOUT_S) -> dict[str, float]:
+    """Build, generate and compile the entry of ``key`` now (what the background process does): the seconds each
+    step took. At most one compile at a time per machine (a lock on ``nlp/compile.lock``); the entry is moved into
+    place whole."""
+    import fcntl
+
+    from .transcribe import _build
+
+    d = entry_dir(key, st, space)
+    root = d.parent
+    root.mkdir(parents=True, exist_ok=True)
+    with open(root / "compile.lock", "w") as lk:
+        fcntl.flock(lk, fcntl.LOCK_EX)
+        if (d / "sums.json").exists():
+            return {}
+        tmp = Path(__import__("tempfile").mkdtemp(prefix=d.name + ".", suffix=".tmp", dir=root))
+        try:
+            t0 = time.perf_counter()
+            prob = _build(key, st, space)
+            t1 = time.perf_counter()
+            cwd = os.getcwd()
+            os.chdir(tmp)
+            try:
+                prob.solver.generate_dependencies("nlp.c")
+                prob.step.generate("step.c")
+            finally:
+                os.chdir(cwd)
+            t2 = time.perf_counter()
+            cc = os.environ.get("CC", "gcc")
+            deadline = t2 + timeout_s
+            for src, out in (("step.c", "step.so"), ("nlp.c", "nlp.so")):
+                subprocess.run([cc, *CFLAGS, str(tmp / src), "-o", str(tmp / out), "-lm"], check=True,
+                               timeout=max(1.0, deadline - time.perf_counter()), stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+            t3 = time.perf_counter()
+            np.savez(tmp / "meta.npz", lbg=prob.lbg, ubg=prob.ubg, n_v=prob.n_v)
+            for f in ("nlp.c", "step.c"):
+                (tmp / f).unlink()
+            times = {"build_s": t1 - t0, "generate_s": t2 - t1, "compile_s": t3 - t2}
+            (tmp / "build.json").write_text(json.dumps({"key": repr(key), **times}))
+            (tmp / "sums.json").write_text(json.dumps({f: _sha(tmp / f) for f in FILES}))
+            os.chmod(tmp, 0o755)
+            os.rename(tmp, d)  # whole or not at all
+            return times
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+# the loops whose NLP shapes ``--warm`` compiles (the Docker image's build): the README's roll loop, the px4_rate loop
+WARM_LOOPS = (("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "pid_z", 0.04, None),
+              ("200/((s+2)*(0.03*s+1))", "px4_rate", 0.0025, 0.006))
+
+
+def warm(loops: Any = WARM_LOOPS) -> list[dict[str, float]]:
+    """Tune each loop (``(plant expression, structure, dt, delay)``) and compile every NLP shape it built, now (not
+    in the background): the build times of the new entries."""
+    from ... import plant_from_expr, tune
+
+    asked: list[tuple] = []
+    real = globals()["schedule"]
+    globals()["schedule"] = lambda key, st, space: asked.append((key, st, space)) or False
+    try:  # (transcribe asks through this module's schedule: here, collected)
+        for expr, structure, dt, delay in loops:
+            tune(plant_from_expr(expr, delay=delay or 0.0), structure=structure, dt=dt, seed=0, time_budget_s=30)
+    finally:
+        globals()["schedule"] = real
+    return [t for t in (build_entry(*a) for a in asked) if t]
+
+
+def _main(argv: list[str]) -> int:
+    if argv == ["--warm"]:
+        os.environ["TUNER_NLP_COMPILE"] = "auto"
+        import importlib
+
+        # the package's module (run as __main__, this file is a second copy that transcribe does not call)
+        for t in importlib.import_module("tuner.optimize.nlp.codecache").warm():
+            print(f"compiled an NLP shape: build {t['build_s']:.1f} s, generate {t['generate_s']:.1f} s, "
+                  f"compile {t['compile_s']:.1f} s")
+    if len(argv) == 2 and argv[0] == "--build":
+        job = Path(argv[1])
+        lock = job.with_suffix(".lock")
+        try:
+            key, st, space = pickle.loads(job.read_bytes())  # (written by schedule, in the cache's own folder)
+            build_entry(key, st, space)
+        finally:
+            job.unlink(missing_ok=True)
+            lock.unlink(missing_ok=True)
+        return 0
+    root = cache_root() / "nlp"
+    entries = sorted(root.glob("*/build.json")) if root.exists() else []
+    for b in entries:
+        info = json.loads(b.read_text())
+        print(f"{b.parent.name}  build {info['build_s']:.1f} s  generate {info['generate_s']:.1f} s  "
+              f"compile {info['compile_s']:.1f} s  {info['key']}")
+    pending = sorted(root.glob("*.lock")) if root.exists() else []
+    print(f"{len(entries)} compiled NLP shapes in {root}; {len(pending)} being compiled")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main(sys.argv[1:]))
