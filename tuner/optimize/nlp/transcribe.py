@@ -626,7 +626,7 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
         if hit is not None:
             _CACHE.move_to_end(key)
     if hit is not None:
-        if hit[0].compiled or not codecache.enabled():
+        if not codecache.enabled() or hit[0].compiled:
             return hit[0]
         # built interpreted here: its compiled code may have landed in the cache since (bitwise the same answers)
         prob = codecache.load(key, st, space, _assembler(key))
