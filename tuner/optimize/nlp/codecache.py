@@ -138,13 +138,13 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
                 ) -> dict[str, float]:
     """Build (``build(key, st, space)``: the interpreted problem), generate and compile the entry of ``key`` now
     (what the background process does): the seconds each step took. At most one compile at a time per machine (a
-    lock on ``nlp/compile.lock``); the entry is moved into place whole."""
+    lock on ``nlp/compile.flock``); the entry is moved into place whole."""
     import fcntl
 
     d = entry_dir(key, st, space)
     root = d.parent
     root.mkdir(parents=True, exist_ok=True)
-    with open(root / "compile.lock", "w") as lk:
+    with open(root / "compile.flock", "w") as lk:
         fcntl.flock(lk, fcntl.LOCK_EX)
         if (d / "sums.json").exists():
             return {}
