@@ -125,6 +125,10 @@ def init_worker(service_pid: int, memory_mb: int | None, warm: tuple[str, ...] =
         os.nice(nice)
     if warm:
         warm_up(warm)
+    if not nice:  # a solver (not a plot process): the batch's compiled kernels, where this machine has them
+        from tuner.optimize.batch import preload_kernels
+
+        preload_kernels()
     # the NLP build cache within a quarter of the cap: a solver lives for max_tasks_per_worker jobs, each plant
     # bringing problems of its own (the module is already loaded where the forkserver or the warm-up imported the
     # tuning stack)

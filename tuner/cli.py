@@ -599,11 +599,8 @@ def _weights_note(gains: dict[str, float]) -> str:
 
 def _cmd_tune(a: argparse.Namespace) -> int:
     from .display import optimality_line
-    from .optimize.batch import one_shot
     from .plant import check_dt, plant_from_expr
     from .tuning import tune
-
-    one_shot()  # one search: numpy's batch, not numba's import (TUNER_KERNELS=on asks for the kernels)
 
     spec = _spec_from_args(a)
     plot_fmt = _plot_format(a)

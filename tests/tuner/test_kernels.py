@@ -119,23 +119,22 @@ def test_kernels_off_is_the_numpy_path(monkeypatch):
     assert batch_mod.kernels() is None
 
 
-def test_auto_uses_the_kernels_only_where_the_machine_compiled_them(monkeypatch, tmp_path):
-    """``auto``: no ready mark, numpy now and one background compile asked for; a one-shot command stays on numpy
-    even with the mark; with the mark, the kernels."""
+def test_auto_uses_the_kernels_only_where_a_process_preloaded_them(monkeypatch, tmp_path):
+    """``auto``: a batch uses the kernels only where its process preloaded them (a service solver, a study worker);
+    preloading without the machine's ready mark asks for one background compile and stays on numpy."""
     monkeypatch.setenv("TUNER_KERNELS", "auto")
     monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
     monkeypatch.setitem(batch_mod._KERNELS, "module", None)
-    monkeypatch.setitem(batch_mod._KERNELS, "one_shot", False)
     asked = []
     monkeypatch.setattr(batch_mod, "_spawn_kernel_build", lambda: asked.append(1))
-    assert batch_mod.kernels() is None and asked == [1]
+    assert batch_mod.kernels() is None and not asked
+    assert batch_mod.preload_kernels() is None and asked == [1]
+    assert batch_mod.kernels() is None
     from tuner.optimize.cachedir import kernels_ready_mark
 
     mark = kernels_ready_mark()
     assert mark.parent.parent == tmp_path
     mark.parent.mkdir(parents=True)
     mark.write_text("x")
-    monkeypatch.setitem(batch_mod._KERNELS, "one_shot", True)
-    assert batch_mod.kernels() is None
-    monkeypatch.setitem(batch_mod._KERNELS, "one_shot", False)
-    assert batch_mod.kernels() is not None and asked == [1]
+    assert batch_mod.preload_kernels() is not None and asked == [1]
+    assert batch_mod.kernels() is not None

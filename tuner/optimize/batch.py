@@ -68,43 +68,59 @@ UNSTABLE = 1e5
 
 
 # the compiled kernels (tuner.optimize.kernels): loaded on a batch's first use, never by importing tuner
-_KERNELS: dict[str, Any] = {"module": None, "spawned": False, "one_shot": False}
+_KERNELS: dict[str, Any] = {"module": None, "spawned": False}
 
 
 def kernels(*, compile_now: bool = False) -> Any:
-    """The compiled kernels module, or None for the numpy path.
+    """The compiled kernels module for a new batch, or None for the numpy path.
 
-    ``TUNER_KERNELS``: ``off`` (numpy always), ``on`` (compile in this process if they are not in the cache yet) or
-    ``auto`` (the default): the kernels where this machine has compiled them (the cache's ready mark); where it has
-    not, this process stays on numpy and a background process compiles them once for the machine (``python -m
-    tuner.optimize.kernels``). A one-shot command (``tuner tune``: :func:`one_shot`) stays on numpy in ``auto``:
-    importing numba costs it more than its one search gains. ``compile_now``: as ``on``."""
+    ``TUNER_KERNELS``: ``off`` (numpy always), ``on`` (the kernels, compiled in this process on first use if this
+    machine has not compiled them yet) or ``auto`` (the default): the kernels where this process has loaded them
+    (:func:`preload_kernels`: the service's solver processes and the study workers do at their start), else numpy,
+    so that no search pays numba's import (about half a second) inside its time budget, and a one-shot command
+    (``tuner tune``) none at all. ``compile_now``: as ``on``."""
     mod = _KERNELS["module"]
     if mod is not None:
         return mod
-    import importlib.util
     import os
 
     mode = os.environ.get("TUNER_KERNELS", "auto").strip().lower()
-    if mode in ("off", "0", "no", "false") or importlib.util.find_spec("numba") is None:
-        return None
     if not compile_now and mode not in ("on", "1", "yes", "true"):
-        if _KERNELS["one_shot"]:
-            return None
-        from .cachedir import kernels_ready_mark
+        return None
+    return _import_kernels()
 
-        if not kernels_ready_mark().exists():
+
+def preload_kernels() -> Any:
+    """Load the kernels now, at a long-lived process's start (``TUNER_KERNELS`` ``auto`` or ``on``), where this
+    machine has compiled them (the cache's ready mark); where it has not, start their compile in a detached
+    background process, once per machine, and stay on numpy. The module, or None."""
+    import os
+
+    mode = os.environ.get("TUNER_KERNELS", "auto").strip().lower()
+    if mode in ("off", "0", "no", "false"):
+        return None
+    if mode in ("on", "1", "yes", "true"):
+        return _import_kernels()
+    from .cachedir import kernels_ready_mark
+
+    if _KERNELS["module"] is None and not kernels_ready_mark().exists():
+        import importlib.util
+
+        if importlib.util.find_spec("numba") is not None:
             _spawn_kernel_build()
-            return None
+        return None
+    return _import_kernels()
+
+
+def _import_kernels() -> Any:
+    import importlib.util
+
+    if importlib.util.find_spec("numba") is None:
+        return None
     from . import kernels as mod
 
     _KERNELS["module"] = mod
     return mod
-
-
-def one_shot(flag: bool = True) -> None:
-    """This process runs one search and ends (the command line): ``TUNER_KERNELS=auto`` keeps it on numpy."""
-    _KERNELS["one_shot"] = flag
 
 
 def _spawn_kernel_build() -> None:

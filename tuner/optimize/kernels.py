@@ -281,8 +281,8 @@ def step_sampled(A, Bv, Cy, dy, Cu, du, Ca, da, Cf, Df, n, K, dt, offsets, yf, b
 
 
 def warm() -> float:
-    """Compile (or load from the cache) every kernel on small inputs and write :func:`ready_mark`; the seconds it
-    took."""
+    """Compile (or load from the cache) every kernel on small inputs and write the ready mark
+    (:func:`tuner.optimize.cachedir.kernels_ready_mark`); the seconds it took."""
     import time
 
     t0 = time.perf_counter()
@@ -306,6 +306,7 @@ def warm() -> float:
 
 
 def numba_version() -> str:
+    """The numba the kernels are compiled with."""
     return nb.__version__
 
 

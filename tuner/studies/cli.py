@@ -88,6 +88,9 @@ def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pi
         threading.Thread(target=watchdog, daemon=True).start()
     from threadpoolctl import threadpool_limits
 
+    from ..optimize.batch import preload_kernels
+
+    preload_kernels()  # the batch's compiled kernels, where this machine has them (a worker tunes many loops)
     study = load_study(path)
     with threadpool_limits(limits=1):  # inherited when forked; a spawned worker (not Linux) sets it itself
         work(Coordinator(study, open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)), wakeup=wakeup,

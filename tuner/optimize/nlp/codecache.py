@@ -13,8 +13,8 @@ load, is deleted and built again, never used. The compiled solver gives bitwise 
 (tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE=off`` turns the cache off (interpreted NLPs only); ``load``
 uses the entries there are and compiles none.
 
-``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--warm`` compiles the
-shapes of :data:`WARM_LOOPS` now (the Docker image's build).
+``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--wait`` returns when no
+compile is under way (the Docker image's build tunes its loops, then waits for their code).
 """
 
 from __future__ import annotations
@@ -80,9 +80,11 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def load(key: Any, st: Any, space: Any) -> Any:
-    """The compiled :class:`~tuner.optimize.nlp.transcribe.Problem` of ``key`` from the cache, or None (not there,
-    or corrupt: then deleted, to be built again)."""
+def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
+    """The compiled problem of ``key`` from the cache, or None (not there, or corrupt: then deleted, to be built
+    again). ``assemble(nlp_so, step, lbg, ubg, n_v)`` makes the problem of the entry's parts (the shared library's
+    path, the step Function, the constraint bounds, the number of structure parameters); whatever it raises marks
+    the entry as corrupt too."""
     if not enabled():
         return None
     d = entry_dir(key, st, space)
@@ -91,20 +93,12 @@ def load(key: Any, st: Any, space: Any) -> Any:
     try:
         import casadi as cs
 
-        from .transcribe import Problem, _solver, parameter_layout, variable_layout
-
         sums = json.loads((d / "sums.json").read_text())
         if any(_sha(d / f) != sums[f] for f in FILES):
             raise ValueError("checksum")
         meta = np.load(d / "meta.npz")
-        nv = int(meta["n_v"])
-        solver = _solver(key, str(d / "nlp.so"))  # (the interpreted solver's own options, from the library)
-        step = cs.external("step", str(d / "step.so"))
-        prob = Problem(key=key, solver=solver, n_v=nv, lbg=np.array(meta["lbg"], float),
-                       ubg=np.array(meta["ubg"], float), params=parameter_layout(key, nv),
-                       variables=variable_layout(key, nv), step=step,
-                       compiled=True)
-        return prob
+        return assemble(str(d / "nlp.so"), cs.external("step", str(d / "step.so")), np.array(meta["lbg"], float),
+                        np.array(meta["ubg"], float), int(meta["n_v"]))
     except Exception:  # a corrupt or foreign entry: never trusted, built again
         shutil.rmtree(d, ignore_errors=True)
         return None
@@ -130,7 +124,7 @@ def schedule(key: Any, st: Any, space: Any) -> bool:
     job = d.with_name(d.name + ".job")
     try:
         job.write_bytes(pickle.dumps((key, st, space)))
-        subprocess.Popen([sys.executable, "-m", "tuner.optimize.nlp.codecache", "--build", str(job)],
+        subprocess.Popen([sys.executable, "-m", "tuner.optimize.nlp.transcribe", "--build", str(job)],
                          stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                          start_new_session=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
     except (OSError, pickle.PicklingError):
@@ -140,25 +134,24 @@ def schedule(key: Any, st: Any, space: Any) -> bool:
     return True
 
 
-def build_entry(key: Any, st: Any, space: Any, *, timeout_s: float = COMPILE_TIMEOUT_S) -> dict[str, float]:
-    """Build, generate and compile the entry of ``key`` now (what the background process does): the seconds each
-    step took. At most one compile at a time per machine (a lock on ``nlp/compile.lock``); the entry is moved into
-    place whole."""
+def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float = COMPILE_TIMEOUT_S
+                ) -> dict[str, float]:
+    """Build (``build(key, st, space)``: the interpreted problem), generate and compile the entry of ``key`` now
+    (what the background process does): the seconds each step took. At most one compile at a time per machine (a
+    lock on ``nlp/compile.flock``); the entry is moved into place whole."""
     import fcntl
-
-    from .transcribe import _build
 
     d = entry_dir(key, st, space)
     root = d.parent
     root.mkdir(parents=True, exist_ok=True)
-    with open(root / "compile.lock", "w") as lk:
+    with open(root / "compile.flock", "w") as lk:
         fcntl.flock(lk, fcntl.LOCK_EX)
         if (d / "sums.json").exists():
             return {}
         tmp = Path(__import__("tempfile").mkdtemp(prefix=d.name + ".", suffix=".tmp", dir=root))
         try:
             t0 = time.perf_counter()
-            prob = _build(key, st, space)
+            prob = build(key, st, space)
             t1 = time.perf_counter()
             cwd = os.getcwd()
             os.chdir(tmp)
@@ -188,46 +181,26 @@ def build_entry(key: Any, st: Any, space: Any, *, timeout_s: float = COMPILE_TIM
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-# the loops whose NLP shapes ``--warm`` compiles (the Docker image's build): the README's roll loop, the px4_rate loop
-WARM_LOOPS = (("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "pid_z", 0.04, None),
-              ("200/((s+2)*(0.03*s+1))", "px4_rate", 0.0025, 0.006))
-
-
-def warm(loops: Any = WARM_LOOPS) -> list[dict[str, float]]:
-    """Tune each loop (``(plant expression, structure, dt, delay)``) and compile every NLP shape it built, now (not
-    in the background): the build times of the new entries."""
-    from ... import plant_from_expr, tune
-
-    asked: list[tuple] = []
-    real = globals()["schedule"]
-    globals()["schedule"] = lambda key, st, space: asked.append((key, st, space)) or False
-    try:  # (transcribe asks through this module's schedule: here, collected)
-        for expr, structure, dt, delay in loops:
-            tune(plant_from_expr(expr, delay=delay or 0.0), structure=structure, dt=dt, seed=0, time_budget_s=30)
+def run_job(job: Path, build: Any) -> None:
+    """The background process's work (``python -m tuner.optimize.nlp.transcribe --build JOB``): the entry of the
+    job file that :func:`schedule` wrote, then the job and its lock removed."""
+    lock = job.with_suffix(".lock")
+    try:
+        key, st, space = pickle.loads(job.read_bytes())  # (written by schedule, in the cache's own folder)
+        build_entry(key, st, space, build)
     finally:
-        globals()["schedule"] = real
-    return [t for t in (build_entry(*a) for a in asked) if t]
+        job.unlink(missing_ok=True)
+        lock.unlink(missing_ok=True)
 
 
 def _main(argv: list[str]) -> int:
-    if argv == ["--warm"]:
-        os.environ["TUNER_NLP_COMPILE"] = "auto"
-        import importlib
-
-        # the package's module (run as __main__, this file is a second copy that transcribe does not call)
-        for t in importlib.import_module("tuner.optimize.nlp.codecache").warm():
-            print(f"compiled an NLP shape: build {t['build_s']:.1f} s, generate {t['generate_s']:.1f} s, "
-                  f"compile {t['compile_s']:.1f} s")
-    if len(argv) == 2 and argv[0] == "--build":
-        job = Path(argv[1])
-        lock = job.with_suffix(".lock")
-        try:
-            key, st, space = pickle.loads(job.read_bytes())  # (written by schedule, in the cache's own folder)
-            build_entry(key, st, space)
-        finally:
-            job.unlink(missing_ok=True)
-            lock.unlink(missing_ok=True)
-        return 0
+    if argv == ["--wait"]:  # until no compile is under way (the Docker image's build: after its tunes)
+        root = cache_root() / "nlp"
+        deadline = time.time() + STALE_LOCK_S
+        while root.exists() and any(time.time() - f.stat().st_mtime < STALE_LOCK_S for f in root.glob("*.lock")):
+            if time.time() > deadline:
+                return 1
+            time.sleep(1.0)
     root = cache_root() / "nlp"
     entries = sorted(root.glob("*/build.json")) if root.exists() else []
     for b in entries:

@@ -626,17 +626,17 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
         if hit is not None:
             _CACHE.move_to_end(key)
     if hit is not None:
-        if hit[0].compiled or not codecache.enabled():
+        if not codecache.enabled() or hit[0].compiled:
             return hit[0]
         # built interpreted here: its compiled code may have landed in the cache since (bitwise the same answers)
-        prob = codecache.load(key, st, space)
+        prob = codecache.load(key, st, space, _assembler(key))
         if prob is None:
             return hit[0]
         with _LOCK:
             _CACHE[key] = (prob, hit[1])
         return prob
     with timed_build():
-        prob = codecache.load(key, st, space) if codecache.enabled() else None
+        prob = codecache.load(key, st, space, _assembler(key)) if codecache.enabled() else None
         if prob is None:
             prob = _build(key, st, space)
             codecache.schedule(key, st, space)  # compiled in the background, for the next use (any process)
@@ -644,6 +644,14 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
         _CACHE[key] = (prob, BYTES_PER_NODE * _estimated_nodes(key, len(st.params)))
         _trim()
     return prob
+
+
+def _assembler(key: ProblemKey) -> Any:
+    """The problem of a compiled cache entry's parts (:func:`tuner.optimize.nlp.codecache.load`)."""
+    def assemble(nlp_so: str, step: Any, lbg: np.ndarray, ubg: np.ndarray, nv: int) -> Problem:
+        return Problem(key=key, solver=_solver(key, nlp_so), n_v=nv, lbg=lbg, ubg=ubg,
+                       params=parameter_layout(key, nv), variables=variable_layout(key, nv), step=step, compiled=True)
+    return assemble
 
 
 def _trim() -> None:
@@ -671,3 +679,11 @@ def working_set() -> Iterator[None]:
             if not _PINNED["depth"]:
                 _PINNED["keys"] = set()
                 _trim()
+
+
+if __name__ == "__main__":  # the compiled-code cache's background build (codecache.schedule)
+    import sys
+    from pathlib import Path
+
+    if len(sys.argv) == 3 and sys.argv[1] == "--build":
+        codecache.run_job(Path(sys.argv[2]), _build)
