@@ -119,12 +119,15 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
         opts["reference"] = recs.references[0] if one else recs.references
     try:
         res = identify(recs.inputs[0] if one else recs.inputs, recs.outputs[0] if one else recs.outputs,
-                       rate_hz=recs.rate_hz, **hints(ulog["input"], recs.parameters, recs.rate_hz), **opts)
+                       rate_hz=recs.rate_hz, **hints(ulog["input"], recs.parameters, recs.rate_hz),
+                       reference_biased=recs.flight.get("reference_biased", ""),
+                       firmware=recs.flight.get("firmware"), **opts)
     except TunerError as e:
         if e.field[:1] == ("reference",):
             e.field = ("ulog", "reference", *e.field[1:])
         raise
     out = jsonable(res.to_dict())
+    out["flight"] = jsonable(recs.flight)  # what the log says was flown
     if recs.parameters:
         out["_parameters"] = dict(recs.parameters)
     out["_samples"] = {"inputs": [r.tolist() for r in recs.inputs], "outputs": [r.tolist() for r in recs.outputs],

@@ -61,6 +61,8 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
     signs: list[str] = []
     params: dict[str, float] = {}
     kinds = set()
+    flight: dict[str, Any] = {}
+    biased = ""
     for f in files:
         with open_log(f) as (kind, fh):  # opened once: told CSV or ULog, and read, from one handle
             if kind == "ulog":
@@ -77,6 +79,10 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
                 rs += r.references or []
                 ts += [None] * len(r.inputs)
                 params = params or r.parameters
+                flight = flight or r.flight
+                biased = biased or r.flight.get("reference_biased", "")
+                for n in r.flight.get("notes", ()):
+                    _note(f"{f}: {n}")
                 signs += [x for x in signs_of(a.input, r.parameters) if x not in signs]
                 for lo, hi in r.dropped:
                     _note(f"{f}: {hi - lo:.3g} s between gaps ({lo:.3f}-{hi:.3f} s) is too short to use and was "
@@ -99,7 +105,8 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
                 signs += [x for x in signs_of(a.input) if x not in signs]
     if csv_time and any(t is None for t in ts):
         raise TunerError("mixing CSV logs with a --time column and ULog logs: give --rate for all", field="time")
-    extra = {"signs": signs, "parameters": params, "kinds": kinds}
+    extra = {"signs": signs, "parameters": params, "kinds": kinds, "reference_biased": biased,
+             "firmware": flight.get("firmware")}
     if len(us) == 1:
         return {"input": us[0], "output": ys[0], "time": ts[0] if csv_time else None,
                 "rate_hz": None if csv_time else rate, "reference": rs[0] if rs else None, **extra}
@@ -143,7 +150,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--reference", metavar="COL",
                    help="data flown under feedback (every flight log): the exogenous signal, an injected excitation "
                         "or the rate setpoint flown in a rate mode (CSV column or ULog TOPIC.FIELD, held); the "
-                        "response is then the joint estimate S_ry/S_ru, unbiased by the feedback")
+                        "response is then the joint estimate S_ry/S_ru, unbiased by the feedback when the reference is "
+                        "exogenous (a rate setpoint flown in an attitude mode is not: the estimate is then reported "
+                        "biased by the outer loop)")
     p.add_argument("--hold", choices=("auto", "zoh", "none"), default="auto",
                    help="how the plant saw the input between samples: zoh (a controller's output, held), none (a "
                         "sampled continuous signal, e.g. a stick); auto (default): zoh for a ULog log, whose input "
@@ -200,7 +209,8 @@ def _run(a: argparse.Namespace):
                         zeros=a.zeros, delay=a.delay, delay_step=a.delay_step, band=a.band, holdout=a.holdout,
                         verify=verify, coherence_min=a.coherence_min, n_points=a.points, seed=a.seed,
                         reference=data["reference"], controller=controller, closed_loop_signs=data["signs"],
-                        hold=hold, time_unit=a.time_unit)
+                        hold=hold, time_unit=a.time_unit, reference_biased=data["reference_biased"],
+                        firmware=data["firmware"])
     except TunerError as e:
         opt = _OPTION.get(str(e.field[0]) if e.field else "")
         if opt is None or any(str(e).startswith(str(f)) for f in files + [a.verify]):
