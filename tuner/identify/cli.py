@@ -65,13 +65,18 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
     biased = ""
     for f in files:
         with open_log(f) as (kind, fh):  # opened once: told CSV or ULog, and read, from one handle
-            if kind == "ulog":
-                kinds.add("ulog")
+            if kind in ("ulog", "dataflash"):
+                kinds.add("ulog")  # (a log's input is held onto its grid, either kind)
                 if a.time is not None:
-                    raise TunerError(f"{f}: --time names a CSV column; a ULog log is put on a grid at --rate HZ",
+                    raise TunerError(f"{f}: --time names a CSV column; a flight log is put on a grid at --rate HZ",
                                      field="time")
                 cols = {"input": a.input, "output": a.output, **({"reference": ref} if ref is not None else {})}
-                r = read_ulog(fh, cols, rate_hz=rate)
+                if kind == "dataflash":
+                    from .dataflash import read_dataflash
+
+                    r = read_dataflash(fh.name, cols, rate_hz=rate)
+                else:
+                    r = read_ulog(fh, cols, rate_hz=rate)
                 if rate is None:
                     rate = r.rate_hz
                 us += r.inputs
@@ -122,14 +127,16 @@ def _note(text: str) -> None:
 
 def add_parser(sub: Any) -> None:
     """Register ``tuner identify`` on the subcommand parsers ``sub``."""
-    p = sub.add_parser("identify", help="identify a transfer function from logged records (CSV, PX4 ULog)",
+    p = sub.add_parser("identify",
+                       help="identify a transfer function from logged records (CSV, PX4 ULog, ArduPilot DataFlash)",
                        description="Frequency response with coherence (composite Welch windows), a transfer "
                                    "function fitted by CIFER's cost J over the coherent band, Cramér–Rao bounds, "
                                    "and a time-domain check (on a verification record, the held-out end of the "
                                    "log, or the fitted record), judged against the noise floor. Several files "
                                    "are fitted together (their spectra averaged).")
-    p.add_argument("file", nargs="+", help="CSV log with a header row, or a PX4 ULog log (.ulg); several files: "
-                                           "one fit from all of them (e.g. repeated sweeps)")
+    p.add_argument("file", nargs="+", help="CSV log with a header row, a PX4 ULog log (.ulg) or an ArduPilot "
+                                           "DataFlash log (.bin); several files: one fit from all of them (e.g. "
+                                           "repeated sweeps)")
     p.add_argument("--file", dest="more_files", action="append", default=[], metavar="FILE",
                    help="another log fitted with the others (repeatable)")
     base = p.add_mutually_exclusive_group()
@@ -142,11 +149,13 @@ def add_parser(sub: Any) -> None:
                       help="CSV: sample rate, when there is no time column; ULog: the grid the topics are "
                            "resampled onto (default: the slower topic's rate)")
     p.add_argument("--input", required=True, metavar="COL",
-                   help="plant input: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
-                        "vehicle_torque_setpoint.xyz[0]); held between its samples")
+                   help="plant input: a CSV column, a ULog TOPIC[:INSTANCE].FIELD (e.g. "
+                        "vehicle_torque_setpoint.xyz[0]) or a DataFlash MESSAGE.FIELD (e.g. RATE.ROut); held between "
+                        "its samples")
     p.add_argument("--output", required=True, metavar="COL",
-                   help="plant output: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
-                        "vehicle_angular_velocity.xyz[0]); interpolated linearly")
+                   help="plant output: a CSV column, a ULog TOPIC[:INSTANCE].FIELD (e.g. "
+                        "vehicle_angular_velocity.xyz[0]) or a DataFlash MESSAGE.FIELD (e.g. RATE.R); interpolated "
+                        "linearly")
     p.add_argument("--reference", metavar="COL",
                    help="data flown under feedback (every flight log): the exogenous signal, an injected excitation "
                         "or the rate setpoint flown in a rate mode (CSV column or ULog TOPIC.FIELD, held); the "

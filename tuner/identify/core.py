@@ -299,7 +299,7 @@ def identify(
         if joint is not None:
             spectra, fr, used, jspec = _joint_spectral(fit_recs, joint, req_band, windows_s, coherence_min, firmware)
         else:
-            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
+            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min, firmware)
     except InvalidDataError:
         if not (auto and tail is not None):
             raise
@@ -314,7 +314,7 @@ def identify(
             fit_dur = max(r.duration_s for r in fit_recs)
             _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, 0.0)
             spectra = fr = None  # the head's spectra go before the whole record's are computed (half the memory)
-            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
+            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min, firmware)
     w_fit = np.geomspace(used[0], used[1], n_points)
     if joint is not None:
         from .spectral import joint_composite
@@ -542,11 +542,16 @@ def _check_band(req_band: tuple[float, float] | None, fit_dur: float, nyquist: f
 
 
 def _spectral(recs: list[Record], req_band: tuple[float, float] | None, windows_s: Sequence[float] | None,
-              coherence_min: float) -> tuple[list[Any], Any, tuple[float, float]]:
+              coherence_min: float, firmware: str | None = None) -> tuple[list[Any], Any, tuple[float, float]]:
     from .spectral import coherent_band, frequency_response
 
     fr, spectra = frequency_response([r.detrended() for r in recs], windows_s=windows_s)
-    used = req_band if req_band is not None else coherent_band(fr, coherence_min=coherence_min)
+    try:
+        used = req_band if req_band is not None else coherent_band(fr, coherence_min=coherence_min)
+    except InvalidDataError as e:
+        if not _fly(firmware):
+            raise
+        raise InvalidDataError(str(e) + _fly(firmware), field=e.field) from None
     return spectra, fr, used
 
 

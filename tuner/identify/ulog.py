@@ -113,8 +113,9 @@ class LogHandle:
 
 @contextlib.contextmanager
 def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
-    """``("ulog" | "csv", handle)``: the log file opened once (a regular file within the larger of the two limits,
-    :func:`tuner.fileio.open_input`), its kind told from its name (``.ulg``) or its first bytes (the ULog magic),
+    """``("ulog" | "dataflash" | "csv", handle)``: the log file opened once (a regular file within the larger of the
+    two limits, :func:`tuner.fileio.open_input`), its kind told from its name (``.ulg``, ``.bin``) or its first
+    bytes (the ULog magic, a DataFlash FMT message),
     the handle back at its start; a CSV beyond :data:`~tuner.fileio.MAX_CSV_BYTES` refused at once, from its size.
     The caller reads it from that handle (:func:`read_ulog`, :func:`tuner.identify.csvlog.read_columns`)."""
     import os
@@ -132,6 +133,9 @@ def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
         h = LogHandle(f, str(p.resolve()))
         if p.suffix.lower() == ".ulg" or head == MAGIC:
             yield "ulog", h
+            return
+        if p.suffix.lower() == ".bin" or head[:3] == b"\xa3\x95\x80":  # an ArduPilot DataFlash log (its first FMT)
+            yield "dataflash", h
             return
         size = os.fstat(f.fileno()).st_size
         if size > MAX_CSV_BYTES:
@@ -375,13 +379,29 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
     (tu, xu), (ty, xy) = (_series(ul, src, role, columns[role]) for role in ("input", "output"))
     tr, xr = _series(ul, src, "reference", columns["reference"]) if "reference" in columns else (None, None)
     t0 = float(ul.start_timestamp) * 1e-6  # times are reported from the logger's start
+    drops = [(float(d.timestamp) * 1e-6, float(d.duration) * 1e-3)  # the logger's own dropout notices
+             for d in getattr(ul, "dropouts", []) or []]
+    from .flight import px4_flight
+
+    params = {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
+              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    return on_grid((tu, xu), (ty, xy), (tr, xr), columns, rate_hz=rate_hz, t0=t0, dropouts=drops,
+                   flight=lambda t_end: px4_flight(ul, t_end), name=src_name(src), parameters=params)
+
+
+def on_grid(u: tuple[np.ndarray, np.ndarray], y: tuple[np.ndarray, np.ndarray], r: tuple[Any, Any],
+            columns: Mapping[str, str], *, rate_hz: Any, t0: float, dropouts: list[tuple[float, float]],
+            flight: Any, name: str, parameters: dict[str, float]) -> ULogRecords:
+    """A log's signals (times in s on the log's clock, values) on one uniform grid, split at gaps and dropouts
+    (``(start s, duration s)``), cut to the armed, airborne stretches ``flight(t_end)`` says were flown: the part
+    every log reader (ULog, DataFlash) shares."""
+    (tu, xu), (ty, xy), (tr, xr) = u, y, r
     held = {"input": tu, **({"reference": tr} if tr is not None else {})}
     rate_hz = grid_rate(rate_hz, held, ty, columns)
     dt = 1.0 / rate_hz
     gaps = _gaps(tu, dt) + _gaps(ty, dt)
-    for d in getattr(ul, "dropouts", []) or []:  # the logger's own dropout notices (ms)
-        a = float(d.timestamp) * 1e-6
-        gaps.append((a, a + float(d.duration) * 1e-3))
+    for a, d in dropouts:
+        gaps.append((a, a + d))
     gaps = _merge(gaps)
     lo, hi = max(tu[0], ty[0]), min(tu[-1], ty[-1])
     if tr is not None:
@@ -410,10 +430,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
     edges.append((start, hi))
     if tr is not None:  # the reference held like the input (a setpoint is a command)
         gaps = _merge(gaps + _gaps(tr, dt))
-    from .flight import px4_flight
-
-    flight = px4_flight(ul, max(tu[-1], ty[-1]))
-    edges, summary = flown_edges(edges, flight, t0, src_name(src), columns, lo, hi)
+    edges, summary = flown_edges(edges, flight(max(tu[-1], ty[-1])), t0, name, columns, lo, hi)
     inputs, outputs, refs, starts, dropped = [], [], [], [], []
     for a0, b in edges:
         i0 = int(np.searchsorted(tu, a0 - 1e-9))  # the grid starts on an input sample: held values are exact
@@ -437,8 +454,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         raise InvalidDataError(
             f"no stretch of the log between gaps holds {MIN_SAMPLES} samples at {rate_hz:g} Hz (gaps: {where}; "
             f"common span {lo - t0:.3f}-{hi - t0:.3f} s); log longer sweeps without dropouts", field="input")
-    params = {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
-              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    params = parameters
     summary["used_s"] = sum(u.size for u in inputs) / rate_hz
     return ULogRecords(inputs=inputs, outputs=outputs, rate_hz=rate_hz, t_starts_s=starts, gaps=rel, dropped=dropped,
                        references=refs if tr is not None else None, parameters=params, flight=summary)
@@ -480,8 +496,9 @@ def grid_rate(rate_hz: Any, held: Mapping[str, np.ndarray], ty: np.ndarray, colu
 
 def flown_edges(edges: list[tuple[float, float]], flight: Any, t0: float, name: str, columns: Mapping[str, str],
                 lo: float, hi: float) -> tuple[list[tuple[float, float]], dict[str, Any]]:
-    """The pieces between gaps cut to the armed, airborne stretches the log records (:class:`tuner.identify.flight.Flight`), a
-    log with none refused saying what was seen; and the summary :class:`ULogRecords` keeps (``flight``)."""
+    """The pieces between gaps cut to the armed, airborne stretches the log records
+    (:class:`tuner.identify.flight.Flight`), a log with none refused saying what was seen; and the summary
+    :class:`ULogRecords` keeps (``flight``)."""
     from .flight import intersect, setpoint_reference, total
 
     summary: dict[str, Any] = {"firmware": flight.firmware, "seen": flight.seen, "modes": list(flight.modes),
