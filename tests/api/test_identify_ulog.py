@@ -130,3 +130,27 @@ def test_a_log_never_armed_is_a_422_saying_what_was_seen(client, log, tmp_path):
                                      {"xyz": vec(log.y)})]).read_bytes()).decode()}})
     assert r.status_code == 422 and "vehicle_torque_setpoint at 50 Hz" in r.json()["detail"][0]["msg"], r.text
     assert r.json()["detail"][0]["loc"][-1] == "rate_hz"
+
+
+def test_a_dataflash_upload_is_identified_and_its_signals_listed(client, log, tmp_path):
+    """Issue 40 item 4: an ArduPilot DataFlash log (written by tests/dataflash_writer.py) in place of a ULog."""
+    from dataflash_writer import events, modes, parameters, rate_message, write_dataflash
+
+    t_us = (1_000_000 + np.round(log.t * 1e6)).astype(np.int64)
+    p = write_dataflash(tmp_path / "f.bin", [rate_message(t_us, log.u, log.y, log.u),
+                                             parameters({"ATC_RAT_RLL_P": 0.135, "SCHED_LOOP_RATE": 400}),
+                                             events([(500_000, 10), (600_000, 28)]), modes([(400_000, 1)])])
+    data = base64.b64encode(p.read_bytes()).decode()
+    r = client.post("/ulog/signals", json={"data": data})
+    assert r.status_code == 200, r.text
+    s = r.json()
+    assert s["firmware"] == "ardupilot" and s["kind"] == "dataflash" and "ATC_RAT_RLL_P,0.135" in s["params_text"]
+    assert any(x["name"] == "RATE.R" and x["rate_hz"] == pytest.approx(50.0) for x in s["signals"])
+    r = client.post("/identify", json={"ulog": {"data": data, "input": "RATE.ROut", "output": "RATE.R"},
+                                       "poles": 2})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["flight"]["firmware"] == "ardupilot" and d["rate_hz"] == 50.0
+    assert d["model"]["parameters"]["pole_wn_1_rad_s"] == pytest.approx(14.8528, rel=0.05)
+    r = client.post("/identify", json={"ulog": {"data": data, "input": "RATE.Rx", "output": "RATE.R"}, "poles": 2})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "ulog", "input"], r.text
