@@ -377,6 +377,7 @@ def signals(src: str | Path | bytes) -> dict[str, Any]:
         params = _parameters(r)
     law = {k: v for k, v in params.items() if _PARAM_NAME.fullmatch(k) and k.startswith(_LAW_PARAMS)}
     text = "".join(f"{k},{v!r}\n" for k, v in sorted(law.items()))
-    return {"signals": out, "params_text": text, "loop_hz": law.get("SCHED_LOOP_RATE"), "firmware": "ardupilot",
+    return {"signals": out, "params_text": text, "loop_hz": law.get("SCHED_LOOP_RATE"),
+            "loop_from": "SCHED_LOOP_RATE" if law.get("SCHED_LOOP_RATE") else None, "firmware": "ardupilot",
             "kind": "dataflash"}
 

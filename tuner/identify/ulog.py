@@ -572,7 +572,9 @@ def signals(src: str | Path | bytes) -> dict[str, Any]:
               if _PARAM_NAME.fullmatch(str(k)) and str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float))
               and not isinstance(v, bool) and math.isfinite(float(v))}
     lines = [f"1\t1\t{k}\t{v!r}\t{6 if isinstance(v, int) else 9}" for k, v in sorted(params.items())]
-    loop = params.get("IMU_GYRO_RATEMAX") or params.get("SCHED_LOOP_RATE")
+    loop_from = next((k for k in ("IMU_GYRO_RATEMAX", "SCHED_LOOP_RATE") if params.get(k)), None)
+    loop = params.get(loop_from) if loop_from else None
     return {"signals": out, "params_text": "\n".join(lines) + ("\n" if lines else ""), "loop_hz": loop,
+            "loop_from": loop_from,
             "firmware": "px4" if any(k.startswith("MC_") for k in params) else
             ("ardupilot" if any(k.startswith("ATC_") for k in params) else None)}
