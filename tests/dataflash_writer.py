@@ -1,4 +1,5 @@
-"""A minimal ArduPilot DataFlash (``.bin``) writer for the tests, from ArduPilot's ``libraries/AP_Logger/LogStructure.h``
+"""A minimal ArduPilot DataFlash (``.bin``) writer for the tests, from ArduPilot's
+``libraries/AP_Logger/LogStructure.h``
 (ArduPilot master, 2024): every message is the two header bytes ``0xA3 0x95``, a message type (uint8) and its fields,
 little endian, packed; type 128 is ``FMT`` (``Type`` uint8, ``Length`` uint8 (the whole message, header included),
 ``Name`` char[4], ``Format`` char[16], ``Columns`` char[64]), which describes every type, itself first.

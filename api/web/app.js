@@ -886,7 +886,8 @@ async function loadULog(file) {
     src.textContent = `dt from the vehicle: ${d.loop_from || "its loop rate"} = ${csv.loopHz} Hz in ${file.name}`;
     syncURL();
   } else {
-    src.textContent = `${file.name} does not name the rate loop's rate (${d.firmware === "ardupilot" ? "SCHED_LOOP_RATE" : "IMU_GYRO_RATEMAX"}): give dt, the rate loop's sample time`;
+    src.textContent = `${file.name} does not name the rate loop's rate (${d.firmware === "ardupilot" ? "SCHED_LOOP_RATE" : "IMU_GYRO_RATEMAX"}): `
+      + "dt is left empty (a firmware law takes the vehicle's rate, the result says from where), not the log's grid; give the loop's sample time if you know it";
   }
   $("#vehicle-from-log").disabled = !csv.params;
   $("#vehicle-from-log").checked = Boolean(csv.params);

@@ -441,7 +441,8 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
 
     expect = sync_api.expect
     log = write(fly("sweep", seconds=40, seed=2, sweep_amplitude=3.0, turbulence=0.03), tmp_path / "sweep.ulg")
-    page.goto(f"{server.url}/?" + urlencode({"structure": "pid"}))
+    # a budget the solve meets on a loaded machine (the server's default of 3 s gave a 504 at a load of 19 on 2 cores)
+    page.goto(f"{server.url}/?" + urlencode({"structure": "pid", "budget": "30"}))
     page.check("input[name=pmode][value=csv]")
     page.set_input_files("#csv-file", str(log))
     expect(page.locator("#csv-info")).to_contain_text("signals", timeout=30_000)
@@ -526,7 +527,7 @@ def test_a_real_logs_flow_works_first_time(page, server, sync_api, tmp_path):
 
     expect = sync_api.expect
     flown = fly("sweep", seconds=40, seed=2, sweep_amplitude=3.0, turbulence=0.03)
-    page.goto(f"{server.url}/?" + urlencode({"structure": "pid"}))
+    page.goto(f"{server.url}/?" + urlencode({"structure": "pid", "budget": "30", "effort": "fast"}))
     page.check("input[name=pmode][value=csv]")
     page.set_input_files("#csv-file", str(_old_ulog(tmp_path / "ground.ulg", flown, armed=False)))
     expect(page.locator("#csv-info")).to_contain_text("signals", timeout=30_000)
@@ -549,12 +550,12 @@ def test_a_real_logs_flow_works_first_time(page, server, sync_api, tmp_path):
     page.click("#identify-btn")
     expect(page.locator("#ident-quality")).to_have_text(re.compile("verdict: "), timeout=90_000)
     expect(page.locator("#ident-closed-loop")).to_contain_text("biased by the outer loop")  # attitude mode
-    page.fill("#dt", "0.004")
+    assert page.input_value("#dt") == ""  # still the vehicle's to say: not the log's grid
     page.select_option("#structure", "px4_rate")
     page.click("#run-btn")
     expect(page.locator("#verdict")).to_have_text(re.compile("meets the spec|does NOT meet"), timeout=240_000)
     page.click("#export .tabs button[data-format=px4]")
-    expect(page.locator("#export-code, #export-error").first).not_to_have_text("…", timeout=30_000)
+    expect(page.locator("#export-download:visible, #export-error:visible").first).to_be_visible(timeout=60_000)
     if page.locator("#export-error").is_visible():  # a failed export: no file offered, the reason in words
         assert page.locator("#export-download").is_hidden()
         assert "{" not in page.locator("#export-error").inner_text()
