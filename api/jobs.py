@@ -100,13 +100,18 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
         opts = {k: v for k, v in payload.items() if k not in ("input", "output")}
         return jsonable(identify(payload["input"], payload["output"], **opts).to_dict())
     from tuner.errors import TunerError
+    from tuner.identify.dataflash import is_dataflash, read_dataflash
     from tuner.identify.ulog import read_ulog
 
     cols = {"input": ulog["input"], "output": ulog["output"]}
     if ulog.get("reference"):
         cols["reference"] = ulog["reference"]
     try:
-        recs = read_ulog(bytes(ulog["data"]), cols, rate_hz=payload.get("rate_hz"))
+        raw = bytes(ulog["data"])
+        if is_dataflash(raw[:3]):  # an ArduPilot DataFlash log, uploaded as a ULog is
+            recs = read_dataflash(raw, cols, rate_hz=payload.get("rate_hz"))
+        else:
+            recs = read_ulog(raw, cols, rate_hz=payload.get("rate_hz"))
     except TunerError as e:
         role = e.field[0] if e.field else "data"
         e.field = ("ulog", "data" if role == "file" else role, *e.field[1:])
@@ -119,12 +124,15 @@ def identify_job(payload: dict[str, Any]) -> dict[str, Any]:
         opts["reference"] = recs.references[0] if one else recs.references
     try:
         res = identify(recs.inputs[0] if one else recs.inputs, recs.outputs[0] if one else recs.outputs,
-                       rate_hz=recs.rate_hz, **hints(ulog["input"], recs.parameters, recs.rate_hz), **opts)
+                       rate_hz=recs.rate_hz, **hints(ulog["input"], recs.parameters, recs.rate_hz),
+                       reference_biased=recs.flight.get("reference_biased", ""),
+                       firmware=recs.flight.get("firmware"), **opts)
     except TunerError as e:
         if e.field[:1] == ("reference",):
             e.field = ("ulog", "reference", *e.field[1:])
         raise
     out = jsonable(res.to_dict())
+    out["flight"] = jsonable(recs.flight)  # what the log says was flown
     if recs.parameters:
         out["_parameters"] = dict(recs.parameters)
     out["_samples"] = {"inputs": [r.tolist() for r in recs.inputs], "outputs": [r.tolist() for r in recs.outputs],
@@ -143,6 +151,8 @@ def identify_plot_job(payload: dict[str, Any]) -> bytes:
 def ulog_signals_job(payload: dict[str, Any]) -> dict[str, Any]:
     """``payload``: ``data`` (a ULog's bytes). Returns the signals a page may choose from (``TOPIC[:N].FIELD`` with
     their rates) and the rate law's parameters the log stores (as a QGroundControl .params text)."""
+    from tuner.identify import dataflash
     from tuner.identify.ulog import signals
 
-    return signals(bytes(payload["data"]))
+    raw = bytes(payload["data"])
+    return dataflash.signals(raw) if dataflash.is_dataflash(raw[:3]) else {**signals(raw), "kind": "ulog"}

@@ -110,14 +110,16 @@ MAX_ULOG_BASE64 = 24_000_000  # characters (18 MB of log); the body cap TUNER_MA
 
 
 class ULogUpload(_In):
-    """A PX4 ULog log (``.ulg``), base64-encoded, and the two signals to take from it."""
+    """A flight log, base64-encoded: a PX4 ULog (``.ulg``) or an ArduPilot DataFlash log (``.bin``, told by its first
+    bytes), and the two signals to take from it."""
 
-    data: str = Field(min_length=16, max_length=MAX_ULOG_BASE64, description="the .ulg file, base64 (standard "
-                      "alphabet, padded)")
+    data: str = Field(min_length=16, max_length=MAX_ULOG_BASE64, description="the .ulg or .bin file, base64 "
+                      "(standard alphabet, padded)")
     input: str = Field(min_length=3, max_length=200, description="TOPIC[:INSTANCE].FIELD of the plant input "
-                       "(held between its samples), e.g. vehicle_torque_setpoint.xyz[0]")
+                       "(held between its samples), e.g. vehicle_torque_setpoint.xyz[0]; DataFlash: MESSAGE.FIELD, "
+                       "e.g. RATE.ROut")
     output: str = Field(min_length=3, max_length=200, description="TOPIC[:INSTANCE].FIELD of the plant output "
-                        "(interpolated linearly), e.g. vehicle_angular_velocity.xyz[0]")
+                        "(interpolated linearly), e.g. vehicle_angular_velocity.xyz[0]; DataFlash: e.g. RATE.R")
     reference: str | None = Field(None, min_length=3, max_length=200, description="data flown under feedback: "
                                   "TOPIC[:INSTANCE].FIELD of the exogenous signal (an injected excitation, or the rate "
                                   "setpoint flown in a rate mode, e.g. vehicle_rates_setpoint.roll), held")
@@ -140,7 +142,8 @@ class IdentifyRequest(IdentifyOptions):
                             "numbers of 100 and more, or 0.1 to 1) are refused (422 at time_unit) until it is given")
     rate_hz: Positive | None = Field(None, description="sample rate, Hz; or time. With ulog: the grid the topics "
                                      "are resampled onto (default: the slower topic's rate)")
-    ulog: ULogUpload | None = Field(None, description="a PX4 ULog log instead of input/output/time; a log split "
+    ulog: ULogUpload | None = Field(None, description="a PX4 ULog or ArduPilot DataFlash log instead of "
+                                    "input/output/time; a log split "
                                     "by gaps is fitted as several records")
     verify: VerifyRecord | None = Field(None, description="a separate verification record for the time-domain "
                                         "check (nothing is then held out)")

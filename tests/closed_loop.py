@@ -92,9 +92,10 @@ def fly(kind: str, *, seconds: float = 60.0, seed: int = 0, turbulence: float = 
     return Log(t=t, r=r, u=u, y=y)
 
 
-def write(log: Log, path: Path) -> Path:
+def write(log: Log, path: Path, extra: tuple = ()) -> Path:
     """The flight as a PX4 ULog: vehicle_torque_setpoint.xyz, vehicle_angular_velocity.xyz (with its
-    timestamp_sample), vehicle_rates_setpoint.roll, and the rate controller's parameters."""
+    timestamp_sample), vehicle_rates_setpoint.roll, and the rate controller's parameters; ``extra``: more topics
+    (ulog_writer Topics: the vehicle's state)."""
     from ulog_writer import Topic, write_ulog
 
     ts = (1_000_000 + np.round(log.t * 1e6)).astype(np.int64)
@@ -105,4 +106,4 @@ def write(log: Log, path: Path) -> Path:
                {"timestamp_sample": ts, "xyz": np.stack([log.y, zeros, zeros], 1)})
     sp = Topic("vehicle_rates_setpoint", [("float", "roll", 0), ("float", "pitch", 0), ("float", "yaw", 0)], ts,
                {"roll": log.r, "pitch": zeros, "yaw": zeros})
-    return write_ulog(path, [tq, av, sp], params=PARAMS)
+    return write_ulog(path, [tq, av, sp, *extra], params=PARAMS)

@@ -53,9 +53,25 @@ async function answer(r) {
   return { detail: `${r.status} ${r.statusText}: ${(await r.text()).slice(0, 300)}` };
 }
 
+// an error's detail as sentences: a string as it is, FastAPI's list of {loc, msg} as "where: what; ...", never raw JSON
 function detailText(d) {
-  if (typeof d.detail === "string") return d.detail;
-  return JSON.stringify(d.detail ?? d);
+  const x = d?.detail ?? d;
+  if (typeof x === "string") return x;
+  if (Array.isArray(x)) {
+    return x.map((it) => {
+      if (typeof it === "string") return it;
+      const loc = (it?.loc || []).filter((p, i) => !(i === 0 && ["body", "query", "path"].includes(p))).join(".");
+      return (loc ? `${loc}: ` : "") + (it?.msg ?? "invalid");
+    }).join("; ");
+  }
+  if (x && typeof x === "object") return String(x.message ?? x.msg ?? "the service refused the request");
+  return String(x ?? "no answer");
+}
+
+// a failed request in words: the service's sentences; its status only when it failed (5xx) or said nothing
+function errorText(r, d) {
+  const text = detailText(d);
+  return r.status >= 500 ? `the service failed (HTTP ${r.status}): ${text}` : text;
 }
 
 function keyState(text, bad = false) {
@@ -371,7 +387,7 @@ async function post(path, extra, what, opts = {}) {
       showErrors(form, d.detail, $("#form-error"));
       return null;
     }
-    if (!r.ok) { $("#progress").textContent = ""; showGeneral($("#form-error"), `${r.status}: ${detailText(d)}`); return null; }
+    if (!r.ok) { $("#progress").textContent = ""; showGeneral($("#form-error"), errorText(r, d)); return null; }
     return d;
   } catch (e) {
     busy(false);
@@ -684,10 +700,8 @@ async function loadExport() {
   if ($("#export-umin").value) q.set("u_min", $("#export-umin").value);
   if ($("#export-umax").value) q.set("u_max", $("#export-umax").value);
   const pre = $("#export-code");
-  const link = $("#export-download");
   pre.textContent = continuous && !q.has("dt") ? "a continuous controller: give the sample time dt to export it" : "…";
-  link.removeAttribute("href");
-  link.textContent = "download";
+  noDownload();
   if (continuous && !q.has("dt")) return;
   const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
   if (r.ok) {
@@ -697,7 +711,17 @@ async function loadExport() {
   const d = await answer(r);
   pre.textContent = "";
   if (r.status === 422 && Array.isArray(d.detail)) showErrors(root, d.detail, $("#export-error"));
-  else showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
+  else showGeneral($("#export-error"), errorText(r, d));
+}
+
+// no file to download (before an export's answer, and after a failed one): the link is hidden, its file released
+function noDownload() {
+  const link = $("#export-download");
+  link.removeAttribute("href");
+  link.textContent = "download";
+  link.hidden = true;
+  if (state.exportUrl) URL.revokeObjectURL(state.exportUrl);
+  state.exportUrl = null;
 }
 
 // the exported text shown, and offered as a file to download
@@ -708,6 +732,7 @@ function offer(text, filename) {
   const link = $("#export-download");
   link.href = state.exportUrl;
   link.download = filename;
+  link.hidden = false;
 }
 
 // a firmware law's parameter file (the ground station's format), for download
@@ -723,6 +748,7 @@ async function loadParamFile(f) {
   const pre = $("#export-code");
   const link = $("#export-download");
   pre.textContent = "…";
+  noDownload();
   const r = await api(`/tunes/${encodeURIComponent(state.id)}/export?${q}`);
   if (r.ok) {
     const name = (r.headers.get("content-disposition") || "").match(/filename="([^"]+)"/)?.[1] || `${f}.txt`;
@@ -738,13 +764,13 @@ async function loadParamFile(f) {
   }
   const d = await answer(r);
   pre.textContent = "";
-  showGeneral($("#export-error"), `${r.status}: ${detailText(d)}`);
+  showGeneral($("#export-error"), errorText(r, d));
 }
 
 async function loadStored(id) {
   const r = await api(`/tunes/${encodeURIComponent(id)}`);
   const d = await answer(r);
-  if (!r.ok) { showGeneral($("#form-error"), `stored result ${id}: ${r.status}: ${detailText(d)}`); return; }
+  if (!r.ok) { showGeneral($("#form-error"), `stored result ${id}: ${errorText(r, d)}`); return; }
   const q = d.request || {};
   const v = fromRequest(q);
   if (q.identification_id && (d.plants || []).length) {  // its plant was the identification's fitted model
@@ -784,7 +810,7 @@ async function loadHistory(offset) {
   const body = $("#history-table tbody");
   const r = await api(`/tunes?limit=${HIST}&offset=${offset}`);
   const d = await answer(r);
-  if (!r.ok) { body.replaceChildren(); const tr = body.insertRow(); cell(tr, `${r.status}: ${detailText(d)}`); return; }
+  if (!r.ok) { body.replaceChildren(); const tr = body.insertRow(); cell(tr, errorText(r, d)); return; }
   state.histOffset = d.offset;
   body.replaceChildren();
   for (const it of d.items) {
@@ -832,39 +858,55 @@ function base64(buf) {
   return btoa(bin);
 }
 
-// a PX4 ULog: its signals and stored parameters, read by the service (POST /ulog/signals)
+// a flight log (a PX4 ULog or an ArduPilot DataFlash .bin): its signals and stored parameters, read by the service
+// (POST /ulog/signals). Only rate signals are preselected (the command in, the measured rate out, the rate setpoint as
+// the reference), else nothing: a command is never offered as the output. dt is the vehicle's rate loop, from the
+// parameter the log names, and the page says which; the identification's grid is the log's own (no rate_hz sent)
+const RATE_INPUTS = /^(vehicle_torque_setpoint\.xyz\[0\]|actuator_controls_0\.control\[0\]|RATE\.ROut)$/;
+const RATE_OUTPUTS = /^(vehicle_angular_velocity\.xyz\[0\]|vehicle_attitude\.rollspeed|RATE\.R)$/;
+const RATE_REFERENCES = /^(vehicle_rates_setpoint\.roll|RATE\.RDes)$/;
+
 async function loadULog(file) {
   const data = base64(await file.arrayBuffer());
   $("#csv-info").innerHTML = '<span class="spinner"></span> reading the log…';
   const r = await api("/ulog/signals", { method: "POST", json: { data } });
   const d = await answer(r);
-  if (!r.ok) { $("#csv-info").textContent = ""; showGeneral($("#ident-out"), `${r.status}: ${detailText(d)}`); return; }
+  if (!r.ok) { $("#csv-info").textContent = ""; showGeneral($("#ident-out"), errorText(r, d)); return; }
   const names = d.signals.map((x) => x.name);
   Object.assign(csv, { names, rows: [], ulog: data, params: d.params_text || "", loopHz: d.loop_hz || null });
-  const find = (re, dflt) => { const i = names.findIndex((n) => re.test(n)); return i >= 0 ? i : dflt; };
-  options($("#col-input"), names, find(/^vehicle_torque_setpoint\.xyz\[0\]$|^actuator_controls_0\.control\[0\]$/, 0));
-  options($("#col-output"), names, find(/^vehicle_angular_velocity\.xyz\[0\]$/, 1));
-  options($("#col-reference"), names, find(/^vehicle_rates_setpoint\.roll$/, -1), "none (open loop)");
+  const find = (re) => names.findIndex((n) => re.test(n));
+  options($("#col-input"), names, find(RATE_INPUTS), "choose the plant input (a command)");
+  options($("#col-output"), names, find(RATE_OUTPUTS), "choose the plant output (a measured rate)");
+  options($("#col-reference"), names, find(RATE_REFERENCES), "none (open loop)");
   $("#col-time-field").hidden = true;
   $("#csv-columns").hidden = false;
-  const rate = csv.loopHz || d.signals.find((x) => x.name === names[Number($("#col-input").value)])?.rate_hz;
-  if (rate) { field("dt").value = String(Number((1 / rate).toPrecision(6))); syncURL(); }  // the sample time from the log
+  const src = $("#dt-source");
+  if (csv.loopHz) {  // the sample time of the vehicle's rate loop, as the log's parameters name it
+    field("dt").value = String(Number((1 / csv.loopHz).toPrecision(6)));
+    src.textContent = `dt from the vehicle: ${d.loop_from || "its loop rate"} = ${csv.loopHz} Hz in ${file.name}`;
+    syncURL();
+  } else {
+    src.textContent = `${file.name} does not name the rate loop's rate (${d.firmware === "ardupilot" ? "SCHED_LOOP_RATE" : "IMU_GYRO_RATEMAX"}): `
+      + "dt is left empty (a firmware law takes the vehicle's rate, the result says from where), not the log's grid; give the loop's sample time if you know it";
+  }
   $("#vehicle-from-log").disabled = !csv.params;
   $("#vehicle-from-log").checked = Boolean(csv.params);
-  $("#csv-info").textContent = `${names.length} signals` + (csv.loopHz ? `; rate loop at ${csv.loopHz} Hz (dt from the log)` : "")
-    + (d.firmware ? `; ${d.firmware} parameters stored` : "");
+  $("#csv-info").textContent = `${names.length} signals` + (d.firmware ? `; ${d.firmware} parameters stored` : "");
 }
 
 async function loadCSV(file) {
   clearErrors($("#ident"));
   $("#ident-out").hidden = true;
   const head = new Uint8Array(await file.slice(0, 7).arrayBuffer());
-  if (file.name.toLowerCase().endsWith(".ulg") || String.fromCharCode(...head) === "ULog\x01\x125") {
+  const lower = file.name.toLowerCase();
+  const dataflash = head[0] === 0xa3 && head[1] === 0x95 && head[2] === 0x80;  // a DataFlash log's first FMT
+  if (lower.endsWith(".ulg") || lower.endsWith(".bin") || dataflash || String.fromCharCode(...head) === "ULog\x01\x125") {
     await loadULog(file);
     return;
   }
   const parsed = parseCSV(await file.text());
   Object.assign(csv, parsed, { ulog: null, params: "", loopHz: null });
+  $("#dt-source").textContent = "";
   $("#col-time-field").hidden = false;
   const find = (re) => parsed.names.findIndex((n) => re.test(n));
   const t = find(/^(t|time)\b/i);
@@ -900,11 +942,13 @@ async function identify() {
   const dt = Number(field("dt").value) || null;
   body.delay = $("#id-delay").checked ? "auto" : null;  // the delay as fitted: the loop takes any delay exactly
   const ref = $("#col-reference").value;
-  if (csv.ulog) {
+  if (csv.ulog) {  // the log's own grid (its slower signal's rate): dt is the loop's, not the identification's
+    for (const [sel, role] of [[$("#col-input"), "input"], [$("#col-output"), "output"]]) {
+      if (sel.value === "") errs.push({ loc: ["body", "ulog", role], msg: `choose the plant ${role} among the log's signals` });
+    }
     body.ulog = { data: csv.ulog, input: csv.names[Number($("#col-input").value)],
                   output: csv.names[Number($("#col-output").value)] };
     if (ref !== "") body.ulog.reference = csv.names[Number(ref)];
-    if (dt) body.rate_hz = 1 / dt;
   } else {
     body.input = column($("#col-input"), errs);
     body.output = column($("#col-output"), errs);
@@ -922,7 +966,7 @@ async function identify() {
     const d = await answer(r);
     $("#csv-info").textContent = "";
     if (r.status === 422 && Array.isArray(d.detail)) { showErrors(root, d.detail, $("#ident-out")); return; }
-    if (!r.ok) { showGeneral($("#ident-out"), `${r.status}: ${detailText(d)}`); return; }
+    if (!r.ok) { showGeneral($("#ident-out"), errorText(r, d)); return; }
     const m = d.model;
     writeForm({ ...readForm(), plant: "", num: m.num.map((x) => String(Number(x.toPrecision(8)))).join(", "),
                 den: m.den.map((x) => String(Number(x.toPrecision(8)))).join(", "), var: "s",

@@ -107,3 +107,50 @@ def test_a_ulog_upload_counts_against_the_sample_quota(client, ulog_b64, overrid
     r = client.post("/identify", json={"ulog": {"data": ulog_b64, "input": IN, "output": OUT}, "poles": 2})
     assert r.status_code == 507 and "TUNER_MAX_IDENTIFICATION_SAMPLES" in r.json()["detail"], r.text
     assert client.get("/identifications").json()["total"] == before
+
+
+def test_a_log_never_armed_is_a_422_saying_what_was_seen(client, log, tmp_path):
+    """Issue 40 item 3: the service refuses what the CLI refuses (a log with no armed, airborne stretch), at
+    ulog.data, with what the log shows (PX4's vehicle_status.arming_state, 2 = ARMED; actuator_armed)."""
+    ts = 1_000_000 + np.round(log.t * 1e6).astype(int)
+    vec = lambda x: np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    st = ts[::50]
+    p = write_ulog(tmp_path / "ground.ulg", [
+        Topic("vehicle_torque_setpoint", [("float", "xyz", 3)], ts, {"xyz": vec(log.u)}),
+        Topic("vehicle_angular_velocity", [("float", "xyz", 3)], ts + 4000, {"xyz": vec(log.y)}),
+        Topic("vehicle_status", [("uint8_t", "arming_state", 0), ("uint8_t", "nav_state", 0)], st,
+              {"arming_state": np.zeros(st.size, dtype=int), "nav_state": np.zeros(st.size, dtype=int)})])
+    body = {"ulog": {"data": base64.b64encode(p.read_bytes()).decode(), "input": IN, "output": OUT}, "poles": 2}
+    item = _422(client, body, ["body", "ulog", "data"], "never armed")
+    assert "arming state 0" in item["msg"]
+    body["rate_hz"] = 200.0  # faster than the 50 Hz input: refused at rate_hz, naming the topic
+    r = client.post("/identify", json={**body, "ulog": {**body["ulog"], "data": base64.b64encode(write_ulog(
+        tmp_path / "air.ulg", [Topic("vehicle_torque_setpoint", [("float", "xyz", 3)], ts, {"xyz": vec(log.u)}),
+                               Topic("vehicle_angular_velocity", [("float", "xyz", 3)], ts + 4000,
+                                     {"xyz": vec(log.y)})]).read_bytes()).decode()}})
+    assert r.status_code == 422 and "vehicle_torque_setpoint at 50 Hz" in r.json()["detail"][0]["msg"], r.text
+    assert r.json()["detail"][0]["loc"][-1] == "rate_hz"
+
+
+def test_a_dataflash_upload_is_identified_and_its_signals_listed(client, log, tmp_path):
+    """Issue 40 item 4: an ArduPilot DataFlash log (written by tests/dataflash_writer.py) in place of a ULog."""
+    from dataflash_writer import events, modes, parameters, rate_message, write_dataflash
+
+    t_us = (1_000_000 + np.round(log.t * 1e6)).astype(np.int64)
+    p = write_dataflash(tmp_path / "f.bin", [rate_message(t_us, log.u, log.y, log.u),
+                                             parameters({"ATC_RAT_RLL_P": 0.135, "SCHED_LOOP_RATE": 400}),
+                                             events([(500_000, 10), (600_000, 28)]), modes([(400_000, 1)])])
+    data = base64.b64encode(p.read_bytes()).decode()
+    r = client.post("/ulog/signals", json={"data": data})
+    assert r.status_code == 200, r.text
+    s = r.json()
+    assert s["firmware"] == "ardupilot" and s["kind"] == "dataflash" and "ATC_RAT_RLL_P,0.135" in s["params_text"]
+    assert any(x["name"] == "RATE.R" and x["rate_hz"] == pytest.approx(50.0) for x in s["signals"])
+    r = client.post("/identify", json={"ulog": {"data": data, "input": "RATE.ROut", "output": "RATE.R"},
+                                       "poles": 2})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["flight"]["firmware"] == "ardupilot" and d["rate_hz"] == 50.0
+    assert d["model"]["parameters"]["pole_wn_1_rad_s"] == pytest.approx(14.8528, rel=0.05)
+    r = client.post("/identify", json={"ulog": {"data": data, "input": "RATE.Rx", "output": "RATE.R"}, "poles": 2})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "ulog", "input"], r.text

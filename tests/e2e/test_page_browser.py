@@ -432,6 +432,7 @@ def test_a_tradeoff_with_another_objective_is_refused_at_the_objective(page, ser
     expect(page.locator("#tradeoff-btn")).to_be_enabled()
 
 
+@pytest.mark.timeout(600)
 def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, server, sync_api, tmp_path):
     """Upload a ULog: the signals come from the log (lists), the sample time from its rate loop, the verdict sits
     beside its plot and says the loop was closed; with the rate setpoint as the reference the joint estimate is
@@ -440,7 +441,8 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
 
     expect = sync_api.expect
     log = write(fly("sweep", seconds=40, seed=2, sweep_amplitude=3.0, turbulence=0.03), tmp_path / "sweep.ulg")
-    page.goto(f"{server.url}/?" + urlencode({"structure": "pid"}))
+    # a budget the solve meets on a loaded machine (the server's default of 3 s gave a 504 at a load of 19 on 2 cores)
+    page.goto(f"{server.url}/?" + urlencode({"structure": "pid", "budget": "30"}))
     page.check("input[name=pmode][value=csv]")
     page.set_input_files("#csv-file", str(log))
     expect(page.locator("#csv-info")).to_contain_text("signals", timeout=30_000)
@@ -449,6 +451,7 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
     assert picked == ["vehicle_torque_setpoint.xyz[0]", "vehicle_angular_velocity.xyz[0]",
                       "vehicle_rates_setpoint.roll"]
     assert float(page.input_value("#dt")) == pytest.approx(0.0025)  # IMU_GYRO_RATEMAX from the log
+    expect(page.locator("#dt-source")).to_contain_text("dt from the vehicle: IMU_GYRO_RATEMAX = 400 Hz in sweep.ulg")
     page.select_option("#col-reference", label="none (open loop)")  # first without the reference: flagged
     page.click("#identify-btn")
     expect(page.locator("#ident-quality")).to_have_text(re.compile("verdict: closed-loop"), timeout=90_000)
@@ -466,7 +469,7 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
     # sent with the identification: judged on its measured response too, shown next to the verdict (issue 39)
     expect(page.locator("#verdict")).to_have_text(re.compile(
         "meets the spec, on the model and on the measured response|does NOT meet the spec on the measured response"),
-        timeout=90_000)
+        timeout=240_000)
     expect(page.locator("#airframe-identification")).to_have_text(re.compile("identification: rated (good|acceptable)"))
     expect(page.locator("#airframe-measured")).to_contain_text("on the measured response")
     expect(page.locator("#checks")).to_contain_text("measured phase margin")
@@ -475,6 +478,7 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
     page.click("#export .tabs button[data-format=px4]")
     if "does NOT" in page.locator("#verdict").inner_text():  # refused unless asked for: then the header says so
         expect(page.locator("#export-error")).to_contain_text("force", timeout=30_000)
+        assert page.locator("#export-download").is_hidden()  # no file offered after a failed export
         page.check("#export-force")
         expect(page.locator("#export-code")).to_contain_text("written with --force", timeout=30_000)
     expect(page.locator("#export-code")).to_contain_text("MC_ROLLRATE_P", timeout=30_000)
@@ -488,3 +492,72 @@ def test_a_ulog_flown_under_feedback_from_signals_to_a_parameter_file(page, serv
 
     assert read_params(saved, firmware="px4").gains["P"] > 0
     page.screenshot(path=os.environ.get("TUNER_PAGE_SCREENSHOT_ULOG", str(tmp_path / "ulog.png")), full_page=True)
+
+
+def _old_ulog(path, log, *, armed: bool):
+    """A ULog in the layout of pyulog's sample.ulg (2016-era PX4): actuator_controls_0.control, vehicle_attitude's
+    rollspeed, vehicle_rates_setpoint.roll, vehicle_status (arming_state 2 = ARMED; nav_state 0, MANUAL), no
+    IMU_GYRO_RATEMAX; written with tests/ulog_writer.py."""
+    import numpy as np
+    from ulog_writer import Topic, write_ulog
+
+    ts = (1_000_000 + np.round(log.t * 1e6)).astype(np.int64)
+    n = ts.size
+    ctrl = np.zeros((n, 8))
+    ctrl[:, 0], ctrl[:, 3] = log.u, 0.5
+    st = ts[::100]
+    return write_ulog(path, [
+        Topic("actuator_controls_0", [("float", "control", 8)], ts, {"control": ctrl}),
+        Topic("vehicle_attitude", [("float", "rollspeed", 0), ("float", "pitchspeed", 0)], ts,
+              {"rollspeed": log.y, "pitchspeed": np.zeros(n)}),
+        Topic("vehicle_rates_setpoint", [("float", "roll", 0), ("float", "thrust", 0)], ts,
+              {"roll": log.r, "thrust": np.full(n, 0.5)}),
+        Topic("vehicle_status", [("uint8_t", "arming_state", 0), ("uint8_t", "nav_state", 0)], st,
+              {"arming_state": np.full(st.size, 2 if armed else 0), "nav_state": np.zeros(st.size, dtype=int)})],
+        params={"MC_ROLLRATE_P": 0.15, "MC_ROLLRATE_I": 0.05, "MC_ROLLRATE_D": 0.003})
+
+
+@pytest.mark.timeout(600)
+def test_a_real_logs_flow_works_first_time(page, server, sync_api, tmp_path):
+    """Issue 40 item 5, on a log laid out as pyulog's sample.ulg: only rate signals are preselected (the command in,
+    the measured rate out, never a command as the output), dt is not filled from the log's grid when the log does
+    not name the loop rate (the page says so and where dt would come from), a refusal reads as a sentence (no raw
+    JSON), and a failed export leaves no download link."""
+    from closed_loop import fly
+
+    expect = sync_api.expect
+    flown = fly("sweep", seconds=40, seed=2, sweep_amplitude=3.0, turbulence=0.03)
+    page.goto(f"{server.url}/?" + urlencode({"structure": "pid", "budget": "30", "effort": "fast"}))
+    page.check("input[name=pmode][value=csv]")
+    page.set_input_files("#csv-file", str(_old_ulog(tmp_path / "ground.ulg", flown, armed=False)))
+    expect(page.locator("#csv-info")).to_contain_text("signals", timeout=30_000)
+    picked = [page.locator(f"#col-{c} option:checked").inner_text() for c in ("input", "output", "reference")]
+    assert picked == ["actuator_controls_0.control[0]", "vehicle_attitude.rollspeed", "vehicle_rates_setpoint.roll"]
+    assert page.input_value("#dt") == ""  # the log names no loop rate: dt is not the log's grid
+    expect(page.locator("#dt-source")).to_contain_text("does not name the rate loop's rate (IMU_GYRO_RATEMAX)")
+    page.click("#identify-btn")  # never armed: refused, in words
+    err = page.locator("#ident-out, #ident .err").filter(has_text="no flight")
+    expect(err.first).to_contain_text("never armed and airborne", timeout=60_000)
+    text = err.first.inner_text()
+    assert "arming state 0" in text and "{" not in text and "[{" not in text and "422" not in text
+    # a log without a measured rate: nothing preselected as the output, and identify asks for it at the field
+    page.set_input_files("#csv-file", str(_old_ulog(tmp_path / "flight.ulg", flown, armed=True)))
+    expect(page.locator("#csv-info")).to_contain_text("signals", timeout=30_000)
+    page.select_option("#col-output", label="choose the plant output (a measured rate)")
+    page.click("#identify-btn")
+    expect(page.locator("#ident [data-loc='ulog.output'] .err")).to_contain_text("choose the plant output")
+    page.select_option("#col-output", label="vehicle_attitude.rollspeed")
+    page.click("#identify-btn")
+    expect(page.locator("#ident-quality")).to_have_text(re.compile("verdict: "), timeout=90_000)
+    expect(page.locator("#ident-closed-loop")).to_contain_text("biased by the outer loop")  # attitude mode
+    assert page.input_value("#dt") == ""  # still the vehicle's to say: not the log's grid
+    page.select_option("#structure", "px4_rate")
+    page.click("#run-btn")
+    expect(page.locator("#verdict")).to_have_text(re.compile("meets the spec|does NOT meet"), timeout=240_000)
+    page.click("#export .tabs button[data-format=px4]")
+    expect(page.locator("#export-download:visible, #export-error:visible").first).to_be_visible(timeout=60_000)
+    if page.locator("#export-error").is_visible():  # a failed export: no file offered, the reason in words
+        assert page.locator("#export-download").is_hidden()
+        assert "{" not in page.locator("#export-error").inner_text()
+    else:
+        expect(page.locator("#export-download")).to_be_visible()

@@ -292,8 +292,13 @@ def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = 
     if head == _ULOG_MAGIC:
         return vehicle_from_raw(_ulog_parameters(p, field), axis=axis, firmware=firmware,
                                 source=f"{p.name} (ULog parameters)", fmt="ulog", field=field)
+    if head[:3] == b"\xa3\x95\x80":  # an ArduPilot DataFlash log: its PARM messages (tuner.identify.dataflash)
+        from ..identify.dataflash import read_dataflash_parameters
+
+        return vehicle_from_raw(read_dataflash_parameters(p, field=field), axis=axis, firmware=firmware,
+                                source=f"{p.name} (DataFlash PARM)", fmt="parm", field=field)
     text = read_text(p, limit=MAX_PARAMS_BYTES, field=field,
-                     hint="give a QGroundControl .params, a Mission Planner .parm or a ULog .ulg")
+                     hint="give a QGroundControl .params, a Mission Planner .parm, a ULog .ulg or a DataFlash .bin")
     fmt = {".params": "qgc", ".parm": "parm"}.get(p.suffix.lower())
     if fmt == "parm" and firmware == "px4":
         raise TunerError(f"{p}: a .parm file is ArduPilot's; px4_rate needs {_FILES['px4']}", field=field)

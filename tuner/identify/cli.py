@@ -61,15 +61,22 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
     signs: list[str] = []
     params: dict[str, float] = {}
     kinds = set()
+    flight: dict[str, Any] = {}
+    biased = ""
     for f in files:
         with open_log(f) as (kind, fh):  # opened once: told CSV or ULog, and read, from one handle
-            if kind == "ulog":
-                kinds.add("ulog")
+            if kind in ("ulog", "dataflash"):
+                kinds.add("ulog")  # (a log's input is held onto its grid, either kind)
                 if a.time is not None:
-                    raise TunerError(f"{f}: --time names a CSV column; a ULog log is put on a grid at --rate HZ",
+                    raise TunerError(f"{f}: --time names a CSV column; a flight log is put on a grid at --rate HZ",
                                      field="time")
                 cols = {"input": a.input, "output": a.output, **({"reference": ref} if ref is not None else {})}
-                r = read_ulog(fh, cols, rate_hz=rate)
+                if kind == "dataflash":
+                    from .dataflash import read_dataflash
+
+                    r = read_dataflash(fh.name, cols, rate_hz=rate)
+                else:
+                    r = read_ulog(fh, cols, rate_hz=rate)
                 if rate is None:
                     rate = r.rate_hz
                 us += r.inputs
@@ -77,6 +84,10 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
                 rs += r.references or []
                 ts += [None] * len(r.inputs)
                 params = params or r.parameters
+                flight = flight or r.flight
+                biased = biased or r.flight.get("reference_biased", "")
+                for n in r.flight.get("notes", ()):
+                    _note(f"{f}: {n}")
                 signs += [x for x in signs_of(a.input, r.parameters) if x not in signs]
                 for lo, hi in r.dropped:
                     _note(f"{f}: {hi - lo:.3g} s between gaps ({lo:.3f}-{hi:.3f} s) is too short to use and was "
@@ -99,7 +110,8 @@ def read_records(files: list[str], a: argparse.Namespace) -> dict[str, Any]:
                 signs += [x for x in signs_of(a.input) if x not in signs]
     if csv_time and any(t is None for t in ts):
         raise TunerError("mixing CSV logs with a --time column and ULog logs: give --rate for all", field="time")
-    extra = {"signs": signs, "parameters": params, "kinds": kinds}
+    extra = {"signs": signs, "parameters": params, "kinds": kinds, "reference_biased": biased,
+             "firmware": flight.get("firmware")}
     if len(us) == 1:
         return {"input": us[0], "output": ys[0], "time": ts[0] if csv_time else None,
                 "rate_hz": None if csv_time else rate, "reference": rs[0] if rs else None, **extra}
@@ -115,14 +127,16 @@ def _note(text: str) -> None:
 
 def add_parser(sub: Any) -> None:
     """Register ``tuner identify`` on the subcommand parsers ``sub``."""
-    p = sub.add_parser("identify", help="identify a transfer function from logged records (CSV, PX4 ULog)",
+    p = sub.add_parser("identify",
+                       help="identify a transfer function from logged records (CSV, PX4 ULog, ArduPilot DataFlash)",
                        description="Frequency response with coherence (composite Welch windows), a transfer "
                                    "function fitted by CIFER's cost J over the coherent band, Cramér–Rao bounds, "
                                    "and a time-domain check (on a verification record, the held-out end of the "
                                    "log, or the fitted record), judged against the noise floor. Several files "
                                    "are fitted together (their spectra averaged).")
-    p.add_argument("file", nargs="+", help="CSV log with a header row, or a PX4 ULog log (.ulg); several files: "
-                                           "one fit from all of them (e.g. repeated sweeps)")
+    p.add_argument("file", nargs="+", help="CSV log with a header row, a PX4 ULog log (.ulg) or an ArduPilot "
+                                           "DataFlash log (.bin); several files: one fit from all of them (e.g. "
+                                           "repeated sweeps)")
     p.add_argument("--file", dest="more_files", action="append", default=[], metavar="FILE",
                    help="another log fitted with the others (repeatable)")
     base = p.add_mutually_exclusive_group()
@@ -135,15 +149,19 @@ def add_parser(sub: Any) -> None:
                       help="CSV: sample rate, when there is no time column; ULog: the grid the topics are "
                            "resampled onto (default: the slower topic's rate)")
     p.add_argument("--input", required=True, metavar="COL",
-                   help="plant input: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
-                        "vehicle_torque_setpoint.xyz[0]); held between its samples")
+                   help="plant input: a CSV column, a ULog TOPIC[:INSTANCE].FIELD (e.g. "
+                        "vehicle_torque_setpoint.xyz[0]) or a DataFlash MESSAGE.FIELD (e.g. RATE.ROut); held between "
+                        "its samples")
     p.add_argument("--output", required=True, metavar="COL",
-                   help="plant output: a CSV column, or a ULog TOPIC[:INSTANCE].FIELD (e.g. "
-                        "vehicle_angular_velocity.xyz[0]); interpolated linearly")
+                   help="plant output: a CSV column, a ULog TOPIC[:INSTANCE].FIELD (e.g. "
+                        "vehicle_angular_velocity.xyz[0]) or a DataFlash MESSAGE.FIELD (e.g. RATE.R); interpolated "
+                        "linearly")
     p.add_argument("--reference", metavar="COL",
                    help="data flown under feedback (every flight log): the exogenous signal, an injected excitation "
                         "or the rate setpoint flown in a rate mode (CSV column or ULog TOPIC.FIELD, held); the "
-                        "response is then the joint estimate S_ry/S_ru, unbiased by the feedback")
+                        "response is then the joint estimate S_ry/S_ru, unbiased by the feedback when the reference is "
+                        "exogenous (a rate setpoint flown in an attitude mode is not: the estimate is then reported "
+                        "biased by the outer loop)")
     p.add_argument("--hold", choices=("auto", "zoh", "none"), default="auto",
                    help="how the plant saw the input between samples: zoh (a controller's output, held), none (a "
                         "sampled continuous signal, e.g. a stick); auto (default): zoh for a ULog log, whose input "
@@ -200,7 +218,8 @@ def _run(a: argparse.Namespace):
                         zeros=a.zeros, delay=a.delay, delay_step=a.delay_step, band=a.band, holdout=a.holdout,
                         verify=verify, coherence_min=a.coherence_min, n_points=a.points, seed=a.seed,
                         reference=data["reference"], controller=controller, closed_loop_signs=data["signs"],
-                        hold=hold, time_unit=a.time_unit)
+                        hold=hold, time_unit=a.time_unit, reference_biased=data["reference_biased"],
+                        firmware=data["firmware"])
     except TunerError as e:
         opt = _OPTION.get(str(e.field[0]) if e.field else "")
         if opt is None or any(str(e).startswith(str(f)) for f in files + [a.verify]):

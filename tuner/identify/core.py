@@ -94,6 +94,8 @@ def identify(
     closed_loop_signs: Sequence[str] = (),
     hold: str | None = None,
     time_unit: str = "auto",
+    reference_biased: str = "",
+    firmware: str | None = None,
 ) -> IdentifyResult:
     """Identify a continuous transfer function (with a delay) from logged input/output data.
 
@@ -159,7 +161,8 @@ def identify(
     reference : sequence of float (or a list of them), optional
         The exogenous signal of data flown under feedback: an injected excitation, or the setpoint flown in a
         rate mode (sampled like ``input``). The response is then the joint input-output estimate
-        ``S_ry / S_ru`` (:func:`tuner.identify.spectral.joint_composite`), unbiased by the feedback, with the
+        ``S_ry / S_ru`` (:func:`tuner.identify.spectral.joint_composite`), unbiased by the feedback when ``r`` is
+        exogenous (see ``reference_biased``), with the
         coherence of the output and of the input with ``r``; the band is where ``r`` explains both.
     controller : ControllerTF, optional
         The controller the data were flown with, at the record's sample time (e.g. a rate law from the log's
@@ -182,6 +185,13 @@ def identify(
         column whose steps say it is in another unit until it is said: steps in whole numbers of 100 and more
         (a timestamp in microseconds, as PX4's CSV exports have), or of 0.1 to 1 (a kHz log in milliseconds, or a
         1-10 Hz log in seconds); steps of 1 to 100 get a warning (milliseconds?).
+    reference_biased : str
+        Why ``reference`` is not exogenous (a rate setpoint flown in an attitude mode, where it is the outer loop's
+        output: :func:`tuner.identify.ulog.flown_edges` says so from the log): the joint estimate is then reported
+        as biased by the outer loop, never as unbiased. Empty (default): the reference is taken as exogenous.
+    firmware : {"px4", "ardupilot"} or None
+        The autopilot that flew the log: the advice on a weak or closed-loop log names what to fly on it
+        (:func:`tuner.identify.flight.what_to_fly`).
 
     Returns
     -------
@@ -237,6 +247,7 @@ def identify(
         raise InvalidDataError(f"hold must be 'zoh' or None, got {hold!r}", field="hold")
     recs = _records(input, output, time, rate_hz, time_unit)
     joint = None
+    reference_biased = str(reference_biased or "") if reference is not None else ""
     if reference is not None:
         try:
             joint = (_records(reference, output, time, rate_hz, time_unit),
@@ -286,9 +297,9 @@ def identify(
             band_all = None
     try:
         if joint is not None:
-            spectra, fr, used, jspec = _joint_spectral(fit_recs, joint, req_band, windows_s, coherence_min)
+            spectra, fr, used, jspec = _joint_spectral(fit_recs, joint, req_band, windows_s, coherence_min, firmware)
         else:
-            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
+            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min, firmware)
     except InvalidDataError:
         if not (auto and tail is not None):
             raise
@@ -303,7 +314,7 @@ def identify(
             fit_dur = max(r.duration_s for r in fit_recs)
             _check_band(req_band, fit_dur, recs[0].nyquist_rad_s, recs[0].dt, 0.0)
             spectra = fr = None  # the head's spectra go before the whole record's are computed (half the memory)
-            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min)
+            spectra, fr, used = _spectral(fit_recs, req_band, windows_s, coherence_min, firmware)
     w_fit = np.geomspace(used[0], used[1], n_points)
     if joint is not None:
         from .spectral import joint_composite
@@ -317,7 +328,7 @@ def identify(
         raise InvalidDataError(
             f"no coherent band: only {int(keep.sum())} of {n_points} fit frequencies in {used[0]:.3g}-{used[1]:.3g} "
             f"rad/s have coherence >= {coherence_min:g} (at least {max(n_par + 2, 6)} are needed for {n_par} "
-            "parameters); excite the plant over the band, or choose another band",
+            "parameters); excite the plant over the band, or choose another band" + _fly(firmware),
             field="band" if req_band is not None else "output")
     w, h, coh = pts.w[keep], pts.h[keep], pts.coherence[keep]
     dt_log = recs[0].dt
@@ -350,12 +361,15 @@ def identify(
                         f"if it is in milliseconds, divide it by 1000 ({1000 / dt_log:.4g} Hz); the model's time "
                         "constants and delay are in the time column's units")
     closed = _closed_loop(spectra, fr, dt_log, joint is not None, controller, closed_loop_signs, coherence_min,
-                          reference_band=used if joint is not None else None)
-    if closed.get("detected") and joint is None:
+                          reference_band=used if joint is not None else None, reference_biased=reference_biased,
+                          firmware=firmware)
+    if closed.get("detected") and (joint is None or reference_biased):
         warns.insert(0, closed["message"])
     hold_check = _hold_check(model, w, h_measured, coh, dt_log) if hold == "zoh" else None
     options = {"poles": poles, "zeros": zeros, "delay": delay, "delay_step": step, "hold": hold,
-               "estimate": "joint (reference)" if joint is not None else "direct",
+               "estimate": ("direct" if joint is None else "joint (reference, biased by the outer loop)"
+                            if reference_biased else "joint (reference)"),
+               "reference_biased": reference_biased or None,
                "band": None if req_band is None else list(req_band), "holdout": "auto" if auto else holdout,
                "coherence_min": coherence_min, "n_points": n_points, "n_starts": n_starts, "seed": seed,
                "fit_starts_converged": out.starts, "delay_candidates_s": list(out.delay_candidates_s),
@@ -381,8 +395,18 @@ def zoh_factor(w: np.ndarray, dt: float) -> np.ndarray:
     return np.exp(-1j * x) * np.sinc(x / np.pi)
 
 
+def _fly(firmware: str | None) -> str:
+    """The advice on what to fly, as the end of a sentence ("" without a firmware)."""
+    if firmware not in ("px4", "ardupilot"):
+        return ""
+    from .flight import what_to_fly
+
+    return ". What to fly: " + what_to_fly(firmware)
+
+
 def _joint_spectral(recs: list[Record], joint: tuple[list[Record], list[Record]], req_band: Any,
-                    windows_s: Any, coherence_min: float) -> tuple[list[Any], Any, tuple[float, float], tuple]:
+                    windows_s: Any, coherence_min: float,
+                    firmware: str | None = None) -> tuple[list[Any], Any, tuple[float, float], tuple]:
     """The direct spectra (for the time-domain check and the noise floor), the joint estimate ``S_ry/S_ru`` on
     the usual grid, its band (where r explains y and u), and the r-spectra for the fit points."""
     from .spectral import coherent_band, frequency_response, joint_composite
@@ -400,12 +424,14 @@ def _joint_spectral(recs: list[Record], joint: tuple[list[Record], list[Record]]
         except InvalidDataError as e:
             raise InvalidDataError(f"the reference has no power where it explains the output and the input: {e}; "
                                    "excite the loop through the reference (a sweep or a multisine on the setpoint), "
-                                   "or name the signal that was injected", field="reference") from None
+                                   "or name the signal that was injected" + _fly(firmware),
+                                   field="reference") from None
     return spectra, fr, used, (s_ry, s_ru)
 
 
 def _closed_loop(spectra: list[Any], fr: Any, dt: float, joint: bool, controller: Any, signs: Sequence[str],
-                 coherence_min: float, *, reference_band: Any = None) -> dict[str, Any]:
+                 coherence_min: float, *, reference_band: Any = None, reference_biased: str = "",
+                 firmware: str | None = None) -> dict[str, Any]:
     """What tells that the data were flown under feedback, and what it means for the estimate."""
     from .spectral import coherent_band, composite
 
@@ -428,9 +454,18 @@ def _closed_loop(spectra: list[Any], fr: Any, dt: float, joint: bool, controller
                     found.append(f"the direct estimate matches -1/C of the known controller (median relative "
                                  f"difference {100 * match['median_relative_difference']:.0f} % over {lo:.3g}-"
                                  f"{hi:.3g} rad/s)")
+    if joint and reference_biased:
+        found.append("the reference is not exogenous")
     detected = bool(found)
     if not detected:
         return {"detected": False, "signs": [], "estimate": "joint" if joint else "direct", "inverse_match": match}
+    if joint and reference_biased:
+        lo, hi = reference_band
+        msg = (f"the response is the joint input-output estimate with the reference over {lo:.3g}-{hi:.3g} rad/s, "
+               f"but {reference_biased}: where the disturbance, not the pilot, drives the setpoint, the outer "
+               "loop's feedback moves the estimate toward the inner loop's inverse" + _fly(firmware))
+        return {"detected": True, "signs": found, "estimate": "joint", "message": msg, "inverse_match": match,
+                "reference_exogenous": False}
     if joint:
         lo, hi = reference_band
         msg = ("the data were flown under feedback (" + "; ".join(found) + "); the response is the joint "
@@ -441,7 +476,7 @@ def _closed_loop(spectra: list[Any], fr: Any, dt: float, joint: bool, controller
                "excitation, drives the loop, the direct estimate from input to output is the controller's "
                "inverse -1/C, at high coherence, and says nothing about the plant; this fit is not rated good or "
                "acceptable. Give the exogenous signal as the reference (an injected excitation, or the rate "
-               "setpoint flown in a rate mode), and excite the loop through it")
+               "setpoint flown in a rate mode), and excite the loop through it" + _fly(firmware))
     return {"detected": True, "signs": found, "estimate": "joint" if joint else "direct", "message": msg,
             "inverse_match": match}
 
@@ -507,11 +542,16 @@ def _check_band(req_band: tuple[float, float] | None, fit_dur: float, nyquist: f
 
 
 def _spectral(recs: list[Record], req_band: tuple[float, float] | None, windows_s: Sequence[float] | None,
-              coherence_min: float) -> tuple[list[Any], Any, tuple[float, float]]:
+              coherence_min: float, firmware: str | None = None) -> tuple[list[Any], Any, tuple[float, float]]:
     from .spectral import coherent_band, frequency_response
 
     fr, spectra = frequency_response([r.detrended() for r in recs], windows_s=windows_s)
-    used = req_band if req_band is not None else coherent_band(fr, coherence_min=coherence_min)
+    try:
+        used = req_band if req_band is not None else coherent_band(fr, coherence_min=coherence_min)
+    except InvalidDataError as e:
+        if not _fly(firmware):
+            raise
+        raise InvalidDataError(str(e) + _fly(firmware), field=e.field) from None
     return spectra, fr, used
 
 

@@ -67,6 +67,10 @@ class ULogRecords:
     dropped: list[tuple[float, float]] = field(default_factory=list)  # pieces too short to use, s
     references: list[np.ndarray] | None = None  # the reference signal on the same grid (held), when asked for
     parameters: dict[str, float] = field(default_factory=dict)  # the parameters the log stores
+    #: what the log says was flown (:func:`flown_edges`): the firmware, the armed and airborne time used, the
+    #: modes, what was seen, notes, and ``reference_biased`` (why a rate setpoint given as the reference is not
+    #: exogenous, or "")
+    flight: dict[str, Any] = field(default_factory=dict)
 
     def describe(self) -> str:
         """One line: the records, their samples and rate, and where the log was split."""
@@ -109,8 +113,9 @@ class LogHandle:
 
 @contextlib.contextmanager
 def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
-    """``("ulog" | "csv", handle)``: the log file opened once (a regular file within the larger of the two limits,
-    :func:`tuner.fileio.open_input`), its kind told from its name (``.ulg``) or its first bytes (the ULog magic),
+    """``("ulog" | "dataflash" | "csv", handle)``: the log file opened once (a regular file within the larger of the
+    two limits, :func:`tuner.fileio.open_input`), its kind told from its name (``.ulg``, ``.bin``) or its first
+    bytes (the ULog magic, a DataFlash FMT message),
     the handle back at its start; a CSV beyond :data:`~tuner.fileio.MAX_CSV_BYTES` refused at once, from its size.
     The caller reads it from that handle (:func:`read_ulog`, :func:`tuner.identify.csvlog.read_columns`)."""
     import os
@@ -128,6 +133,9 @@ def open_log(path: str | Path) -> Iterator[tuple[str, LogHandle]]:
         h = LogHandle(f, str(p.resolve()))
         if p.suffix.lower() == ".ulg" or head == MAGIC:
             yield "ulog", h
+            return
+        if p.suffix.lower() == ".bin" or head[:3] == b"\xa3\x95\x80":  # an ArduPilot DataFlash log (its first FMT)
+            yield "dataflash", h
             return
         size = os.fstat(f.fileno()).st_size
         if size > MAX_CSV_BYTES:
@@ -365,25 +373,35 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         src = src.read(MAX_ULOG_BYTES + 1)
         if len(src) > MAX_ULOG_BYTES:
             raise InvalidDataError(f"the upload holds more than {MAX_ULOG_BYTES} bytes (cut the log)", field="file")
-    ul = _load(src, sorted({s[0] for s in specs.values()}))
+    from .flight import PX4_STATE_TOPICS
+
+    ul = _load(src, sorted({s[0] for s in specs.values()} | set(PX4_STATE_TOPICS)))
     (tu, xu), (ty, xy) = (_series(ul, src, role, columns[role]) for role in ("input", "output"))
     tr, xr = _series(ul, src, "reference", columns["reference"]) if "reference" in columns else (None, None)
     t0 = float(ul.start_timestamp) * 1e-6  # times are reported from the logger's start
-    if rate_hz is None:
-        rate_hz = float(min(1.0 / np.median(np.diff(tu)), 1.0 / np.median(np.diff(ty))))
-        rate_hz = float(f"{rate_hz:.3g}")  # 249.8 Hz of a jittery 250 Hz topic -> 250
-    else:
-        try:
-            rate_hz = float(rate_hz)
-        except (TypeError, ValueError):
-            raise InvalidDataError(f"rate_hz must be a number, got {rate_hz!r}", field="rate_hz") from None
-        if not (math.isfinite(rate_hz) and 0 < rate_hz <= 1e5):
-            raise InvalidDataError(f"rate_hz must be in (0, 1e5] Hz, got {rate_hz!r}", field="rate_hz")
+    drops = [(float(d.timestamp) * 1e-6, float(d.duration) * 1e-3)  # the logger's own dropout notices
+             for d in getattr(ul, "dropouts", []) or []]
+    from .flight import px4_flight
+
+    params = {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
+              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    return on_grid((tu, xu), (ty, xy), (tr, xr), columns, rate_hz=rate_hz, t0=t0, dropouts=drops,
+                   flight=lambda t_end: px4_flight(ul, t_end), name=src_name(src), parameters=params)
+
+
+def on_grid(u: tuple[np.ndarray, np.ndarray], y: tuple[np.ndarray, np.ndarray], r: tuple[Any, Any],
+            columns: Mapping[str, str], *, rate_hz: Any, t0: float, dropouts: list[tuple[float, float]],
+            flight: Any, name: str, parameters: dict[str, float]) -> ULogRecords:
+    """A log's signals (times in s on the log's clock, values) on one uniform grid, split at gaps and dropouts
+    (``(start s, duration s)``), cut to the armed, airborne stretches ``flight(t_end)`` says were flown: the part
+    every log reader (ULog, DataFlash) shares."""
+    (tu, xu), (ty, xy), (tr, xr) = u, y, r
+    held = {"input": tu, **({"reference": tr} if tr is not None else {})}
+    rate_hz = grid_rate(rate_hz, held, ty, columns)
     dt = 1.0 / rate_hz
     gaps = _gaps(tu, dt) + _gaps(ty, dt)
-    for d in getattr(ul, "dropouts", []) or []:  # the logger's own dropout notices (ms)
-        a = float(d.timestamp) * 1e-6
-        gaps.append((a, a + float(d.duration) * 1e-3))
+    for a, d in dropouts:
+        gaps.append((a, a + d))
     gaps = _merge(gaps)
     lo, hi = max(tu[0], ty[0]), min(tu[-1], ty[-1])
     if tr is not None:
@@ -412,6 +430,7 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
     edges.append((start, hi))
     if tr is not None:  # the reference held like the input (a setpoint is a command)
         gaps = _merge(gaps + _gaps(tr, dt))
+    edges, summary = flown_edges(edges, flight(max(tu[-1], ty[-1])), t0, name, columns, lo, hi)
     inputs, outputs, refs, starts, dropped = [], [], [], [], []
     for a0, b in edges:
         i0 = int(np.searchsorted(tu, a0 - 1e-9))  # the grid starts on an input sample: held values are exact
@@ -435,10 +454,84 @@ def read_ulog(src: str | Path | bytes | BinaryIO, columns: Mapping[str, str], *,
         raise InvalidDataError(
             f"no stretch of the log between gaps holds {MIN_SAMPLES} samples at {rate_hz:g} Hz (gaps: {where}; "
             f"common span {lo - t0:.3f}-{hi - t0:.3f} s); log longer sweeps without dropouts", field="input")
-    params = {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
-              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    params = parameters
+    summary["used_s"] = sum(u.size for u in inputs) / rate_hz
     return ULogRecords(inputs=inputs, outputs=outputs, rate_hz=rate_hz, t_starts_s=starts, gaps=rel, dropped=dropped,
-                       references=refs if tr is not None else None, parameters=params)
+                       references=refs if tr is not None else None, parameters=params, flight=summary)
+
+
+def src_name(src: Any) -> str:
+    """The log's name for a message: its path, or "the upload"."""
+    return src.name if isinstance(src, LogHandle) else ("the upload" if isinstance(src, bytes) else str(src))
+
+
+#: a grid may be this much faster than a held signal's median logging rate (a jittery 250 Hz topic at 250 Hz)
+GRID_OVER_LOGGED = 1.05
+
+
+def grid_rate(rate_hz: Any, held: Mapping[str, np.ndarray], ty: np.ndarray, columns: Mapping[str, str]) -> float:
+    """The identification grid's rate: the one given (checked: a number, and no faster than every held signal, the
+    input and the reference, is logged), or by default the slowest signal's median rate."""
+    rates = {role: float(1.0 / np.median(np.diff(t))) for role, t in held.items()}
+    if rate_hz is None:
+        rate_hz = float(min([*rates.values(), 1.0 / np.median(np.diff(ty))]))
+        return float(f"{rate_hz:.3g}")  # 249.8 Hz of a jittery 250 Hz topic -> 250
+    try:
+        rate_hz = float(rate_hz)
+    except (TypeError, ValueError):
+        raise InvalidDataError(f"rate_hz must be a number, got {rate_hz!r}", field="rate_hz") from None
+    if not (math.isfinite(rate_hz) and 0 < rate_hz <= 1e5):
+        raise InvalidDataError(f"rate_hz must be in (0, 1e5] Hz, got {rate_hz!r}", field="rate_hz")
+    for role, r in rates.items():
+        if rate_hz > GRID_OVER_LOGGED * r:
+            topic = columns[role].split(".", 1)[0]
+            raise InvalidDataError(
+                f"the grid's rate {rate_hz:g} Hz is faster than the {role} {columns[role]} is logged: {topic} at "
+                f"{r:.3g} Hz (median interval). Held onto the faster grid, each logged value would repeat about "
+                f"{rate_hz / r:.1f} times and nothing above {r / 2:.3g} Hz would be the {role}'s; give a rate of at "
+                f"most {r:.3g} Hz, or log {topic} faster (PX4: SDLOG_PROFILE bit 3, system identification; "
+                "ArduPilot: LOG_BITMASK attitude fast)", field="rate_hz")
+    return rate_hz
+
+
+def flown_edges(edges: list[tuple[float, float]], flight: Any, t0: float, name: str, columns: Mapping[str, str],
+                lo: float, hi: float) -> tuple[list[tuple[float, float]], dict[str, Any]]:
+    """The pieces between gaps cut to the armed, airborne stretches the log records
+    (:class:`tuner.identify.flight.Flight`), a log with none refused saying what was seen; and the summary
+    :class:`ULogRecords` keeps (``flight``)."""
+    from .flight import intersect, setpoint_reference, total
+
+    summary: dict[str, Any] = {"firmware": flight.firmware, "seen": flight.seen, "modes": list(flight.modes),
+                               "notes": list(flight.notes), "reference_biased": ""}
+    if flight.flown is not None:
+        cut = intersect(edges, flight.flown)
+        if not cut:
+            when = ("never armed and airborne" if not flight.flown else
+                    "armed and airborne only at " + ", ".join(f"{a - t0:.1f}-{b - t0:.1f} s" for a, b in
+                                                             flight.flown[:4]) +
+                    f", outside the signals' common span {lo - t0:.1f}-{hi - t0:.1f} s")
+            raise InvalidDataError(f"{name}: the log shows no flight to identify from: the vehicle was {when} "
+                                   f"({flight.seen or 'no state recorded'}); identify from a log of a flight",
+                                   field="file")
+        off = total(edges) - total(cut)
+        if off > 0:
+            summary["notes"].append(f"{off:.3g} s of the log on the ground or disarmed left out (identified "
+                                    f"from the {total(cut):.3g} s armed and airborne)")
+        edges = cut
+    ref = columns.get("reference")
+    if ref is not None and setpoint_reference(ref):
+        exo = total(intersect(edges, flight.exogenous)) if flight.exogenous else 0.0
+        share = exo / max(total(edges), 1e-12)
+        if share < 0.999:
+            modes = ", ".join(flight.modes) or "a mode the log does not record"
+            summary["reference_biased"] = (
+                f"the reference {ref} is a rate setpoint, exogenous only in a rate (acro) mode or with an injected "
+                f"excitation, and {100 * (1 - share):.0f} % of the identified stretches were flown otherwise "
+                f"(modes: {modes}): there it is the attitude loop's output, which feeds back the measured "
+                "attitude, so the joint estimate is biased by the outer loop")
+        elif flight.exogenous_why:
+            summary["notes"].append(f"the reference {ref} is exogenous: flown in {flight.exogenous_why}")
+    return edges, summary
 
 
 #: a name a parameter file may hold (PX4's and ArduPilot's: upper case, digits and '_', at most 16 characters): a
@@ -479,7 +572,9 @@ def signals(src: str | Path | bytes) -> dict[str, Any]:
               if _PARAM_NAME.fullmatch(str(k)) and str(k).startswith(_LAW_PARAMS) and isinstance(v, (int, float))
               and not isinstance(v, bool) and math.isfinite(float(v))}
     lines = [f"1\t1\t{k}\t{v!r}\t{6 if isinstance(v, int) else 9}" for k, v in sorted(params.items())]
-    loop = params.get("IMU_GYRO_RATEMAX") or params.get("SCHED_LOOP_RATE")
+    loop_from = next((k for k in ("IMU_GYRO_RATEMAX", "SCHED_LOOP_RATE") if params.get(k)), None)
+    loop = params.get(loop_from) if loop_from else None
     return {"signals": out, "params_text": "\n".join(lines) + ("\n" if lines else ""), "loop_hz": loop,
+            "loop_from": loop_from,
             "firmware": "px4" if any(k.startswith("MC_") for k in params) else
             ("ardupilot" if any(k.startswith("ATC_") for k in params) else None)}

@@ -1,0 +1,138 @@
+"""ArduPilot DataFlash logs (issue 40 item 4): identify from RATE/PIDR/SIDD, the parameters from PARM, what was flown
+from ARM/EV/MODE, damaged logs refused at once. The logs are written here (tests/dataflash_writer.py, from
+ArduPilot's LogStructure.h), from a flight simulated with a rate law in the loop (tests/closed_loop.py); the values
+expected are the ones written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from closed_loop import fly
+from dataflash_writer import Message, arm, events, modes, parameters, rate_message, write_dataflash
+
+from tuner.cli import main
+from tuner.errors import InvalidDataError, TunerError
+from tuner.firmware import read_params
+from tuner.identify.dataflash import read_dataflash, read_dataflash_parameters, signals
+
+T0 = 1_000_000  # µs: the first RATE sample
+AP_PARAMS = {"ATC_RAT_RLL_P": 0.135, "ATC_RAT_RLL_I": 0.135, "ATC_RAT_RLL_D": 0.0036, "ATC_RAT_RLL_FF": 0.0,
+             "ATC_RAT_RLL_IMAX": 0.5, "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_RLL_FLTE": 0.0, "ATC_RAT_RLL_FLTD": 20.0,
+             "SCHED_LOOP_RATE": 400, "INS_GYRO_FILTER": 20.0}
+
+
+@pytest.fixture(scope="module")
+def sweep():
+    return fly("sweep", seconds=60, seed=2, sweep_amplitude=3.0, turbulence=0.03)
+
+
+def _log(path, log, *, took_off_s=5.0, landed_s=None, mode=1, armed=True, extra=()):
+    t_us = (T0 + np.round(log.t * 1e6)).astype(np.int64)
+    ev = [(T0 - 500_000, 10)] if armed else []
+    ev += [(T0 + int(took_off_s * 1e6), 28)] if took_off_s is not None else []
+    ev += [(T0 + int(landed_s * 1e6), 18)] if landed_s is not None else []
+    msgs = [rate_message(t_us, log.r, log.y, log.u), parameters(AP_PARAMS),
+            arm([(T0 - 500_000, 1 if armed else 0)]), modes([(T0 - 600_000, mode)]), *extra]
+    if ev:
+        msgs.append(events(ev))
+    return write_dataflash(path, msgs), t_us
+
+
+def test_the_rate_message_on_the_grid_is_what_was_written_over_the_flight(sweep, tmp_path):
+    path, t_us = _log(tmp_path / "f.bin", sweep, took_off_s=5.0, landed_s=55.0)
+    rec = read_dataflash(path, {"input": "RATE.ROut", "output": "RATE.R", "reference": "RATE.RDes"})
+    t = t_us * 1e-6
+    # the flown stretch: from the take-off event to the landing event; RATE is logged at 400 Hz on one clock, so the
+    # grid is its samples there (float32 in the file)
+    sel = (t >= (T0 * 1e-6 + 5.0) - 1e-9) & (t <= T0 * 1e-6 + 55.0 + 1e-9)
+    assert rec.rate_hz == 400.0 and len(rec.inputs) == 1
+    n = rec.inputs[0].size
+    assert abs(n - sel.sum()) <= 1
+    np.testing.assert_allclose(rec.inputs[0], sweep.u.astype(np.float32)[sel][:n], rtol=0, atol=0)
+    np.testing.assert_allclose(rec.outputs[0], sweep.y.astype(np.float32)[sel][:n], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(rec.references[0], sweep.r.astype(np.float32)[sel][:n], rtol=0, atol=0)
+    assert rec.parameters["ATC_RAT_RLL_P"] == pytest.approx(0.135) and rec.flight["firmware"] == "ardupilot"
+    assert rec.flight["reference_biased"] == ""  # flown in ACRO
+    assert any("exogenous: flown in a rate (ACRO) mode" in n for n in rec.flight["notes"])
+
+
+def test_identify_and_tune_params_from_a_dataflash_log(sweep, tmp_path, capsys):
+    path, _ = _log(tmp_path / "acro.bin", sweep)
+    code = main(["identify", str(path), "--input", "RATE.ROut", "--output", "RATE.R", "--reference", "RATE.RDes",
+                 "--poles", "2", "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    d = json.loads(out.out)
+    assert d["options"]["estimate"] == "joint (reference)" and d["rate_hz"] == 400.0
+    assert "ATC_RAT_RLL_P" in " ".join(d["closed_loop"]["signs"])
+    v = read_params(path, axis="roll")  # tune --params FILE.bin: PARM
+    assert v.firmware == "ardupilot" and v.loop_hz == 400.0
+    assert v.gains["P"] == pytest.approx(0.135) and v.gains["D"] == pytest.approx(0.0036)
+    assert read_dataflash_parameters(path)["INS_GYRO_FILTER"] == 20.0
+
+
+def test_a_rate_setpoint_outside_acro_or_systemid_is_biased(sweep, tmp_path):
+    cols = {"input": "RATE.ROut", "output": "RATE.R", "reference": "RATE.RDes"}
+    stab, _ = _log(tmp_path / "stab.bin", sweep, mode=0)
+    assert "STABILIZE" in read_dataflash(stab, cols).flight["reference_biased"]
+    sid, _ = _log(tmp_path / "sid.bin", sweep, mode=25)
+    rec = read_dataflash(sid, cols)
+    assert rec.flight["reference_biased"] == "" and "SystemID" in " ".join(rec.flight["notes"])
+
+
+def test_a_log_never_flown_is_refused_saying_what_was_seen(sweep, tmp_path, capsys):
+    ground, _ = _log(tmp_path / "ground.bin", sweep, armed=False, took_off_s=None)
+    with pytest.raises(InvalidDataError, match="never armed and airborne") as e:
+        read_dataflash(ground, {"input": "RATE.ROut", "output": "RATE.R"})
+    assert "ARM.ArmState [0]" in str(e.value) and e.value.field == ("file",)
+    assert main(["identify", str(ground), "--input", "RATE.ROut", "--output", "RATE.R", "--poles", "2"]) == 2
+    assert "no flight to identify from" in capsys.readouterr().err
+
+
+def test_wrong_names_are_refused_with_what_the_log_holds(sweep, tmp_path):
+    path, _ = _log(tmp_path / "f.bin", sweep)
+    with pytest.raises(InvalidDataError, match=r"message 'PIDR' is not in the log; messages logged: .*'RATE'"):
+        read_dataflash(path, {"input": "PIDR.Tar", "output": "RATE.R"})
+    with pytest.raises(InvalidDataError, match=r"has no field 'Rx'; fields: \['RDes', 'R', 'ROut'"):
+        read_dataflash(path, {"input": "RATE.ROut", "output": "RATE.Rx"})
+    with pytest.raises(InvalidDataError, match=r"faster than the input RATE.ROut is logged: RATE at 400 Hz"):
+        read_dataflash(path, {"input": "RATE.ROut", "output": "RATE.R"}, rate_hz=1000)
+
+
+def test_signals_list_the_fields_and_the_law_parameters(sweep, tmp_path):
+    path, _ = _log(tmp_path / "f.bin", sweep)
+    s = signals(path.read_bytes())
+    names = {x["name"]: x["rate_hz"] for x in s["signals"]}
+    assert names["RATE.R"] == pytest.approx(400.0) and "PARM.Value" not in names
+    assert s["firmware"] == "ardupilot" and s["loop_hz"] == 400 and "ATC_RAT_RLL_P,0.135" in s["params_text"]
+
+
+def test_sidd_and_pidr_are_read(tmp_path):
+    n = 400
+    t = T0 + np.arange(n) * 2500
+    x = np.sin(np.arange(n) * 0.1)
+    sidd = Message("SIDD", "Qfffffffff", ["TimeUS", "Time", "Targ", "F", "Gx", "Gy", "Gz", "Ax", "Ay", "Az"],
+                   {"TimeUS": t, "Time": t * 1e-6, "Targ": x, "F": np.ones(n), "Gx": 2 * x, "Gy": 0 * x, "Gz": 0 * x,
+                    "Ax": 0 * x, "Ay": 0 * x, "Az": 0 * x})
+    pidr = Message("PIDR", "Qffffffff", ["TimeUS", "Tar", "Act", "Err", "P", "I", "D", "FF", "DFF"],
+                   {"TimeUS": t, "Tar": x, "Act": 3 * x, "Err": 0 * x, "P": x, "I": x, "D": x, "FF": x, "DFF": x})
+    path = write_dataflash(tmp_path / "sid.bin", [sidd, pidr, events([(T0 - 1000, 10), (T0 - 500, 28)]),
+                                                  modes([(T0 - 2000, 25)])])
+    rec = read_dataflash(path, {"input": "SIDD.Targ", "output": "PIDR.Act"})
+    np.testing.assert_allclose(rec.outputs[0], 3 * x.astype(np.float32)[:rec.outputs[0].size], atol=1e-6)
+
+
+@pytest.mark.parametrize("junk", [b"\0" * (3 << 20), bytes(range(256)) * 12_000])
+def test_a_damaged_log_is_refused_naming_the_bytes(sweep, tmp_path, junk):
+    path, _ = _log(tmp_path / "f.bin", sweep)
+    raw = path.read_bytes()
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(raw[:5000] + junk + raw[5000:])
+    with pytest.raises(InvalidDataError, match=r"a damaged DataFlash log: no readable message in bytes \d+-\d+"):
+        read_dataflash(bad, {"input": "RATE.ROut", "output": "RATE.R"})
+    with pytest.raises(TunerError, match="damaged DataFlash"):
+        read_params(bad)
+    with pytest.raises(InvalidDataError, match="not a DataFlash log"):
+        read_dataflash(b"\0" * 100, {"input": "RATE.ROut", "output": "RATE.R"})
