@@ -146,6 +146,7 @@ def _tune(c: dict[str, Any], *, effort: str, seed: int, budget: float | None, **
     opt = res.solver.get("optimality") or {}
     return {"objective": float(res.objective) if res.meets_spec else math.inf, "meets": bool(res.meets_spec),
             "wall_s": time.perf_counter() - t0, "gains": dict(res.gains), "stop": res.solver.get("stop"),
+            "cut": res.solver.get("cut"),
             "summary": opt.get("summary"), "claim": claim(res.solver),
             "optimality": {k: v for k, v in opt.items() if k != "summary"}}
 
@@ -257,8 +258,13 @@ def cmd_report(a: argparse.Namespace) -> None:
     parts = ["# Convergence claims (issue 30)", "",
              "`bench/convergence.py`: the suite, its references and the definition of a false claim are in its "
              "docstring.", ""]
+    refs = _load(REFERENCE).get("references", {})
     for f in sorted(RESULTS.glob("convergence_*.json")):
         d = _load(f)
+        for r in d["rows"]:  # (a reference computed after the run: its ratio from the stored objective)
+            ref = refs.get(r["id"], {}).get("objective")
+            if r.get("ratio") is None and ref is not None and math.isfinite(ref):
+                r["ratio"] = r["objective"] / ref if r["meets"] else math.inf
         parts += [f"## {f.name}", "", f"`{d.get('command')}`", "", "```", summary(d["rows"], d["effort"]), "```", ""]
     (RESULTS / "convergence.md").write_text("\n".join(parts))
     print("\n".join(parts))

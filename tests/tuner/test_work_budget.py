@@ -9,7 +9,7 @@ import time
 import pytest
 
 from tuner import plant_from_expr, tune
-from tuner.tuning import AUTO_WALL_CAP_S, _RESERVE
+from tuner.tuning import _RESERVE, AUTO_WALL_CAP_S
 
 PLANT = "1/(s+1)^2"
 
