@@ -74,11 +74,6 @@ PROJECTION_SHRINK = (1e-2, 1e-4)  # the projections' shrunk gains (see Engine._p
 # overshoot, 1.384 s, and 1.372 s at 2.0 %, 0.0016 decades further) and coarse further out
 RAY_DECADES = tuple(sorted({sgn * 0.04 * 2.0 ** -k for k in range(7) for sgn in (-1.0, 1.0)}
                            | {-0.32, -0.24, -0.16, 0.16, 0.24}))
-# a search ends after this many rounds whatever its budget, with stop = "budget" (not confirmed): the convergence test
-# ends every search of the quality suite within 14 rounds (its 280 cases, every effort), so this only bounds a search
-# whose time budget would not end it (a budget far beyond need, a test's simulated clock) on a path where the
-# restarts never agree
-MAX_ROUNDS = 200
 # a distinct basin within this of the incumbent (relative) leaves its convergence not confirmed (Engine.optimality)
 CLAIM_RIVAL = 0.01
 CLAIM_MOVED = 1e-3  # ... and an incumbent that improved by more than this (relative) after round 0
