@@ -204,6 +204,12 @@ def cmd_reference(a: argparse.Namespace) -> None:
 
 
 def cmd_run(a: argparse.Namespace) -> None:
+    if a.cap_s:
+        # the default budget counts work (issue 41): its wall-clock cap only cuts; a larger one lets a loaded machine
+        # give what an idle one gives (the same steps), where the 60 s cap would cut a slow case
+        import tuner.tuning as tuning_mod
+
+        tuning_mod.AUTO_WALL_CAP_S = a.cap_s
     refs = _load(REFERENCE).get("references", {})
     out = Path(a.out) if a.out else RESULTS / f"convergence_{a.effort}.json"
     rows = []
@@ -220,8 +226,18 @@ def cmd_run(a: argparse.Namespace) -> None:
         print(f"{c['id']:14s} {c['structure']:6s} ratio {t['ratio']} {t['claim']} {t['wall_s'] * 1e3:.0f} ms",
               flush=True)
         out.write_text(json.dumps({"command": "python bench/convergence.py " + " ".join(sys.argv[1:]),
-                                   "effort": a.effort, "seed": a.seed, "rows": rows}, indent=1, allow_nan=True))
+                                   "effort": a.effort, "seed": a.seed, "commit": _commit(), "rows": rows}, indent=1,
+                                  allow_nan=True))
     print(summary(rows, a.effort))
+
+
+def _commit() -> str:
+    import subprocess
+
+    p = subprocess.run(["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(HERE), "status", "--porcelain", "--", "../tuner"], capture_output=True,
+                           text=True).stdout.strip()
+    return p.stdout.strip() + (" (tuner/ modified)" if dirty else "")
 
 
 def summary(rows: list[dict[str, Any]], effort: str) -> str:
@@ -288,6 +304,7 @@ def main() -> None:
     u.add_argument("--part", default="", choices=("", "design", "heldout"))
     u.add_argument("--out", default="")
     u.add_argument("--n-starts", type=int, default=0, help="tune(n_starts=) (0: the effort's)")
+    u.add_argument("--cap-s", type=float, default=0.0, help="the default budget's wall-clock cap (0: the library's)")
     sub.add_parser("report", help="bench/results/convergence.md from the stored runs")
     a = ap.parse_args()
     {"reference": cmd_reference, "run": cmd_run, "report": cmd_report}[a.cmd](a)

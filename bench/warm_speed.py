@@ -96,13 +96,14 @@ def measure(revs: list[str], seeds: int, loops: list[str] | None = None, budget:
 def markdown(res: dict[str, Any]) -> str:
     revs = list(res["revs"])
     names = revs + ["this tree"]
-    lines = ["# Warm tune medians (issue 30)", "", f"`{res['command']}`: {res['seeds']} seeds per loop and effort, "
+    lines = ["# Warm tune medians", "", f"`{res['command']}`: {res['seeds']} seeds per loop and effort, "
              f"the trees taking turns; load average at the end {res['load_end']}. Ratios: this tree's median wall "
              f"over each older tree's (below 1: faster). Settling: the verifier's median, s.", "",
              "| loop | effort | " + " | ".join(f"{n} ms" for n in names) + " | " +
-             " | ".join(f"ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} settling" for n in names) + " | "
-             + " | ".join(f"{n} claims" for n in names) + " |",
-             "|" + "---|" * (2 + 3 * len(names) + len(revs))]
+             " | ".join(f"ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} CPU ms" for n in names) + " | "
+             + " | ".join(f"CPU ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} settling" for n in names)
+             + " | " + " | ".join(f"{n} claims" for n in names) + " |",
+             "|" + "---|" * (2 + 4 * len(names) + 2 * len(revs))]
     for row in res["rows"]:
         t = row["trees"]
         me = t["this tree"]["median_wall_ms"]
@@ -110,6 +111,9 @@ def markdown(res: dict[str, Any]) -> str:
         lines.append(f"| {row['loop']} {row['structure']} dt {row['dt']} | {row['effort']} | "
                      + " | ".join(cell(n, "median_wall_ms", "{:.0f}") for n in names) + " | "
                      + " | ".join(f"{me / t[r]['median_wall_ms']:.2f}" if r in t else "—" for r in revs) + " | "
+                     + " | ".join(cell(n, "median_cpu_ms", "{:.0f}") for n in names) + " | "
+                     + " | ".join(f"{t['this tree']['median_cpu_ms'] / t[r]['median_cpu_ms']:.2f}" if r in t else "—"
+                                  for r in revs) + " | "
                      + " | ".join(cell(n, "median_settling_s", "{:.4f}") for n in names) + " | "
                      + " | ".join(", ".join(t[n].get("claims", [])) if n in t else "—" for n in names) + " |")
     return "\n".join(lines) + "\n"

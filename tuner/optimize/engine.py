@@ -9,22 +9,28 @@ polished once on the NLP's fine grid (:meth:`Engine._polish`). Later rounds are 
 (:meth:`Engine._restart`; with ``Effort.optuna`` also Optuna's seeded sampler, told every point scored
 so far). The search stops when
 
-* **converged**: independent evidence agrees with the incumbent. Round 0 agreeing with itself (two
-  refinements from distinct starts reaching the same value within the tolerance: half a sample of
-  settling time, or 0.1 %) is not enough except at ``effort="fast"``: the incumbent must survive
-  ``Effort.confirm`` *restarts* in a row, each a second basin search independent of round 0's
-  trajectory (a fresh scrambled-Sobol set over the whole box seeded by the user's seed and the
-  round, the incumbent with each gain zeroed or shrunk, refinements of the best candidates (round 0's included)
-  outside every basin refined so far, at ``Effort.restart_spread`` > 0 the feasible ones among the best farthest
-  from every point refined, and a scan around the incumbent), none finding anything better by more
-  than the tolerance. An
-  infeasible incumbent needs ``Effort.infeasible_extra`` more restarts; or
-* **budget**: the time budget (minus what the final verification needs) is used up. Given the seed, the search's
-  steps are one fixed sequence whatever the budget and the machine's load: the first step the time left cannot
-  afford (a batch, an NLP build, a scan, estimated from its size and the batches before it) ends the search, and
-  nothing is skipped for time while a later step runs. A larger budget therefore runs a longer prefix of the same
-  search, and its incumbent is never worse (``tests/tuner/test_budget_prefix.py``); a restart the budget cut
-  short is no evidence of convergence.
+* **converged**: the evidence rule holds (:meth:`Engine.evidence`, issue 41: on a principle, not a suite). Each
+  restart (:meth:`Engine._restart`) scores a fresh scrambled-Sobol set over the whole box (seeded by the user's seed
+  and the restart) and refines the best of it to its own local optimum, wherever it lies: an independent draw of
+  where a refinement from a space-filling start ends. The search stops when at least ``max(Effort.confirm,
+  Effort.refind)`` restarts ran, the last one found nothing better than the tolerance (half a sample of settling
+  time, or 0.1 %), and the Good-Turing estimate of the chance that a further draw reaches a basin none has reached
+  (basins reached exactly once / draws) is at most :data:`UNSEEN_LEVEL`; the result claims "converged" only if
+  ``Effort.refind`` of those restarts also re-found the incumbent's basin (:meth:`Engine.optimality`). Round 0
+  agreeing with itself (two refinements from distinct starts reaching the same value) ends ``effort="fast"``,
+  which claims nothing without a restart. A restart also refines, at ``Effort.restart_refines`` > 0, the best
+  candidates outside every basin refined so far (``Effort.restart_spread``: those farthest from every point
+  refined), scans around an incumbent it has not scanned and casts the loop-gain ray from one it has not; or
+* **work**: the restarts the effort affords (``Effort.max_restarts``) ran without that evidence: the default
+  stopping rule counts work, never seconds, so a seed gives the same steps, and the same gains, on an idle and on a
+  loaded machine; or
+* **budget**: the time cap (the default budget's wall-clock cap, or an explicit budget, minus what the final
+  verification needs) cut the search; ``info.cut`` says which step. Given the seed, the search's steps are one
+  fixed sequence whatever the budget and the machine's load: the first step the time left cannot afford (a batch,
+  an NLP build, a scan, estimated from its size and the batches before it) ends the search, and nothing is skipped
+  for time while a later step runs. A larger budget therefore runs a longer prefix of the same search, and its
+  incumbent is never worse (``tests/tuner/test_budget_prefix.py``); a restart the budget cut short is no evidence
+  of convergence.
 
 ``info["stop"]`` says which; ``info.optimality`` (:meth:`Engine.optimality`) says what the search knows
 about how close its answer is: the basins its refinements ended in, the best distinct alternative and
@@ -32,7 +38,7 @@ its gap, the restarts and whether one improved. The final choice is made by the 
 the search: the best verified of ``Effort.verify`` finalists.
 
 ``effort`` (:data:`EFFORTS`) trades time for confidence: ``fast`` is round 0 alone (its own agreement
-converges), ``default`` adds one confirming restart, ``thorough`` three with more starts and points.
+ends it), ``default`` adds 2-3 restarts, ``thorough`` 3-8 with more starts, points and refinements.
 """
 
 from __future__ import annotations
@@ -86,7 +92,7 @@ class Effort:
     name: str
     n_starts: int  # round 0's refinements from distinct candidates
     design_points: int  # round 0's fixed space-filling set
-    confirm: int  # restarts in a row that must find nothing better (0: round 0's own agreement converges)
+    confirm: int  # restarts at least before the evidence rule may stop the search (0: round 0's agreement ends it)
     restart_points: int  # scrambled-Sobol points over the whole box per restart
     restart_refines: int  # refinements per restart (the best candidates outside every refined basin; restart_spread)
     verify: int  # finalists verified at full resolution; the best verified wins
@@ -116,7 +122,7 @@ class Effort:
     # found nothing its round 0's five starts had not
     restart_spread: int = 0
     # -- the evidence rule (see the module docstring and Engine.evidence) -------------------------------------------
-    refind: int = 2  # restart refinements that must end in the incumbent's basin before "converged"
+    refind: int = 2  # restarts whose own draw must re-find the incumbent's basin before "converged"
     max_restarts: int = 6  # the work budget: restarts after round 0 at most (the default stopping rule counts work)
 
 
