@@ -31,12 +31,13 @@ def _counting(monkeypatch) -> list[int]:
 
 
 def _slow(monkeypatch, step: float) -> None:
-    """Every read of the clock is ``step`` seconds after the last one (besides the real time that passed)."""
-    real, n = time.perf_counter, [0]
+    """Every read of the clock is ``step`` seconds after the last one, whatever the real time that passed (so that
+    the test's own machine, idle or loaded, does not decide whether the cap is reached)."""
+    t0, n = time.perf_counter(), [0]
 
     def slow() -> float:
         n[0] += 1
-        return real() + step * n[0]
+        return t0 + step * n[0]
 
     monkeypatch.setattr(time, "perf_counter", slow)
 
