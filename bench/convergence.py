@@ -211,6 +211,7 @@ def cmd_run(a: argparse.Namespace) -> None:
 
         tuning_mod.AUTO_WALL_CAP_S = a.cap_s
     refs = _load(REFERENCE).get("references", {})
+    commit = _commit()  # (the tree the run started on)
     out = Path(a.out) if a.out else RESULTS / f"convergence_{a.effort}.json"
     rows = []
     for c in suite():
@@ -226,7 +227,7 @@ def cmd_run(a: argparse.Namespace) -> None:
         print(f"{c['id']:14s} {c['structure']:6s} ratio {t['ratio']} {t['claim']} {t['wall_s'] * 1e3:.0f} ms",
               flush=True)
         out.write_text(json.dumps({"command": "python bench/convergence.py " + " ".join(sys.argv[1:]),
-                                   "effort": a.effort, "seed": a.seed, "commit": _commit(), "rows": rows}, indent=1,
+                                   "effort": a.effort, "seed": a.seed, "commit": commit, "rows": rows}, indent=1,
                                   allow_nan=True))
     print(summary(rows, a.effort))
 
@@ -275,13 +276,26 @@ def cmd_report(a: argparse.Namespace) -> None:
              "`bench/convergence.py`: the suite, its references and the definition of a false claim are in its "
              "docstring.", ""]
     refs = _load(REFERENCE).get("references", {})
-    for f in sorted(RESULTS.glob("convergence_*.json")):
+    files = [f for f in sorted(RESULTS.glob("convergence_*.json")) if "rows" in _load(f)]
+    # the best known objective of each case: its reference, or any verified result stored here that beats it
+    best: dict[str, float] = {k: v["objective"] for k, v in refs.items() if math.isfinite(v.get("objective", math.inf))}
+    for f in files:
+        for r in _load(f).get("rows", []):
+            if r.get("meets") and r["id"] in best:
+                best[r["id"]] = min(best[r["id"]], r["objective"])
+    for f in files:
         d = _load(f)
         for r in d["rows"]:  # (a reference computed after the run: its ratio from the stored objective)
             ref = refs.get(r["id"], {}).get("objective")
             if r.get("ratio") is None and ref is not None and math.isfinite(ref):
                 r["ratio"] = r["objective"] / ref if r["meets"] else math.inf
-        parts += [f"## {f.name}", "", f"`{d.get('command')}`", "", "```", summary(d["rows"], d["effort"]), "```", ""]
+        parts += [f"## {f.name}", "", f"`{d.get('command')}`" + (f" at {d['commit']}" if d.get("commit") else ""),
+                  "", "```", summary(d["rows"], d["effort"]), "```", ""]
+        if any(r.get("part") == "heldout" for r in d["rows"]):
+            rows = [dict(r, ratio=(r["objective"] / best[r["id"]] if r["meets"] else math.inf))
+                    for r in d["rows"] if r["id"] in best]
+            parts += ["Against the best known (the reference, or a better verified result of any run stored here):",
+                      "", "```", summary(rows, d["effort"]), "```", ""]
     (RESULTS / "convergence.md").write_text("\n".join(parts))
     print("\n".join(parts))
 
