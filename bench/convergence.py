@@ -54,6 +54,11 @@ REFERENCE = HERE / "convergence_reference.json"
 RESULTS = HERE / "results"
 LAGDELAY_SEED = 20261204
 LAGDELAY_N = 40
+#: issue 41's classes, where the stopping rule of issue 30 claimed convergence falsely on another suite (see
+#: :func:`issue41_cases`); their own seeded stream, appended after the others (no earlier case changes)
+ISSUE41_SEED = 20261205
+ISSUE41_N = 20  # per class
+ISSUE41_CLASSES = ("nmpneg", "nmpfast", "unstslow", "intdelay4")
 REFERENCE_SEEDS = (0, 1)
 REFERENCE_BUDGET_S = 60.0
 #: the references' search: far longer than thorough (which refines 5 starts, confirms over 3 restarts of 128 points)
@@ -79,7 +84,59 @@ def suite() -> list[dict[str, Any]]:
         cases.append({"id": f"lagdelay-{i:02d}", "class": "lagdelay", "structure": structure, "num": [K],
                       "den": quality._poly(*[[t, 1.0] for t in taus]), "delay_s": float(f"{samples * dt:.10g}"),
                       "dt": dt, "tau_dom": T, "order": n})
+    return cases + issue41_cases()
+
+
+def issue41_cases() -> list[dict[str, Any]]:
+    """Issue 41's classes (20 each, seeded by ``ISSUE41_SEED``), PI, PID and ``pid_z`` round-robin:
+
+    * ``nmpneg``: a non-minimum-phase plant with a negative DC gain, -K (1 - b s) / ((T s + 1)(T2 s + 1)), its
+      right-half-plane zero 1/b within a factor 0.7-1.4 of its faster pole 1/T2 (T2 = 0.2-1 T);
+    * ``nmpfast``: the same with a positive DC gain, K (1 - b s) / ((T s + 1)(T2 s + 1));
+    * ``unstslow``: an open-loop unstable plant K / ((T s - 1)(L s + 1)) (L = 0-0.3 T) sampled slowly: 2-5 samples
+      per unstable time constant T (the quality suite's unstable class has 5-50);
+    * ``intdelay4``: an integrator with lag, K / (s (T s + 1)), and a dead time of exactly 4 samples.
+
+    Elsewhere as the quality suite: K = 10^U(-0.5, 0.7), T = 10^U(-1, 1.3) s, dt = T / U(5, 50) (log-uniform)."""
+    rng = np.random.default_rng(ISSUE41_SEED)
+    cases = []
+    for cls in ISSUE41_CLASSES:
+        for i in range(ISSUE41_N):
+            K = float(10 ** rng.uniform(-0.5, 0.7))
+            T = float(10 ** rng.uniform(-1, 1.3))
+            k = float(10 ** rng.uniform(math.log10(5), math.log10(50)))
+            delay = 0.0
+            if cls in ("nmpneg", "nmpfast"):
+                T2 = T * float(rng.uniform(0.2, 1.0))
+                b = T2 * float(rng.uniform(0.7, 1.4))
+                sign = -1.0 if cls == "nmpneg" else 1.0
+                num, den = quality._poly([-sign * K * b, sign * K]), quality._poly([T, 1.0], [T2, 1.0])
+            elif cls == "unstslow":
+                L = float(rng.uniform(0.0, 0.3)) * T
+                k = float(rng.uniform(2.0, 5.0))
+                num, den = [K], quality._poly([T, -1.0], *([[L, 1.0]] if i % 2 else []))
+            else:
+                num, den = [K], quality._poly([1.0, 0.0], [T, 1.0])
+            dt = float(f"{T / k:.4g}")
+            if cls == "intdelay4":
+                delay = float(f"{4 * dt:.10g}")
+            cases.append({"id": f"{cls}-{i:02d}", "class": cls, "structure": ("pi", "pid", "pid_z")[i % 3],
+                          "num": num, "den": den, "delay_s": delay, "dt": dt, "tau_dom": T, "order": len(den) - 1,
+                          "part": "heldout" if i % 2 else "design"})
     return cases
+
+
+def part_of(c: dict[str, Any]) -> str:
+    """``heldout``: issue 41's odd-numbered cases, never run while its claim rule was designed; ``design``: the rest
+    (the quality suite, ``lagdelay`` and issue 41's even-numbered cases)."""
+    return c.get("part", "design")
+
+
+def _selected(c: dict[str, Any], a: argparse.Namespace) -> bool:
+    """Whether ``--only``, ``--classes`` and ``--part`` keep case ``c``."""
+    return (not a.only or c["id"] in a.only.split(",")) and \
+        (not getattr(a, "classes", "") or c["class"] in a.classes.split(",")) and \
+        (not getattr(a, "part", "") or part_of(c) == a.part)
 
 
 def _tune(c: dict[str, Any], *, effort: str, seed: int, budget: float | None, **kw: Any) -> dict[str, Any]:
@@ -89,6 +146,7 @@ def _tune(c: dict[str, Any], *, effort: str, seed: int, budget: float | None, **
     opt = res.solver.get("optimality") or {}
     return {"objective": float(res.objective) if res.meets_spec else math.inf, "meets": bool(res.meets_spec),
             "wall_s": time.perf_counter() - t0, "gains": dict(res.gains), "stop": res.solver.get("stop"),
+            "cut": res.solver.get("cut"),
             "summary": opt.get("summary"), "claim": claim(res.solver),
             "optimality": {k: v for k, v in opt.items() if k != "summary"}}
 
@@ -128,7 +186,7 @@ def cmd_reference(a: argparse.Namespace) -> None:
         k, n = map(int, a.shard.split("/"))
         cases = cases[k::n]
     for c in cases:
-        if c["id"] in doc["references"] or (a.only and c["id"] not in a.only.split(",")):
+        if c["id"] in doc["references"] or not _selected(c, a):
             continue
         if a.cap_s and time.perf_counter() - t_start > a.cap_s:
             break
@@ -146,24 +204,41 @@ def cmd_reference(a: argparse.Namespace) -> None:
 
 
 def cmd_run(a: argparse.Namespace) -> None:
+    if a.cap_s:
+        # the default budget counts work (issue 41): its wall-clock cap only cuts; a larger one lets a loaded machine
+        # give what an idle one gives (the same steps), where the 60 s cap would cut a slow case
+        import tuner.tuning as tuning_mod
+
+        tuning_mod.AUTO_WALL_CAP_S = a.cap_s
     refs = _load(REFERENCE).get("references", {})
+    commit = _commit()  # (the tree the run started on)
     out = Path(a.out) if a.out else RESULTS / f"convergence_{a.effort}.json"
     rows = []
     for c in suite():
-        if a.only and c["id"] not in a.only.split(","):
+        if not _selected(c, a):
             continue
         t = _tune(c, effort=a.effort, seed=a.seed, budget=a.budget,
                   **({"n_starts": a.n_starts} if a.n_starts else {}))
         ref = refs.get(c["id"], {}).get("objective")
         t["ratio"] = None if ref is None or not math.isfinite(ref) else (t["objective"] / ref if t["meets"]
                                                                          else math.inf)
-        t |= {"id": c["id"], "class": c["class"], "structure": c["structure"]}
+        t |= {"id": c["id"], "class": c["class"], "structure": c["structure"], "part": part_of(c)}
         rows.append(t)
         print(f"{c['id']:14s} {c['structure']:6s} ratio {t['ratio']} {t['claim']} {t['wall_s'] * 1e3:.0f} ms",
               flush=True)
         out.write_text(json.dumps({"command": "python bench/convergence.py " + " ".join(sys.argv[1:]),
-                                   "effort": a.effort, "seed": a.seed, "rows": rows}, indent=1, allow_nan=True))
+                                   "effort": a.effort, "seed": a.seed, "commit": commit, "rows": rows}, indent=1,
+                                  allow_nan=True))
     print(summary(rows, a.effort))
+
+
+def _commit() -> str:
+    import subprocess
+
+    p = subprocess.run(["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(HERE), "status", "--porcelain", "--", "../tuner"], capture_output=True,
+                           text=True).stdout.strip()
+    return p.stdout.strip() + (" (tuner/ modified)" if dirty else "")
 
 
 def summary(rows: list[dict[str, Any]], effort: str) -> str:
@@ -200,9 +275,27 @@ def cmd_report(a: argparse.Namespace) -> None:
     parts = ["# Convergence claims (issue 30)", "",
              "`bench/convergence.py`: the suite, its references and the definition of a false claim are in its "
              "docstring.", ""]
-    for f in sorted(RESULTS.glob("convergence_*.json")):
+    refs = _load(REFERENCE).get("references", {})
+    files = [f for f in sorted(RESULTS.glob("convergence_*.json")) if "rows" in _load(f)]
+    # the best known objective of each case: its reference, or any verified result stored here that beats it
+    best: dict[str, float] = {k: v["objective"] for k, v in refs.items() if math.isfinite(v.get("objective", math.inf))}
+    for f in files:
+        for r in _load(f).get("rows", []):
+            if r.get("meets") and r["id"] in best:
+                best[r["id"]] = min(best[r["id"]], r["objective"])
+    for f in files:
         d = _load(f)
-        parts += [f"## {f.name}", "", f"`{d.get('command')}`", "", "```", summary(d["rows"], d["effort"]), "```", ""]
+        for r in d["rows"]:  # (a reference computed after the run: its ratio from the stored objective)
+            ref = refs.get(r["id"], {}).get("objective")
+            if r.get("ratio") is None and ref is not None and math.isfinite(ref):
+                r["ratio"] = r["objective"] / ref if r["meets"] else math.inf
+        parts += [f"## {f.name}", "", f"`{d.get('command')}`" + (f" at {d['commit']}" if d.get("commit") else ""),
+                  "", "```", summary(d["rows"], d["effort"]), "```", ""]
+        if any(r.get("part") == "heldout" for r in d["rows"]):
+            rows = [dict(r, ratio=(r["objective"] / best[r["id"]] if r["meets"] else math.inf))
+                    for r in d["rows"] if r["id"] in best]
+            parts += ["Against the best known (the reference, or a better verified result of any run stored here):",
+                      "", "```", summary(rows, d["effort"]), "```", ""]
     (RESULTS / "convergence.md").write_text("\n".join(parts))
     print("\n".join(parts))
 
@@ -212,6 +305,8 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("reference", help="the long-search references (resumable)")
     r.add_argument("--only", default="")
+    r.add_argument("--classes", default="", help="comma-separated classes (e.g. nmpneg,nmpfast,unstslow,intdelay4)")
+    r.add_argument("--part", default="", choices=("", "design", "heldout"))
     r.add_argument("--cap-s", type=float, default=0.0)
     r.add_argument("--shard", default="", help="k/n: every n-th case from the k-th (several processes)")
     u = sub.add_parser("run", help="tune every case at an effort and compare with the references")
@@ -219,8 +314,11 @@ def main() -> None:
     u.add_argument("--seed", type=int, default=0)
     u.add_argument("--budget", type=float, default=None, help="seconds (default: the library's default budget)")
     u.add_argument("--only", default="")
+    u.add_argument("--classes", default="")
+    u.add_argument("--part", default="", choices=("", "design", "heldout"))
     u.add_argument("--out", default="")
     u.add_argument("--n-starts", type=int, default=0, help="tune(n_starts=) (0: the effort's)")
+    u.add_argument("--cap-s", type=float, default=0.0, help="the default budget's wall-clock cap (0: the library's)")
     sub.add_parser("report", help="bench/results/convergence.md from the stored runs")
     a = ap.parse_args()
     {"reference": cmd_reference, "run": cmd_run, "report": cmd_report}[a.cmd](a)

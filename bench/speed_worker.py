@@ -100,7 +100,7 @@ class Worker:
 
         return {"tuner_file": tuner.__file__, "efforts": "effort" in inspect.signature(self.tune).parameters}
 
-    def cmd_tune_expr(self, plant: str, structure: str, dt: float | None, seed: int, time_budget_s: float,
+    def cmd_tune_expr(self, plant: str, structure: str, dt: float | None, seed: int, time_budget_s: float | None,
                       effort: str | None = None, delay: float | None = None) -> dict:
         """A tune of a plant expression (built fresh, outside the timed call), at ``effort`` where the tree has
         efforts (``delay``: the plant's input delay, s, where given)."""
@@ -130,8 +130,10 @@ class Worker:
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         ts = max(a.metrics.settling_time_s for a in r.analyses)
         failing = sorted({c.name for a in r.analyses for c in a.failing})
+        opt = r.solver.get("optimality") or {}
         return {"wall_s": wall, "cpu_s": cpu, "settling_s": ts if math.isfinite(ts) else str(ts),
-                "meets_spec": bool(r.meets_spec), "failing": failing}
+                "meets_spec": bool(r.meets_spec), "failing": failing, "stop": r.solver.get("stop"),
+                "claim": opt.get("claim"), "objective": float(r.objective) if r.meets_spec else None}
 
 
 def main() -> int:

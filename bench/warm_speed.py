@@ -35,9 +35,12 @@ LOOPS = {  # name: (plant expression, structure, dt)
     "pitch": ("0.377568*3.5184^2/(s^2+2*0.5006*3.5184*s+3.5184^2)", "pid_z", 0.04),
     "yaw": ("0.2843*18.611/(s+18.611)", "pid_z", 0.04),
     "1/(s+1)^3": ("1/(s+1)^3", "pid", 0.1),
+    # issue 41: the firmware rate law on an identified-like roll model at 400 Hz
+    "px4_rate": ("200/((s+2)*(0.03*s+1))", "px4_rate", 0.0025),
 }
 
-def measure(revs: list[str], seeds: int) -> dict[str, Any]:
+def measure(revs: list[str], seeds: int, loops: list[str] | None = None, budget: float | None = 10.0,
+            effort_names: tuple[str, ...] = ("default", "fast")) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="warm_speed_"))
     trees: dict[str, Path] = {}
     commits: dict[str, str] = {}
@@ -57,10 +60,12 @@ def measure(revs: list[str], seeds: int) -> dict[str, Any]:
     rows = []
     try:
         for loop, (expr, structure, dt) in LOOPS.items():
-            for effort in ("default", "fast"):
+            if loops and loop not in loops:
+                continue
+            for effort in effort_names:
                 active = [n for n in names if effort == "default" or efforts[n]]
                 req = {"cmd": "tune_expr", "plant": expr, "structure": structure, "dt": dt, "effort": effort,
-                       "time_budget_s": 10.0}
+                       "time_budget_s": budget}
                 for n in active:  # warm-up (imports, NLP builds)
                     workers[n].call(seed=1000, **req)
                 runs: dict[str, list[dict]] = {n: [] for n in active}
@@ -72,7 +77,9 @@ def measure(revs: list[str], seeds: int) -> dict[str, Any]:
                        "trees": {n: {"median_wall_ms": 1e3 * statistics.median(r["wall_s"] for r in rs),
                                      "median_cpu_ms": 1e3 * statistics.median(r["cpu_s"] for r in rs),
                                      "median_settling_s": statistics.median(float(r["settling_s"]) for r in rs),
-                                     "all_meet": all(r["meets_spec"] for r in rs)} for n, rs in runs.items()}}
+                                     "all_meet": all(r["meets_spec"] for r in rs),
+                                     "claims": sorted({str(r.get("claim")) for r in rs}),
+                                     "stops": sorted({str(r.get("stop")) for r in rs})} for n, rs in runs.items()}}
                 rows.append(row)
                 done = ", ".join(f"{n} {t['median_wall_ms']:.0f} ms ({t['median_settling_s']:.4g} s)"
                                  for n, t in row["trees"].items())
@@ -89,12 +96,14 @@ def measure(revs: list[str], seeds: int) -> dict[str, Any]:
 def markdown(res: dict[str, Any]) -> str:
     revs = list(res["revs"])
     names = revs + ["this tree"]
-    lines = ["# Warm tune medians (issue 30)", "", f"`{res['command']}`: {res['seeds']} seeds per loop and effort, "
+    lines = ["# Warm tune medians", "", f"`{res['command']}`: {res['seeds']} seeds per loop and effort, "
              f"the trees taking turns; load average at the end {res['load_end']}. Ratios: this tree's median wall "
              f"over each older tree's (below 1: faster). Settling: the verifier's median, s.", "",
              "| loop | effort | " + " | ".join(f"{n} ms" for n in names) + " | " +
-             " | ".join(f"ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} settling" for n in names) + " |",
-             "|" + "---|" * (2 + 2 * len(names) + len(revs))]
+             " | ".join(f"ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} CPU ms" for n in names) + " | "
+             + " | ".join(f"CPU ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} settling" for n in names)
+             + " | " + " | ".join(f"{n} claims" for n in names) + " |",
+             "|" + "---|" * (2 + 4 * len(names) + 2 * len(revs))]
     for row in res["rows"]:
         t = row["trees"]
         me = t["this tree"]["median_wall_ms"]
@@ -102,7 +111,11 @@ def markdown(res: dict[str, Any]) -> str:
         lines.append(f"| {row['loop']} {row['structure']} dt {row['dt']} | {row['effort']} | "
                      + " | ".join(cell(n, "median_wall_ms", "{:.0f}") for n in names) + " | "
                      + " | ".join(f"{me / t[r]['median_wall_ms']:.2f}" if r in t else "—" for r in revs) + " | "
-                     + " | ".join(cell(n, "median_settling_s", "{:.4f}") for n in names) + " |")
+                     + " | ".join(cell(n, "median_cpu_ms", "{:.0f}") for n in names) + " | "
+                     + " | ".join(f"{t['this tree']['median_cpu_ms'] / t[r]['median_cpu_ms']:.2f}" if r in t else "—"
+                                  for r in revs) + " | "
+                     + " | ".join(cell(n, "median_settling_s", "{:.4f}") for n in names) + " | "
+                     + " | ".join(", ".join(t[n].get("claims", [])) if n in t else "—" for n in names) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -111,8 +124,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=9)
     ap.add_argument("--revs", default="12b6462,5565a8d", help="older trees, comma-separated (the first: baseline)")
     ap.add_argument("--out", default=str(HERE / "results" / "warm_speed"))
+    ap.add_argument("--loops", default="", help="comma-separated loop names (default: all)")
+    ap.add_argument("--budget", default="10", help="time_budget_s, or 'default' (the library's default budget)")
+    ap.add_argument("--efforts", default="default,fast")
     a = ap.parse_args()
-    write(a.out, measure(a.revs.split(","), a.seeds), markdown)
+    budget = None if a.budget == "default" else float(a.budget)
+    write(a.out, measure(a.revs.split(","), a.seeds, [x for x in a.loops.split(",") if x], budget,
+                         tuple(a.efforts.split(","))), markdown)
 
 
 def write(out: str, res: dict[str, Any], markdown: Any) -> None:

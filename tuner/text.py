@@ -220,34 +220,58 @@ def optimality_line(s: dict[str, Any] | None) -> str:
         return ""
     parts = [f"{o['basins']} basin{'s' if o['basins'] != 1 else ''} refined"]
     n = o.get("restarts", 0)
+    ev = o.get("evidence") or {}
     if n:
         imp = o.get("restart_improved", 0)
         parts.append(f"{n} independent restart{'s' if n != 1 else ''}, " +
                      ("none found better" if not imp else f"{imp} found better"
                       + (f" (round 0 was {o['round0_gap'] * 100:.2g} % worse)" if o.get("round0_gap") else "")))
+        if ev.get("refinements"):
+            parts.append(f"{ev['refound']} re-found the answer's basin")
     else:
         parts.append("no independent restart")
     gap = o.get("gap")
     parts.append("no distinct alternative" if gap is None else f"best distinct alternative {gap * 100:+.3g} %")
+    if ev.get("unseen") is not None:
+        parts.append(f"chance of an unseen basin {ev['unseen']:.2g} (Good-Turing: {ev['singletons']} basin"
+                     f"{'s' if ev['singletons'] != 1 else ''} reached once in {ev['refinements']} restart refinement"
+                     f"{'s' if ev['refinements'] != 1 else ''}; level {ev['level']:.2g})")
     claim = o.get("claim") or ("converged" if s.get("stop") == "converged" else "budget")
     verdict_ = {"converged": "converged", "not confirmed": "not confirmed"}.get(claim, "budget used (not confirmed)")
     return (f"optimality ({o.get('effort', 'default')} effort, {verdict_}): " + ", ".join(parts)
-            + (_unconfirmed(o) if claim == "not confirmed" else _left(s, o)))
+            + (_unconfirmed(o) if claim == "not confirmed" else _cut(s) + _left(s, o)))
 
 
 def _unconfirmed(o: dict[str, Any]) -> str:
-    """Why a search that stopped by its rule does not claim convergence, and what more search would check."""
+    """Why a search that was not cut does not claim convergence, and what more search would check."""
     why = []
+    ev = o.get("evidence") or {}
     if not o.get("restarts"):
         why.append("no independent restart ran")
-    if o.get("moved"):
-        why.append(f"the incumbent still improved after the first round ({o['round0_gap'] * 100:.2g} %)")
-    if o.get("rival"):
-        why.append("a design distinct in its parameters lies within 1 % of the answer (a rival basin, or a direction "
-                   "the objective barely sees)")
-    more = "more starts and three restarts in a row" if o.get("effort") != "thorough" else "a longer search"
+    elif not o.get("local"):
+        why.append("without the local refinement the restarts reach no basins to count")
+    else:
+        if ev.get("refound", 0) < ev.get("refind", 2):
+            why.append(f"{ev.get('refound', 0)} restart{'s' if ev.get('refound', 0) != 1 else ''} re-found the "
+                       f"answer's basin, of the {ev.get('refind', 2)} the claim needs")
+        if ev.get("unseen") is None or ev["unseen"] > ev.get("level", 0.2):
+            est = "unknown" if ev.get("unseen") is None else f"{ev['unseen']:.2g}"
+            why.append(f"the chance that an unseen basin holds a better design is estimated at {est}, above the "
+                       f"{ev.get('level', 0.2):.2g} level")
+        if o.get("stop") == "work":
+            why.append(f"the {o.get('max_restarts')} restarts the effort affords have run")
+    more = "more starts and restarts" if o.get("effort") != "thorough" else "a longer search"
     return (f"; not confirmed: {' and '.join(why) or 'the evidence is thin'}: a better design may exist; "
             + ("thorough effort" if o.get("effort") != "thorough" else "a larger n_starts") + f" ({more}) checks it")
+
+
+def _cut(s: dict[str, Any]) -> str:
+    """What the time cap cut (``solver["cut"]``), if it cut anything."""
+    c = (s or {}).get("cut")
+    if not c:
+        return ""
+    return (f"; cut by the time cap ({c['cap_s']:.3g} s) at {c['step'] or 'the search'}, after "
+            f"{c['restarts_done']} of at most {c['restarts_max']} restarts")
 
 
 def _left(s: dict[str, Any], o: dict[str, Any]) -> str:
@@ -262,7 +286,7 @@ def _left(s: dict[str, Any], o: dict[str, Any]) -> str:
             return what + ("the build did not fit the default budget's 60 s cap: a larger time_budget_s (--budget) "
                            "would refine it")
         more = min(3600, math.ceil(wall + 2.0 * o["unbuilt_s"] + 5.0))
-        return what + (f"the default budget (which does not count NLP builds) or time_budget_s={more} (--budget "
+        return what + (f"the default budget (it counts work, within a 60 s cap) or time_budget_s={more} (--budget "
                        f"{more}) would refine it")
     if o.get("local") and not o.get("nlp_solves"):
         if o.get("contained_nlp_solves"):

@@ -333,13 +333,12 @@ def tune(
     seed : int
         Seeds the global search beyond the deterministic first round: same seed, same gains.
     time_budget_s : float, optional
-        Wall-time budget; the search stops when it has converged or the budget is used, and the best
-        verified candidate is returned (``solver["stop"]`` says which). Default (None): a budget that fits the
-        problem, ``DEFAULT_BUDGET_S`` (10 s) of search (twice that for ``pid2``, whose search first runs
-        ``pid``'s) that the NLP builds do not count against (a build is a one-off cost of the process, and it
-        grows with the sample rate and the horizon in samples: a 250 Hz loop's NLPs take seconds to build),
-        within ``AUTO_WALL_CAP_S`` (60 s) of wall time in all; ``solver["build_s"]`` says how long the builds
-        took. A number is a hard wall-time limit.
+        Wall-time budget, a hard cap. Default (None): the search counts work, not seconds: it stops on its
+        evidence rule (``solver["stop"] == "converged"``) or when the restarts its effort affords have run
+        (``"work"``), the same steps, and so bitwise the same gains for a seed, on an idle and on a loaded
+        machine; ``AUTO_WALL_CAP_S`` (60 s, NLP builds included) is only a hard cap. Where a cap (that one, or a
+        number given here) ends the search, ``solver["stop"]`` is ``"budget"`` and ``solver["cut"]`` says which
+        step it cut and how many restarts had run; ``solver["build_s"]`` says how long the NLP builds took.
     n_trials : int, optional
         Optuna points asked per restart (default 24). The default effort's restarts do not ask Optuna (a scrambled
         Sobol set, refinements and scans find the basins; ``effort="fast"`` and ``"thorough"`` ask it); giving
@@ -369,12 +368,14 @@ def tune(
     effort : str
         How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
         (it stops when two refinements agree; without an independent restart it never claims convergence),
-        ``"default"`` adds a restart independent of the first round that must find nothing better,
-        ``"thorough"`` three such restarts in a row, more starts and points and a sharper polish (twice the grid
-        detail, the settling time between the grid's points, each step confirmed by the verifier; about 3x the
-        default's time); measured costs in bench/QUALITY.md. ``solver["optimality"]`` says what the search knows
-        about how close its answer is, and ``solver["converged"]`` (its ``claim``) whether that evidence confirms
-        convergence (bench/convergence.py measures the claim).
+        ``"default"`` adds independent space-filling restarts (2 to 6) until their refinements' Good-Turing
+        estimate of an unseen basin is at most 0.2, ``"thorough"`` more (3 to 8, three refinements each), more
+        starts and points and a sharper polish (twice the grid detail, the settling time between the grid's
+        points, each step confirmed by the verifier); measured costs in bench/QUALITY.md. "converged" (the
+        ``claim`` of ``solver["optimality"]``, and ``solver["converged"]``) only where at least 2 (thorough 3)
+        restarts re-found the answer's basin and that estimate, which ``solver["optimality"]["evidence"]`` holds
+        with the figures behind it, is at most 0.2 (:meth:`tuner.optimize.engine.Engine.evidence`); otherwise
+        "not confirmed" (bench/convergence.py measures the claim).
     vehicle : tuner.firmware.VehicleParams, optional
         With ``px4_rate`` or ``ardupilot_rate``: what the vehicle fixes (loop rate, filters, PX4's ``K``, the
         integrator limit; :func:`tuner.firmware.read_params` reads them from a ``.params``, ``.parm`` or ULog
@@ -436,10 +437,13 @@ def tune(
 
     t0, built0 = time.perf_counter(), build_seconds()
 
-    # the default budget: NLP builds are not counted against the search time, only against the wall-clock cap; a
-    # tune nested in such a tune (a robustness objective's fastest design, a diagnosis's relaxed re-tune) keeps its
-    # own budget but does not count builds either, within the outer cap
-    cap = t0 + AUTO_WALL_CAP_S if auto else _OUTER_CAP.get()
+    # the default budget counts work, not seconds (issue 41): the search ends on its evidence rule or its work budget
+    # of restarts (Effort.max_restarts), the same steps on an idle and on a loaded machine; the wall clock is only a
+    # hard cap, AUTO_WALL_CAP_S builds included, which says what it cut when it binds (solver["cut"]). A tune nested
+    # in such a tune (a robustness objective's fastest design, a diagnosis's relaxed re-tune) stays within the outer
+    # cap; one with its own budget does not count builds against it
+    outer = _OUTER_CAP.get()
+    cap = (t0 + AUTO_WALL_CAP_S if outer is None else min(t0 + AUTO_WALL_CAP_S, outer)) if auto else outer
     cap_token = _OUTER_CAP.set(cap)
     if local:
         import casadi  # noqa: F401 - loaded before the limit, so that its OpenMP runtime is limited too
@@ -454,11 +458,12 @@ def tune(
                                                                         delay)
             problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle, axis)
             _check_actuator(actuator, problem)
-            # the default budget's search time depends on the structure (_search_factor)
-            budget = DEFAULT_BUDGET_S * _search_factor(problem) if auto else float(time_budget_s)
+            # the default budget: the hard cap is the deadline (builds included), nothing moves it
+            budget = cap - t0 if auto else float(time_budget_s)
             opts = _Opts(seed=int(seed), budget_s=budget, deadline=t0 + budget, t0=t0, n_starts=n_starts,
                          n_trials=n_trials, sampler=sampler, storage=storage, local=local, nlp_solver=nlp_solver,
-                         diagnose=diagnose, effort=effort, build_cap=cap, built0=built0, auto=auto)
+                         diagnose=diagnose, effort=effort, build_cap=None if auto else cap, built0=built0,
+                         auto=auto)
             run = _search(problem, opts)
             res = _verified(run, problem, opts, structure)
             res = _diagnosed(res, run, problem, opts)
@@ -606,7 +611,8 @@ def _search(problem: TuningProblem, o: _Opts) -> _Run:
     load = None
     if problem.spec.objective in ROBUSTNESS_OBJECTIVES and o.diagnose:
         fast_problem = replace(problem, spec=problem.spec.model_copy(update={"objective": "settling_time"}))
-        fast = tune(fast_problem, seed=o.seed, time_budget_s=FAST_SHARE * o.budget_s, n_starts=o.n_starts,
+        fast = tune(fast_problem, seed=o.seed, time_budget_s=None if o.auto else FAST_SHARE * o.budget_s,
+                    n_starts=o.n_starts,
                     nlp_solver=o.nlp_solver, local=o.local, diagnose=False, effort=o.effort)
     elif load_design(problem):
         # "auto" on a law with its own setpoint path: the search finds the fastest reference step; the load stage then
@@ -659,7 +665,11 @@ def _verified(run: _Run, problem: TuningProblem, o: _Opts, structure: Any) -> Tu
     info: dict[str, Any] = {
         "method": f"optuna+casadi-{o.nlp_solver}" if eng.local else "optuna", "seed": o.seed,
         "stop": stop.stop, "rounds": stop.rounds,
-        "budget_exhausted": time.perf_counter() > eng.deadline - run.reserve,
+        "budget_exhausted": stop.stop == "budget" or time.perf_counter() > eng.deadline - run.reserve,
+        # what the time cap (the default budget's AUTO_WALL_CAP_S, or time_budget_s) cut: None if it cut nothing
+        "cut": None if stop.stop != "budget" else {"step": stop.cut, "cap_s": o.budget_s,
+                                                   "restarts_done": eng.restarts,
+                                                   "restarts_max": eng.optimality()["max_restarts"]},
         "budget_s": o.budget_s, "budget_auto": o.auto, "build_s": eng.build_s,
         "wall_time_s": time.perf_counter() - o.t0, "global_evaluations": stop.batch_evaluations,
         "starts_tried": stop.starts_refined, "nlp_solves": stop.nlp_solves, "nlp_iterations": stop.nlp_iterations,
@@ -1018,24 +1028,9 @@ SETPOINT_AFTER = ("iae", "ie")
 
 #: the default budget's cap of the tune running on this thread/task (nested tunes inherit it; see tune)
 _OUTER_CAP: contextvars.ContextVar[float | None] = contextvars.ContextVar("tuner_build_cap", default=None)
-DEFAULT_BUDGET_S = 10.0  # the default budget's search time (the NLP builds not counted: see tune's time_budget_s)
-AUTO_WALL_CAP_S = 60.0  # ... and its wall-clock cap, builds included
+AUTO_WALL_CAP_S = 60.0  # the default budget's hard wall-clock cap, builds included (the search itself counts work)
 FAST_SHARE = 0.3  # of the budget: the fastest design, a candidate of the robustness objectives
 _RESERVE = 0.1  # share of the budget kept for the final full-resolution verification
 # the diagnosis of an unmet spec (tuner.diagnose): short tunes with limits relaxed, in what is left of the
 # budget, at most this share of it (the reasons by definition need no time)
 DIAGNOSIS_SHARE = 0.25
-
-
-def _search_factor(problem: TuningProblem) -> float:
-    """The default budget's search time in units of DEFAULT_BUDGET_S: 2 for a structure whose search first runs the
-    structure it contains (pid2 runs pid's whole search, then its own: the 250 Hz rate loop's pid2 IAE tune needs
-    about 9 s of search beside its NLP builds) or with gain-variation members (a firmware law's default holds three
-    plants: a small quad's warm search took 6.3 s of NLP solves and polish), 1 otherwise. What grows with the sample
-    rate and the horizon in samples, the NLP builds, is not counted at all (see tune's time_budget_s)."""
-    from .optimize.engine import FULL_CONTAINMENT
-
-    if problem.structure.name in FULL_CONTAINMENT:
-        return 2.0
-    # the gain-variation members triple each evaluation's cost (a firmware law's default: the gain x0.8 and x1.25)
-    return 2.0 if problem.variation else 1.0

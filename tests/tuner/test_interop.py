@@ -43,7 +43,7 @@ def test_the_same_plant_as_expression_and_as_control_tf_tunes_identically():
     assert np.array_equal(pe.zpk.poles, pc.zpk.poles) and pe.zpk.gain == pc.zpk.gain
     r1 = tune(pe, structure="pi", dt=0.05, time_budget_s=120)
     r2 = tune(G, structure="pi", dt=0.05, time_budget_s=120)
-    assert r1.solver["stop"] == r2.solver["stop"] == "converged"  # not cut by the clock: deterministic
+    assert r1.solver["stop"] == r2.solver["stop"] != "budget"  # not cut by the clock: deterministic
     assert r1.gains == r2.gains
     assert r1.to_dict()["metrics"] == r2.to_dict()["metrics"]
 

@@ -201,7 +201,7 @@ def test_engine_scores_are_the_verifiers():
     settling time to a sample. (Not the scalar scorer at search resolution: it settles into 97 % of the band,
     and the local stage's optimum rides the band's edge, which the full verifier accepts.)"""
     eng, info = _engine(0)
-    assert info.stop in ("converged", "budget")
+    assert info.stop in ("converged", "work", "budget")
     s, v, _ = min(eng.pool, key=lambda t: t[0])
     assert s < 1e3  # the thesis roll loop meets the default spec
     scalar = eng.ev.score(eng.space.params(v)).score
@@ -266,7 +266,7 @@ def test_same_seed_same_answer_in_one_process_and_across_processes():
 
     plant = plant_from_expr("1/(s+1)^3")
     runs = [tune(plant, structure="pid", dt=0.1, seed=0, time_budget_s=30) for _ in range(3)]
-    assert all(r.solver["stop"] == "converged" for r in runs)
+    assert all(r.solver["stop"] in ("converged", "work") for r in runs)  # (not cut by the clock)
     assert runs[0].gains == runs[1].gains == runs[2].gains
     code = ("import json; from tuner import tune, plant_from_expr; "
             "r = tune(plant_from_expr('1/(s+1)^3'), structure='pid', dt=0.1, seed=0, time_budget_s=30); "

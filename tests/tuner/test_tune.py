@@ -208,16 +208,15 @@ def test_solver_information(tuned, name, structure):
     assert s["starts_tried"] >= 1 and s["nlp_iterations"] > 0 and s["nlp_evaluations"] > 0
     assert s["global_evaluations"] > 0 and s["wall_time_s"] > 0
     assert s["budget_exhausted"] is False  # the budget did not stop the search
-    assert s["stop"] == "converged" and s["rounds"] >= 1
-    # the stopping rule was met here; the claim may still be "not confirmed" (e.g. when the restart's loop-gain ray
-    # still improved the incumbent), and then the line says why and what would check it
+    assert s["stop"] in ("converged", "work") and s["rounds"] >= 1 and s["cut"] is None
+    # the search ended on its evidence rule or its work budget; the claim is "converged" only where the restarts'
+    # evidence holds (issue 41), and otherwise the line says why and what would check it
     o = s["optimality"]
     assert o["claim"] in ("converged", "not confirmed") and s["converged"] is (o["claim"] == "converged")
     if o["claim"] == "not confirmed":
-        assert o["moved"] or o["rival"]
         assert "not confirmed: " in o["summary"] and "thorough effort" in o["summary"]
     else:
-        assert not (o["moved"] or o["rival"]) and o["restarts"] >= 1
+        assert o["evidence"]["holds"] and o["restarts"] >= 2 and "Good-Turing" in o["summary"]
     assert res.structure == structure and res.spec == THESIS
 
 

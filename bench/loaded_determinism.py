@@ -1,0 +1,74 @@
+"""Issue 41, item 3: the same command and seed give the same gains on a loaded machine.
+
+    .venv/bin/python bench/loaded_determinism.py [--runs 10] [--busy 2] [--out bench/results/loaded_determinism]
+
+Starts ``--busy`` CPU-bound processes (``python -c "while 1: pass"``), runs the same ``tuner tune`` command
+``--runs`` times beside them (the px4_rate law on 200/((s+2)(0.03 s+1)) at 400 Hz, the issue's identified-model
+tune, default budget and seed), then ends the processes it started (by their ids). Reported: each run's gains (as
+printed, full precision), stop, claim, what a cap cut, wall time; and whether every run's gains are bitwise the
+same. Nothing here asserts anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+COMMAND = ["tune", "--plant", "200/((s+2)*(0.03*s+1))", "--structure", "px4_rate", "--dt", "0.0025", "--json"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=10)
+    ap.add_argument("--busy", type=int, default=2)
+    ap.add_argument("--out", default=str(HERE / "results" / "loaded_determinism"))
+    a = ap.parse_args()
+    tuner = str(Path(sys.executable).parent / "tuner")
+    busy = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(a.busy)]
+    runs = []
+    try:
+        for i in range(a.runs):
+            t0 = time.perf_counter()
+            p = subprocess.run([tuner, *COMMAND], capture_output=True, text=True, cwd=ROOT)
+            wall = time.perf_counter() - t0
+            if p.returncode != 0:
+                runs.append({"run": i, "returncode": p.returncode, "stderr": p.stderr[-2000:], "wall_s": wall})
+                continue
+            r = json.loads(p.stdout)
+            s = r["solver"]
+            runs.append({"run": i, "gains": r["gains"], "gains_repr": {k: repr(v) for k, v in r["gains"].items()},
+                         "stop": s.get("stop"), "claim": (s.get("optimality") or {}).get("claim"),
+                         "cut": s.get("cut"), "restarts": (s.get("optimality") or {}).get("restarts"),
+                         "wall_s": wall, "load": os.getloadavg()})
+            print(f"run {i}: {runs[-1]['gains_repr']} stop {runs[-1]['stop']} claim {runs[-1]['claim']} "
+                  f"cut {runs[-1]['cut']} {wall:.1f} s load {os.getloadavg()[0]:.1f}", flush=True)
+    finally:
+        for b in busy:  # (only the processes this script started)
+            b.kill()
+            b.wait()
+    gains = [json.dumps(r.get("gains_repr"), sort_keys=True) for r in runs]
+    res = {"command": "tuner " + " ".join(COMMAND), "busy": a.busy, "runs": runs,
+           "identical_gains": len(set(gains)) == 1 and all("gains" in r for r in runs),
+           "distinct_gains": len(set(gains))}
+    Path(a.out + ".json").write_text(json.dumps(res, indent=1))
+    verdict = "identical gains" if res["identical_gains"] else f"{res['distinct_gains']} distinct gain sets"
+    md = ["# Loaded determinism (issue 41)", "",
+          f"`{res['command']}`, {a.runs} runs beside {a.busy} CPU-bound processes: {verdict}", "",
+          "| run | gains | stop | claim | cut | restarts | wall s | load (1 min) |",
+          "|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        md.append(f"| {r['run']} | {r.get('gains_repr')} | {r.get('stop')} | {r.get('claim')} | {r.get('cut')} | "
+                  f"{r.get('restarts')} | {r['wall_s']:.1f} | {r.get('load', [float('nan')])[0]:.1f} |")
+    Path(a.out + ".md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,85 @@
+"""Issue 41, item 3: the same answer under load. The default budget counts work (restarts), not seconds; the wall
+clock is a hard cap that says what it cut. A clock that makes every step look slow stands in for a loaded machine:
+it must not change the gains unless the cap is reached, and then the result says "cut"."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from tuner import plant_from_expr, tune
+from tuner.tuning import _RESERVE, AUTO_WALL_CAP_S
+
+PLANT = "1/(s+1)^2"
+
+
+def _tune():
+    return tune(plant_from_expr(PLANT), structure="pi", dt=0.1, seed=3, diagnose=False)
+
+
+def _counting(monkeypatch) -> list[int]:
+    """time.perf_counter counted (every reader in the library calls it through the module)."""
+    real, n = time.perf_counter, [0]
+
+    def counted() -> float:
+        n[0] += 1
+        return real()
+
+    monkeypatch.setattr(time, "perf_counter", counted)
+    return n
+
+
+def _slow(monkeypatch, step: float) -> None:
+    """Every read of the clock is ``step`` seconds after the last one, whatever the real time that passed (so that
+    the test's own machine, idle or loaded, does not decide whether the cap is reached)."""
+    t0, n = time.perf_counter(), [0]
+
+    def slow() -> float:
+        n[0] += 1
+        return t0 + step * n[0]
+
+    monkeypatch.setattr(time, "perf_counter", slow)
+
+
+def test_a_slow_machine_gives_the_same_gains_under_the_default_budget(monkeypatch):
+    with monkeypatch.context() as m:
+        calls = _counting(m)
+        quiet = _tune()
+    n = calls[0]
+    assert quiet.solver["stop"] in ("converged", "work") and quiet.solver["cut"] is None
+    # the same tune with every step looking slow: 30 s of clock in all, three times the old default's 10 s of
+    # search (which cut such a search short), within the cap (60 s less the verification's reserve)
+    spread = 30.0
+    assert spread < AUTO_WALL_CAP_S * (1 - _RESERVE)
+    _slow(monkeypatch, spread / n)
+    loaded = _tune()
+    assert loaded.solver["wall_time_s"] > 10.0  # it did look slow
+    assert loaded.gains == quiet.gains  # bitwise: the same steps ran
+    assert loaded.solver["stop"] == quiet.solver["stop"] and loaded.solver["cut"] is None
+    assert loaded.solver["optimality"]["restarts"] == quiet.solver["optimality"]["restarts"]
+    assert loaded.solver["global_evaluations"] == quiet.solver["global_evaluations"]
+
+
+def test_the_hard_cap_cuts_and_says_so(monkeypatch):
+    with monkeypatch.context() as m:
+        calls = _counting(m)
+        quiet = _tune()
+    n = calls[0]
+    # every step looks so slow that the whole search would take 4 times the cap: it is cut, and says where
+    _slow(monkeypatch, 4 * AUTO_WALL_CAP_S / n)
+    cut = _tune()
+    s = cut.solver
+    assert s["stop"] == "budget" and s["budget_exhausted"] and s["converged"] is False
+    assert s["cut"] is not None and s["cut"]["cap_s"] == pytest.approx(AUTO_WALL_CAP_S, rel=0.05)
+    assert s["cut"]["step"] and s["cut"]["restarts_done"] <= s["cut"]["restarts_max"]
+    assert s["global_evaluations"] < quiet.solver["global_evaluations"]  # it did cut work
+    assert "cut by the time cap" in s["optimality"]["summary"] and s["optimality"]["claim"] == "budget"
+    assert cut.meets_spec is not None  # a verified answer all the same
+
+
+def test_an_explicit_budget_is_a_hard_cap_that_says_what_it_cut():
+    res = tune(plant_from_expr("1/(s+1)^3"), structure="pid", dt=0.1, seed=0, time_budget_s=0.05, diagnose=False)
+    s = res.solver
+    assert s["stop"] == "budget" and s["cut"] is not None and s["cut"]["cap_s"] == 0.05
+    assert "cut by the time cap" in s["optimality"]["summary"]
