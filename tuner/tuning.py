@@ -554,6 +554,10 @@ def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float 
             st = structure if isinstance(structure, Structure) else get_structure(structure)
             if st.firmware:
                 structure = st.with_ranges(axis)
+                if vehicle is None:  # the axis's own defaults (ArduPilot's yaw FLTE 2.5 Hz, PX4's yaw low-pass 2 Hz)
+                    from .firmware.laws import axis_fixed
+
+                    structure = structure.with_fixed(axis_fixed(st.firmware, axis, structure.fixed_values))
     if vehicle is not None:
         from .firmware.bind import bind_law
 

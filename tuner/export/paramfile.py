@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import TunerError
+from ..firmware.laws import LATER_FIXED
 from ..firmware.names import AXES, law_names, range_problem, stored_value
 
 __all__ = ["PARAM_FORMATS", "ParamFile", "param_file", "make_param_file", "clean"]
@@ -258,6 +259,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
 
     st = get_structure(law)
     need = list(st.params) + list(st.fixed_values)
+    gains = {**{k: v for k, v in LATER_FIXED.items() if k in need}, **gains}  # a result written before they were held
     missing = [k for k in need if k not in gains]
     if missing:
         raise TunerError(f"the result's gains lack {', '.join(missing)} (a {law} result carries them)",
@@ -301,11 +303,17 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     head = [f"tuner {clean(_version(), 40)}, {when}: the {law} law ({fw}, {ax} axis), as the firmware computes it",
             f"loop rate {loop_hz:g} Hz (dt {dt:g} s)" if loop_hz else "loop rate: not recorded"]
     if fw == "px4":
+        tq = values.get("tq_hz", 0.0)
         head.append(f"filters assumed: D-term low-pass IMU_DGYRO_CUTOFF {values['dgyro_hz']:g} Hz (not written: set it "
-                    "to this value); the gyro low-pass IMU_GYRO_CUTOFF is part of the identified plant")
+                    "to this value)" + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
+                                        "written: set it to this value)" if tq > 0 else "")
+                    + "; " + _gyro_words(result, vehicle, "IMU_GYRO_CUTOFF"))
     else:
+        dff = values.get("dff", 0.0)
         head.append(f"filters assumed (written): FLTT {values['fltt_hz']:g} Hz, FLTE {values['flte_hz']:g} Hz, "
-                    f"FLTD {values['fltd_hz']:g} Hz; the gyro filter INS_GYRO_FILTER is part of the identified plant")
+                    f"FLTD {values['fltd_hz']:g} Hz" + (f"; D_FF {dff:g} in the designed loop (not written)" if dff
+                                                        else "") + "; " + _gyro_words(result, vehicle,
+                                                                                      "INS_GYRO_FILTER"))
     warnings: list[str] = []
     if vehicle is not None:
         gyro = _num(vehicle.get("gyro_cutoff_hz"))
@@ -334,6 +342,19 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
             lines.append(f"{names[k]},{_written(stored[k])}")
     text = "\n".join([f"# {clean(h, 2000)}" for h in head] + lines) + "\n"
     return ParamFile(text=text, name=f"{law}_{ax}.{_SUFFIX[format]}", warnings=tuple(warnings))
+
+
+def _gyro_words(result: Mapping[str, Any], vehicle: Mapping[str, Any] | None, name: str) -> str:
+    """Where the gyro low-pass stands: in the identified plant, or (a typed plant) added to the loop, or left out."""
+    plant = result.get("plant") if isinstance(result.get("plant"), Mapping) else {}
+    gyro = plant.get("gyro_filter") if isinstance(plant.get("gyro_filter"), Mapping) else None
+    if gyro is not None:
+        return (f"typed plant: the gyro low-pass {name} {_num(gyro.get('cutoff_hz')):g} Hz (second order) added to "
+                "it in the designed loop")
+    if plant.get("identified") is False:
+        return (f"typed plant: the gyro low-pass {name} is not in the designed loop (the vehicle's value was not "
+                "given, or the plant typed already holds it)")
+    return f"the gyro low-pass {name} is part of the identified plant"
 
 
 def param_file(result: Mapping[str, Any], format: str, *, axis: str | None = None, att_p: float | None = None,

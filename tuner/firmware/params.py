@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import TunerError
-from .laws import ARDUPILOT_FIXED, PX4_FIXED
-from .names import AXES, FLOAT32_MAX, RANGES, law_names, range_problem
+from .laws import law_defaults
+from .names import ARDUPILOT_SLEW, ARDUPILOT_UNMODELLED, AXES, FLOAT32_MAX, RANGES, law_names, range_problem
 
 __all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_params", "vehicle_from_text",
            "vehicle_from_raw", "detect_firmware"]
@@ -47,7 +47,8 @@ class VehicleParams:
     """What a vehicle fixes for its rate law on one axis, and its current gains.
 
     ``gains`` are the current ``P``, ``I``, ``D``, ``FF`` in the firmware's units; ``fixed`` what the law fixes
-    (PX4: ``K``, ``dgyro_hz``, ``int_lim``; ArduPilot: ``fltt_hz``, ``flte_hz``, ``fltd_hz``, ``imax``);
+    (PX4: ``K``, ``dgyro_hz``, ``int_lim``, ``tq_hz``; ArduPilot: ``fltt_hz``, ``flte_hz``, ``fltd_hz``, ``imax``,
+    ``dff``; each missing one the firmware's default for the axis, :func:`~tuner.firmware.laws.law_defaults`);
     ``gyro_cutoff_hz`` is the gyro low-pass upstream of the logged rate (part of the plant, informational);
     ``notes`` say which values were missing and taken from the firmware's defaults.
 
@@ -182,8 +183,10 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
         return default
 
     gains = {"P": get("P", None), "I": get("I", None), "D": get("D", None), "FF": get("FF", 0.0)}
-    defaults = dict(PX4_FIXED if fw == "px4" else ARDUPILOT_FIXED)
+    defaults = law_defaults(fw, axis)  # the axis's own defaults (ArduPilot's yaw FLTE 2.5 Hz, PX4's yaw filter 2 Hz)
     fixed = {k: get(k, v) for k, v in defaults.items()}
+    if fw == "ardupilot":
+        notes += _ardupilot_unmodelled(raw, axis, source, field)
     loop_hz = get("loop_hz", _DEFAULT_LOOP_HZ[fw])
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
@@ -207,13 +210,36 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     for k, v in gains.items():
         if v is not None and v < 0:
             raise TunerError(f"{source}: {names[k]} = {v:g}: the rate law's gains are >= 0", field=field)
-    if fw == "px4" and axis == "yaw" and raw.get("MC_YAW_TQ_CUTOFF", 2.0) > 0:
-        notes.append("PX4 filters the yaw torque setpoint (MC_YAW_TQ_CUTOFF) after the rate law: the identified "
-                     "plant must start at the filtered torque, or the filter is left out of the loop")
+    if fw == "px4" and axis == "yaw" and fixed["tq_hz"] > 0:
+        notes.append(f"PX4 low-passes the yaw torque at MC_YAW_TQ_CUTOFF = {fixed['tq_hz']:g} Hz after the rate law "
+                     "and before it publishes vehicle_torque_setpoint: the filter is part of the designed loop (a "
+                     "plant identified from vehicle_torque_setpoint starts after it)")
     return VehicleParams(firmware=fw, axis=axis, loop_hz=loop_hz, gains=gains, fixed=fixed,
                          gyro_cutoff_hz=get("gyro_hz", None), att_p=get("att_p", None),
                          rate_max_dps=get("rate_max_dps", None) if "rate_max_dps" in names else None,
                          source=source, raw=dict(raw), notes=tuple(notes), warnings=tuple(warnings))
+
+
+def _ardupilot_unmodelled(raw: Mapping[str, float], axis: str, source: str, fld: str) -> list[str]:
+    """ArduPilot's AC_PID terms outside the linear law: PDMX, NTF, NEF set (non-zero) are refused, naming the
+    parameter; SMAX is read and what it does said (see :data:`tuner.firmware.names.ARDUPILOT_UNMODELLED`)."""
+    a = {"roll": "RLL", "pitch": "PIT", "yaw": "YAW"}[axis]
+    what = {"PDMX": "the P+D output limit (a clamp on |P + D| in AC_PID::update_all)",
+            "NTF": "a notch filter on the target (AP_Filter, FILTn_*)", "NEF": "a notch filter on the error "
+            "(AP_Filter, FILTn_*)"}
+    for suffix in ARDUPILOT_UNMODELLED:
+        name = f"ATC_RAT_{a}_{suffix}"
+        if float(raw.get(name, 0.0)) != 0:
+            raise TunerError(f"{source}: {name} = {float(raw[name]):g} sets {what[suffix]}, which the tuner's model "
+                             f"of the {axis} rate law does not hold, so its margins would not be the vehicle's: set "
+                             f"{name} to 0 in the file given to the tuner (and fly the design with it off), or tune "
+                             "without it", field=fld)
+    smax = f"ATC_RAT_{a}_{ARDUPILOT_SLEW}"
+    if float(raw.get(smax, 0.0)) > 0:
+        return [f"{smax} = {float(raw[smax]):g}: ArduPilot's slew limiter lowers P and D only when the P+D output "
+                "slews faster than that in alternating directions (an oscillation); a loop that does not oscillate "
+                "flies the linear law designed here, which does not include it"]
+    return []
 
 
 def range_warning(fw: str, name: str, value: float, problem: dict, what: str = "the tune uses it as read") -> str:

@@ -1,0 +1,177 @@
+"""Issue 40 item 1: the firmware details that move a margin, in the law the tool designs and verifies.
+
+Each law below is written here, per sample, from the firmware source named in its docstring (not from the tool's
+transfer functions); the tool's structure must produce the same output sample for sample, and the phase margin the
+verifier reports must be the one computed here from that per-sample law (its frequency response measured by running
+it on a complex exponential) and the plant's exact zero-order-hold discretisation (scipy). The figures before (the
+detail left out, as the tool had it) and after are checked on a comparison plant.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from tuner import analyze, make_plant
+from tuner.cli import main
+from tuner.controllers import get_structure
+from tuner.errors import TunerError
+from tuner.firmware import vehicle_from_text
+from tuner.firmware.bind import bind_law
+
+DT = 0.0025  # 400 Hz
+YAW_PLANT = ([40.0], [0.02, 1.02, 1.0])  # 40/((s + 1)(0.02 s + 1)): yaw rate from normalised torque, 20 ms motors
+
+
+def _alpha(f_hz: float, dt: float) -> float:
+    return 1.0 if f_hz <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f_hz))
+
+
+def px4_law(r, w, g, dt):
+    """PX4 ``RateControl::update`` (``src/lib/rate_control/rate_control.cpp``), then ``MulticopterRateControl::Run``'s
+    ``torque_setpoint(2) = _output_lpf_yaw.update(torque_setpoint(2), dt)``, an ``AlphaFilter`` at
+    ``MC_YAW_TQ_CUTOFF`` (``src/modules/mc_rate_control/MulticopterRateControl.cpp``, PX4 main)."""
+    kp, ki, kd = g["K"] * g["P"], g["K"] * g["I"], g["K"] * g["D"]
+    a, aq = _alpha(g["dgyro_hz"], dt), _alpha(g.get("tq_hz", 0.0), dt)
+    x_i = w_prev = wdot_f = q = 0.0
+    u = np.zeros(len(r), dtype=complex)
+    for k in range(len(r)):
+        e = r[k] - w[k]
+        wdot_f += a * ((w[k] - w_prev) / dt - wdot_f)
+        w_prev = w[k]
+        torque = kp * e + x_i - kd * wdot_f + g["FF"] * r[k]
+        q += aq * (torque - q)  # the yaw output low-pass
+        u[k] = q
+        x_i += ki * e * dt
+    return u
+
+
+def ardupilot_law(target, w, g, dt):
+    """ArduPilot ``AC_PID::update_all`` and ``get_ff`` (``libraries/AC_PID/AC_PID.cpp``): FLTT on the target, FLTE
+    on the error, FLTD on the error's derivative, I before the output, ``FF * _target + D_FF * _target_derivative``
+    with ``_target_derivative = (_target - target_last)/dt``."""
+    at, ae, ad = _alpha(g["fltt_hz"], dt), _alpha(g["flte_hz"], dt), _alpha(g["fltd_hz"], dt)
+    T = E = D = integ = e_prev = 0.0
+    u = np.zeros(len(target), dtype=complex)
+    for k in range(len(target)):
+        t_last = T
+        T += at * (target[k] - T)
+        E += ae * ((T - w[k]) - E)
+        D += ad * ((E - e_prev) / dt - D)
+        e_prev = E
+        integ += g["I"] * E * dt
+        u[k] = g["P"] * E + g["D"] * D + integ + g["FF"] * T + g.get("dff", 0.0) * (T - t_last) / dt
+    return u
+
+
+def _feedback_response(law, g, w_rad, dt, n=6000):
+    """``C_fb(e^{jwT})`` of the per-sample law: run on ``w[k] = z^k`` (r = 0); past the transients ``u[k] = -C z^k +
+    c`` (the integrator's constant), so ``C = -(u[k] - u[k-1])/(z^(k-1) (z - 1))``."""
+    z = np.exp(1j * w_rad * dt)
+    w = z ** np.arange(n)
+    u = law(np.zeros(n), w, g, dt)
+    return -(u[-1] - u[-2]) / (z ** (n - 2) * (z - 1))
+
+
+def _phase_margin(law, g, dt, plant=YAW_PLANT):
+    """The phase margin (deg) of the per-sample law on the plant's ZOH model at ``dt`` (one gain crossing)."""
+    bd, ad, _ = signal.cont2discrete((plant[0], plant[1]), dt, method="zoh")
+    bd = np.ravel(bd)
+
+    def loop(w):
+        z = np.exp(1j * w * dt)
+        return _feedback_response(law, g, w, dt) * np.polyval(bd, z) / np.polyval(ad, z)
+
+    grid = np.geomspace(0.05, 0.99 * math.pi / dt, 80)
+    mags = np.array([abs(loop(w)) for w in grid])
+    i = int(np.flatnonzero((mags[:-1] >= 1) & (mags[1:] < 1))[0])
+    lo, hi = grid[i], grid[i + 1]
+    for _ in range(40):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if abs(loop(mid)) >= 1 else (lo, mid)
+    return 180.0 + math.degrees(np.angle(loop(math.sqrt(lo * hi))))
+
+
+def _tool_pm(structure, gains, plant=YAW_PLANT):
+    c = get_structure(structure).tf(gains, DT)
+    return analyze(make_plant(*plant), c, dt=DT).metrics.phase_margin_deg
+
+
+PX4_YAW = {"P": 0.2, "I": 0.1, "D": 0.0, "FF": 0.0, "K": 1.0, "dgyro_hz": 20.0, "int_lim": 0.3}
+AP_YAW = {"P": 0.18, "I": 0.018, "D": 0.0, "FF": 0.0, "fltt_hz": 20.0, "fltd_hz": 20.0, "imax": 0.5}
+
+
+@pytest.mark.parametrize("tq_hz", [0.0, 2.0, 5.0])
+def test_px4_yaw_torque_low_pass_is_in_the_law(tq_hz):
+    g = {**PX4_YAW, "D": 0.002, "FF": 0.05, "tq_hz": tq_hz}
+    rng = np.random.default_rng(3)
+    r, w = rng.standard_normal(500), rng.standard_normal(500)
+    c = get_structure("px4_rate").tf(g, DT)
+    u = signal.lfilter(c.num_r, c.den, r) - signal.lfilter(c.num, c.den, w)
+    np.testing.assert_allclose(u, px4_law(r, w, g, DT).real, rtol=1e-9, atol=1e-9)
+
+
+def test_px4_yaw_default_gains_phase_margin_with_the_filter():
+    """PX4's default yaw gains (MC_YAWRATE_P 0.2, I 0.1) on the yaw plant: 84.1 deg without the 2 Hz torque filter
+    (the tool before), 57.2 deg with it (what the vehicle flies); both as computed here from the per-sample law."""
+    before = _tool_pm("px4_rate", {**PX4_YAW, "tq_hz": 0.0})
+    after = _tool_pm("px4_rate", {**PX4_YAW, "tq_hz": 2.0})
+    assert before == pytest.approx(_phase_margin(px4_law, {**PX4_YAW, "tq_hz": 0.0}, DT), abs=0.05)
+    assert after == pytest.approx(_phase_margin(px4_law, {**PX4_YAW, "tq_hz": 2.0}, DT), abs=0.05)
+    assert before - after > 20  # (84.1 -> 57.2 deg)
+    v = vehicle_from_text("1\t1\tMC_YAWRATE_P\t0.2\t9\n1\t1\tMC_YAWRATE_I\t0.1\t9\n1\t1\tMC_YAWRATE_D\t0\t9\n",
+                          axis="yaw")
+    assert v.fixed["tq_hz"] == 2.0 and any("MC_YAW_TQ_CUTOFF not in" in n for n in v.notes)
+    st, _, now = bind_law("px4_rate", v, DT)
+    assert st.fixed_values["tq_hz"] == 2.0 and now["tq_hz"] == 2.0
+    assert vehicle_from_text("MC_ROLLRATE_P,0.1\nMC_ROLLRATE_I,0.1\nMC_ROLLRATE_D,0.001\n").fixed["tq_hz"] == 0.0
+
+
+def test_ardupilot_yaw_flte_default_is_the_firmware_default():
+    """A vehicle file without ATC_RAT_YAW_FLTE: ArduPilot flies AC_ATC_MULTI_RATE_YAW_FILT_HZ = 2.5 Hz
+    (AC_AttitudeControl_Multi.h's Defaults block for _pid_rate_yaw); PM 88.7 deg with 0 (the tool before), 67.6 with
+    2.5 on the yaw plant, both as computed here from the per-sample AC_PID."""
+    v = vehicle_from_text("ATC_RAT_YAW_P,0.18\nATC_RAT_YAW_I,0.018\nATC_RAT_YAW_D,0\nSCHED_LOOP_RATE,400\n",
+                          axis="yaw")
+    assert v.fixed["flte_hz"] == 2.5 and any("ATC_RAT_YAW_FLTE not in" in n and "2.5" in n for n in v.notes)
+    roll = vehicle_from_text("ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\n", axis="roll")
+    assert roll.fixed == {"fltt_hz": 20.0, "flte_hz": 0.0, "fltd_hz": 20.0, "imax": 0.5, "dff": 0.0}
+    before = _tool_pm("ardupilot_rate", {**AP_YAW, "flte_hz": 0.0})
+    after = _tool_pm("ardupilot_rate", {**AP_YAW, "flte_hz": 2.5})
+    assert before == pytest.approx(_phase_margin(ardupilot_law, {**AP_YAW, "flte_hz": 0.0}, DT), abs=0.05)
+    assert after == pytest.approx(_phase_margin(ardupilot_law, {**AP_YAW, "flte_hz": 2.5}, DT), abs=0.05)
+    assert before - after > 15  # (88.7 -> 67.6 deg)
+
+
+@pytest.mark.parametrize("fltt", [20.0, 0.0])
+def test_ardupilot_d_ff_is_the_target_derivative(fltt):
+    g = {"P": 0.135, "I": 0.135, "D": 0.0036, "FF": 0.05, "fltt_hz": fltt, "flte_hz": 2.5, "fltd_hz": 20.0,
+         "imax": 0.5, "dff": 0.01}
+    rng = np.random.default_rng(4)
+    r, w = rng.standard_normal(500), rng.standard_normal(500)
+    c = get_structure("ardupilot_rate").tf(g, DT)
+    u = signal.lfilter(c.num_r, c.den, r) - signal.lfilter(c.num, c.den, w)
+    np.testing.assert_allclose(u, ardupilot_law(r, w, g, DT).real, rtol=1e-9, atol=1e-9)
+    v = vehicle_from_text("ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\nATC_RAT_RLL_D_FF,0.01\n")
+    assert v.fixed["dff"] == 0.01
+
+
+@pytest.mark.parametrize("name", ["ATC_RAT_RLL_PDMX", "ATC_RAT_RLL_NTF", "ATC_RAT_RLL_NEF"])
+def test_ardupilot_terms_outside_the_law_are_refused_by_name(name, tmp_path, capsys):
+    text = f"ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\n{name},1\n"
+    with pytest.raises(TunerError, match=name) as e:
+        vehicle_from_text(text)
+    assert e.value.field == ("params",)
+    vehicle_from_text(text.replace(f"{name},1", f"{name},0"))  # 0: off, read
+    p = tmp_path / "v.parm"
+    p.write_text(text)
+    code = main(["analyze", "--plant", "30/((s+1)*(0.03*s+1))", "--structure", "ardupilot_rate", "--params", str(p)])
+    assert code == 2 and name in capsys.readouterr().err
+
+
+def test_ardupilot_smax_is_read_and_its_effect_said():
+    v = vehicle_from_text("ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\nATC_RAT_RLL_SMAX,30\n")
+    assert any("ATC_RAT_RLL_SMAX = 30" in n and "oscillation" in n for n in v.notes)
