@@ -175,3 +175,75 @@ def test_ardupilot_terms_outside_the_law_are_refused_by_name(name, tmp_path, cap
 def test_ardupilot_smax_is_read_and_its_effect_said():
     v = vehicle_from_text("ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\nATC_RAT_RLL_SMAX,30\n")
     assert any("ATC_RAT_RLL_SMAX = 30" in n and "oscillation" in n for n in v.notes)
+
+
+# -- the loop rate from what the log shows (item 1d) and the parameters changed in flight (item 2) ----------------
+
+ROLL_PLANT = ([250.0], [0.02, 1.0, 0.0])  # 250/(s (0.02 s + 1))
+PX4_LOG_PARAMS = {"MC_ROLLRATE_P": 0.15, "MC_ROLLRATE_I": 0.2, "MC_ROLLRATE_D": 0.003, "MC_ROLLRATE_K": 1.0,
+                  "IMU_DGYRO_CUTOFF": 30.0, "IMU_GYRO_RATEMAX": 800}
+
+
+def _imu_log(path, gyro_hz, params, changed=(), topic="vehicle_imu_status"):
+    from tests.ulog_writer import Topic, write_ulog
+
+    n = 300
+    if topic == "vehicle_imu_status":
+        t = np.arange(n) * 10_000  # (the status is published at 100 Hz; it says the gyro's rate)
+        tp = Topic(topic, [("float", "gyro_rate_hz", 0)], t, {"gyro_rate_hz": np.full(n, float(gyro_hz))})
+    else:  # an older log: the gyro's samples themselves
+        t = (np.arange(n) * 1e6 / gyro_hz).astype(int)
+        tp = Topic(topic, [("float", "gyro_rad", 3)], t, {"gyro_rad": np.zeros((n, 3))})
+    return write_ulog(path, [tp], params=params, changed=changed)
+
+
+def test_px4_loop_rate_is_the_gyros_not_the_cap(tmp_path):
+    """PX4's rate loop runs on every vehicle_angular_velocity, which the gyro drives; IMU_GYRO_RATEMAX only caps it.
+    A log whose gyro ran at 250 Hz under a cap of 800: the loop at 250 Hz, and the phase margin there (computed here
+    from the per-sample law at dt = 4 ms) is 5 deg below the one at 800 Hz (the tool before)."""
+    from tuner.firmware import read_params
+
+    v = read_params(_imu_log(tmp_path / "a.ulg", 250.0, PX4_LOG_PARAMS), axis="roll")
+    assert v.loop_hz == 250.0 and "vehicle_imu_status.gyro_rate_hz" in v.loop_source and "cap" in v.loop_source
+    g = {"P": 0.15, "I": 0.2, "D": 0.003, "FF": 0.0, "K": 1.0, "dgyro_hz": 30.0, "int_lim": 0.3}
+    c = get_structure("px4_rate").tf(g, 1 / 250)
+    at_250 = analyze(make_plant(*ROLL_PLANT), c, dt=1 / 250).metrics.phase_margin_deg
+    c800 = get_structure("px4_rate").tf(g, 1 / 800)
+    at_800 = analyze(make_plant(*ROLL_PLANT), c800, dt=1 / 800).metrics.phase_margin_deg
+    assert at_250 == pytest.approx(_phase_margin(px4_law, g, 1 / 250, ROLL_PLANT), abs=0.05)
+    assert at_800 == pytest.approx(_phase_margin(px4_law, g, 1 / 800, ROLL_PLANT), abs=0.05)
+    assert at_800 - at_250 > 3  # (80.6 -> 75.4 deg)
+    above = read_params(_imu_log(tmp_path / "b.ulg", 1000.0, PX4_LOG_PARAMS | {"IMU_GYRO_RATEMAX": 400}))
+    assert above.loop_hz == 400.0 and "at most at the cap" in above.loop_source
+    old = dict(PX4_LOG_PARAMS)
+    del old["IMU_GYRO_RATEMAX"]
+    v = read_params(_imu_log(tmp_path / "c.ulg", 250.0, old, topic="sensor_combined"))
+    assert v.loop_hz == 250.0 and "sensor_combined" in v.loop_source
+    params_file = tmp_path / "q.params"
+    params_file.write_text("".join(f"1\t1\t{k}\t{v}\t9\n" for k, v in PX4_LOG_PARAMS.items()))
+    v = read_params(params_file)
+    assert v.loop_hz == 800.0 and "a cap on the gyro's rate" in v.loop_source
+
+
+def test_ardupilot_fast_rate_thread(tmp_path):
+    base = "ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\nSCHED_LOOP_RATE,400\n"
+    assert vehicle_from_text(base).loop_hz == 400.0
+    v = vehicle_from_text(base + "FSTRATE_ENABLE,3\nFSTRATE_DIV,2\nINS_GYRO_RATE,1\n")
+    assert v.loop_hz == 1000.0 and "FSTRATE_DIV 2" in v.loop_source  # 2 kHz / 2
+    v = vehicle_from_text(base + "FSTRATE_ENABLE,1\n")
+    assert v.loop_hz is None and any("INS_GYRO_RATE" in n for n in v.notes)
+    with pytest.raises(TunerError, match="give dt"):
+        bind_law("ardupilot_rate", v, None)
+
+
+def test_px4_parameters_changed_in_flight_are_read(tmp_path, capsys):
+    from tuner.firmware import read_params
+
+    p = _imu_log(tmp_path / "f.ulg", 250.0, PX4_LOG_PARAMS, changed=[(1_500_000, "MC_ROLLRATE_P", 0.18)])
+    v = read_params(p, axis="roll")
+    assert v.gains["P"] == pytest.approx(0.18)
+    assert any("MC_ROLLRATE_P changed in flight" in n and "0.18 at 1.5 s" in n for n in v.notes)
+    code = main(["analyze", "--plant", "250/(s*(0.02*s+1))", "--structure", "px4_rate", "--params", str(p)])
+    out = capsys.readouterr().out
+    assert code in (0, 1) and "MC_ROLLRATE_P changed in flight" in out and "loop rate: 250 Hz from" in out
+    assert "assumed: MC_RR_INT_LIM not in" in out  # what was assumed, in the text

@@ -319,6 +319,10 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
         gyro = _num(vehicle.get("gyro_cutoff_hz"))
         head.append(f"vehicle: {clean(vehicle.get('source'))} ({fw}, {ax} axis"
                     + (f", gyro low-pass {gyro:g} Hz" if math.isfinite(gyro) and gyro > 0 else "") + ")")
+        if vehicle.get("loop_source"):
+            head.append(f"loop rate from {clean(vehicle.get('loop_source'), 300)}")
+        for n in vehicle.get("notes") or ():
+            head.append(("assumed: " if "assumed" in str(n) else "note: ") + clean(n, 400))
         for w in vehicle.get("warnings") or ():
             warnings.append(f"the vehicle's parameters: {clean(w)}")
         cur = vehicle.get("current_gains") if isinstance(vehicle.get("current_gains"), Mapping) else {}

@@ -35,6 +35,7 @@ class _Vehicle(_Part):
     firmware: StrictStr | None = None
     axis: Literal["roll", "pitch", "yaw"] | None = None
     loop_hz: Real | None = None
+    loop_source: StrictStr | None = None
     gyro_cutoff_hz: Real | None = None
     att_p: Real | None = None
     rate_max_dps: Real | None = None

@@ -72,7 +72,7 @@ def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "pa
 
 def vehicle_dict(vehicle: Any) -> dict[str, Any]:
     """What a result records of the vehicle (for the export's header and the current-vs-proposed report)."""
-    keys = ("firmware", "axis", "loop_hz", "gyro_cutoff_hz", "att_p", "rate_max_dps", "source")
+    keys = ("firmware", "axis", "loop_hz", "loop_source", "gyro_cutoff_hz", "att_p", "rate_max_dps", "source")
     out = {k: getattr(vehicle, k, None) for k in keys}
     out["current_gains"] = {k: float(v) for k, v in dict(getattr(vehicle, "gains", {}) or {}).items()}
     out["fixed"] = {k: float(v) for k, v in dict(getattr(vehicle, "fixed", {}) or {}).items()}

@@ -27,6 +27,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ..errors import TunerError
 from .laws import law_defaults
@@ -75,6 +76,8 @@ class VehicleParams:
     #: each value of the law's parameters outside its documented range (or not a whole number where the firmware
     #: stores an integer), in words: read as it is, not refused
     warnings: tuple[str, ...] = ()
+    #: where the loop rate came from, in words (the log's gyro rate, a parameter, or the default assumed)
+    loop_source: str = ""
 
     @property
     def dt(self) -> float | None:
@@ -152,9 +155,12 @@ def detect_firmware(raw: Mapping[str, float]) -> str | None:
 
 
 def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: str | None = None,
-                     source: str = "parameters", fmt: str | None = None, field: str = "params") -> VehicleParams:
+                     source: str = "parameters", fmt: str | None = None, field: str = "params",
+                     log: Mapping[str, Any] | None = None) -> VehicleParams:
     """The :class:`VehicleParams` of ``axis`` from ``{NAME: value}``; ``firmware`` (``"px4"``, ``"ardupilot"``)
-    is what the caller's law needs (None: told by the names); ``fmt`` is the file's format, for the messages."""
+    is what the caller's law needs (None: told by the names); ``fmt`` is the file's format, for the messages;
+    ``log``: what a ULog showed (:func:`tuner.identify.ulog.read_vehicle_log`: the gyro's rate, the in-flight
+    changes, already applied to ``raw`` by the caller, in ``log["change_notes"]``)."""
     if axis not in AXES:
         raise TunerError(f"axis must be one of {', '.join(AXES)}, got {axis!r}", field="axis")
     found = detect_firmware(raw)
@@ -187,7 +193,8 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     fixed = {k: get(k, v) for k, v in defaults.items()}
     if fw == "ardupilot":
         notes += _ardupilot_unmodelled(raw, axis, source, field)
-    loop_hz = get("loop_hz", _DEFAULT_LOOP_HZ[fw])
+    loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes)
+    notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
             raise TunerError(f"{source}: {name} = {float(raw[name]):g} cannot be a {fw} parameter: the firmware stores "
@@ -198,7 +205,7 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     if loop_hz is not None and fw == "px4" and loop_hz == 0:
         notes.append(f"{names['loop_hz']} = 0: PX4 then runs the rate loop at the gyro's own rate, which the "
                      "parameters do not say: give dt (the rate loop's sample time)")
-        loop_hz = None
+        loop_hz, loop_source = None, ""
     if loop_hz is not None and not loop_hz > 0:
         raise TunerError(f"{source}: {names['loop_hz']} = {loop_hz:g}: a loop rate is > 0 Hz", field=field)
     lo_hz, hi_hz = RANGES[fw][axis]["loop_hz"]
@@ -217,7 +224,62 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     return VehicleParams(firmware=fw, axis=axis, loop_hz=loop_hz, gains=gains, fixed=fixed,
                          gyro_cutoff_hz=get("gyro_hz", None), att_p=get("att_p", None),
                          rate_max_dps=get("rate_max_dps", None) if "rate_max_dps" in names else None,
-                         source=source, raw=dict(raw), notes=tuple(notes), warnings=tuple(warnings))
+                         source=source, raw=dict(raw), notes=tuple(notes), warnings=tuple(warnings),
+                         loop_source=loop_source)
+
+
+def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], source: str,
+               log: Mapping[str, Any] | None, notes: list[str]) -> tuple[float | None, str]:
+    """The rate loop's rate and where it came from, in words.
+
+    * PX4: ``MulticopterRateControl::Run`` runs on every ``vehicle_angular_velocity``, which the gyro drives and
+      ``VehicleAngularVelocity`` publishes at most at ``IMU_GYRO_RATEMAX`` (a cap, "maximum publication rate",
+      ``imu_gyro_parameters.c``). A log's ``vehicle_imu_status.gyro_rate_hz`` is the gyro's rate: the loop's when it
+      is below the cap; above it, the loop runs at most at the cap (taken, and said). The parameter alone is a
+      stated fallback.
+    * ArduPilot: ``SCHED_LOOP_RATE``; with the fast-rate thread (``FSTRATE_ENABLE`` > 0, ArduCopter
+      ``Parameters.cpp``: "the actual rate is the gyro rate in Hz divided by" ``FSTRATE_DIV``) the gyro's rate
+      ``INS_GYRO_RATE`` (0: 1 kHz, 1: 2 kHz, 2: 4 kHz, 3: 8 kHz, ``AP_InertialSensor.cpp``) over ``FSTRATE_DIV``.
+    """
+    name = names["loop_hz"]
+    if fw == "px4":
+        gyro = (log or {}).get("gyro_rate_hz")
+        cap = raw.get(name)
+        if gyro:
+            where = f"vehicle_imu_status.gyro_rate_hz in {source}"
+            if cap is None or cap <= 0:
+                return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}; no {name} cap in it)"
+            if gyro <= cap:
+                return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}), below the cap {name} {cap:g}"
+            return float(cap), (f"{name} {cap:g} Hz in {source}, the cap on the gyro's rate {gyro:.1f} Hz ({where}): "
+                                "the loop runs at most at the cap")
+        logged = (log or {}).get("logged_gyro_hz")
+        if cap is None and logged:
+            notes.append(f"{name} not in {source} (older firmware): the loop rate is taken from the log's timing")
+            return float(round(logged)), (f"the timing of sensor_combined in {source}: the gyro's samples as logged, "
+                                          f"{logged:.1f} Hz (a lower bound if the logger thinned the topic; the "
+                                          "log has no vehicle_imu_status)")
+        if cap is not None:
+            why = ("the log has no vehicle_imu_status" if log is not None else
+                   "a parameter file; a ULog's vehicle_imu_status would give the gyro's rate")
+            return float(cap), f"{name} {cap:g} Hz in {source}: a cap on the gyro's rate, taken as the loop's ({why})"
+    else:
+        fast = raw.get("FSTRATE_ENABLE", 0.0)
+        if fast > 0:
+            if "INS_GYRO_RATE" not in raw:
+                notes.append(f"FSTRATE_ENABLE = {fast:g}: the rate loop runs in the fast-rate thread at the gyro's "
+                             "rate over FSTRATE_DIV, and INS_GYRO_RATE is not in the file: give dt")
+                return None, ""
+            gyro_hz = 1000.0 * 2 ** int(raw["INS_GYRO_RATE"])
+            div = max(1.0, float(raw.get("FSTRATE_DIV", 1.0)))
+            how = ("a dynamic divisor from FSTRATE_DIV up: at most this rate" if fast == 1 else "a fixed divisor")
+            return gyro_hz / div, (f"the fast-rate thread (FSTRATE_ENABLE {fast:g}, {how}): INS_GYRO_RATE "
+                                   f"{gyro_hz:g} Hz / FSTRATE_DIV {div:g} in {source}")
+        if name in raw:
+            return float(raw[name]), f"{name} {float(raw[name]):g} Hz in {source}"
+    default = _DEFAULT_LOOP_HZ[fw]
+    notes.append(f"{name} not in {source}: the firmware's default {default:g} Hz assumed for the loop rate")
+    return default, f"assumed: the firmware's default {default:g} Hz ({name} is not in {source})"
 
 
 def _ardupilot_unmodelled(raw: Mapping[str, float], axis: str, source: str, fld: str) -> list[str]:
@@ -283,14 +345,28 @@ def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", fi
     return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
 
 
-def _ulog_parameters(path: Path, field: str) -> dict[str, float]:
-    from ..identify.ulog import read_parameters  # the definitions section only, a damaged log refused at once
+def _ulog_vehicle(path: Path, axis: str, field: str) -> tuple[dict[str, float], dict[str, Any]]:
+    """A ULog's parameters with the in-flight changes applied (the last value set in the log: what was flown at
+    its end; each change of the law's parameters said), and what the log showed (the gyro's rate)."""
+    from ..identify.ulog import read_vehicle_log  # vehicle_imu_status only, a damaged log refused at once
 
-    params = read_parameters(path, field=field)
-    if not params:
+    log = dict(read_vehicle_log(path, field=field))
+    raw = dict(log["parameters"])
+    if not raw:
         raise TunerError(f"{path}: the log stores no parameters (a ULog logged with parameters, or the vehicle's "
                          ".params file)", field=field)
-    return params
+    law = set(law_names("px4", axis if axis in AXES else "roll").values())
+    seen: dict[str, list[tuple[float, float]]] = {}
+    for t, name, v in log["changes"]:
+        if name in raw and raw[name] != v or name in seen:
+            seen.setdefault(name, [(0.0, raw.get(name, math.nan))]).append((t, v))
+        raw[name] = v
+    log["change_notes"] = [
+        f"{name} changed in flight ({', '.join(f'{v:g} at {t:.1f} s' for t, v in hist)}): the last value "
+        f"{hist[-1][1]:g} is used (what was flown from {hist[-1][0]:.1f} s); a stretch identified before that flew "
+        "the earlier value: give --params a file with it"
+        for name, hist in seen.items() if name in law]
+    return raw, log
 
 
 def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = None, field: str = "params"
@@ -316,8 +392,9 @@ def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = 
     p = Path(path)
     head = read_head(p, len(_ULOG_MAGIC), field=field)  # a regular file only: nothing that could hang
     if head == _ULOG_MAGIC:
-        return vehicle_from_raw(_ulog_parameters(p, field), axis=axis, firmware=firmware,
-                                source=f"{p.name} (ULog parameters)", fmt="ulog", field=field)
+        raw, log = _ulog_vehicle(p, axis, field)
+        return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=f"{p.name} (ULog parameters)",
+                                fmt="ulog", field=field, log=log)
     text = read_text(p, limit=MAX_PARAMS_BYTES, field=field,
                      hint="give a QGroundControl .params, a Mission Planner .parm or a ULog .ulg")
     fmt = {".params": "qgc", ".parm": "parm"}.get(p.suffix.lower())
