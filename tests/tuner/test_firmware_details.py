@@ -247,3 +247,42 @@ def test_px4_parameters_changed_in_flight_are_read(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code in (0, 1) and "MC_ROLLRATE_P changed in flight" in out and "loop rate: 250 Hz from" in out
     assert "assumed: MC_RR_INT_LIM not in" in out  # what was assumed, in the text
+
+
+# -- the vehicle's own file and generation (item 2) ----------------------------------------------------------------
+
+def test_ardupilot_files_of_every_form(tmp_path):
+    from tuner.firmware import read_params
+
+    text = ("# saved by MAVProxy\nATC_RAT_RLL_P 0.12\nATC_RAT_RLL_I=0.1  # tuned\nATC_RAT_RLL_D,0.003\n"
+            "FRAME_CLASS 1 @READONLY\nSCHED_LOOP_RATE,400\n")
+    for suffix in (".parm", ".param", ".params", ".txt", ""):
+        p = tmp_path / f"copter{suffix}"
+        p.write_text(text)
+        v = read_params(p, axis="roll")
+        assert v.firmware == "ardupilot" and v.gains["P"] == 0.12 and v.gains["I"] == 0.1 and v.raw["FRAME_CLASS"] == 1
+    with pytest.raises(TunerError, match="NAME,value"):
+        vehicle_from_text("ATC_RAT_RLL_P,0.12 0.3\n")
+
+
+def test_export_writes_the_vehicles_ids_and_only_its_parameters():
+    """A vehicle id 3 file from an older PX4 (no MC_ROLLRATE_K, no MC_RR_INT_LIM): QGroundControl loads the export
+    onto that vehicle (ids 3, 1) and it names no parameter that firmware lacks; the header says what was assumed."""
+    from tuner.export.paramfile import param_file
+    from tuner.firmware.bind import vehicle_dict
+
+    qgc = "".join(f"3\t1\t{k}\t{v}\t9\n" for k, v in (("MC_ROLLRATE_P", 0.14), ("MC_ROLLRATE_I", 0.1),
+                                                       ("MC_ROLLRATE_D", 0.004), ("MC_ROLLRATE_FF", 0.0)))
+    v = vehicle_from_text(qgc, axis="roll")
+    assert v.ids == (3, 1)
+    res = {"structure": "px4_rate", "controller": {"dt": 0.0025}, "meets_spec": True, "vehicle": vehicle_dict(v),
+           "gains": {"P": 0.12, "I": 0.2, "D": 0.002, "FF": 0.0, "K": 1.0, "dgyro_hz": 20.0, "int_lim": 0.3,
+                     "tq_hz": 0.0}}
+    text, _ = param_file(res, "px4", axis="roll")
+    rows = [ln.split("\t") for ln in text.splitlines() if not ln.startswith("#")]
+    assert {r[2] for r in rows} == {"MC_ROLLRATE_P", "MC_ROLLRATE_I", "MC_ROLLRATE_D", "MC_ROLLRATE_FF"}
+    assert all(r[:2] == ["3", "1"] for r in rows)
+    head = [ln for ln in text.splitlines() if ln.startswith("#")]
+    assert any("not written" in h and "MC_ROLLRATE_K" in h and "MC_RR_INT_LIM" in h for h in head)
+    assert any(h.startswith("# assumed: MC_ROLLRATE_K not in") for h in head)
+    assert any("vehicle id 3, component id 1 (from the vehicle's file)" in h for h in head)

@@ -337,11 +337,23 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     if not ok:
         warnings.append(f"written with --force: {why}" + (" (the verdict above)" if verdict else ""))
     warnings += [f"written with --force: {f}" for f in forced]
+    has = vehicle.get("has") if vehicle is not None and isinstance(vehicle.get("has"), list) else None
+    skip = [k for k in order if has is not None and k not in ("P", "I", "D") and names[k] not in has]
+    if skip:  # the vehicle's firmware lacks them (an older generation): a ground station would refuse the file
+        head.append("not written (not in the vehicle's parameter list: its firmware does not have them; the design "
+                    "assumed " + ", ".join(f"{names[k]} {stored[k]:.6g}" for k in skip) + ")")
+    ids = vehicle.get("ids") if vehicle is not None else None
+    sys_id, comp_id = (int(ids[0]), int(ids[1])) if isinstance(ids, list) and len(ids) == 2 else (1, 1)
+    if fw == "px4":
+        head.append(f"vehicle id {sys_id}, component id {comp_id}" + (" (from the vehicle's file)" if ids else
+                                                                       " (assumed: no QGroundControl file given)"))
     head += [f"WARNING: {w}" for w in warnings]
     lines = []
     for k in order:
+        if k in skip:
+            continue
         if fw == "px4":
-            lines.append(f"1\t1\t{names[k]}\t{_written(stored[k])}\t9")
+            lines.append(f"{sys_id}\t{comp_id}\t{names[k]}\t{_written(stored[k])}\t9")
         else:
             lines.append(f"{names[k]},{_written(stored[k])}")
     text = "\n".join([f"# {clean(h, 2000)}" for h in head] + lines) + "\n"

@@ -44,6 +44,8 @@ class _Vehicle(_Part):
     fixed: dict[str, Real] | None = None
     current_gains_law: dict[str, Real] | None = None
     notes: list[StrictStr] | None = None
+    ids: list[StrictInt] | None = None
+    has: list[StrictStr] | None = None
 
 
 class _Result(_Part):

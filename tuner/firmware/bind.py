@@ -76,6 +76,15 @@ def vehicle_dict(vehicle: Any) -> dict[str, Any]:
     out = {k: getattr(vehicle, k, None) for k in keys}
     out["current_gains"] = {k: float(v) for k, v in dict(getattr(vehicle, "gains", {}) or {}).items()}
     out["fixed"] = {k: float(v) for k, v in dict(getattr(vehicle, "fixed", {}) or {}).items()}
+    ids = getattr(vehicle, "ids", None)
+    if ids:
+        out["ids"] = [int(ids[0]), int(ids[1])]
+    raw = getattr(vehicle, "raw", None)
+    fw, axis = getattr(vehicle, "firmware", None), getattr(vehicle, "axis", None)
+    if raw and fw in ("px4", "ardupilot") and axis:  # which of the law's parameters the vehicle's list holds
+        from .names import law_names
+
+        out["has"] = sorted(n for n in law_names(fw, axis).values() if n in raw)
     notes = getattr(vehicle, "notes", ())
     if notes:
         out["notes"] = list(notes)

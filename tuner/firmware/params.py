@@ -23,6 +23,7 @@ clamped rate is taken. Each warning names the parameter, its value, the range an
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -78,6 +79,8 @@ class VehicleParams:
     warnings: tuple[str, ...] = ()
     #: where the loop rate came from, in words (the log's gyro rate, a parameter, or the default assumed)
     loop_source: str = ""
+    #: a QGroundControl file's vehicle and component ids (the export writes them), None otherwise
+    ids: tuple[int, int] | None = None
 
     @property
     def dt(self) -> float | None:
@@ -112,8 +115,9 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
     """
     lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
     lines = [(i, ln) for i, ln in lines if ln and not ln.startswith("#")]
-    if fmt is None:
-        fmt = "qgc" if lines and len(lines[0][1].split("\t")) == 5 else "parm"
+    qgc = bool(lines) and len(lines[0][1].split("\t")) == 5
+    if fmt is None or (fmt == "qgc" and not qgc):  # told by the lines (a .params of NAME,value lines is ArduPilot's)
+        fmt = "qgc" if qgc else "parm"
     out: dict[str, float] = {}
     first: dict[str, int] = {}  # the line each name was first read on
     for i, ln in lines:
@@ -124,10 +128,14 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
                 raise TunerError(f"{where}: a QGroundControl .params line has 5 tab-separated columns (vehicle-id, "
                                  f"component-id, NAME, value, type), got {len(cols)}", field=field)
             name, value = cols[2].strip(), cols[3].strip()
-        else:
-            cols = ln.replace(",", " ").replace("\t", " ").split()
+        else:  # NAME,value  NAME value  NAME=value, a trailing "# comment" or @READONLY (ArduPilot's defaults files)
+            body = ln.split("#", 1)[0]
+            cols = body.replace(",", " ").replace("=", " ").replace("\t", " ").split()
+            if len(cols) == 3 and cols[2].upper() == "@READONLY":
+                cols = cols[:2]
             if len(cols) != 2:
-                raise TunerError(f"{where}: a .parm line is NAME,value, got {ln[:60]!r}", field=field)
+                raise TunerError(f"{where}: an ArduPilot parameter line is NAME,value (or NAME value, NAME=value, "
+                                 f"with @READONLY after it), got {ln[:60]!r}", field=field)
             name, value = cols
         if not name.replace("_", "").isalnum() or len(name) > 64:
             raise TunerError(f"{where}: {name[:64]!r} is not a parameter name", field=field)
@@ -141,6 +149,30 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
         raise TunerError(f"{source}: no parameters in it (lines NAME,value for ArduPilot, or QGroundControl's "
                          "tab-separated vehicle-id component-id NAME value type)", field=field)
     return out, fmt
+
+
+def qgc_ids(text: str) -> tuple[int, int] | None:
+    """The vehicle and component ids of a QGroundControl ``.params`` file (its first two columns: QGroundControl
+    loads a file only onto the vehicle whose ``MAV_SYS_ID`` they name), the pair most lines carry; None for another
+    format or ids that are not whole numbers.
+
+    Examples
+    --------
+    >>> from tuner.firmware.params import qgc_ids
+    >>> qgc_ids("# Vehicle-Id Component-Id Name Value Type\\n3\\t1\\tMC_ROLLRATE_P\\t0.15\\t9\\n")
+    (3, 1)
+    """
+    from collections import Counter
+
+    pairs: Counter = Counter()
+    for ln in text.splitlines():
+        cols = ln.strip().split("\t")
+        if ln.strip().startswith("#") or len(cols) != 5:
+            continue
+        if not (cols[0].strip().isdigit() and cols[1].strip().isdigit()):
+            return None
+        pairs[(int(cols[0]), int(cols[1]))] += 1
+    return pairs.most_common(1)[0][0] if pairs else None
 
 
 def detect_firmware(raw: Mapping[str, float]) -> str | None:
@@ -342,7 +374,9 @@ def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", fi
         raw = {str(k): _num(str(v), str(k), source, field) for k, v in text.items()}
         return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
     raw, fmt = parse_params_text(text, None if fmt == "ulog" else fmt, source=source, field=field)
-    return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
+    v = vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
+    ids = qgc_ids(text) if fmt == "qgc" else None
+    return dataclasses.replace(v, ids=ids) if ids else v
 
 
 def _ulog_vehicle(path: Path, axis: str, field: str) -> tuple[dict[str, float], dict[str, Any]]:
