@@ -481,6 +481,13 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     else:
         with field("--plant"):
             plant = plant_from_expr(a.plant, dt=dt, delay=a.delay)
+        if vehicle is not None:  # a typed plant: the vehicle's gyro low-pass added (an identified one holds it)
+            import dataclasses
+
+            from .firmware.bind import typed_plant
+
+            plant, rec = typed_plant(plant, vehicle)
+            vehicle = dataclasses.replace(vehicle, typed_plant=rec, notes=(*vehicle.notes, rec["note"]))
         label = f"plant {plant.describe()}"
     if vehicle is not None:
         ctrl = st.tf(now, dt)

@@ -286,3 +286,55 @@ def test_export_writes_the_vehicles_ids_and_only_its_parameters():
     assert any("not written" in h and "MC_ROLLRATE_K" in h and "MC_RR_INT_LIM" in h for h in head)
     assert any(h.startswith("# assumed: MC_ROLLRATE_K not in") for h in head)
     assert any("vehicle id 3, component id 1 (from the vehicle's file)" in h for h in head)
+
+
+# -- a typed plant with the vehicle's gyro filter (item 1e) --------------------------------------------------------
+
+def _butterworth_law(x, f_hz, rate_hz):
+    """LowPassFilter2p (PX4 src/lib/mathlib/math/filter/LowPassFilter2p.hpp, ArduPilot libraries/Filter/
+    LowPassFilter2p.cpp): the biquad from the bilinear transform with prewarping at the sample rate; at the gyro's
+    rate (8 kHz here) its response matches the continuous Butterworth the tool adds."""
+    fr = rate_hz / f_hz
+    ohm = math.tan(math.pi / fr)
+    c = 1.0 + 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm
+    b0 = ohm * ohm / c
+    a1 = 2.0 * (ohm * ohm - 1.0) / c
+    a2 = (1.0 - 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm) / c
+    return signal.freqz([b0, 2 * b0, b0], [1.0, a1, a2], worN=x, fs=rate_hz)[1]
+
+
+def test_typed_plant_takes_the_vehicles_gyro_filter(tmp_path, capsys):
+    """ArduPilot's INS_GYRO_FILTER 20 Hz on a typed roll plant: the filter is in the loop the tool verifies (its
+    response against LowPassFilter2p's biquad at an 8 kHz gyro, written here from the source), PM 80.7 -> 52.1 deg;
+    the text and the export header say "typed plant"."""
+    import json
+
+    from tuner.export.paramfile import param_file
+    from tuner.firmware.bind import typed_plant, vehicle_dict
+
+    parm = "ATC_RAT_RLL_P,0.135\nATC_RAT_RLL_I,0.135\nATC_RAT_RLL_D,0.0036\nSCHED_LOOP_RATE,400\nINS_GYRO_FILTER,20\n"
+    v = vehicle_from_text(parm)
+    p0 = make_plant(*ROLL_PLANT)
+    p1, rec = typed_plant(p0, v)
+    f = np.array([1.0, 10.0, 20.0, 60.0])
+    ratio = p1.freqresp(2 * np.pi * f) / p0.freqresp(2 * np.pi * f)
+    np.testing.assert_allclose(ratio, _butterworth_law(f, 20.0, 8000.0), rtol=2e-3, atol=1e-4)
+    g = {"P": 0.135, "I": 0.135, "D": 0.0036, "FF": 0.0, **v.fixed}
+    c = get_structure("ardupilot_rate").tf(g, DT)
+    before = analyze(p0, c, dt=DT).metrics.phase_margin_deg
+    after = analyze(p1, c, dt=DT).metrics.phase_margin_deg
+    assert before - after > 20  # (80.7 -> 52.1 deg)
+    f_path = tmp_path / "v.parm"
+    f_path.write_text(parm)
+    main(["analyze", "--plant", "250/(s*(0.02*s+1))", "--structure", "ardupilot_rate", "--params", str(f_path),
+          "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert out["metrics"]["phase_margin_deg"] == pytest.approx(after, abs=1e-6)
+    assert out["vehicle"]["typed_plant"]["gyro_filter_hz"] == 20.0
+    main(["analyze", "--plant", "250/(s*(0.02*s+1))", "--structure", "ardupilot_rate", "--params", str(f_path)])
+    assert "typed plant: the vehicle's gyro low-pass INS_GYRO_FILTER 20 Hz" in capsys.readouterr().out
+    res = {"structure": "ardupilot_rate", "controller": {"dt": DT}, "meets_spec": True, "gains": g,
+           "vehicle": {**vehicle_dict(v), "typed_plant": rec}}
+    text, _ = param_file(res, "ardupilot", axis="roll")
+    assert "typed plant: the gyro low-pass INS_GYRO_FILTER 20 Hz (second order) added" in text
+    assert "part of the identified plant" not in text

@@ -155,7 +155,8 @@ def _verified_lines(result: Mapping[str, Any]) -> list[str]:
     pass), the identification's rating, the verdict."""
     m = result.get("metrics") if isinstance(result.get("metrics"), Mapping) else {}
     ident = result.get("identification") if isinstance(result.get("identification"), Mapping) else None
-    checks = [c for c in (result.get("checks") or []) if isinstance(c, Mapping)]
+    raw_checks = result.get("checks")
+    checks = [c for c in raw_checks if isinstance(c, Mapping)] if isinstance(raw_checks, list) else []
     measured_checks = [c for c in checks if str(c.get("name", "")).startswith("measured_")]
     out = []
     if m:
@@ -321,14 +322,14 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
                     + (f", gyro low-pass {gyro:g} Hz" if math.isfinite(gyro) and gyro > 0 else "") + ")")
         if vehicle.get("loop_source"):
             head.append(f"loop rate from {clean(vehicle.get('loop_source'), 300)}")
-        for n in vehicle.get("notes") or ():
+        for n in vehicle.get("notes") if isinstance(vehicle.get("notes"), list) else ():
             head.append(("assumed: " if "assumed" in str(n) else "note: ") + clean(n, 400))
-        for w in vehicle.get("warnings") or ():
+        for w in vehicle.get("warnings") if isinstance(vehicle.get("warnings"), list) else ():
             warnings.append(f"the vehicle's parameters: {clean(w)}")
         cur = vehicle.get("current_gains") if isinstance(vehicle.get("current_gains"), Mapping) else {}
         if cur:
             head.append("current: " + ", ".join(f"{names[k]} {_num(v):.6g}" for k, v in cur.items() if k in names))
-        changes = [clean(c) for c in (vehicle.get("changes") or ())]
+        changes = [clean(c) for c in vehicle.get("changes")] if isinstance(vehicle.get("changes"), list) else []
         if changes:
             warnings.append("the proposal changes the vehicle's current tune by more than 3x: " + "; ".join(changes))
     else:
@@ -362,15 +363,14 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
 
 def _gyro_words(result: Mapping[str, Any], vehicle: Mapping[str, Any] | None, name: str) -> str:
     """Where the gyro low-pass stands: in the identified plant, or (a typed plant) added to the loop, or left out."""
-    plant = result.get("plant") if isinstance(result.get("plant"), Mapping) else {}
-    gyro = plant.get("gyro_filter") if isinstance(plant.get("gyro_filter"), Mapping) else None
-    if gyro is not None:
-        return (f"typed plant: the gyro low-pass {name} {_num(gyro.get('cutoff_hz')):g} Hz (second order) added to "
-                "it in the designed loop")
-    if plant.get("identified") is False:
-        return (f"typed plant: the gyro low-pass {name} is not in the designed loop (the vehicle's value was not "
-                "given, or the plant typed already holds it)")
-    return f"the gyro low-pass {name} is part of the identified plant"
+    typed = (vehicle or {}).get("typed_plant")
+    if not isinstance(typed, Mapping):
+        return f"the gyro low-pass {name} is part of the identified plant"
+    f = _num(typed.get("gyro_filter_hz"))
+    if math.isfinite(f) and f > 0:
+        return f"typed plant: the gyro low-pass {name} {f:g} Hz (second order) added to it in the designed loop"
+    return (f"typed plant: the gyro low-pass {name} is not in the designed loop (the vehicle's file gives none, or "
+            "the plant is in z): the plant typed must hold it")
 
 
 def param_file(result: Mapping[str, Any], format: str, *, axis: str | None = None, att_p: float | None = None,

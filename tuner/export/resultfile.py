@@ -45,6 +45,7 @@ class _Vehicle(_Part):
     current_gains_law: dict[str, Real] | None = None
     notes: list[StrictStr] | None = None
     ids: list[StrictInt] | None = None
+    typed_plant: dict[str, Any] | None = None
     has: list[StrictStr] | None = None
 
 

@@ -81,6 +81,8 @@ class VehicleParams:
     loop_source: str = ""
     #: a QGroundControl file's vehicle and component ids (the export writes them), None otherwise
     ids: tuple[int, int] | None = None
+    #: set when the plant was typed, not identified: the gyro low-pass added or not (tuner.firmware.bind.typed_plant)
+    typed_plant: Mapping[str, Any] | None = None
 
     @property
     def dt(self) -> float | None:
