@@ -42,10 +42,12 @@ def _msg(kind: str, payload: bytes) -> bytes:
 
 def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 0,
                dropouts: Sequence[tuple[int, int]] = (), info: dict[str, str] | None = None,
-               params: dict[str, float | int] | None = None) -> Path:
+               params: dict[str, float | int] | None = None,
+               changed: Sequence[tuple[int, str, float | int]] = ()) -> Path:
     """Write ``topics`` to ``path``; ``dropouts`` are ``(timestamp_us, duration_ms)`` written after the last
     data message at or before that time; ``params`` as parameter (``P``) messages in the definitions section (an
-    ``int`` as int32_t, a ``float`` as float)."""
+    ``int`` as int32_t, a ``float`` as float); ``changed``: ``(timestamp_us, name, value)`` parameter messages in the
+    data section (a change in flight), after the data messages at or before that time."""
     out = bytearray(b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", start_us))
     out += _msg("B", bytes(8) + bytes(8) + struct.pack("<3Q", 0, 0, 0))
     formats: dict[str, str] = {}
@@ -57,10 +59,13 @@ def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 0,
     for k, v in (info or {"sys_name": "tuner-tests"}).items():
         key = f"char[{len(v)}] {k}".encode()
         out += _msg("I", bytes([len(key)]) + key + v.encode())
-    for k, v in (params or {}).items():
+    def param(k: str, v: float | int) -> bytes:
         typ, val = ("int32_t", struct.pack("<i", v)) if isinstance(v, int) else ("float", struct.pack("<f", v))
         key = f"{typ} {k}".encode()
-        out += _msg("P", bytes([len(key)]) + key + val)
+        return _msg("P", bytes([len(key)]) + key + val)
+
+    for k, v in (params or {}).items():
+        out += param(k, v)
     events = []
     for i, tp in enumerate(topics):
         tp.msg_id = i
@@ -74,10 +79,15 @@ def write_ulog(path: str | Path, topics: list[Topic], *, start_us: int = 0,
             events.append((int(ts), i, struct.pack("<H", i) + struct.pack(fmt, int(ts), *vals)))
     events.sort(key=lambda e: (e[0], e[1]))
     drops = sorted(dropouts)
+    changes = sorted(changed, key=lambda c: c[0])
     for ts, _, payload in events:
         while drops and drops[0][0] < ts:
             out += _msg("O", struct.pack("<H", drops.pop(0)[1]))
+        while changes and changes[0][0] < ts:
+            out += param(*changes.pop(0)[1:])
         out += _msg("D", payload)
+    for _, k, v in changes:
+        out += param(k, v)
     for _, ms in drops:
         out += _msg("O", struct.pack("<H", ms))
     p = Path(path)

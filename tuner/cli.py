@@ -481,6 +481,13 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     else:
         with field("--plant"):
             plant = plant_from_expr(a.plant, dt=dt, delay=a.delay)
+        if vehicle is not None:  # a typed plant: the vehicle's gyro low-pass added (an identified one holds it)
+            import dataclasses
+
+            from .firmware.bind import typed_plant
+
+            plant, rec = typed_plant(plant, vehicle)
+            vehicle = dataclasses.replace(vehicle, typed_plant=rec, notes=(*vehicle.notes, rec["note"]))
         label = f"plant {plant.describe()}"
     if vehicle is not None:
         ctrl = st.tf(now, dt)
@@ -518,6 +525,7 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
         if vehicle is not None:
             print(f"the loop the vehicle flies: {st.name}, " + ", ".join(f"{k} = {v:.6g}" for k, v in now.items())
                   + f", dt = {dt:g} s (from {vehicle.source})")
+            _print_vehicle_basis(vehicle_dict(vehicle), dt)
             for w in getattr(vehicle, "warnings", ()):
                 print(f"warning: {w}")
         print_table(label, analysis_rows(out["metrics"]), out["checks"])
@@ -572,11 +580,24 @@ def _print_saturated(s: Any) -> None:
         print(f"note: {n}")
 
 
+def _print_vehicle_basis(vehicle: dict[str, Any], dt: float | None = None) -> None:
+    """Where the loop rate came from, and every value assumed or read with a note (not only in the JSON)."""
+    src = vehicle.get("loop_source")
+    loop_hz = vehicle.get("loop_hz")
+    if dt is not None and loop_hz and abs(1.0 / dt - loop_hz) > 1e-6 * loop_hz:
+        print(f"loop rate: {1.0 / dt:g} Hz (the dt given)")
+    elif src:
+        print(f"loop rate: {fmt(loop_hz)} Hz from {src}")
+    for n in vehicle.get("notes", ()):
+        print(("assumed: " if "assumed" in n else "note: ") + n)
+
+
 def _print_current(res: Any, out: dict[str, Any]) -> None:
     """The vehicle's current tune next to the proposed one (tune with --params)."""
     cur = out["current"]
     print(f"vehicle: {res.vehicle.get('firmware')} {res.vehicle.get('axis')} rate loop at "
           f"{fmt(res.vehicle.get('loop_hz'))} Hz (from {res.vehicle.get('source')})")
+    _print_vehicle_basis(res.vehicle)
     for w in res.vehicle.get("warnings", ()):
         print(f"  warning: {w}")
     print("  current  " + ", ".join(f"{k} = {v:.6g}" for k, v in cur["gains"].items()))

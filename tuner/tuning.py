@@ -456,6 +456,7 @@ def tune(
         with _one_thread(), (working_set() if local else nullcontext()):
             plant_or_plants, ident, design, n_mc = _from_identification(plant_or_plants, robust, monte_carlo, dt,
                                                                         delay)
+            plant_or_plants, vehicle, delay = _typed_plants(plant_or_plants, vehicle, ident, delay)
             problem, current_gains, structure = _problem(plant_or_plants, structure, spec, dt, delay, vehicle, axis)
             _check_actuator(actuator, problem)
             # the default budget: the hard cap is the deadline (builds included), nothing moves it
@@ -559,6 +560,10 @@ def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float 
             st = structure if isinstance(structure, Structure) else get_structure(structure)
             if st.firmware:
                 structure = st.with_ranges(axis)
+                if vehicle is None:  # the axis's own defaults (ArduPilot's yaw FLTE 2.5 Hz, PX4's yaw low-pass 2 Hz)
+                    from .firmware.laws import axis_fixed
+
+                    structure = structure.with_fixed(axis_fixed(st.firmware, axis, structure.fixed_values))
     if vehicle is not None:
         from .firmware.bind import bind_law
 
@@ -579,6 +584,31 @@ def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float 
 
     problem = TuningProblem.build(as_plants(plant_or_plants, delay=delay), structure=structure, spec=spec, dt=dt)
     return problem, current_gains, structure
+
+
+def _typed_plants(plants: Any, vehicle: Any, ident: Any, delay: Any) -> tuple[Any, Any, Any]:
+    """Typed plants (no identification) tuned for a vehicle: its gyro low-pass added to each, and said in the
+    vehicle's record (:func:`tuner.firmware.bind.typed_plant`); anything else as it is. Returns the plants, the
+    vehicle and the delay still to apply (None once the plants carry it)."""
+    if vehicle is None or ident is not None or isinstance(plants, TuningProblem) or not hasattr(vehicle, "firmware"):
+        return plants, vehicle, delay
+    import dataclasses
+
+    from ._lazy import is_instance_of
+    from .firmware.bind import typed_plant
+    from .interop import as_plants
+
+    items = plants if isinstance(plants, (list, tuple)) else [plants]
+    if getattr(vehicle, "typed_plant", None) is not None or any(  # (added by the caller; an identified model)
+            is_instance_of(p, "tuner.identify.result", "IdentifyResult") for p in items):
+        return plants, vehicle, delay
+    out, rec = [], None
+    for p in as_plants(plants, delay=delay):
+        q, rec = typed_plant(p, vehicle)
+        out.append(q)
+    if rec is None:
+        return plants, vehicle, delay
+    return out, dataclasses.replace(vehicle, typed_plant=rec, notes=(*vehicle.notes, rec["note"])), None
 
 
 def _check_actuator(actuator: Any, problem: TuningProblem) -> None:

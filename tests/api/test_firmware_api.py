@@ -51,6 +51,9 @@ def test_tune_with_a_vehicle(client):
     ({"plant": PLANT, "structure": "px4_rate", "vehicle": {"from_identification": True}},
      ["body", "vehicle", "from_identification"]),
     ({"plant": PLANT, "structure": "pi", "actuator": {"u_max": 1}}, ["body", "dt"]),
+    # (issue 40: an AC_PID term the law does not hold is refused, naming it)
+    ({"plant": PLANT, "structure": "ardupilot_rate", "vehicle": {"params": PARM + "ATC_RAT_RLL_PDMX,0.1\n"}},
+     ["body", "vehicle", "params"]),
     ({"plant": PLANT, "structure": "pi", "dt": 0.01, "actuator": {"u_min": 1, "u_max": 0.5}}, ["body", "actuator"]),
     ({"plant": PLANT, "structure": "pi", "dt": 0.01, "actuator": {"step_size": 2}}, ["body", "actuator"]),
 ])

@@ -114,15 +114,18 @@ class _PX4:
     def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
         self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
         self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
-        f = g["dgyro_hz"]
+        f, fq = g["dgyro_hz"], g.get("tq_hz", 0.0)
         self.a = 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
-        self.xi = self.y_prev = self.yd = 0.0
+        self.aq = 1.0 if fq <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * fq))  # the yaw torque low-pass
+        self.xi = self.y_prev = self.yd = self.q = 0.0
 
     def __call__(self, r: float, y: float) -> tuple[float, bool]:
         e = r - y
         self.yd += self.a * ((y - self.y_prev) / self.dt - self.yd)
         self.y_prev = y
-        v = self.k * (self.p * e - self.d * self.yd) + self.xi + self.ff * r
+        # the law's torque, then MulticopterRateControl's yaw low-pass (MC_YAW_TQ_CUTOFF) before the allocator clamps
+        self.q += self.aq * (self.k * (self.p * e - self.d * self.yd) + self.xi + self.ff * r - self.q)
+        v = self.q
         u = min(max(v, self.lo), self.hi)
         ei = 0.0 if (v > self.hi and e > 0) or (v < self.lo and e < 0) else e  # no growth into saturation
         fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
@@ -138,10 +141,12 @@ class _ArduPilot:
         self.p, self.i, self.d, self.ff, self.imax = g["P"], g["I"], g["D"], g["FF"], g["imax"]
         self.at, self.ae, self.ad = alpha(g["fltt_hz"]), alpha(g["flte_hz"]), alpha(g["fltd_hz"])
         self.dt, self.lo, self.hi = dt, lo, hi
+        self.dff = g.get("dff", 0.0)
         self.t = self.e = self.de = self.integ = self.e_prev = 0.0
         self.limit = False
 
     def __call__(self, r: float, y: float) -> tuple[float, bool]:
+        t_prev = self.t
         self.t += self.at * (r - self.t)
         self.e += self.ae * ((self.t - y) - self.e)
         self.de += self.ad * ((self.e - self.e_prev) / self.dt - self.de)
@@ -149,7 +154,7 @@ class _ArduPilot:
         step = self.i * self.e * self.dt
         if not self.limit or (self.integ > 0 > step) or (self.integ < 0 < step):  # only shrink while limited
             self.integ = min(max(self.integ + step, -self.imax), self.imax)
-        v = self.p * self.e + self.d * self.de + self.integ + self.ff * self.t
+        v = self.p * self.e + self.d * self.de + self.integ + self.ff * self.t + self.dff * (self.t - t_prev) / self.dt
         u = min(max(v, self.lo), self.hi)
         self.limit = u != v
         return u, self.limit
@@ -228,7 +233,7 @@ def _law(loop: Any, structure: str | None, gains: dict[str, float] | None, act: 
         from ..controllers import get_structure
 
         st = get_structure(structure)
-        g = {**st.fixed_values, **{k: float(v) for k, v in (gains or {}).items()}}
+        g = {**st.fixed_values, **{k: float(v) for k, v in (gains or {}).items()}}  # (a later fixed value: its default)
         missing = [k for k in (*st.params, *st.fixed_values) if k not in g]
         if missing:
             raise TunerError(f"{structure}: the gains lack {', '.join(missing)}", field="gains")

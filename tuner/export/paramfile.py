@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import TunerError
+from ..firmware.laws import LATER_FIXED
 from ..firmware.names import AXES, law_names, range_problem, stored_value
 
 __all__ = ["PARAM_FORMATS", "ParamFile", "param_file", "make_param_file", "clean"]
@@ -154,7 +155,8 @@ def _verified_lines(result: Mapping[str, Any]) -> list[str]:
     pass), the identification's rating, the verdict."""
     m = result.get("metrics") if isinstance(result.get("metrics"), Mapping) else {}
     ident = result.get("identification") if isinstance(result.get("identification"), Mapping) else None
-    checks = [c for c in (result.get("checks") or []) if isinstance(c, Mapping)]
+    raw_checks = result.get("checks")
+    checks = [c for c in raw_checks if isinstance(c, Mapping)] if isinstance(raw_checks, list) else []
     measured_checks = [c for c in checks if str(c.get("name", "")).startswith("measured_")]
     out = []
     if m:
@@ -258,6 +260,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
 
     st = get_structure(law)
     need = list(st.params) + list(st.fixed_values)
+    gains = {**{k: v for k, v in LATER_FIXED.items() if k in need}, **gains}  # a result written before they were held
     missing = [k for k in need if k not in gains]
     if missing:
         raise TunerError(f"the result's gains lack {', '.join(missing)} (a {law} result carries them)",
@@ -301,22 +304,32 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     head = [f"tuner {clean(_version(), 40)}, {when}: the {law} law ({fw}, {ax} axis), as the firmware computes it",
             f"loop rate {loop_hz:g} Hz (dt {dt:g} s)" if loop_hz else "loop rate: not recorded"]
     if fw == "px4":
+        tq = values.get("tq_hz", 0.0)
         head.append(f"filters assumed: D-term low-pass IMU_DGYRO_CUTOFF {values['dgyro_hz']:g} Hz (not written: set it "
-                    "to this value); the gyro low-pass IMU_GYRO_CUTOFF is part of the identified plant")
+                    "to this value)" + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
+                                        "written: set it to this value)" if tq > 0 else "")
+                    + "; " + _gyro_words(result, vehicle, "IMU_GYRO_CUTOFF"))
     else:
+        dff = values.get("dff", 0.0)
         head.append(f"filters assumed (written): FLTT {values['fltt_hz']:g} Hz, FLTE {values['flte_hz']:g} Hz, "
-                    f"FLTD {values['fltd_hz']:g} Hz; the gyro filter INS_GYRO_FILTER is part of the identified plant")
+                    f"FLTD {values['fltd_hz']:g} Hz" + (f"; D_FF {dff:g} in the designed loop (not written)" if dff
+                                                        else "") + "; " + _gyro_words(result, vehicle,
+                                                                                      "INS_GYRO_FILTER"))
     warnings: list[str] = []
     if vehicle is not None:
         gyro = _num(vehicle.get("gyro_cutoff_hz"))
         head.append(f"vehicle: {clean(vehicle.get('source'))} ({fw}, {ax} axis"
                     + (f", gyro low-pass {gyro:g} Hz" if math.isfinite(gyro) and gyro > 0 else "") + ")")
-        for w in vehicle.get("warnings") or ():
+        if vehicle.get("loop_source"):
+            head.append(f"loop rate from {clean(vehicle.get('loop_source'), 300)}")
+        for n in vehicle.get("notes") if isinstance(vehicle.get("notes"), list) else ():
+            head.append(("assumed: " if "assumed" in str(n) else "note: ") + clean(n, 400))
+        for w in vehicle.get("warnings") if isinstance(vehicle.get("warnings"), list) else ():
             warnings.append(f"the vehicle's parameters: {clean(w)}")
         cur = vehicle.get("current_gains") if isinstance(vehicle.get("current_gains"), Mapping) else {}
         if cur:
             head.append("current: " + ", ".join(f"{names[k]} {_num(v):.6g}" for k, v in cur.items() if k in names))
-        changes = [clean(c) for c in (vehicle.get("changes") or ())]
+        changes = [clean(c) for c in vehicle.get("changes")] if isinstance(vehicle.get("changes"), list) else []
         if changes:
             warnings.append("the proposal changes the vehicle's current tune by more than 3x: " + "; ".join(changes))
     else:
@@ -325,15 +338,39 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     if not ok:
         warnings.append(f"written with --force: {why}" + (" (the verdict above)" if verdict else ""))
     warnings += [f"written with --force: {f}" for f in forced]
+    has = vehicle.get("has") if vehicle is not None and isinstance(vehicle.get("has"), list) else None
+    skip = [k for k in order if has is not None and k not in ("P", "I", "D") and names[k] not in has]
+    if skip:  # the vehicle's firmware lacks them (an older generation): a ground station would refuse the file
+        head.append("not written (not in the vehicle's parameter list: its firmware does not have them; the design "
+                    "assumed " + ", ".join(f"{names[k]} {stored[k]:.6g}" for k in skip) + ")")
+    ids = vehicle.get("ids") if vehicle is not None else None
+    sys_id, comp_id = (int(ids[0]), int(ids[1])) if isinstance(ids, list) and len(ids) == 2 else (1, 1)
+    if fw == "px4":
+        head.append(f"vehicle id {sys_id}, component id {comp_id}" + (" (from the vehicle's file)" if ids else
+                                                                       " (assumed: no QGroundControl file given)"))
     head += [f"WARNING: {w}" for w in warnings]
     lines = []
     for k in order:
+        if k in skip:
+            continue
         if fw == "px4":
-            lines.append(f"1\t1\t{names[k]}\t{_written(stored[k])}\t9")
+            lines.append(f"{sys_id}\t{comp_id}\t{names[k]}\t{_written(stored[k])}\t9")
         else:
             lines.append(f"{names[k]},{_written(stored[k])}")
     text = "\n".join([f"# {clean(h, 2000)}" for h in head] + lines) + "\n"
     return ParamFile(text=text, name=f"{law}_{ax}.{_SUFFIX[format]}", warnings=tuple(warnings))
+
+
+def _gyro_words(result: Mapping[str, Any], vehicle: Mapping[str, Any] | None, name: str) -> str:
+    """Where the gyro low-pass stands: in the identified plant, or (a typed plant) added to the loop, or left out."""
+    typed = (vehicle or {}).get("typed_plant")
+    if not isinstance(typed, Mapping):
+        return f"the gyro low-pass {name} is part of the identified plant"
+    f = _num(typed.get("gyro_filter_hz"))
+    if math.isfinite(f) and f > 0:
+        return f"typed plant: the gyro low-pass {name} {f:g} Hz (second order) added to it in the designed loop"
+    return (f"typed plant: the gyro low-pass {name} is not in the designed loop (the vehicle's file gives none, or "
+            "the plant is in z): the plant typed must hold it")
 
 
 def param_file(result: Mapping[str, Any], format: str, *, axis: str | None = None, att_p: float | None = None,

@@ -35,6 +35,7 @@ class _Vehicle(_Part):
     firmware: StrictStr | None = None
     axis: Literal["roll", "pitch", "yaw"] | None = None
     loop_hz: Real | None = None
+    loop_source: StrictStr | None = None
     gyro_cutoff_hz: Real | None = None
     att_p: Real | None = None
     rate_max_dps: Real | None = None
@@ -45,6 +46,9 @@ class _Vehicle(_Part):
     notes: list[StrictStr] | None = None
     warnings: list[StrictStr] | None = None
     changes: list[StrictStr] | None = None
+    ids: list[StrictInt] | None = None
+    typed_plant: dict[str, Any] | None = None
+    has: list[StrictStr] | None = None
 
 
 class _Check(_Part):

@@ -9,7 +9,7 @@ from typing import Any
 from ..errors import TunerError
 from ..tolerances import SAME_DT_RTOL
 
-__all__ = ["FIRMWARE_OF", "bind_law", "vehicle_dict"]
+__all__ = ["FIRMWARE_OF", "bind_law", "vehicle_dict", "typed_plant"]
 
 #: the firmware each law's parameters belong to
 FIRMWARE_OF = {"px4_rate": "px4", "ardupilot_rate": "ardupilot"}
@@ -70,12 +70,68 @@ def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "pa
     return st, float(loop_dt), now
 
 
+def typed_plant(plant: Any, vehicle: Any) -> tuple[Any, dict[str, Any]]:
+    """A typed (not identified) plant with the vehicle's gyro low-pass added, and what was done, in words.
+
+    The gyro low-pass (PX4 ``IMU_GYRO_CUTOFF``, ArduPilot ``INS_GYRO_FILTER``) acts on the rate the law reads; a plant
+    identified from the logged rate holds it (PX4 logs ``vehicle_angular_velocity`` after it), a typed one does not.
+    Both firmwares run it as a second-order Butterworth (``LowPassFilter2p``, PX4 ``src/lib/mathlib/math/filter``,
+    ArduPilot ``libraries/Filter/LowPassFilter2p.cpp``) at the gyro's own rate (1-8 kHz, far above the loop's), so
+    it is added in continuous time: ``wc^2/(s^2 + sqrt(2) wc s + wc^2)``, ``wc = 2 pi f``. A discrete plant is left
+    as it is (said): the filter runs at the gyro's rate, not at the plant's.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> from tuner import make_plant
+    >>> from tuner.firmware.bind import typed_plant
+    >>> p, rec = typed_plant(make_plant([10.0], [1.0, 1.0]), SimpleNamespace(firmware="ardupilot", gyro_cutoff_hz=20.0))
+    >>> p.order, rec["gyro_filter_hz"], rec["name"]
+    (3, 20.0, 'INS_GYRO_FILTER')
+    """
+    import numpy as np
+
+    from ..plant import make_plant_zpk
+
+    name = {"px4": "IMU_GYRO_CUTOFF", "ardupilot": "INS_GYRO_FILTER"}.get(getattr(vehicle, "firmware", None), "")
+    f = getattr(vehicle, "gyro_cutoff_hz", None)
+    rec: dict[str, Any] = {"typed": True, "name": name, "gyro_filter_hz": None}
+    if not f or f <= 0:
+        rec["note"] = (f"typed plant: the vehicle's file gives no gyro low-pass ({name}), so none is added: the plant "
+                       "typed must hold it")
+        return plant, rec
+    if plant.is_discrete:
+        rec["note"] = (f"typed plant in z: the gyro low-pass {name} {f:g} Hz runs at the gyro's rate, not at the "
+                       "plant's, and is not added: the plant typed must hold it")
+        return plant, rec
+    wc = 2.0 * np.pi * float(f)
+    bw = wc * np.exp(1j * np.array([0.75, -0.75]) * np.pi)  # the second-order Butterworth's poles
+    zk = plant.zpk
+    out = make_plant_zpk(zk.zeros, np.concatenate([zk.poles, bw]), zk.gain * wc * wc, delay=plant.delay_s)
+    rec["gyro_filter_hz"] = float(f)
+    rec["note"] = (f"typed plant: the vehicle's gyro low-pass {name} {f:g} Hz (second order) added to it in the "
+                   "loop designed and verified (an identified plant holds it already)")
+    return out, rec
+
+
 def vehicle_dict(vehicle: Any) -> dict[str, Any]:
     """What a result records of the vehicle (for the export's header and the current-vs-proposed report)."""
-    keys = ("firmware", "axis", "loop_hz", "gyro_cutoff_hz", "att_p", "rate_max_dps", "source")
+    keys = ("firmware", "axis", "loop_hz", "loop_source", "gyro_cutoff_hz", "att_p", "rate_max_dps", "source")
     out = {k: getattr(vehicle, k, None) for k in keys}
     out["current_gains"] = {k: float(v) for k, v in dict(getattr(vehicle, "gains", {}) or {}).items()}
     out["fixed"] = {k: float(v) for k, v in dict(getattr(vehicle, "fixed", {}) or {}).items()}
+    typed = getattr(vehicle, "typed_plant", None)
+    if typed:
+        out["typed_plant"] = dict(typed)
+    ids = getattr(vehicle, "ids", None)
+    if ids:
+        out["ids"] = [int(ids[0]), int(ids[1])]
+    raw = getattr(vehicle, "raw", None)
+    fw, axis = getattr(vehicle, "firmware", None), getattr(vehicle, "axis", None)
+    if raw and fw in ("px4", "ardupilot") and axis:  # which of the law's parameters the vehicle's list holds
+        from .names import law_names
+
+        out["has"] = sorted(n for n in law_names(fw, axis).values() if n in raw)
     notes = getattr(vehicle, "notes", ())
     if notes:
         out["notes"] = list(notes)

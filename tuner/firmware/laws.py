@@ -13,8 +13,17 @@ D term on the derivative of the measured rate through the D-gyro low-pass, gains
 (``MC_xRATE_K`` scales them, not FF), the output built from the integrator *before* this sample's update
 (a forward-Euler integrator ``I dt/(z - 1)``)::
 
-    C_fb(z) = K [P + I dt/(z - 1) + D a_d (z - 1)/(dt (z - (1 - a_d)))]     acting on -w
-    C_r(z)  = K [P + I dt/(z - 1)] + FF                                     acting on w_sp
+    C_fb(z) = K [P + I dt/(z - 1) + D a_d (z - 1)/(dt (z - (1 - a_d)))] H_q      acting on -w
+    C_r(z)  = (K [P + I dt/(z - 1)] + FF) H_q                                    acting on w_sp
+
+``H_q`` is the output low-pass ``MulticopterRateControl::Run`` applies to the yaw torque after the law and before it
+publishes ``vehicle_torque_setpoint``: ``torque_setpoint(2) = _output_lpf_yaw.update(torque_setpoint(2), dt)``, an
+``AlphaFilter`` (``y += a (x - y)``, ``a = dt/(dt + 1/(2 pi f))``) at ``_output_lpf_yaw.setCutoffFreq(
+_param_mc_yaw_tq_cutoff.get())`` (``src/modules/mc_rate_control/MulticopterRateControl.cpp``, PX4/PX4-Autopilot main,
+the v1.14/v1.15 generation; the revision of that file in this project's source index, 8ab295e, predates the filter
+and has none, so the lines are quoted as in the current file): ``tq_hz``, ``MC_YAW_TQ_CUTOFF`` (default 2 Hz) on yaw,
+0 (none) on roll and pitch. A plant identified from ``vehicle_torque_setpoint`` starts after it, so the loop the
+tuner designs and verifies holds it.
 
 **ArduPilot** (``libraries/AC_PID/AC_PID.cpp``, ``AC_PID::update_all``): the target filtered (FLTT), the error
 of the filtered target filtered (FLTE), the D term on the derivative of the filtered error (FLTD), the
@@ -22,7 +31,18 @@ integrator updated *before* the output (backward Euler ``I dt z/(z - 1)``), FF o
 
     PID(z)  = P + I dt z/(z - 1) + D a_D (z - 1)/(dt (z - (1 - a_D)))
     C_fb(z) = PID H_E                                                        acting on -w
-    C_r(z)  = PID H_E H_T + FF H_T                                           acting on the target
+    C_r(z)  = PID H_E H_T + FF H_T + D_FF (1 - 1/z) H_T / dt                 acting on the target
+
+``D_FF`` (``ATC_RAT_*_D_FF``): ``get_ff() = _target * _kff + _target_derivative * _kdff`` with ``_target_derivative
+= (_target - target_last)/dt`` of the filtered target (``AC_PID.cpp``, ``update_all``, ArduPilot/ardupilot master
+as of 2024-2025, the ``Defaults``-block generation; sent to the mixer with the FF). With FLTT on, ``(1 - 1/z) H_T =
+a_T (z - 1)/(z - (1 - a_T))``: no new pole.
+
+Per-axis defaults (:func:`law_defaults`): ArduPilot builds ``_pid_rate_yaw`` with ``filt_E_hz =
+AC_ATC_MULTI_RATE_YAW_FILT_HZ`` = 2.5 Hz and roll/pitch with 0 (the ``AC_PID::Defaults`` blocks of
+``libraries/AC_AttitudeControl/AC_AttitudeControl_Multi.h``, ArduPilot master 2024-2025; the 2.5 Hz ``#define``
+itself at commit 05ae9d2 of the same file); FLTT = FLTD = ``AC_ATC_MULTI_RATE_RPY_FILT_HZ`` 20 Hz, IMAX 0.5, FF 0,
+D_FF 0 on every axis. PX4's yaw has the 2 Hz torque low-pass; roll and pitch none.
 
 Both paths are written over one denominator (the structures' 2-DOF convention: ``u = C_r r - C_fb w``).
 """
@@ -33,17 +53,54 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["PX4_FIXED", "ARDUPILOT_FIXED", "alpha", "poly_add", "poly_mul", "px4_coeffs", "px4_ref_coeffs",
-           "ardupilot_coeffs", "ardupilot_ref_coeffs"]
+__all__ = ["PX4_FIXED", "ARDUPILOT_FIXED", "LATER_FIXED", "law_defaults", "axis_fixed", "alpha", "poly_add", "poly_mul",
+           "px4_coeffs", "px4_ref_coeffs", "ardupilot_coeffs", "ardupilot_ref_coeffs"]
 
 #: what the vehicle fixes for PX4's law (defaults: firmware.md, PX4's parameter defaults): the gain K
 #: (``MC_ROLLRATE_K``), the D-gyro low-pass cutoff (``IMU_DGYRO_CUTOFF``, Hz) and the integrator limit
 #: (``MC_RR_INT_LIM``; acts only when the output saturates or the integrator grows large)
-PX4_FIXED: tuple[tuple[str, float], ...] = (("K", 1.0), ("dgyro_hz", 20.0), ("int_lim", 0.3))
-#: ArduPilot's: the target, error and derivative filters (``ATC_RAT_RLL_FLTT/FLTE/FLTD``, Hz; 0 = off) and the
-#: integrator limit ``IMAX``
+#: (``MC_RR_INT_LIM``; acts only when the output saturates or the integrator grows large), and the output low-pass
+#: ``tq_hz`` (``MC_YAW_TQ_CUTOFF`` on yaw, Hz; 0 = none: roll and pitch). These are the roll axis's; see
+#: :func:`law_defaults` for each axis's.
+PX4_FIXED: tuple[tuple[str, float], ...] = (("K", 1.0), ("dgyro_hz", 20.0), ("int_lim", 0.3), ("tq_hz", 0.0))
+#: ArduPilot's: the target, error and derivative filters (``ATC_RAT_RLL_FLTT/FLTE/FLTD``, Hz; 0 = off), the
+#: integrator limit ``IMAX`` and the target-derivative feed-forward ``D_FF`` (roll's defaults; yaw's FLTE is 2.5 Hz:
+#: :func:`law_defaults`)
 ARDUPILOT_FIXED: tuple[tuple[str, float], ...] = (("fltt_hz", 20.0), ("flte_hz", 0.0), ("fltd_hz", 20.0),
-                                                  ("imax", 0.5))
+                                                  ("imax", 0.5), ("dff", 0.0))
+#: the fixed values a result file written before they were modelled may lack: each one's "off" value, which is
+#: what the law was then
+LATER_FIXED: dict[str, float] = {"tq_hz": 0.0, "dff": 0.0}
+_AXIS_DEFAULTS = {("px4", "yaw"): {"tq_hz": 2.0}, ("ardupilot", "yaw"): {"flte_hz": 2.5}}
+
+
+def law_defaults(firmware: str, axis: str) -> dict[str, float]:
+    """The firmware's defaults of what its law fixes on ``axis`` (see the module's docstring for the sources).
+
+    Examples
+    --------
+    >>> from tuner.firmware.laws import law_defaults
+    >>> law_defaults("ardupilot", "yaw")["flte_hz"], law_defaults("ardupilot", "roll")["flte_hz"]
+    (2.5, 0.0)
+    >>> law_defaults("px4", "yaw")["tq_hz"], law_defaults("px4", "pitch")["tq_hz"]
+    (2.0, 0.0)
+    """
+    base = dict(PX4_FIXED if firmware == "px4" else ARDUPILOT_FIXED)
+    return base | _AXIS_DEFAULTS.get((firmware, axis), {})
+
+
+def axis_fixed(firmware: str, axis: str, fixed: dict[str, float]) -> dict[str, float]:
+    """The fixed values that become ``axis``'s defaults: those of ``fixed`` still at the structure's (roll's)
+    default whose default differs on ``axis`` (a law tuned for yaw without the vehicle's parameters).
+
+    Examples
+    --------
+    >>> from tuner.firmware.laws import axis_fixed
+    >>> axis_fixed("ardupilot", "yaw", {"flte_hz": 0.0}), axis_fixed("ardupilot", "yaw", {"flte_hz": 5.0})
+    ({'flte_hz': 2.5}, {})
+    """
+    base = dict(PX4_FIXED if firmware == "px4" else ARDUPILOT_FIXED)
+    return {k: v for k, v in _AXIS_DEFAULTS.get((firmware, axis), {}).items() if fixed.get(k) == base[k]}
 
 
 def alpha(f_hz: float, dt: Any) -> Any:
@@ -97,13 +154,15 @@ def _px4_parts(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list
 def px4_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
     """PX4's feedback path ``C_fb`` (numerator, denominator; highest power first) for ``x = (P, I, D, FF)``."""
     pi_num, d_num, den = _px4_parts(x, dt, fixed)
-    return _scale(poly_add(pi_num, d_num), fixed["K"]), den
+    nq, dq = _lp(fixed.get("tq_hz", 0.0), dt)
+    return poly_mul(_scale(poly_add(pi_num, d_num), fixed["K"]), nq), poly_mul(den, dq)
 
 
 def px4_ref_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
-    """PX4's setpoint path ``C_r = K (P + I dt/(z - 1)) + FF`` over the feedback path's denominator."""
+    """PX4's setpoint path ``C_r = (K (P + I dt/(z - 1)) + FF) H_q`` over the feedback path's denominator."""
     pi_num, _, den = _px4_parts(x, dt, fixed)
-    return poly_add(_scale(pi_num, fixed["K"]), _scale(den, x[3])), den
+    nq, dq = _lp(fixed.get("tq_hz", 0.0), dt)
+    return poly_mul(poly_add(_scale(pi_num, fixed["K"]), _scale(den, x[3])), nq), poly_mul(den, dq)
 
 
 def _lp(f_hz: float, dt: Any) -> tuple[list, list]:
@@ -124,6 +183,8 @@ def _ardupilot_parts(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tupl
     num = poly_add(pi, poly_mul(_scale([1, -1], d * ad / dt), [1, -1]))  # + D a_D/dt (z - 1)^2
     ne, de = _lp(fixed["flte_hz"], dt)
     nt, dtt = _lp(fixed["fltt_hz"], dt)
+    if fixed.get("dff", 0.0) != 0 and fixed["fltt_hz"] <= 0:
+        nt, dtt = [1, 0], [1, 0]  # no target filter: z/z, so that D_FF's 1 - 1/z has its pole at 0 in the realisation
     return poly_mul(num, ne), poly_mul(den, de), nt, dtt
 
 
@@ -135,6 +196,12 @@ def ardupilot_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tupl
 
 
 def ardupilot_ref_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:
-    """ArduPilot's target path ``C_r = (PID H_E + FF) H_T`` over the feedback path's denominator."""
+    """ArduPilot's target path ``C_r = (PID H_E + FF) H_T + D_FF (1 - 1/z) H_T/dt`` over the feedback path's
+    denominator."""
     num, den, nt, dtt = _ardupilot_parts(x, dt, fixed)
-    return poly_mul(poly_add(num, _scale(den, x[3])), nt), poly_mul(den, dtt)
+    out = poly_mul(poly_add(num, _scale(den, x[3])), nt)
+    dff = fixed.get("dff", 0.0)
+    if dff != 0:  # (1 - 1/z) H_T = a_T (z - 1)/(z - (1 - a_T)): over dtt, the numerator a_T (z - 1)
+        a_t = alpha(fixed["fltt_hz"], dt) if fixed["fltt_hz"] > 0 else 1.0
+        out = poly_add(out, poly_mul(_scale([1, -1], dff * a_t / dt), den))
+    return out, poly_mul(den, dtt)

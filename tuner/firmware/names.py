@@ -49,7 +49,7 @@ def _px4(axis: str) -> dict[str, str]:
     return {"P": f"MC_{a}RATE_P", "I": f"MC_{a}RATE_I", "D": f"MC_{a}RATE_D", "FF": f"MC_{a}RATE_FF",
             "K": f"MC_{a}RATE_K", "int_lim": f"MC_{s}_INT_LIM", "dgyro_hz": "IMU_DGYRO_CUTOFF",
             "gyro_hz": "IMU_GYRO_CUTOFF", "loop_hz": "IMU_GYRO_RATEMAX", "att_p": f"MC_{a}_P",
-            "rate_max_dps": f"MC_{a}RATE_MAX"}
+            "rate_max_dps": f"MC_{a}RATE_MAX", **({"tq_hz": "MC_YAW_TQ_CUTOFF"} if axis == "yaw" else {})}
 
 
 def _ardupilot(axis: str) -> dict[str, str]:
@@ -57,7 +57,16 @@ def _ardupilot(axis: str) -> dict[str, str]:
     return {"P": f"ATC_RAT_{a}_P", "I": f"ATC_RAT_{a}_I", "D": f"ATC_RAT_{a}_D", "FF": f"ATC_RAT_{a}_FF",
             "imax": f"ATC_RAT_{a}_IMAX", "fltt_hz": f"ATC_RAT_{a}_FLTT", "flte_hz": f"ATC_RAT_{a}_FLTE",
             "fltd_hz": f"ATC_RAT_{a}_FLTD", "gyro_hz": "INS_GYRO_FILTER", "loop_hz": "SCHED_LOOP_RATE",
-            "att_p": f"ATC_ANG_{a}_P"}
+            "att_p": f"ATC_ANG_{a}_P", "dff": f"ATC_RAT_{a}_D_FF"}
+
+
+#: ArduPilot's AC_PID parameters the linear law does not hold (``AC_PID.cpp``, ``update_all``): the P+D limit
+#: ``PDMX`` (a clamp on ``|P + D|``), the target and error notches ``NTF``/``NEF`` (indices of ``FILTn_*`` notch
+#: filters), and the slew limiter ``SMAX`` (``_slew_limiter.modifier``: it lowers P and D only after the P+D output's
+#: slew rate exceeds SMAX in alternating directions, i.e. on an oscillation, so a loop that does not oscillate flies
+#: the linear law)
+ARDUPILOT_UNMODELLED = ("PDMX", "NTF", "NEF")
+ARDUPILOT_SLEW = "SMAX"
 
 
 #: per firmware and axis: the law's quantity -> the parameter's name

@@ -23,14 +23,16 @@ clamped rate is taken. Each warning names the parameter, its value, the range an
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ..errors import TunerError
-from .laws import ARDUPILOT_FIXED, PX4_FIXED
-from .names import AXES, FLOAT32_MAX, RANGES, law_names, range_problem
+from .laws import law_defaults
+from .names import ARDUPILOT_SLEW, ARDUPILOT_UNMODELLED, AXES, FLOAT32_MAX, RANGES, law_names, range_problem
 
 __all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_params", "vehicle_from_text",
            "vehicle_from_raw", "detect_firmware"]
@@ -47,7 +49,8 @@ class VehicleParams:
     """What a vehicle fixes for its rate law on one axis, and its current gains.
 
     ``gains`` are the current ``P``, ``I``, ``D``, ``FF`` in the firmware's units; ``fixed`` what the law fixes
-    (PX4: ``K``, ``dgyro_hz``, ``int_lim``; ArduPilot: ``fltt_hz``, ``flte_hz``, ``fltd_hz``, ``imax``);
+    (PX4: ``K``, ``dgyro_hz``, ``int_lim``, ``tq_hz``; ArduPilot: ``fltt_hz``, ``flte_hz``, ``fltd_hz``, ``imax``,
+    ``dff``; each missing one the firmware's default for the axis, :func:`~tuner.firmware.laws.law_defaults`);
     ``gyro_cutoff_hz`` is the gyro low-pass upstream of the logged rate (part of the plant, informational);
     ``notes`` say which values were missing and taken from the firmware's defaults.
 
@@ -74,6 +77,12 @@ class VehicleParams:
     #: each value of the law's parameters outside its documented range (or not a whole number where the firmware
     #: stores an integer), in words: read as it is, not refused
     warnings: tuple[str, ...] = ()
+    #: where the loop rate came from, in words (the log's gyro rate, a parameter, or the default assumed)
+    loop_source: str = ""
+    #: a QGroundControl file's vehicle and component ids (the export writes them), None otherwise
+    ids: tuple[int, int] | None = None
+    #: set when the plant was typed, not identified: the gyro low-pass added or not (tuner.firmware.bind.typed_plant)
+    typed_plant: Mapping[str, Any] | None = None
 
     @property
     def dt(self) -> float | None:
@@ -108,8 +117,9 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
     """
     lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
     lines = [(i, ln) for i, ln in lines if ln and not ln.startswith("#")]
-    if fmt is None:
-        fmt = "qgc" if lines and len(lines[0][1].split("\t")) == 5 else "parm"
+    qgc = bool(lines) and len(lines[0][1].split("\t")) == 5
+    if fmt is None or (fmt == "qgc" and not qgc):  # told by the lines (a .params of NAME,value lines is ArduPilot's)
+        fmt = "qgc" if qgc else "parm"
     out: dict[str, float] = {}
     first: dict[str, int] = {}  # the line each name was first read on
     for i, ln in lines:
@@ -120,10 +130,14 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
                 raise TunerError(f"{where}: a QGroundControl .params line has 5 tab-separated columns (vehicle-id, "
                                  f"component-id, NAME, value, type), got {len(cols)}", field=field)
             name, value = cols[2].strip(), cols[3].strip()
-        else:
-            cols = ln.replace(",", " ").replace("\t", " ").split()
+        else:  # NAME,value  NAME value  NAME=value, a trailing "# comment" or @READONLY (ArduPilot's defaults files)
+            body = ln.split("#", 1)[0]
+            cols = body.replace(",", " ").replace("=", " ").replace("\t", " ").split()
+            if len(cols) == 3 and cols[2].upper() == "@READONLY":
+                cols = cols[:2]
             if len(cols) != 2:
-                raise TunerError(f"{where}: a .parm line is NAME,value, got {ln[:60]!r}", field=field)
+                raise TunerError(f"{where}: an ArduPilot parameter line is NAME,value (or NAME value, NAME=value, "
+                                 f"with @READONLY after it), got {ln[:60]!r}", field=field)
             name, value = cols
         if not name.replace("_", "").isalnum() or len(name) > 64:
             raise TunerError(f"{where}: {name[:64]!r} is not a parameter name", field=field)
@@ -139,6 +153,30 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
     return out, fmt
 
 
+def qgc_ids(text: str) -> tuple[int, int] | None:
+    """The vehicle and component ids of a QGroundControl ``.params`` file (its first two columns: QGroundControl
+    loads a file only onto the vehicle whose ``MAV_SYS_ID`` they name), the pair most lines carry; None for another
+    format or ids that are not whole numbers.
+
+    Examples
+    --------
+    >>> from tuner.firmware.params import qgc_ids
+    >>> qgc_ids("# Vehicle-Id Component-Id Name Value Type\\n3\\t1\\tMC_ROLLRATE_P\\t0.15\\t9\\n")
+    (3, 1)
+    """
+    from collections import Counter
+
+    pairs: Counter = Counter()
+    for ln in text.splitlines():
+        cols = ln.strip().split("\t")
+        if ln.strip().startswith("#") or len(cols) != 5:
+            continue
+        if not (cols[0].strip().isdigit() and cols[1].strip().isdigit()):
+            return None
+        pairs[(int(cols[0]), int(cols[1]))] += 1
+    return pairs.most_common(1)[0][0] if pairs else None
+
+
 def detect_firmware(raw: Mapping[str, float]) -> str | None:
     """``"px4"``, ``"ardupilot"`` or None, from the parameter names (rate-law names first, then typical ones)."""
     px4 = any(k.startswith(("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "IMU_GYRO_", "SYS_AUTOSTART"))
@@ -151,9 +189,12 @@ def detect_firmware(raw: Mapping[str, float]) -> str | None:
 
 
 def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: str | None = None,
-                     source: str = "parameters", fmt: str | None = None, field: str = "params") -> VehicleParams:
+                     source: str = "parameters", fmt: str | None = None, field: str = "params",
+                     log: Mapping[str, Any] | None = None) -> VehicleParams:
     """The :class:`VehicleParams` of ``axis`` from ``{NAME: value}``; ``firmware`` (``"px4"``, ``"ardupilot"``)
-    is what the caller's law needs (None: told by the names); ``fmt`` is the file's format, for the messages."""
+    is what the caller's law needs (None: told by the names); ``fmt`` is the file's format, for the messages;
+    ``log``: what a ULog showed (:func:`tuner.identify.ulog.read_vehicle_log`: the gyro's rate, the in-flight
+    changes, already applied to ``raw`` by the caller, in ``log["change_notes"]``)."""
     if axis not in AXES:
         raise TunerError(f"axis must be one of {', '.join(AXES)}, got {axis!r}", field="axis")
     found = detect_firmware(raw)
@@ -182,9 +223,12 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
         return default
 
     gains = {"P": get("P", None), "I": get("I", None), "D": get("D", None), "FF": get("FF", 0.0)}
-    defaults = dict(PX4_FIXED if fw == "px4" else ARDUPILOT_FIXED)
+    defaults = law_defaults(fw, axis)  # the axis's own defaults (ArduPilot's yaw FLTE 2.5 Hz, PX4's yaw filter 2 Hz)
     fixed = {k: get(k, v) for k, v in defaults.items()}
-    loop_hz = get("loop_hz", _DEFAULT_LOOP_HZ[fw])
+    if fw == "ardupilot":
+        notes += _ardupilot_unmodelled(raw, axis, source, field)
+    loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes)
+    notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
             raise TunerError(f"{source}: {name} = {float(raw[name]):g} cannot be a {fw} parameter: the firmware stores "
@@ -195,7 +239,7 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     if loop_hz is not None and fw == "px4" and loop_hz == 0:
         notes.append(f"{names['loop_hz']} = 0: PX4 then runs the rate loop at the gyro's own rate, which the "
                      "parameters do not say: give dt (the rate loop's sample time)")
-        loop_hz = None
+        loop_hz, loop_source = None, ""
     if loop_hz is not None and not loop_hz > 0:
         raise TunerError(f"{source}: {names['loop_hz']} = {loop_hz:g}: a loop rate is > 0 Hz", field=field)
     lo_hz, hi_hz = RANGES[fw][axis]["loop_hz"]
@@ -207,13 +251,91 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     for k, v in gains.items():
         if v is not None and v < 0:
             raise TunerError(f"{source}: {names[k]} = {v:g}: the rate law's gains are >= 0", field=field)
-    if fw == "px4" and axis == "yaw" and raw.get("MC_YAW_TQ_CUTOFF", 2.0) > 0:
-        notes.append("PX4 filters the yaw torque setpoint (MC_YAW_TQ_CUTOFF) after the rate law: the identified "
-                     "plant must start at the filtered torque, or the filter is left out of the loop")
+    if fw == "px4" and axis == "yaw" and fixed["tq_hz"] > 0:
+        notes.append(f"PX4 low-passes the yaw torque at MC_YAW_TQ_CUTOFF = {fixed['tq_hz']:g} Hz after the rate law "
+                     "and before it publishes vehicle_torque_setpoint: the filter is part of the designed loop (a "
+                     "plant identified from vehicle_torque_setpoint starts after it)")
     return VehicleParams(firmware=fw, axis=axis, loop_hz=loop_hz, gains=gains, fixed=fixed,
                          gyro_cutoff_hz=get("gyro_hz", None), att_p=get("att_p", None),
                          rate_max_dps=get("rate_max_dps", None) if "rate_max_dps" in names else None,
-                         source=source, raw=dict(raw), notes=tuple(notes), warnings=tuple(warnings))
+                         source=source, raw=dict(raw), notes=tuple(notes), warnings=tuple(warnings),
+                         loop_source=loop_source)
+
+
+def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], source: str,
+               log: Mapping[str, Any] | None, notes: list[str]) -> tuple[float | None, str]:
+    """The rate loop's rate and where it came from, in words.
+
+    * PX4: ``MulticopterRateControl::Run`` runs on every ``vehicle_angular_velocity``, which the gyro drives and
+      ``VehicleAngularVelocity`` publishes at most at ``IMU_GYRO_RATEMAX`` (a cap, "maximum publication rate",
+      ``imu_gyro_parameters.c``). A log's ``vehicle_imu_status.gyro_rate_hz`` is the gyro's rate: the loop's when it
+      is below the cap; above it, the loop runs at most at the cap (taken, and said). The parameter alone is a
+      stated fallback.
+    * ArduPilot: ``SCHED_LOOP_RATE``; with the fast-rate thread (``FSTRATE_ENABLE`` > 0, ArduCopter
+      ``Parameters.cpp``: "the actual rate is the gyro rate in Hz divided by" ``FSTRATE_DIV``) the gyro's rate
+      ``INS_GYRO_RATE`` (0: 1 kHz, 1: 2 kHz, 2: 4 kHz, 3: 8 kHz, ``AP_InertialSensor.cpp``) over ``FSTRATE_DIV``.
+    """
+    name = names["loop_hz"]
+    if fw == "px4":
+        gyro = (log or {}).get("gyro_rate_hz")
+        cap = raw.get(name)
+        if gyro:
+            where = f"vehicle_imu_status.gyro_rate_hz in {source}"
+            if cap is None or cap <= 0:
+                return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}; no {name} cap in it)"
+            if gyro <= cap:
+                return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}), below the cap {name} {cap:g}"
+            return float(cap), (f"{name} {cap:g} Hz in {source}, the cap on the gyro's rate {gyro:.1f} Hz ({where}): "
+                                "the loop runs at most at the cap")
+        logged = (log or {}).get("logged_gyro_hz")
+        if cap is None and logged:
+            notes.append(f"{name} not in {source} (older firmware): the loop rate is taken from the log's timing")
+            return float(round(logged)), (f"the timing of sensor_combined in {source}: the gyro's samples as logged, "
+                                          f"{logged:.1f} Hz (a lower bound if the logger thinned the topic; the "
+                                          "log has no vehicle_imu_status)")
+        if cap is not None:
+            why = ("the log has no vehicle_imu_status" if log is not None else
+                   "a parameter file; a ULog's vehicle_imu_status would give the gyro's rate")
+            return float(cap), f"{name} {cap:g} Hz in {source}: a cap on the gyro's rate, taken as the loop's ({why})"
+    else:
+        fast = raw.get("FSTRATE_ENABLE", 0.0)
+        if fast > 0:
+            if "INS_GYRO_RATE" not in raw:
+                notes.append(f"FSTRATE_ENABLE = {fast:g}: the rate loop runs in the fast-rate thread at the gyro's "
+                             "rate over FSTRATE_DIV, and INS_GYRO_RATE is not in the file: give dt")
+                return None, ""
+            gyro_hz = 1000.0 * 2 ** int(raw["INS_GYRO_RATE"])
+            div = max(1.0, float(raw.get("FSTRATE_DIV", 1.0)))
+            how = ("a dynamic divisor from FSTRATE_DIV up: at most this rate" if fast == 1 else "a fixed divisor")
+            return gyro_hz / div, (f"the fast-rate thread (FSTRATE_ENABLE {fast:g}, {how}): INS_GYRO_RATE "
+                                   f"{gyro_hz:g} Hz / FSTRATE_DIV {div:g} in {source}")
+        if name in raw:
+            return float(raw[name]), f"{name} {float(raw[name]):g} Hz in {source}"
+    default = _DEFAULT_LOOP_HZ[fw]
+    notes.append(f"{name} not in {source}: the firmware's default {default:g} Hz assumed for the loop rate")
+    return default, f"assumed: the firmware's default {default:g} Hz ({name} is not in {source})"
+
+
+def _ardupilot_unmodelled(raw: Mapping[str, float], axis: str, source: str, fld: str) -> list[str]:
+    """ArduPilot's AC_PID terms outside the linear law: PDMX, NTF, NEF set (non-zero) are refused, naming the
+    parameter; SMAX is read and what it does said (see :data:`tuner.firmware.names.ARDUPILOT_UNMODELLED`)."""
+    a = {"roll": "RLL", "pitch": "PIT", "yaw": "YAW"}[axis]
+    what = {"PDMX": "the P+D output limit (a clamp on |P + D| in AC_PID::update_all)",
+            "NTF": "a notch filter on the target (AP_Filter, FILTn_*)", "NEF": "a notch filter on the error "
+            "(AP_Filter, FILTn_*)"}
+    for suffix in ARDUPILOT_UNMODELLED:
+        name = f"ATC_RAT_{a}_{suffix}"
+        if float(raw.get(name, 0.0)) != 0:
+            raise TunerError(f"{source}: {name} = {float(raw[name]):g} sets {what[suffix]}, which the tuner's model "
+                             f"of the {axis} rate law does not hold, so its margins would not be the vehicle's: set "
+                             f"{name} to 0 in the file given to the tuner (and fly the design with it off), or tune "
+                             "without it", field=fld)
+    smax = f"ATC_RAT_{a}_{ARDUPILOT_SLEW}"
+    if float(raw.get(smax, 0.0)) > 0:
+        return [f"{smax} = {float(raw[smax]):g}: ArduPilot's slew limiter lowers P and D only when the P+D output "
+                "slews faster than that in alternating directions (an oscillation); a loop that does not oscillate "
+                "flies the linear law designed here, which does not include it"]
+    return []
 
 
 def range_warning(fw: str, name: str, value: float, problem: dict, what: str = "the tune uses it as read") -> str:
@@ -254,17 +376,33 @@ def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", fi
         raw = {str(k): _num(str(v), str(k), source, field) for k, v in text.items()}
         return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
     raw, fmt = parse_params_text(text, None if fmt == "ulog" else fmt, source=source, field=field)
-    return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
+    v = vehicle_from_raw(raw, axis=axis, firmware=firmware, source=source, fmt=fmt, field=field)
+    ids = qgc_ids(text) if fmt == "qgc" else None
+    return dataclasses.replace(v, ids=ids) if ids else v
 
 
-def _ulog_parameters(path: Path, field: str) -> dict[str, float]:
-    from ..identify.ulog import read_parameters  # the definitions section only, a damaged log refused at once
+def _ulog_vehicle(path: Path, axis: str, field: str) -> tuple[dict[str, float], dict[str, Any]]:
+    """A ULog's parameters with the in-flight changes applied (the last value set in the log: what was flown at
+    its end; each change of the law's parameters said), and what the log showed (the gyro's rate)."""
+    from ..identify.ulog import read_vehicle_log  # vehicle_imu_status only, a damaged log refused at once
 
-    params = read_parameters(path, field=field)
-    if not params:
+    log = dict(read_vehicle_log(path, field=field))
+    raw = dict(log["parameters"])
+    if not raw:
         raise TunerError(f"{path}: the log stores no parameters (a ULog logged with parameters, or the vehicle's "
                          ".params file)", field=field)
-    return params
+    law = set(law_names("px4", axis if axis in AXES else "roll").values())
+    seen: dict[str, list[tuple[float, float]]] = {}
+    for t, name, v in log["changes"]:
+        if name in raw and raw[name] != v or name in seen:
+            seen.setdefault(name, [(0.0, raw.get(name, math.nan))]).append((t, v))
+        raw[name] = v
+    log["change_notes"] = [
+        f"{name} changed in flight ({', '.join(f'{v:g} at {t:.1f} s' for t, v in hist)}): the last value "
+        f"{hist[-1][1]:g} is used (what was flown from {hist[-1][0]:.1f} s); a stretch identified before that flew "
+        "the earlier value: give --params a file with it"
+        for name, hist in seen.items() if name in law]
+    return raw, log
 
 
 def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = None, field: str = "params"
@@ -290,8 +428,9 @@ def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = 
     p = Path(path)
     head = read_head(p, len(_ULOG_MAGIC), field=field)  # a regular file only: nothing that could hang
     if head == _ULOG_MAGIC:
-        return vehicle_from_raw(_ulog_parameters(p, field), axis=axis, firmware=firmware,
-                                source=f"{p.name} (ULog parameters)", fmt="ulog", field=field)
+        raw, log = _ulog_vehicle(p, axis, field)
+        return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=f"{p.name} (ULog parameters)",
+                                fmt="ulog", field=field, log=log)
     if head[:3] == b"\xa3\x95\x80":  # an ArduPilot DataFlash log: its PARM messages (tuner.identify.dataflash)
         from ..identify.dataflash import read_dataflash_parameters
 

@@ -47,7 +47,7 @@ from ..tolerances import SAMPLE_COUNT_TOL
 from .data import MAX_SAMPLES, MIN_SAMPLES
 
 __all__ = ["CORRUPT_SPAN_MESSAGES", "GAP_FACTOR", "MAX_READS_OVER", "MAX_ULOG_BYTES", "MIN_BYTES_PER_MESSAGE",
-           "ULogRecords", "is_ulog", "parse_signal", "read_parameters", "read_ulog", "signals"]
+           "ULogRecords", "is_ulog", "parse_signal", "read_parameters", "read_ulog", "read_vehicle_log", "signals"]
 
 GAP_FACTOR = 5.0
 MAX_ULOG_BYTES = 2_000_000_000
@@ -293,6 +293,38 @@ def read_parameters(src: str | Path | bytes | LogHandle, *, field: str = "file")
         raise InvalidDataError(str(e), field=field) from None
     return {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
             if isinstance(v, (int, float)) and math.isfinite(float(v))}
+
+
+def read_vehicle_log(src: str | Path | bytes | LogHandle, *, field: str = "file") -> dict[str, Any]:
+    """What a ULog says of the vehicle's rate loop (issue 40): ``parameters`` (the definitions section's),
+    ``changes`` (pyulog's ``changed_parameters``: ``(t_s, NAME, value)`` set in flight, in order), ``gyro_rate_hz``
+    (the median of ``vehicle_imu_status.gyro_rate_hz`` of the first instance logged with a positive rate, or None;
+    PX4's rate loop runs on every ``vehicle_angular_velocity``, which the gyro's rate drives, at most
+    ``IMU_GYRO_RATEMAX``), ``gyro_instances`` (each instance's median) and ``logged_gyro_hz`` (the rate of
+    ``sensor_combined`` as logged, from the median interval of its timestamps, or None: older logs' only trace of
+    the gyro's rate, a lower bound where the logger thinned the topic). Only those topics' data are parsed, through
+    the bounded reader."""
+    try:
+        ul = _load(src, ["vehicle_imu_status", "sensor_combined"])
+    except InvalidDataError as e:
+        raise InvalidDataError(str(e), field=field) from None
+    params = {str(k): float(v) for k, v in dict(getattr(ul, "initial_parameters", {}) or {}).items()
+              if isinstance(v, (int, float)) and math.isfinite(float(v))}
+    changes = [(float(t) * 1e-6, str(n), float(v)) for t, n, v in getattr(ul, "changed_parameters", ()) or ()
+               if isinstance(v, (int, float)) and math.isfinite(float(v))]
+    rates, logged = {}, None
+    for d in sorted(ul.data_list, key=lambda d: d.multi_id):
+        if d.name == "sensor_combined":
+            dts = np.diff(np.asarray(d.data.get("timestamp", ()), dtype=float)) * 1e-6
+            dts = dts[dts > 0]
+            logged = logged or (1.0 / float(np.median(dts)) if dts.size >= 10 else None)
+            continue
+        r = np.asarray(d.data.get("gyro_rate_hz", ()), dtype=float)
+        r = r[np.isfinite(r) & (r > 0)]
+        if r.size:
+            rates[int(d.multi_id)] = float(np.median(r))
+    return {"parameters": params, "changes": changes, "gyro_rate_hz": next(iter(rates.values()), None),
+            "gyro_instances": rates, "logged_gyro_hz": logged}
 
 
 def _topics_in(src: str | Path | bytes | LogHandle) -> list[str]:
