@@ -61,9 +61,9 @@ def _mod(a, b):
 @nb.njit(**_JIT)
 def margins(L, lw, ends):
     """Per row of ``L`` (B, W) on the log grid ``lw``: the phase margin (signed as the verifier's: 180 + the phase
-    unwrapped along the grid, at most 180), its crossover, the upper and lower gain margins (dB) and the phase
-    crossover; ``ends`` (B, e): the real parts of L at DC and Nyquist where finite (gain factors, no frequency).
-    The same rules as ``tuner.optimize.batch._frequency_metrics``."""
+    unwrapped along the grid, within +-180, else the distance), its crossover, the upper and lower gain margins (dB)
+    and the phase crossover; ``ends`` (B, e): the real parts of L at DC and Nyquist where finite (gain factors, no
+    frequency). The same rules as ``tuner.optimize.batch._frequency_metrics``."""
     B, W = L.shape
     pm = np.full(B, np.inf)
     wc = np.full(B, np.nan)
@@ -109,7 +109,7 @@ def margins(L, lw, ends):
                 p0c = ph[c] - shift
                 pc = p0c + f * ((ph[c + 1] - shift) - p0c)
                 signed = 180.0 + math.degrees(pc)
-                if math.isfinite(signed) and signed <= 180.0 and \
+                if math.isfinite(signed) and -180.0 <= signed <= 180.0 and \
                         abs(abs(_mod(signed + 180.0, 360.0) - 180.0) - pmv) < 1e-3:
                     pmv = signed
                 if not math.isnan(pm[b]) and (math.isnan(pmv) or pmv < pm[b]):  # np.minimum: nan sticks
@@ -124,7 +124,7 @@ def margins(L, lw, ends):
                 p0c = ph[c] - shift
                 pc = p0c + f * ((ph[c + 1] - shift) - p0c)
                 signed = 180.0 + math.degrees(pc)
-                if math.isfinite(signed) and signed <= 180.0 and \
+                if math.isfinite(signed) and -180.0 <= signed <= 180.0 and \
                         abs(abs(_mod(signed + 180.0, 360.0) - 180.0) - pmv) < 1e-3:
                     pmv = signed
                 if pmv == pm[b]:
