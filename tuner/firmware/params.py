@@ -3,9 +3,11 @@ its current gains, read from the files ground stations save and logs store.
 
 * QGroundControl ``.params`` (PX4): tab-separated ``vehicle-id  component-id  NAME  value  type`` lines (type 9 =
   float, 6 = int32), ``#`` comments;
-* Mission Planner ``.parm`` (ArduPilot): ``NAME,value`` lines (a space or a tab also separates), ``#`` comments;
-* a PX4 ULog (``.ulg``): the parameters stored in its definitions section (pyulog's ``initial_parameters``; only
-  the header is parsed).
+* ArduPilot parameter files (Mission Planner ``.parm``/``.param``, MAVProxy, defaults files; any suffix):
+  ``NAME,value`` lines (a space, a tab or ``=`` also separates), ``#`` comments, ``@READONLY`` after the value;
+* a PX4 ULog (``.ulg``): the parameters stored in its definitions section (pyulog's ``initial_parameters``) with
+  the changes made in flight (``changed_parameters``: the last value), and the gyro's rate
+  (``vehicle_imu_status``; :func:`tuner.identify.ulog.read_vehicle_log` parses those topics only).
 
 Text files go through the bounded reader (:func:`tuner.fileio.read_text`, :data:`MAX_PARAMS_BYTES`); a ULog is
 size-checked before it is opened. Every error is a :class:`~tuner.errors.TunerError` whose ``field`` is the
