@@ -24,7 +24,7 @@ RUN pip install --no-cache-dir .
 # shapes stay interpreted until a solver's background compile gets them); writable by the service's user
 ENV TUNER_CACHE_DIR=/opt/tuner-cache
 RUN python -m tuner.optimize.kernels \
-    && (tuner tune --plant "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)" --dt 0.04 --structure pid_z || true) \
+    && (TUNER_NLP_COMPILE=auto tuner tune --plant "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)" --dt 0.04 --structure pid_z || true) \
     && python -m tuner.optimize.nlp.codecache --wait && python -m tuner.optimize.nlp.codecache
 
 RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin tuner \

@@ -95,3 +95,26 @@ def _shape_of(key):
     plant = make_plant([1.0], [1.0, 1.0])
     problem = TuningProblem.build(plant, structure=get_structure("pi"), dt=0.2)
     return problem.structure, make_space(problem.structure, plant, 0.2, scale=problem.scale)
+
+
+def test_a_failed_compile_is_marked_and_not_asked_for_again(cache, monkeypatch):
+    """A compile that fails (or runs out of time) leaves a mark: no later run starts it again; and by default
+    (``TUNER_NLP_COMPILE`` unset: ``load``) no run starts a compile at all."""
+    monkeypatch.setattr(codecache, "schedule", lambda *a: False)
+    _tune()
+    key = next(iter(transcribe._CACHE))
+    st, space = _shape_of(key)
+    monkeypatch.undo()  # the real schedule again, and the fixture's settings
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(cache))
+    monkeypatch.setattr(codecache, "_SCHEDULED", set())
+    monkeypatch.setenv("CC", "false")  # a compiler that fails at once
+    codecache._MEMO.clear()
+    with pytest.raises(__import__("subprocess").CalledProcessError):
+        codecache.build_entry(key, st, space, transcribe._build)
+    d = codecache.entry_dir(key, st, space)
+    assert d.with_name(d.name + ".failed").exists() and not d.exists()
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    assert codecache.schedule(key, st, space) is False
+    monkeypatch.delenv("TUNER_NLP_COMPILE")
+    d.with_name(d.name + ".failed").unlink()
+    assert codecache.schedule(key, st, space) is False  # the default compiles nothing

@@ -10,8 +10,11 @@ rename, so a reader sees a whole entry or none. The run that asked is not slowed
 load the entry (:func:`load`) instead of building: the solver from the shared library, the constraint bounds from
 the entry's ``meta.npz``. An entry whose files do not match the checksums written with it, or that CasADi cannot
 load, is deleted and built again, never used. The compiled solver gives bitwise the interpreted solver's answers
-(tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE=off`` turns the cache off (interpreted NLPs only); ``load``
-uses the entries there are and compiles none.
+(tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE``: ``load`` (the default) uses the entries there are and
+compiles none, so that no command starts a compile behind the user's back; ``auto`` (or ``on``) compiles in the
+background as above (the Docker image's build, a service's machine); ``off`` keeps every NLP interpreted. A shape
+whose compile failed or ran out of time is marked (``<entry>.failed``) and not tried again until the NLP's sources
+change (a px4_rate shape's 20 MB of C did not compile within the cap on a loaded 2-core machine).
 
 ``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--wait`` returns when no
 compile is under way (the Docker image's build tunes its loops, then waits for their code).
@@ -107,10 +110,10 @@ def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
 def schedule(key: Any, st: Any, space: Any) -> bool:
     """Ask for the compiled code of ``key`` in the background (a detached process; nothing if it is in the cache,
     being built, or asked for already by this process). True if a build was started."""
-    if not enabled() or os.environ.get("TUNER_NLP_COMPILE", "").strip().lower() == "load":
+    if not enabled() or os.environ.get("TUNER_NLP_COMPILE", "load").strip().lower() not in ("auto", "on", "1", "yes"):
         return False
     d = entry_dir(key, st, space)
-    if d.name in _SCHEDULED or (d / "sums.json").exists():
+    if d.name in _SCHEDULED or (d / "sums.json").exists() or d.with_name(d.name + ".failed").exists():
         return False
     _SCHEDULED.add(d.name)
     lock = d.with_name(d.name + ".lock")
@@ -163,10 +166,14 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
             t2 = time.perf_counter()
             cc = os.environ.get("CC", "gcc")
             deadline = t2 + timeout_s
-            for src, out in (("step.c", "step.so"), ("nlp.c", "nlp.so")):
-                subprocess.run([cc, *CFLAGS, str(tmp / src), "-o", str(tmp / out), "-lm"], check=True,
-                               timeout=max(1.0, deadline - time.perf_counter()), stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL)
+            try:
+                for src, out in (("step.c", "step.so"), ("nlp.c", "nlp.so")):
+                    subprocess.run([cc, *CFLAGS, str(tmp / src), "-o", str(tmp / out), "-lm"], check=True,
+                                   timeout=max(1.0, deadline - time.perf_counter()), stdout=subprocess.DEVNULL,
+                                   stderr=subprocess.DEVNULL)
+            except (subprocess.SubprocessError, OSError) as e:  # never asked for again (schedule skips it)
+                d.with_name(d.name + ".failed").write_text(f"{type(e).__name__}: {e}\n")
+                raise
             t3 = time.perf_counter()
             np.savez(tmp / "meta.npz", lbg=prob.lbg, ubg=prob.ubg, n_v=prob.n_v)
             for f in ("nlp.c", "step.c"):
