@@ -137,7 +137,7 @@ EFFORTS = {
     # default: two round-0 refinements and one per restart cost 30 % less than three and two, and on every fourth
     # suite case changed no ratio by more than 0.3 % (bench/QUALITY.md)
     "default": Effort("default", n_starts=2, design_points=48, confirm=1, restart_points=64,
-                      restart_refines=0, verify=2, optuna=False, restart_spread=3, max_restarts=3),
+                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=3),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2, refind=3, max_restarts=8),
 }
