@@ -159,10 +159,30 @@ def bound_structure(body: Any, vehicle: Any) -> tuple[Any, float | None]:
     return st, dt
 
 
-def tuning_problem(body: TuneRequest, *, identification: Any = None, vehicle: Any = None) -> TuningProblem:
-    """The validated problem of a /tune body (the one semantic validation of the request); with an
-    ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`); with a
-    ``vehicle`` (:func:`vehicle_of`), the firmware law bound to it at its loop rate."""
+def typed(plants: list[Plant], vehicle: Any) -> tuple[list[Plant], Any]:
+    """Typed plants (the request's own, not an identification's) for a vehicle: its gyro low-pass added to each and
+    said in the vehicle's record (:func:`tuner.firmware.bind.typed_plant`), as the command line and ``tune()`` do."""
+    if vehicle is None or not getattr(vehicle, "firmware", None):
+        return plants, vehicle
+    import dataclasses
+
+    from tuner.firmware.bind import typed_plant
+
+    out, rec = [], None
+    for p in plants:
+        q, rec = typed_plant(p, vehicle)
+        out.append(q)
+    if rec is None:
+        return plants, vehicle
+    return out, dataclasses.replace(vehicle, typed_plant=rec, notes=(*vehicle.notes, rec["note"]))
+
+
+def tuning_problem(body: TuneRequest, *, identification: Any = None, vehicle: Any = None
+                   ) -> tuple[TuningProblem, Any]:
+    """The validated problem of a /tune body (the one semantic validation of the request) and the vehicle as tuned
+    for; with an ``identification`` (of ``identification_id``), its plant set (:func:`tuner.robust.plant_set`); with
+    a ``vehicle`` (:func:`vehicle_of`), the firmware law bound to it at its loop rate, and typed plants with its gyro
+    low-pass (:func:`typed`)."""
     structure, dt = bound_structure(body, vehicle)
     if identification is not None:
         from tuner.robust import plant_set
@@ -172,9 +192,9 @@ def tuning_problem(body: TuneRequest, *, identification: Any = None, vehicle: An
         except TunerError as e:
             raise FieldError.of(e, ("body", "robust") if e.field == ("robust",) else body_loc(e.field)) from None
     else:
-        plants = [_plant(p, i) for i, p in enumerate([body.plant, *(body.plants or [])])]
+        plants, vehicle = typed([_plant(p, i) for i, p in enumerate([body.plant, *(body.plants or [])])], vehicle)
     try:
-        return TuningProblem.build(plants, structure=structure, spec=body.spec, dt=dt)
+        return TuningProblem.build(plants, structure=structure, spec=body.spec, dt=dt), vehicle
     except TunerError as e:
         loc = body_loc(e.field)
         if identification is not None and loc[1:2] in (("plant",), ("plants",)):
@@ -208,11 +228,15 @@ def law_gains(body: AnalyzeRequest, vehicle: Any, dt: float | None) -> dict[str,
 
 
 def analysis_inputs(body: AnalyzeRequest, vehicle: Any = None, identification: Any = None
-                    ) -> tuple[Plant, ControllerTF, Spec]:
-    """Plant, controller (at ``dt``, else at a discrete plant's dt, else the vehicle's loop rate) and spec of an
-    /analyze body, validated as one loop; ``vehicle``: the body's (:func:`vehicle_of`), read once by the caller;
-    ``identification`` (of ``identification_id``): its fitted model is the plant."""
-    plant = identification.plant() if identification is not None else _plant(body.plant, 0)
+                    ) -> tuple[Plant, ControllerTF, Spec, Any]:
+    """Plant, controller (at ``dt``, else at a discrete plant's dt, else the vehicle's loop rate), spec and vehicle
+    (a typed plant's gyro low-pass said in its record: :func:`typed`) of an /analyze body, validated as one loop;
+    ``vehicle``: the body's (:func:`vehicle_of`), read once by the caller; ``identification`` (of
+    ``identification_id``): its fitted model is the plant."""
+    if identification is not None:
+        plant = identification.plant()
+    else:
+        [plant], vehicle = typed([_plant(body.plant, 0)], vehicle)
     dt = body.dt if body.dt is not None else plant.dt
     if dt is None and vehicle is not None and getattr(vehicle, "loop_hz", None):
         dt = 1.0 / float(vehicle.loop_hz)
@@ -233,7 +257,7 @@ def analysis_inputs(body: AnalyzeRequest, vehicle: Any = None, identification: A
             raise FieldError.of(e, ("body", "identification_id")) from None
         raise FieldError.of(e, body_loc(("plants", 0, *e.field[1:]) if e.field[:1] == ("plant",) else e.field)) \
             from None
-    return plant, ctrl, body.spec if body.spec is not None else Spec()
+    return plant, ctrl, body.spec if body.spec is not None else Spec(), vehicle
 
 
 def plant_dict(plant: Plant) -> dict[str, Any]:

@@ -46,7 +46,7 @@ async def post_analyze(
 ) -> JSONResponse:
     ident, record = await _identification(body, store)
     vehicle = vehicle_of(body, record)  # read once: the controller's fixed values and the law's gains both come from it
-    plant, ctrl, spec = analysis_inputs(body, vehicle, identification=ident)
+    plant, ctrl, spec, vehicle = analysis_inputs(body, vehicle, identification=ident)
     # (an identification is analysed as such: its model, and the loop on its measured response with their checks)
     payload = {"plant": plant if ident is None else ident, "controller": ctrl, "spec": spec}
     if body.actuator is not None:
@@ -60,5 +60,8 @@ async def post_analyze(
         request, pool, job, payload, timeout_s=settings.analyze_timeout_s, client=client, what="analysis",
         loc=body_loc, default_field=("controller",),
         timeout_detail=lambda e: f"the analysis took longer than {settings.analyze_timeout_s:g} s and was stopped")
-    return JSONResponse(jsonable({**out, "controller": ctrl.to_dict()}))
+    extra = {}
+    if vehicle is not None and getattr(vehicle, "typed_plant", None) is not None:  # the gyro low-pass added, or not
+        extra["vehicle"] = {"typed_plant": dict(vehicle.typed_plant)}
+    return JSONResponse(jsonable({**out, "controller": ctrl.to_dict(), **extra}))
 

@@ -50,7 +50,7 @@ async def post_tradeoff(
                              "identification there, or give its model as plant")
     if body.plant is None:
         raise FieldError(("body", "plant"), "give the plant: {\"expr\": \"...\"} or {\"num\": [...], \"den\": [...]}")
-    problem = tuning_problem(body, vehicle=vehicle_of(body))  # a firmware law bound to its vehicle
+    problem, _ = tuning_problem(body, vehicle=vehicle_of(body))  # a firmware law bound to its vehicle
     payload = {"problem": problem, "y": body.y, "points": body.points, "seed": body.options.seed,
                "time_budget_s": budget}
     result = await run_job(

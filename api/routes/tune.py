@@ -82,7 +82,7 @@ async def post_tune(
     limit = request_plant_limit(body, settings)
     ident, record = await _identification(body, store)
     vehicle = vehicle_of(body, record)
-    problem = tuning_problem(body, identification=ident, vehicle=vehicle)
+    problem, vehicle = tuning_problem(body, identification=ident, vehicle=vehicle)
     if ident is not None and len(problem.plants) > limit:
         raise FieldError(("body", "robust"), f"the identified model's robust set has {len(problem.plants)} plants; "
                          f"this server tunes at most {limit} per request: fit fewer parameters, or tune the nominal "

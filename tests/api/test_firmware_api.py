@@ -30,6 +30,28 @@ def test_analyze_the_loop_the_vehicle_flies_with_limits(client):
     assert "PX4" in out["saturated_step"]["law"]
 
 
+def test_a_typed_plant_takes_the_vehicles_gyro_low_pass(client):
+    """Issue 40 item 1e over HTTP: a typed plant analysed for a vehicle whose file names its gyro low-pass
+    (INS_GYRO_FILTER 20 Hz) is the plant with the filter, as the command line has it: the phase margin is the one
+    of the plant times wc^2/(s^2 + sqrt(2) wc s + wc^2) written out here, and the record says so."""
+    import math
+
+    ctrl = {"structure": "ardupilot_rate", "gains": {"P": 0.135, "I": 0.135, "D": 0.0036, "FF": 0.0}}
+    plain = client.post("/analyze", json={"plant": PLANT, "controller": ctrl, "dt": 0.0025})
+    wc = 2 * math.pi * 20.0
+    filtered = {"expr": f"250/(s*(0.02*s+1)) * {wc**2!r}/(s^2 + {math.sqrt(2) * wc!r}*s + {wc**2!r})",
+                "delay": 0.0025}
+    by_hand = client.post("/analyze", json={"plant": filtered, "controller": ctrl, "dt": 0.0025})
+    vehicle = client.post("/analyze", json={"plant": PLANT, "controller": ctrl,
+                                            "vehicle": {"params": PARM + "INS_GYRO_FILTER,20\n"}})
+    for r in (plain, by_hand, vehicle):
+        assert r.status_code == 200, r.text
+    pm = [r.json()["metrics"]["phase_margin_deg"] for r in (plain, by_hand, vehicle)]
+    assert pm[2] == pytest.approx(pm[1], abs=1e-6) and pm[2] < pm[0] - 5
+    rec = vehicle.json()["vehicle"]["typed_plant"]
+    assert rec["gyro_filter_hz"] == 20.0 and rec["name"] == "INS_GYRO_FILTER"
+
+
 def test_tune_with_a_vehicle(client):
     # (the default design of a firmware law holds three plants, the gain x0.8 and x1.25: a cold solver builds their
     # NLPs for seconds)
@@ -40,6 +62,7 @@ def test_tune_with_a_vehicle(client):
     out = r.json()
     assert out["gains"]["dgyro_hz"] == 30.0 and out["vehicle"]["firmware"] == "px4"
     assert out["current"]["gains"]["P"] == 0.15 and "metrics" in out["current"]
+    assert out["vehicle"]["typed_plant"]["typed"] is True  # (the file names no IMU_GYRO_CUTOFF: said, none added)
 
 
 @pytest.mark.parametrize("body, loc", [
