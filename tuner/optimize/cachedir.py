@@ -1,7 +1,12 @@
 """Where the tuner keeps what it compiles, shared by the command line, the service and the study workers:
 ``$TUNER_CACHE_DIR``, else ``$XDG_CACHE_HOME/tuner``, else ``~/.cache/tuner`` (``numba/``: the batch's kernels,
 :mod:`tuner.optimize.kernels`; ``nlp/``: the NLPs' compiled code, :mod:`tuner.optimize.nlp.codecache`). Light: it
-imports neither numba nor CasADi."""
+imports neither numba nor CasADi.
+
+The root is created private (mode 0o700). Compiled code and pickled jobs are loaded only from a root that
+:func:`trusted_root` accepts (owned by the current user, not writable by group or others): from any other, the NLP
+code cache behaves as if it were off (:mod:`tuner.optimize.nlp.codecache`), silently, and the tune runs
+interpreted."""
 
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["cache_root", "kernels_ready_mark"]
+__all__ = ["cache_root", "trusted_root", "kernels_ready_mark"]
 
 
 def cache_root() -> Path:
@@ -19,6 +24,25 @@ def cache_root() -> Path:
         return Path(env)
     xdg = os.environ.get("XDG_CACHE_HOME", "").strip()
     return (Path(xdg) if xdg else Path.home() / ".cache") / "tuner"
+
+
+def trusted_root() -> Path | None:
+    """:func:`cache_root`, created with mode 0o700 if it is not there, if it is safe to load code from: a directory
+    owned by the current user and not writable by group or others. None otherwise (or if it cannot be created):
+    then nothing compiled or pickled is loaded from it."""
+    root = cache_root()
+    try:
+        root.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = root.stat()
+    except OSError:
+        return None
+    import stat
+
+    if not stat.S_ISDIR(st.st_mode) or st.st_mode & 0o022:
+        return None
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return None
+    return root
 
 
 def kernels_ready_mark() -> Path:

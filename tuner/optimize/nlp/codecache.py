@@ -14,7 +14,11 @@ load, is deleted and built again, never used. The compiled solver gives bitwise 
 compiles none, so that no command starts a compile behind the user's back; ``auto`` (or ``on``) compiles in the
 background as above (the Docker image's build, a service's machine); ``off`` keeps every NLP interpreted. A shape
 whose compile failed or ran out of time is marked (``<entry>.failed``) and not tried again until the NLP's sources
-change (a px4_rate shape's 20 MB of C did not compile within the cap on a loaded 2-core machine).
+change (a px4_rate shape's 20 MB of C did not compile within the cap on a loaded 2-core machine). A compile that
+runs out of time is killed with its whole process group (gcc's ``cc1`` too), so the next compile never starts beside
+it. A build's ``<entry>.lock`` holds the builder's pid: a lock whose process is gone (a killed build) is stale at
+once, not after :data:`STALE_LOCK_S`. The cache is used only in a root owned by the current user and not writable by
+group or others (:func:`tuner.optimize.cachedir.trusted_root`); in any other it is off.
 
 ``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--wait`` returns when no
 compile is under way (the Docker image's build tunes its loops, then waits for their code).
@@ -27,6 +31,7 @@ import json
 import os
 import pickle
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -35,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cachedir import cache_root
+from ..cachedir import cache_root, trusted_root
 
 __all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "COMPILE_TIMEOUT_S", "CFLAGS"]
 
@@ -52,8 +57,11 @@ _MEMO: dict[Any, Any] = {}  # the sources' hash, gcc's presence, each shape's en
 
 
 def enabled() -> bool:
-    """The compiled-code cache is on (``TUNER_NLP_COMPILE`` not ``off``) and gcc is there."""
+    """The compiled-code cache is on (``TUNER_NLP_COMPILE`` not ``off``), gcc is there and the cache's root is safe
+    to load code from (:func:`tuner.optimize.cachedir.trusted_root`)."""
     if os.environ.get("TUNER_NLP_COMPILE", "auto").strip().lower() in ("off", "0", "no", "false"):
+        return False
+    if trusted_root() is None:
         return False
     cc = os.environ.get("CC", "gcc")
     if ("cc", cc) not in _MEMO:
@@ -107,6 +115,26 @@ def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
         return None
 
 
+def _lock_stale(lock: Path) -> bool:
+    """The lock ``lock`` is left by a build that is no longer running: its builder's pid (written in it) is not a
+    live process, or it is older than :data:`STALE_LOCK_S`."""
+    try:
+        if time.time() - lock.stat().st_mtime > STALE_LOCK_S:
+            return True
+        text = lock.read_text().strip()
+    except OSError:
+        return False  # gone (or unreadable): not ours to remove
+    if not text.isdigit():
+        return False  # (being written, or written before locks held a pid: the age decides)
+    try:
+        os.kill(int(text), 0)
+    except ProcessLookupError:
+        return True
+    except OSError:
+        return False  # alive, another user's
+    return False
+
+
 def schedule(key: Any, st: Any, space: Any) -> bool:
     """Ask for the compiled code of ``key`` in the background (a detached process; nothing if it is in the cache,
     being built, or asked for already by this process). True if a build was started."""
@@ -119,22 +147,55 @@ def schedule(key: Any, st: Any, space: Any) -> bool:
     lock = d.with_name(d.name + ".lock")
     try:
         d.parent.mkdir(parents=True, exist_ok=True)
-        if lock.exists() and time.time() - lock.stat().st_mtime > STALE_LOCK_S:
+        if lock.exists() and _lock_stale(lock):
             lock.unlink(missing_ok=True)
-        os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+        try:
+            os.write(fd, str(os.getpid()).encode())  # until the builder writes its own
+        finally:
+            os.close(fd)
     except OSError:
         return False  # another process builds it (or the cache is not writable)
     job = d.with_name(d.name + ".job")
     try:
         job.write_bytes(pickle.dumps((key, st, space)))
-        subprocess.Popen([sys.executable, "-m", "tuner.optimize.nlp.transcribe", "--build", str(job)],
-                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        p = subprocess.Popen([sys.executable, "-m", "tuner.optimize.nlp.transcribe", "--build", str(job)],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             start_new_session=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        _write_pid(lock, p.pid)
     except (OSError, pickle.PicklingError):
         lock.unlink(missing_ok=True)
         job.unlink(missing_ok=True)
         return False
     return True
+
+
+def _write_pid(lock: Path, pid: int) -> None:
+    """Write the builder's pid into its lock (whole: a temporary file renamed over it)."""
+    tmp = lock.with_name(f"{lock.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(str(pid))
+        os.replace(tmp, lock)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+
+
+def _compile(cmd: list[str], timeout_s: float) -> None:
+    """Run the compiler ``cmd`` in its own process group; on time out kill the whole group (the driver and its
+    ``cc1``), so no compile outlives its call. Raises TimeoutExpired or CalledProcessError."""
+    p = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    try:
+        p.communicate(timeout=timeout_s)
+    except BaseException:  # the time out (or an interrupt): no part of the compile is left running
+        try:
+            os.killpg(p.pid, signal.SIGKILL)
+        except OSError:
+            pass
+        p.wait()
+        raise
+    if p.returncode:
+        raise subprocess.CalledProcessError(p.returncode, cmd)
 
 
 def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float = COMPILE_TIMEOUT_S
@@ -168,9 +229,8 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
             deadline = t2 + timeout_s
             try:
                 for src, out in (("step.c", "step.so"), ("nlp.c", "nlp.so")):
-                    subprocess.run([cc, *CFLAGS, str(tmp / src), "-o", str(tmp / out), "-lm"], check=True,
-                                   timeout=max(1.0, deadline - time.perf_counter()), stdout=subprocess.DEVNULL,
-                                   stderr=subprocess.DEVNULL)
+                    _compile([cc, *CFLAGS, str(tmp / src), "-o", str(tmp / out), "-lm"],
+                             max(1.0, deadline - time.perf_counter()))
             except (subprocess.SubprocessError, OSError) as e:  # never asked for again (schedule skips it)
                 d.with_name(d.name + ".failed").write_text(f"{type(e).__name__}: {e}\n")
                 raise
@@ -193,6 +253,11 @@ def run_job(job: Path, build: Any) -> None:
     job file that :func:`schedule` wrote, then the job and its lock removed."""
     lock = job.with_suffix(".lock")
     try:
+        root = trusted_root()
+        if root is None or root.resolve() not in job.resolve().parents:
+            return  # a job outside a private cache is never unpickled
+        if lock.exists():
+            _write_pid(lock, os.getpid())
         key, st, space = pickle.loads(job.read_bytes())  # (written by schedule, in the cache's own folder)
         build_entry(key, st, space, build)
     finally:
@@ -204,7 +269,7 @@ def _main(argv: list[str]) -> int:
     if argv == ["--wait"]:  # until no compile is under way (the Docker image's build: after its tunes)
         root = cache_root() / "nlp"
         deadline = time.time() + STALE_LOCK_S
-        while root.exists() and any(time.time() - f.stat().st_mtime < STALE_LOCK_S for f in root.glob("*.lock")):
+        while root.exists() and any(not _lock_stale(f) for f in root.glob("*.lock")):
             if time.time() > deadline:
                 return 1
             time.sleep(1.0)

@@ -1,0 +1,114 @@
+"""The NLP code cache's safety (tuner.optimize.nlp.codecache, tuner.optimize.cachedir), quick, without a compile: a
+timed-out compile leaves no process of its group running; a lock whose builder is gone is stale at once; a cache root
+that is not private is not used (the cache is off, silently)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tuner.optimize import cachedir
+from tuner.optimize.nlp import codecache
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX process groups and modes")
+
+
+def _dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def _gone(pid: int) -> bool:
+    """The process ``pid`` has exited (gone, or a zombie its new parent has not reaped yet)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+    return state in ("Z", "X")
+
+
+def test_a_lock_whose_builder_is_gone_is_stale_and_a_live_ones_is_not(tmp_path):
+    lock = tmp_path / "x.lock"
+    lock.write_text(str(_dead_pid()))
+    assert codecache._lock_stale(lock)
+    lock.write_text(str(os.getpid()))
+    assert not codecache._lock_stale(lock)
+    lock.write_text("")  # (a lock without a pid: its age decides)
+    assert not codecache._lock_stale(lock)
+    old = time.time() - codecache.STALE_LOCK_S - 10
+    os.utime(lock, (old, old))
+    assert codecache._lock_stale(lock)
+
+
+def test_schedule_replaces_a_dead_builders_lock(tmp_path, monkeypatch):
+    dead = _dead_pid()
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    monkeypatch.setattr(codecache, "_SCHEDULED", set())
+    d = tmp_path / "nlp" / "shape"
+    monkeypatch.setattr(codecache, "entry_dir", lambda *a: d)
+    started = []
+
+    class FakePopen:
+        def __init__(self, cmd, **kw):
+            started.append(cmd)
+            self.pid = os.getpid()
+
+    monkeypatch.setattr(codecache.subprocess, "Popen", FakePopen)
+    lock = d.with_name("shape.lock")
+    lock.parent.mkdir(parents=True)
+    lock.write_text(str(os.getpid()))  # a live builder: left alone
+    assert codecache.schedule("k", None, None) is False and not started
+    monkeypatch.setattr(codecache, "_SCHEDULED", set())
+    lock.write_text(str(dead))  # a killed builder: its lock is taken over
+    assert codecache.schedule("k", None, None) is True and len(started) == 1
+    assert lock.read_text() == str(os.getpid())  # the new builder's pid
+
+
+def test_a_timed_out_compile_kills_its_whole_process_group(tmp_path):
+    pidfile = tmp_path / "child.pid"
+    # a "compiler" whose child (as gcc's cc1) outlives the driver if only the driver is killed
+    cmd = ["sh", "-c", f"sleep 60 & echo $! > {pidfile}; wait"]
+    with pytest.raises(subprocess.TimeoutExpired):
+        codecache._compile(cmd, 1.0)
+    child = int(pidfile.read_text())
+    for _ in range(100):  # (the orphan is reaped by its new parent: give it a moment)
+        if _gone(child):
+            break
+        time.sleep(0.05)
+    assert _gone(child)
+
+
+def test_a_failing_compile_raises(tmp_path):
+    with pytest.raises(subprocess.CalledProcessError):
+        codecache._compile(["false"], 10.0)
+
+
+def test_the_cache_root_is_private_and_a_shared_one_is_not_used(tmp_path, monkeypatch):
+    root = tmp_path / "cache"
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(root))
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    assert cachedir.trusted_root() == root
+    assert root.stat().st_mode & 0o777 == 0o700  # created private
+    root.chmod(0o770)  # group-writable: another user could plant code or a pickle
+    assert cachedir.trusted_root() is None
+    assert codecache.enabled() is False
+    assert codecache.load("k", None, None, lambda *a: pytest.fail("loaded from a shared root")) is None
+    assert codecache.schedule("k", None, None) is False
+    job = root / "nlp" / "x.job"
+    job.parent.mkdir()
+    job.write_bytes(b"not a pickle")  # never unpickled: run_job returns without reading it
+    codecache.run_job(job, lambda *a: pytest.fail("built from a shared root"))
+    root.chmod(0o700)
+    assert cachedir.trusted_root() == root
