@@ -233,7 +233,7 @@ def optimality_line(s: dict[str, Any] | None) -> str:
     gap = o.get("gap")
     parts.append("no distinct alternative" if gap is None else f"best distinct alternative {gap * 100:+.3g} %")
     if ev.get("unseen") is not None:
-        parts.append(f"chance of an unseen basin {ev['unseen']:.2g} (Good-Turing: {ev['singletons']} basin"
+        parts.append(f"unreached-basin estimate {ev['unseen']:.2g} (Good-Turing: {ev['singletons']} basin"
                      f"{'s' if ev['singletons'] != 1 else ''} reached once in {ev['refinements']} restart refinement"
                      f"{'s' if ev['refinements'] != 1 else ''}; level {ev['level']:.2g})")
     claim = o.get("claim") or ("converged" if s.get("stop") == "converged" else "budget")
@@ -256,7 +256,7 @@ def _unconfirmed(o: dict[str, Any]) -> str:
                        f"answer's basin, of the {ev.get('refind', 2)} the claim needs")
         if ev.get("unseen") is None or ev["unseen"] > ev.get("level", 0.2):
             est = "unknown" if ev.get("unseen") is None else f"{ev['unseen']:.2g}"
-            why.append(f"the chance that an unseen basin holds a better design is estimated at {est}, above the "
+            why.append(f"the Good-Turing estimate of the basins the restarts have not reached is {est}, above the "
                        f"{ev.get('level', 0.2):.2g} level")
         if o.get("stop") == "work":
             why.append(f"the {o.get('max_restarts')} restarts the effort affords have run")

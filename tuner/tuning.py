@@ -333,10 +333,12 @@ def tune(
     seed : int
         Seeds the global search beyond the deterministic first round: same seed, same gains.
     time_budget_s : float, optional
-        Wall-time budget, a hard cap. Default (None): the search counts work, not seconds: it stops on its
-        evidence rule (``solver["stop"] == "converged"``) or when the restarts its effort affords have run
-        (``"work"``), the same steps, and so bitwise the same gains for a seed, on an idle and on a loaded
-        machine; ``AUTO_WALL_CAP_S`` (60 s, NLP builds included) is only a hard cap. Where a cap (that one, or a
+        Wall-time budget, a cap checked between the search's steps (a started step, such as an NLP build, is not
+        interrupted, so a run can overrun it by a step). Default (None): the search counts work, not seconds: it
+        stops on its evidence rule (``solver["stop"] == "converged"``) or when the restarts its effort affords
+        have run (``"work"``), the same steps, and so bitwise the same gains for a seed, on an idle and on a
+        loaded machine, for every run the cap did not cut (a cut run's gains depend on where it was cut);
+        ``AUTO_WALL_CAP_S`` (60 s, NLP builds included) is only a cap. Where a cap (that one, or a
         number given here) ends the search, ``solver["stop"]`` is ``"budget"`` and ``solver["cut"]`` says which
         step it cut and how many restarts had run; ``solver["build_s"]`` says how long the NLP builds took.
     n_trials : int, optional
@@ -368,8 +370,10 @@ def tune(
     effort : str
         How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
         (it stops when two refinements agree; without an independent restart it never claims convergence),
-        ``"default"`` adds independent space-filling restarts (2 to 6) until their refinements' Good-Turing
-        estimate of an unseen basin is at most 0.2, ``"thorough"`` more (3 to 8, three refinements each), more
+        ``"default"`` adds independent space-filling restarts (2 to 3) until their refinements' Good-Turing
+        estimate of the basins they have not reached is at most 0.2 (with 2 or 3 refinements it can only be 0,
+        1/2 or 1, or 0, 1/3, 2/3 or 1: it passes only at 0; it estimates the unreached basins' mass, it does not
+        bound whether a better design exists), ``"thorough"`` more (3 to 8, three refinements each), more
         starts and points and a sharper polish (twice the grid detail, the settling time between the grid's
         points, each step confirmed by the verifier); measured costs in bench/QUALITY.md. "converged" (the
         ``claim`` of ``solver["optimality"]``, and ``solver["converged"]``) only where at least 2 (thorough 3)
@@ -439,7 +443,8 @@ def tune(
 
     # the default budget counts work, not seconds (issue 41): the search ends on its evidence rule or its work budget
     # of restarts (Effort.max_restarts), the same steps on an idle and on a loaded machine; the wall clock is only a
-    # hard cap, AUTO_WALL_CAP_S builds included, which says what it cut when it binds (solver["cut"]). A tune nested
+    # cap, AUTO_WALL_CAP_S builds included, checked between steps (a started step can overrun it), which says what
+    # it cut when it binds (solver["cut"]). A tune nested
     # in such a tune (a robustness objective's fastest design, a diagnosis's relaxed re-tune) stays within the outer
     # cap; one with its own budget does not count builds against it
     outer = _OUTER_CAP.get()
