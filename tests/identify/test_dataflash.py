@@ -6,6 +6,7 @@ expected are the ones written."""
 from __future__ import annotations
 
 import json
+import struct
 
 import numpy as np
 import pytest
@@ -83,8 +84,10 @@ def test_a_rate_setpoint_outside_acro_or_systemid_is_biased(sweep, tmp_path):
 
 
 def test_a_log_never_flown_is_refused_saying_what_was_seen(sweep, tmp_path, capsys):
+    # ArduPilot writes ARM when the state changes: a disarm first says the log began armed, here until 0.5 s before
+    # the signals begin
     ground, _ = _log(tmp_path / "ground.bin", sweep, armed=False, took_off_s=None)
-    with pytest.raises(InvalidDataError, match="never armed and airborne") as e:
+    with pytest.raises(InvalidDataError, match=r"armed and airborne only at 0\.0-0\.5 s, outside the signals'") as e:
         read_dataflash(ground, {"input": "RATE.ROut", "output": "RATE.R"})
     assert "ARM.ArmState [0]" in str(e.value) and e.value.field == ("file",)
     assert main(["identify", str(ground), "--input", "RATE.ROut", "--output", "RATE.R", "--poles", "2"]) == 2
@@ -136,3 +139,114 @@ def test_a_damaged_log_is_refused_naming_the_bytes(sweep, tmp_path, junk):
         read_params(bad)
     with pytest.raises(InvalidDataError, match="not a DataFlash log"):
         read_dataflash(b"\0" * 100, {"input": "RATE.ROut", "output": "RATE.R"})
+
+
+def _rate_fmt_at(raw: bytes, length: int) -> int:
+    """Where RATE's FMT is in a log tests/dataflash_writer.py wrote (RATE the first message given: type 130)."""
+    at = raw.find(b"\xa3\x95\x80" + bytes([130, length]) + b"RATE")
+    assert at > 0
+    return at
+
+
+@pytest.mark.timeout(60)  # a FMT of Length 0 made pymavlink's index pass loop for ever
+@pytest.mark.parametrize("delta", [None, -4, 4, -1])
+def test_a_fmt_whose_length_is_not_its_formats_size_is_refused(sweep, tmp_path, delta, capsys):
+    path, _ = _log(tmp_path / "f.bin", sweep)
+    raw = bytearray(path.read_bytes())
+    size = 3 + struct.calcsize("<Q12f")  # RATE: TimeUS and 12 floats (LogStructure.h)
+    at = _rate_fmt_at(bytes(raw), size)
+    declared = 0 if delta is None else size + delta
+    raw[at + 4] = declared
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(bytes(raw))
+    want = rf"a damaged DataFlash log: the FMT of message type 130 \('RATE'\) declares a Length of {declared} bytes"
+    with pytest.raises(InvalidDataError, match=want) as e:
+        read_dataflash(bad, {"input": "RATE.ROut", "output": "RATE.R"})
+    assert e.value.field == ("file",)
+    assert main(["identify", str(bad), "--input", "RATE.ROut", "--output", "RATE.R", "--poles", "2"]) == 2
+    assert "declares a Length" in capsys.readouterr().err
+
+
+def test_a_field_past_its_messages_length_is_refused():
+    from types import SimpleNamespace
+
+    from tuner.identify.dataflash import _columns
+
+    # a message whose FMT declares 7 bytes (header and a uint32) but whose format says a uint64
+    fmt = SimpleNamespace(len=7, columns=["TimeUS"], format="Q")
+    raw = b"\xa3\x95\x81" + (5).to_bytes(4, "little") + b"\xa3\x95\x81" + (6).to_bytes(4, "little")
+    r = SimpleNamespace(name_to_id={"X": 0x81}, formats={0x81: fmt}, offsets={0x81: [0, 7]}, data_len=len(raw),
+                        data_map=raw)
+    with pytest.raises(InvalidDataError, match=r"message X's field 'TimeUS' ends at byte 11, past the 7 bytes"):
+        _columns(r, "X")
+
+
+def test_an_unknown_message_type_mid_log_is_refused_naming_the_byte(sweep, tmp_path, capsys):
+    path, t_us = _log(tmp_path / "f.bin", sweep)
+    raw = bytearray(path.read_bytes())
+    # the type byte of a RATE message about halfway through, flipped to a type no FMT describes
+    rate = b"\xa3\x95\x82" + struct.pack("<Q", int(t_us[t_us.size // 2]))
+    at = raw.find(rate)
+    assert at > 0
+    raw[at + 2] = 0x7F
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(InvalidDataError, match=rf"a damaged DataFlash log: at byte {at} of {len(raw)}, a message of "
+                                               r"type 127, which no FMT describes") as e:
+        read_dataflash(bad, {"input": "RATE.ROut", "output": "RATE.R"})
+    assert f"the {len(raw) - at} bytes from there" in str(e.value)
+    assert main(["identify", str(bad), "--input", "RATE.ROut", "--output", "RATE.R", "--poles", "2"]) == 2
+    assert "no FMT describes" in capsys.readouterr().err
+    # the same in the log's last few bytes is its end: read, and said
+    raw = bytearray(path.read_bytes())
+    last = raw.rfind(b"\xa3\x95\x82")
+    raw[last + 2] = 0x7F
+    tail = tmp_path / "tail.bin"
+    tail.write_bytes(bytes(raw))
+    rec = read_dataflash(tail, {"input": "RATE.ROut", "output": "RATE.R"})
+    assert any(f"last {len(raw) - last} bytes (from byte {last}) hold no whole message" in n
+               for n in rec.flight["notes"])
+
+
+@pytest.mark.parametrize(("arm_state", "ev", "until_s"), [
+    ([50.0], [], 50.0),  # ARM: a disarm first (logging began armed), no take-off or landing events
+    (None, [(50.0, 11)], 50.0),  # no ARM, EV 11 DISARMED first
+    ([50.0], [(40.0, 18)], 40.0),  # a landing first: the log began in the air
+])
+def test_a_log_that_begins_armed_is_read_from_its_start(sweep, tmp_path, arm_state, ev, until_s):
+    t_us = (T0 + np.round(sweep.t * 1e6)).astype(np.int64)
+    msgs = [rate_message(t_us, sweep.r, sweep.y, sweep.u), parameters(AP_PARAMS), modes([(T0 - 600_000, 1)])]
+    if arm_state is not None:
+        msgs.append(arm([(T0 + int(s * 1e6), 0) for s in arm_state]))
+    if ev:
+        msgs.append(events([(T0 + int(s * 1e6), i) for s, i in ev]))
+    path = write_dataflash(tmp_path / "f.bin", msgs)
+    rec = read_dataflash(path, {"input": "RATE.ROut", "output": "RATE.R"})
+    t = t_us * 1e-6
+    sel = t <= T0 * 1e-6 + until_s + 1e-9  # from the first sample (the log's start) to the disarm or landing
+    n = rec.inputs[0].size
+    assert abs(n - sel.sum()) <= 1
+    np.testing.assert_allclose(rec.inputs[0], sweep.u.astype(np.float32)[sel][:n], rtol=0, atol=0)
+
+
+def test_overlapping_exogenous_stretches_are_merged():
+    from types import SimpleNamespace
+
+    from tuner.identify.flight import intersect, px4_flight, total
+
+    def topic(name, t_s, **fields):
+        data = {"timestamp": np.asarray(t_s, dtype=float) * 1e6} | {k: np.asarray(v) for k, v in fields.items()}
+        return SimpleNamespace(name=name, multi_id=0, data=data)
+
+    # armed from 0.5 s; acro from 1 to 6 s, the autotune's excitation from 1 to 5 s: together 1-6 s, 5 s of 9
+    ul = SimpleNamespace(data_list=[
+        topic("actuator_armed", [0.5], armed=[1]),
+        topic("vehicle_control_mode", [0.5, 1.0, 6.0], flag_control_rates_enabled=[1, 1, 1],
+              flag_control_attitude_enabled=[1, 0, 1]),
+        topic("autotune_attitude_control_status", [0.5, 1.0, 5.0], state=[0, 2, 0])])
+    f = px4_flight(ul, 10.0)
+    assert f.exogenous == [(1.0, 6.0)]
+    assert total(intersect([(1.0, 10.0)], f.exogenous)) == pytest.approx(5.0)
+    from tuner.identify.flight import union
+
+    assert union([(0, 2), (5, 6)], [(1, 3), (3, 4)]) == [(0, 4), (5, 6)]

@@ -10,7 +10,9 @@ flight's stretches are those of a ULog (:func:`tuner.identify.ulog.on_grid`). Wh
 
 Bounded like the ULog reader (issue 42): pymavlink's index pass (``DFReader_binary.init_arrays``) steps one byte at
 a time over bytes that hold no message, writing a line for each; a run of :data:`CORRUPT_SPAN_BYTES` such bytes, or
-more than :data:`MAX_BAD_SHARE` of the file, stops it at once and the log is refused as damaged, naming the bytes.
+more than :data:`MAX_BAD_SHARE` of the file, stops it at once and the log is refused as damaged, naming the bytes;
+so does a FMT whose Length is not its format's size (pymavlink would step by it, by 0 for ever), and a message type
+no FMT describes (where pymavlink stops reading) more than :data:`TAIL_BYTES` before the end (nearer, it is noted).
 Fields are taken from the file with numpy at the offsets pymavlink indexed (one array per field, not one Python
 object per message): memory stays within a few times the file's size.
 """
@@ -21,6 +23,7 @@ import contextlib
 import io
 import math
 import re
+import struct
 import tempfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -39,6 +42,11 @@ MAX_DATAFLASH_BYTES = 2_000_000_000
 CORRUPT_SPAN_BYTES = 1 << 16
 MAX_BAD_SHARE = 0.25
 _BAD = re.compile(r"bad header (?:0x[0-9a-f]+ ?)+at (\d+)")
+#: pymavlink's line for a message type no FMT described, where its index pass stops reading the log
+_UNKNOWN = re.compile(r"unknown msg type 0x[0-9a-f]+ \((\d+)\) at (\d+)")
+#: an unknown message type this close to the end is the end of the log (pymavlink's own allowance for a block
+#: log's last page, LogStructure's 256-byte pages less their header, is 528 bytes)
+TAIL_BYTES = 528
 #: DataFlash format characters -> numpy dtypes and multipliers (pymavlink DFReader.FORMAT_TO_STRUCT)
 _NP = {"b": ("<i1", None), "B": ("<u1", None), "h": ("<i2", None), "H": ("<u2", None), "i": ("<i4", None),
        "I": ("<u4", None), "f": ("<f4", None), "d": ("<f8", None), "g": ("<f2", None), "c": ("<i2", 0.01),
@@ -64,14 +72,33 @@ class _Damaged(Exception):
         self.start, self.end = start, end
 
 
+class _Cut(Exception):
+    """pymavlink met a message type no FMT described at ``at`` and stopped indexing there."""
+
+    def __init__(self, mtype: int, at: int) -> None:
+        super().__init__(mtype, at)
+        self.mtype, self.at = mtype, at
+
+
+class _BadFormat(Exception):
+    """A FMT message whose Length is not the size of its format."""
+
+
 class _Watch(io.TextIOBase):
     """pymavlink's stderr while it indexes: counts the bytes it steps over (its "bad header ... at N" lines) and
-    stops it (:class:`_Damaged`) on a run of CORRUPT_SPAN_BYTES of them, or beyond MAX_BAD_SHARE of the file."""
+    stops it (:class:`_Damaged`) on a run of CORRUPT_SPAN_BYTES of them, or beyond MAX_BAD_SHARE of the file; a
+    message type no FMT described (its "unknown msg type ... at N" line, where it stops reading) more than
+    :data:`TAIL_BYTES` before the end stops it too (:class:`_Cut`); nearer the end, the bytes not read are noted
+    (:func:`_unread`)."""
 
     def __init__(self, size: int) -> None:
         self.size, self.bad, self.run_start, self.last = size, 0, -2, -2
 
     def write(self, text: str) -> int:
+        for m in _UNKNOWN.finditer(text):
+            mtype, at = int(m.group(1)), int(m.group(2))
+            if self.size - at > TAIL_BYTES:
+                raise _Cut(mtype, at)
         for m in _BAD.finditer(text):
             at = int(m.group(1))
             self.bad += 1
@@ -107,12 +134,36 @@ def _path_of(src: str | Path | bytes) -> Iterator[tuple[str, str]]:
     yield str(src), str(src)
 
 
+class _Formats(dict):  # type: ignore[type-arg]
+    """pymavlink's formats by message type, each FMT checked as pymavlink's index pass adds it: its Length must be the
+    3 header bytes and its fields' size, or pymavlink steps by a wrong length (by 0 for ever) and the fields would be
+    read from the next message's bytes."""
+
+    def __setitem__(self, mtype: int, fmt: Any) -> None:
+        try:
+            size = 3 + struct.calcsize(fmt.msg_struct)
+        except struct.error as e:
+            raise _BadFormat(f"the FMT of message type {mtype} ({fmt.name!r}) has format {fmt.format!r}: {e}") from None
+        if fmt.len != size:
+            raise _BadFormat(f"the FMT of message type {mtype} ({fmt.name!r}) declares a Length of {fmt.len} bytes, "
+                             f"but its format {fmt.format!r} takes {size} (3 header bytes and its fields)")
+        super().__setitem__(mtype, fmt)
+
+
 def _indexed_class() -> Any:
     from pymavlink.DFReader import DFReader_binary
 
     class Indexed(DFReader_binary):  # type: ignore[misc]
         """pymavlink's reader, indexed only: its clock (``init_clock``) is not worked out, since the fields are read
-        with their own TimeUS; on a log without GPS time it parses every message in Python (20 s for 43 MB)."""
+        with their own TimeUS; on a log without GPS time it parses every message in Python (20 s for 43 MB). Every
+        FMT is checked before pymavlink uses it (:class:`_Formats`)."""
+
+        def init_arrays(self, progress_callback: Any = None) -> None:
+            self.formats = _Formats(self.formats)
+            super().init_arrays(progress_callback=progress_callback)
+
+        def init_arrays_fast(self, progress_callback: Any = None) -> None:  # never asked for (_python_indexer)
+            self.init_arrays(progress_callback=progress_callback)
 
         def init_clock(self) -> None:
             self.clock = None
@@ -159,15 +210,34 @@ def _open(src: str | Path | bytes) -> Iterator[tuple[Any, str]]:
         except _Damaged as e:
             raise InvalidDataError(f"{name}: a damaged DataFlash log: no readable message in bytes {e.start}-{e.end} "
                                    f"({watch.bad} bytes stepped over); it is not read further", field="file") from None
+        except _Cut as e:
+            raise InvalidDataError(f"{name}: a damaged DataFlash log: at byte {e.at} of {size}, a message of type "
+                                   f"{e.mtype}, which no FMT describes (a damaged byte?); the {size - e.at} bytes from "
+                                   "there would not be read", field="file") from None
+        except _BadFormat as e:
+            raise InvalidDataError(f"{name}: a damaged DataFlash log: {e}", field="file") from None
         except Exception as e:  # pymavlink's own errors for a file it cannot parse
             raise InvalidDataError(f"{name}: not a readable DataFlash log ({type(e).__name__}: {e})",
                                    field="file") from None
+        r.tuner_notes = _unread(r, size)
         try:
             yield r, name
         finally:
             with contextlib.suppress(Exception):
                 r.data_map.close()
                 r.filehandle.close()
+
+
+def _unread(r: Any, size: int) -> list[str]:
+    """A note of the log's last bytes that hold no whole message pymavlink indexed (its index pass stops without a
+    word at a message type no FMT describes, or a message cut short, in the last :data:`TAIL_BYTES`), or none."""
+    end = max((offs[-1] + r.formats[t].len for t, offs in enumerate(r.offsets) if offs and t in r.formats),
+              default=0)
+    end = min(end, size)
+    if end >= size:
+        return []
+    return [f"the log's last {size - end} bytes (from byte {end}) hold no whole message of a type the log describes: "
+            "they are not read"]
 
 
 def _columns(r: Any, name: str, fields: list[str] | None = None) -> dict[str, np.ndarray]:
@@ -187,6 +257,9 @@ def _columns(r: Any, name: str, fields: list[str] | None = None) -> dict[str, np
             raise InvalidDataError(f"message {name}: format character {ch!r} is not a DataFlash type", field="file")
         dt, mult = _NP[ch]
         width = np.dtype(dt).itemsize
+        if pos + width > fmt.len:
+            raise InvalidDataError(f"a damaged DataFlash log: message {name}'s field {col!r} ends at byte "
+                                   f"{pos + width}, past the {fmt.len} bytes its FMT declares", field="file")
         if fields is None or col in fields:
             idx = offs[:, None] + (pos + np.arange(width))[None, :]
             raw = buf[idx].copy().view(dt).reshape(-1)
@@ -268,10 +341,19 @@ def _vehicle(r: Any) -> str:
 
 def ardupilot_flight(r: Any, t_end: float) -> Any:
     """What an ArduPilot log says was flown (:class:`tuner.identify.flight.Flight`)."""
-    from .flight import COPTER_ACRO, COPTER_MODES, COPTER_SYSTEMID, Flight, intersect, steps_to_intervals
+    from .flight import COPTER_ACRO, COPTER_MODES, COPTER_SYSTEMID, Flight, intersect, steps_to_intervals, union
 
     def ts(d: Mapping[str, np.ndarray]) -> np.ndarray:
         return np.asarray(d["TimeUS"], dtype=np.float64) * 1e-6
+
+    def from_start(t: np.ndarray, on: np.ndarray) -> Any:
+        """A state's intervals from the log's start: before its first record it was the opposite of what that
+        record says (a record is written when the state changes: a log that begins armed or in the air has a disarm
+        or a landing first)."""
+        on = np.asarray(on, dtype=bool)
+        if t[0] <= 0:
+            return steps_to_intervals(t, on, t_end)
+        return steps_to_intervals(np.r_[0.0, t], np.r_[not on[0], on], t_end)
 
     arm, ev, mode = (_columns(r, n) for n in ("ARM", "EV", "MODE"))
     seen: list[str] = []
@@ -280,16 +362,16 @@ def ardupilot_flight(r: Any, t_end: float) -> Any:
     evid = ev["Id"].astype(int) if ev and "Id" in ev and "TimeUS" in ev else np.zeros(0, dtype=int)
     evt = ts(ev) if evid.size else np.zeros(0)
     if arm and "ArmState" in arm and "TimeUS" in arm and arm["ArmState"].size:
-        armed = steps_to_intervals(np.r_[0.0, ts(arm)], np.r_[False, arm["ArmState"] != 0], t_end)
+        armed = from_start(ts(arm), arm["ArmState"] != 0)
         seen.append(f"ARM.ArmState {sorted(set(arm['ArmState'].astype(int).tolist()))}")
     elif np.isin(evid, (10, 11)).any():
         sel = np.isin(evid, (10, 11))
-        armed = steps_to_intervals(np.r_[0.0, evt[sel]], np.r_[False, evid[sel] == 10], t_end)
+        armed = from_start(evt[sel], evid[sel] == 10)
     if evid.size:
         seen.append(f"events {sorted(set(evid.tolist()))} (10 armed, 11 disarmed, 18 landed, 28 took off)")
     sel = np.isin(evid, (18, 28))
-    air = (steps_to_intervals(np.r_[0.0, evt[sel]], np.r_[False, evid[sel] == 28], t_end) if sel.any()
-           else None)  # the vehicle starts on the ground (ArduCopter's land_complete is set at boot)
+    # the vehicle starts on the ground (ArduCopter's land_complete is set at boot), unless logging began in the air
+    air = from_start(evt[sel], evid[sel] == 28) if sel.any() else None
     if armed is None and air is None:
         return Flight("ardupilot", None, notes=["the log records no arming (no ARM message, no EV 10/11) and no "
                                                 "take-off: every stretch is taken as flown"], seen="; ".join(seen))
@@ -314,7 +396,7 @@ def ardupilot_flight(r: Any, t_end: float) -> Any:
             mt = np.r_[0.0, ts(mode)]
             rate = steps_to_intervals(mt, np.r_[False, num == COPTER_ACRO], t_end)
             sid = steps_to_intervals(mt, np.r_[False, num == COPTER_SYSTEMID], t_end)
-            exo = sorted(rate + sid)
+            exo = union(rate, sid)
             why = " and ".join(w for w, iv in (("a rate (ACRO) mode", rate), ("SystemID mode's injected chirp", sid))
                                if iv)
     return Flight("ardupilot", flown, exogenous=exo, exogenous_why=why, modes=modes, seen="; ".join(seen),
@@ -337,6 +419,7 @@ def read_dataflash(src: str | Path | bytes, columns: Mapping[str, str], *, rate_
         params = _parameters(r)
         t_end = max(u[0][-1], y[0][-1])
         flight = ardupilot_flight(r, t_end)
+        flight.notes.extend(r.tuner_notes)
     return on_grid(u, y, ref, columns, rate_hz=rate_hz, t0=0.0, dropouts=[], flight=lambda _t: flight, name=name,
                    parameters=params)
 

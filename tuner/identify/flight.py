@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Flight", "intersect", "steps_to_intervals", "px4_flight", "what_to_fly", "setpoint_reference",
+__all__ = ["Flight", "intersect", "steps_to_intervals", "union", "px4_flight", "what_to_fly", "setpoint_reference",
            "PX4_NAV_STATES", "COPTER_MODES"]
 
 Intervals = list[tuple[float, float]]
@@ -105,6 +105,24 @@ def intersect(a: Sequence[tuple[float, float]], b: Sequence[tuple[float, float]]
     return out
 
 
+def union(*ivs: Sequence[tuple[float, float]]) -> Intervals:
+    """The union of lists of intervals, as one sorted list of disjoint intervals (what :func:`intersect` takes):
+    overlapping or touching intervals merged.
+
+    Examples
+    --------
+    >>> union([(1, 6)], [(1, 5), (7, 8)], [(8, 9)])
+    [(1, 6), (7, 9)]
+    """
+    out: Intervals = []
+    for a, b in sorted(iv for x in ivs for iv in x):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
 def total(iv: Sequence[tuple[float, float]]) -> float:
     """The summed length of intervals."""
     return float(sum(b - a for a, b in iv))
@@ -178,7 +196,7 @@ def px4_flight(ul: Any, t_end: float) -> Flight:
     if at is not None and "state" in at:
         tune = steps_to_intervals(at["_t"], at["state"] != 0, t_end)
         if tune:
-            exo = sorted(exo + tune)
+            exo = union(exo, tune)
             why = (why + " and " if why else "") + "PX4's autotune excitation"
     return Flight("px4", flown, exogenous=exo, exogenous_why=why, modes=modes, seen="; ".join(seen), notes=notes)
 
