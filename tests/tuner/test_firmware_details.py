@@ -213,8 +213,12 @@ def test_px4_loop_rate_is_the_gyros_not_the_cap(tmp_path):
     assert at_250 == pytest.approx(_phase_margin(px4_law, g, 1 / 250, ROLL_PLANT), abs=0.05)
     assert at_800 == pytest.approx(_phase_margin(px4_law, g, 1 / 800, ROLL_PLANT), abs=0.05)
     assert at_800 - at_250 > 3  # (80.6 -> 75.4 deg)
-    above = read_params(_imu_log(tmp_path / "b.ulg", 1000.0, PX4_LOG_PARAMS | {"IMU_GYRO_RATEMAX": 400}))
-    assert above.loop_hz == 400.0 and "at most at the cap" in above.loop_source
+    # above the cap, VehicleAngularVelocity publishes every roundf(gyro / cap) samples (UpdateSampleRate): 1 kHz under
+    # 400 every 3rd (333 Hz), 2 kHz under 800 every 3rd (667 Hz), 1 kHz under 800 every one (1 kHz: above the "cap")
+    for gyro, cap, every in ((1000.0, 400, 3), (2000.0, 800, 3), (1000.0, 800, 1), (1200.0, 800, 2)):
+        above = read_params(_imu_log(tmp_path / f"b{gyro:g}_{cap}.ulg", gyro,
+                                     PX4_LOG_PARAMS | {"IMU_GYRO_RATEMAX": cap}))
+        assert above.loop_hz == pytest.approx(gyro / every), (gyro, cap)
     old = dict(PX4_LOG_PARAMS)
     del old["IMU_GYRO_RATEMAX"]
     v = read_params(_imu_log(tmp_path / "c.ulg", 250.0, old, topic="sensor_combined"))
@@ -230,6 +234,9 @@ def test_ardupilot_fast_rate_thread(tmp_path):
     assert vehicle_from_text(base).loop_hz == 400.0
     v = vehicle_from_text(base + "FSTRATE_ENABLE,3\nFSTRATE_DIV,2\nINS_GYRO_RATE,1\n")
     assert v.loop_hz == 1000.0 and "FSTRATE_DIV 2" in v.loop_source  # 2 kHz / 2
+    for bad in ("1e12", "4", "1.5", "-1"):  # (1000 * 2**int(1e12) held the reader for good)
+        with pytest.raises(TunerError, match="INS_GYRO_RATE"):
+            vehicle_from_text(base + f"FSTRATE_ENABLE,1\nINS_GYRO_RATE,{bad}\n")
     v = vehicle_from_text(base + "FSTRATE_ENABLE,1\n")
     assert v.loop_hz is None and any("INS_GYRO_RATE" in n for n in v.notes)
     with pytest.raises(TunerError, match="give dt"):

@@ -229,7 +229,7 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     fixed = {k: get(k, v) for k, v in defaults.items()}
     if fw == "ardupilot":
         notes += _ardupilot_unmodelled(raw, axis, source, field)
-    loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes)
+    loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes, field)
     notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
@@ -265,14 +265,17 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
 
 
 def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], source: str,
-               log: Mapping[str, Any] | None, notes: list[str]) -> tuple[float | None, str]:
+               log: Mapping[str, Any] | None, notes: list[str], fld: str) -> tuple[float | None, str]:
     """The rate loop's rate and where it came from, in words.
 
     * PX4: ``MulticopterRateControl::Run`` runs on every ``vehicle_angular_velocity``, which the gyro drives and
-      ``VehicleAngularVelocity`` publishes at most at ``IMU_GYRO_RATEMAX`` (a cap, "maximum publication rate",
-      ``imu_gyro_parameters.c``). A log's ``vehicle_imu_status.gyro_rate_hz`` is the gyro's rate: the loop's when it
-      is below the cap; above it, the loop runs at most at the cap (taken, and said). The parameter alone is a
-      stated fallback.
+      ``VehicleAngularVelocity`` publishes from ``IMU_GYRO_RATEMAX`` ("maximum publication rate",
+      ``imu_gyro_parameters.c``): every ``samples = roundf(gyro_rate / RATEMAX)`` (at least 1) gyro publications
+      (``VehicleAngularVelocity::UpdateSampleRate``, ``src/modules/sensors/vehicle_angular_velocity/``, PX4-Autopilot
+      main: ``set_required_updates(samples)`` and a minimum interval of ``1/RATEMAX - 1/(2 gyro_rate)``), so the loop
+      runs at ``gyro_rate / samples``: a 2 kHz gyro under a cap of 800 at 667 Hz, a 1 kHz one at 1 kHz (above the
+      "cap"). A log's ``vehicle_imu_status.gyro_rate_hz`` gives the gyro's rate (taken as its publication rate: a
+      FIFO driver that publishes in batches runs the loop slower, said). The parameter alone is a stated fallback.
     * ArduPilot: ``SCHED_LOOP_RATE``; with the fast-rate thread (``FSTRATE_ENABLE`` > 0, ArduCopter
       ``Parameters.cpp``: "the actual rate is the gyro rate in Hz divided by" ``FSTRATE_DIV``) the gyro's rate
       ``INS_GYRO_RATE`` (0: 1 kHz, 1: 2 kHz, 2: 4 kHz, 3: 8 kHz, ``AP_InertialSensor.cpp``) over ``FSTRATE_DIV``.
@@ -285,10 +288,13 @@ def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], sour
             where = f"vehicle_imu_status.gyro_rate_hz in {source}"
             if cap is None or cap <= 0:
                 return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}; no {name} cap in it)"
-            if gyro <= cap:
-                return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}), below the cap {name} {cap:g}"
-            return float(cap), (f"{name} {cap:g} Hz in {source}, the cap on the gyro's rate {gyro:.1f} Hz ({where}): "
-                                "the loop runs at most at the cap")
+            samples = max(1, math.floor(gyro / cap + 0.5))  # roundf: half away from zero (both positive here)
+            if samples == 1:
+                return float(round(gyro)), (f"the gyro's rate {gyro:.1f} Hz ({where}), every sample published under "
+                                            f"the cap {name} {cap:g}")
+            return float(gyro / samples), (f"the gyro's rate {gyro:.1f} Hz ({where}) over {samples}: "
+                                           f"VehicleAngularVelocity publishes every {samples} samples under {name} "
+                                           f"{cap:g} (a FIFO gyro that publishes in batches runs the loop slower)")
         logged = (log or {}).get("logged_gyro_hz")
         if cap is None and logged:
             notes.append(f"{name} not in {source} (older firmware): the loop rate is taken from the log's timing")
@@ -306,7 +312,11 @@ def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], sour
                 notes.append(f"FSTRATE_ENABLE = {fast:g}: the rate loop runs in the fast-rate thread at the gyro's "
                              "rate over FSTRATE_DIV, and INS_GYRO_RATE is not in the file: give dt")
                 return None, ""
-            gyro_hz = 1000.0 * 2 ** int(raw["INS_GYRO_RATE"])
+            code = raw["INS_GYRO_RATE"]
+            if code not in (0, 1, 2, 3):  # (AP_InertialSensor.cpp: 0: 1 kHz, 1: 2 kHz, 2: 4 kHz, 3: 8 kHz)
+                raise TunerError(f"{source}: INS_GYRO_RATE = {code:g} is not one of ArduPilot's gyro rates (0: 1 kHz, "
+                                 "1: 2 kHz, 2: 4 kHz, 3: 8 kHz): correct the file", field=fld)
+            gyro_hz = 1000.0 * 2 ** int(code)
             div = max(1.0, float(raw.get("FSTRATE_DIV", 1.0)))
             how = ("a dynamic divisor from FSTRATE_DIV up: at most this rate" if fast == 1 else "a fixed divisor")
             return gyro_hz / div, (f"the fast-rate thread (FSTRATE_ENABLE {fast:g}, {how}): INS_GYRO_RATE "
