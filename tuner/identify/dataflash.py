@@ -269,7 +269,7 @@ def _columns(r: Any, name: str, fields: list[str] | None = None) -> dict[str, np
 
 
 def _series(r: Any, role: str, spec: str) -> tuple[np.ndarray, np.ndarray]:
-    from .ulog import parse_signal
+    from .ulog import parse_signal, timed_samples
 
     msg, inst, fld = parse_signal(spec, role)
     if msg not in r.name_to_id or not r.counts[r.name_to_id[msg]]:
@@ -299,19 +299,7 @@ def _series(r: Any, role: str, spec: str) -> tuple[np.ndarray, np.ndarray]:
     elif inst:
         raise InvalidDataError(f"{role} {spec!r}: message {msg!r} has no instances (name it {msg}.{fld})",
                                field=role)
-    keep = t > 0
-    t, x = t[keep], x[keep]
-    if t.size < 2:
-        raise InvalidDataError(f"{role} {spec!r}: {t.size} samples in the log", field=role)
-    order = np.argsort(t, kind="stable")
-    t, x = t[order], x[order]
-    last = np.r_[t[1:] != t[:-1], True]
-    t, x = t[last], x[last]
-    bad = np.flatnonzero(~np.isfinite(x))
-    if bad.size:
-        raise InvalidDataError(f"{role} {spec!r}: {bad.size} non-finite samples (first at {t[bad[0]]:.6f} s); "
-                               "remove or interpolate them", field=role)
-    return t, x
+    return timed_samples(t, x, role, spec)
 
 
 def _parameters(r: Any) -> dict[str, float]:

@@ -358,7 +358,14 @@ def _series(ul: Any, src: Any, role: str, spec: str) -> tuple[np.ndarray, np.nda
     clock = "timestamp_sample" if role == "output" and "timestamp_sample" in data.data else "timestamp"
     t = np.asarray(data.data[clock], dtype=np.float64) * 1e-6
     x = np.asarray(data.data[fld], dtype=np.float64)
-    keep = t > 0  # pyulog's convention: a zero timestamp is not a sample
+    return timed_samples(t, x, role, spec)
+
+
+def timed_samples(t: np.ndarray, x: np.ndarray, role: str, spec: str) -> tuple[np.ndarray, np.ndarray]:
+    """A logged signal's samples in time order (a log's or a DataFlash log's): a zero timestamp is no sample
+    (pyulog's convention), a repeated timestamp keeps its last value, a non-finite value is refused naming the
+    signal (``role``: its field)."""
+    keep = t > 0
     t, x = t[keep], x[keep]
     if t.size < 2:
         raise InvalidDataError(f"{role} {spec!r}: {t.size} samples in the log", field=role)

@@ -59,6 +59,23 @@ def _mod(a, b):
 
 
 @nb.njit(**_JIT)
+def _crossing(L, b, c, lm, ph, shift):
+    """The gain crossing of row ``b`` between grid points ``c`` and ``c + 1`` (linear in L): its fraction along the
+    interval and its phase margin, signed by the unwrapped phase ``ph`` (less ``shift``) within +-180 deg, else the
+    distance from -1 (as ``tuner.optimize.batch._frequency_metrics``)."""
+    f = lm[c] / (lm[c] - lm[c + 1])
+    Lc = L[b, c] + f * (L[b, c + 1] - L[b, c])
+    pmv = 180.0 - abs(math.degrees(math.atan2(Lc.imag, Lc.real)))
+    p0c = ph[c] - shift
+    pc = p0c + f * ((ph[c + 1] - shift) - p0c)
+    signed = 180.0 + math.degrees(pc)
+    if math.isfinite(signed) and -180.0 <= signed <= 180.0 and \
+            abs(abs(_mod(signed + 180.0, 360.0) - 180.0) - pmv) < 1e-3:
+        pmv = signed
+    return f, pmv
+
+
+@nb.njit(**_JIT)
 def margins(L, lw, ends):
     """Per row of ``L`` (B, W) on the log grid ``lw``: the phase margin (signed as the verifier's: 180 + the phase
     unwrapped along the grid, within +-180, else the distance), its crossover, the upper and lower gain margins (dB)
@@ -103,30 +120,14 @@ def margins(L, lw, ends):
             for c in range(W - 1):
                 if not (lm[c] * lm[c + 1] < 0 and math.isfinite(lm[c]) and math.isfinite(lm[c + 1])):
                     continue
-                f = lm[c] / (lm[c] - lm[c + 1])
-                Lc = L[b, c] + f * (L[b, c + 1] - L[b, c])
-                pmv = 180.0 - abs(math.degrees(math.atan2(Lc.imag, Lc.real)))
-                p0c = ph[c] - shift
-                pc = p0c + f * ((ph[c + 1] - shift) - p0c)
-                signed = 180.0 + math.degrees(pc)
-                if math.isfinite(signed) and -180.0 <= signed <= 180.0 and \
-                        abs(abs(_mod(signed + 180.0, 360.0) - 180.0) - pmv) < 1e-3:
-                    pmv = signed
+                f, pmv = _crossing(L, b, c, lm, ph, shift)
                 if not math.isnan(pm[b]) and (math.isnan(pmv) or pmv < pm[b]):  # np.minimum: nan sticks
                     pm[b] = pmv
             # the crossover: the last crossing whose margin is the row's
             for c in range(W - 1):
                 if not (lm[c] * lm[c + 1] < 0 and math.isfinite(lm[c]) and math.isfinite(lm[c + 1])):
                     continue
-                f = lm[c] / (lm[c] - lm[c + 1])
-                Lc = L[b, c] + f * (L[b, c + 1] - L[b, c])
-                pmv = 180.0 - abs(math.degrees(math.atan2(Lc.imag, Lc.real)))
-                p0c = ph[c] - shift
-                pc = p0c + f * ((ph[c + 1] - shift) - p0c)
-                signed = 180.0 + math.degrees(pc)
-                if math.isfinite(signed) and -180.0 <= signed <= 180.0 and \
-                        abs(abs(_mod(signed + 180.0, 360.0) - 180.0) - pmv) < 1e-3:
-                    pmv = signed
+                f, pmv = _crossing(L, b, c, lm, ph, shift)
                 if pmv == pm[b]:
                     wc[b] = math.exp(lw[c] + f * (lw[c + 1] - lw[c]))
         # real-axis crossings (finite, |L| < 1e9), then the ends
