@@ -35,7 +35,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
 from tune_speed import SpeedWorker, extract, load_average  # noqa: E402
-from warm_speed import LOOPS, write  # noqa: E402
+from warm_speed import LOOPS, alternate, write  # noqa: E402
 
 PX4 = ("200/((s+2)*(0.03*s+1))", "px4_rate", 0.0025, 0.006)
 ROLL = "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"
@@ -67,13 +67,8 @@ def warm(old: str, seeds: int) -> dict[str, Any]:
                 active = [n for n in workers if not (n == "old" and (effort != "default" or delay is not None))]
                 req = {"cmd": "tune_expr", "plant": expr, "structure": structure, "dt": dt, "effort": effort,
                        "time_budget_s": 10.0} | ({"delay": delay} if delay is not None else {})
-                for n in active:
-                    workers[n].call(seed=1000, **req)
-                runs: dict[str, list[dict]] = {n: [] for n in active}
                 load0 = load_average()
-                for seed in range(seeds):
-                    for n in active[seed % len(active):] + active[:seed % len(active)]:
-                        runs[n].append(workers[n].call(seed=seed, **req))
+                runs = alternate(workers, active, req, seeds)
                 row = {"loop": loop, "effort": effort, "load_start": load0, "load_end": load_average(),
                        "trees": {n: {"median_wall_ms": 1e3 * statistics.median(r["wall_s"] for r in rs),
                                      "median_cpu_ms": 1e3 * statistics.median(r["cpu_s"] for r in rs),

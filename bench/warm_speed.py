@@ -66,13 +66,8 @@ def measure(revs: list[str], seeds: int, loops: list[str] | None = None, budget:
                 active = [n for n in names if effort == "default" or efforts[n]]
                 req = {"cmd": "tune_expr", "plant": expr, "structure": structure, "dt": dt, "effort": effort,
                        "time_budget_s": budget}
-                for n in active:  # warm-up (imports, NLP builds)
-                    workers[n].call(seed=1000, **req)
-                runs: dict[str, list[dict]] = {n: [] for n in active}
                 load0 = load_average()
-                for seed in range(seeds):
-                    for n in active[seed % len(active):] + active[:seed % len(active)]:
-                        runs[n].append(workers[n].call(seed=seed, **req))
+                runs = alternate(workers, active, req, seeds)
                 row = {"loop": loop, "structure": structure, "dt": dt, "effort": effort, "load_start": load0,
                        "trees": {n: {"median_wall_ms": 1e3 * statistics.median(r["wall_s"] for r in rs),
                                      "median_cpu_ms": 1e3 * statistics.median(r["cpu_s"] for r in rs),
@@ -117,6 +112,18 @@ def markdown(res: dict[str, Any]) -> str:
                      + " | ".join(cell(n, "median_settling_s", "{:.4f}") for n in names) + " | "
                      + " | ".join(", ".join(t[n].get("claims", [])) if n in t else "—" for n in names) + " |")
     return "\n".join(lines) + "\n"
+
+
+def alternate(workers: dict[str, Any], active: list[str], req: dict[str, Any], seeds: int) -> dict[str, list[dict]]:
+    """Each active tree's runs of ``req`` at seeds 0..seeds-1, after one warm-up run each (imports, NLP builds),
+    the trees taking turns in a rotating order (so that a change in the machine's load falls on all of them)."""
+    for n in active:
+        workers[n].call(seed=1000, **req)
+    runs: dict[str, list[dict]] = {n: [] for n in active}
+    for seed in range(seeds):
+        for n in active[seed % len(active):] + active[:seed % len(active)]:
+            runs[n].append(workers[n].call(seed=seed, **req))
+    return runs
 
 
 def main() -> None:
