@@ -50,7 +50,9 @@ def test_qgroundcontrol_params(tmp_path):
     assert v.gains == pytest.approx({"P": 0.18, "I": 0.3, "D": 0.004, "FF": 0.0})
     assert v.fixed == pytest.approx({"K": 0.8, "dgyro_hz": 30.0, "int_lim": 0.4, "tq_hz": 0.0,  # (no yaw filter)
                                      "dgyro_order": 1.0, "raw_hz": 0.0})  # (no version, no raw rate: assumed)
-    assert v.gyro_cutoff_hz == 40.0 and v.att_p == 6.5 and v.notes == ()
+    assert v.gyro_cutoff_hz == 40.0 and v.att_p == 6.5
+    # a parameter file says neither the firmware's version nor the raw gyro rate: the D path's two assumptions
+    assert len(v.notes) == 2 and "first order" in v.notes[0] and "raw gyro rate is not in" in v.notes[1]
 
 
 def test_ardupilot_parm(tmp_path):
