@@ -262,3 +262,15 @@ def test_the_saturated_step_reads_the_flags_late(hz, every):
     same = _px4_flown(dt, n, every, True, 1.0, 0.3, g["P"], g["I"])
     np.testing.assert_allclose(s.response.y_samples, late, atol=1e-9)
     assert np.max(np.abs(late - same)) > 1e-3  # the timing matters here: the same sample's flags fly otherwise
+
+
+def test_the_parameter_file_header_says_the_d_path():
+    from tuner.export.paramfile import param_file
+
+    res = {"structure": "px4_rate", "controller": {"dt": 0.0025}, "meets_spec": True,
+           "gains": {"P": 0.127, "I": 0.21, "D": 0.0017, "FF": 0.0, "K": 0.9, "dgyro_hz": 30.0, "int_lim": 0.35}}
+    old, _ = param_file(res, "px4")  # a result written before the D path's generation was held
+    assert "first order (AlphaFilter" in old and "differenced at the loop rate" in old
+    res["gains"] |= {"dgyro_order": 2.0, "raw_hz": 8000.0}
+    new, _ = param_file(res, "px4")
+    assert "second order (LowPassFilter2p" in new and "every raw gyro sample at 8000 Hz" in new
