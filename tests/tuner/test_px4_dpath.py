@@ -274,3 +274,16 @@ def test_the_parameter_file_header_says_the_d_path():
     res["gains"] |= {"dgyro_order": 2.0, "raw_hz": 8000.0}
     new, _ = param_file(res, "px4")
     assert "second order (LowPassFilter2p" in new and "every raw gyro sample at 8000 Hz" in new
+
+
+@pytest.mark.parametrize("order, raw", [(1, 8000.0), (2, 8000.0), (2, 0.0)])
+def test_the_nlp_symbols_give_the_numbers(order, raw):
+    """The NLP evaluates the same coefficient formulas with dt a CasADi symbol (m = raw_hz dt is then one too)."""
+    import casadi as cs
+
+    st = get_structure("px4_rate").with_fixed({"dgyro_hz": 30.0, "dgyro_order": float(order), "raw_hz": raw})
+    x = [0.15, 0.2, 0.003, 0.01]
+    dt = cs.SX.sym("dt")
+    for sym, num in zip(st.coeffs(x, dt, cs.exp), st.coeffs(x, 1 / 400, np.exp)):
+        f = cs.Function("f", [dt], [cs.vertcat(*[cs.SX(c) for c in sym])])
+        np.testing.assert_allclose(np.asarray(f(1 / 400)).ravel(), np.asarray(num, float), rtol=1e-12, atol=1e-15)
