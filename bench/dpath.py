@@ -19,10 +19,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from h2h.airframes import AIRFRAMES  # noqa: E402
-from h2h.sim import lift  # noqa: E402
+from h2h.airframes import AIRFRAMES
+from h2h.sim import lift
 
-from tuner.controllers import get_structure  # noqa: E402
+from tuner.controllers import get_structure
 
 GENERATIONS = {"first order (AlphaFilter, 20 Hz)": (1, 20.0), "second order (LowPassFilter2p, 30 Hz)": (2, 30.0)}
 DEFAULTS = {"P": 0.15, "I": 0.2, "D": 0.003, "FF": 0.0}  # MC_ROLLRATE_P/I/D/FF (mc_rate_control_params)
@@ -75,6 +75,34 @@ def compare(af, order: int, dgyro_hz: float, gains: dict, n: int = 20000) -> dic
     return out
 
 
+def flags(af, step: float = 8.0, u_max: float = 0.4) -> dict:
+    """The saturated step of ``step`` rad/s with ``|u| <= u_max`` (the README's firmware bench figures) and PX4's
+    default gains on ``af``'s plant as the tuner models it: the flags as the allocator publishes them (the
+    saturation module) against this sample's own (what it simulated before: ``_PX4.flags_late = False``)."""
+    from tuner import analyze, controller_tf
+    from tuner.analysis import saturation
+    from tuner.analysis.saturation import Actuator
+
+    g = {**DEFAULTS, "K": af.start_scale, "dgyro_hz": 20.0, "int_lim": 0.3, "dgyro_order": 1.0, "raw_hz": af.raw_hz}
+    c = controller_tf("px4_rate", g, dt=af.dt)
+    act = Actuator.of(u_max=u_max, step_size=step)
+
+    class SameSample(saturation._PX4):
+        flags_late = False
+
+    out = {}
+    for name, cls in (("late", saturation._PX4), ("same", SameSample)):
+        saturation._PX4, orig = cls, saturation._PX4
+        try:
+            a = analyze(af.plant_tf("px4"), c, dt=af.dt, delay=af.delay_s, actuator=act, structure="px4_rate",
+                        gains=g)
+        finally:
+            saturation._PX4 = orig
+        s = a.saturated
+        out[name] = (s.metrics.overshoot_pct, s.metrics.settling_time_s, s.saturated_fraction)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--write", action="store_true", help="write bench/results/dpath_issue40.md")
@@ -98,6 +126,18 @@ def main() -> None:
     for gen, ww in worst.items():
         lines.append(f"- {gen}: largest |model - truth|: old PM {ww['old_pm']:.2f} deg, GM {ww['old_gm']:.2f} dB; "
                      f"new PM {ww['new_pm']:.2f} deg, GM {ww['new_gm']:.2f} dB")
+    lines += ["", "Saturation flags (a step of 8 rad/s with |u| <= 0.4, PX4's defaults, the first-order D path at the "
+              "raw rate; the saturated step of `tuner.analysis.saturation`): the flags as `ControlAllocator` publishes "
+              "them (every ceil(5 ms/dt) samples, read the sample after) against this sample's own (before).", "",
+              "| airframe | flag period (samples) | overshoot late / same, % | settling late / same, s | saturated "
+              "share late / same |", "|---|---|---|---|---|"]
+    from tuner.analysis.saturation import px4_flag_period
+
+    for af in AIRFRAMES.values():
+        r = flags(af)
+        (ol, sl, fl), (os_, ss, fs) = r["late"], r["same"]
+        lines.append(f"| {af.name} | {px4_flag_period(af.dt)} | {ol:.2f} / {os_:.2f} | {sl:.3f} / {ss:.3f} | "
+                     f"{fl:.3f} / {fs:.3f} |")
     text = "\n".join(lines)
     print(text)
     if args.write:

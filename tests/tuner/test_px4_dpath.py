@@ -184,7 +184,7 @@ def test_the_second_order_generation_flies_with_less_margin_than_the_loop_rate_l
 
 def test_the_first_order_generation_was_conservative_and_is_now_exact():
     r = _compare(1, 20.0)
-    (po, go), (pn, gn), (pt, gt) = r["old"], r["new"], r["truth"]
+    (po, _), (pn, gn), (pt, gt) = r["old"], r["new"], r["truth"]
     assert po < pt - 0.3  # the loop-rate law under-stated PM (the issue: 0.7-3.1 deg)
     assert pn == pytest.approx(pt, abs=0.1) and gn == pytest.approx(gt, abs=0.1)
 
@@ -225,7 +225,7 @@ def test_an_old_result_without_the_new_values_is_the_loop_rate_law():
 
 # -- the saturation flags as the allocator publishes them ----------------------------------------------------------
 
-def _px4_flown(dt: float, n: int, every: int, same_sample: bool, amp: float, lim: float, P: float, I: float
+def _px4_flown(dt: float, n: int, every: int, same_sample: bool, amp: float, lim: float, kp: float, ki: float
                ) -> np.ndarray:
     """PX4's law (no D, FF 0) on 5/(s + 1) at dt with |u| <= lim, flags published every ``every`` samples and read
     the sample after (or, ``same_sample``, this sample's), step of ``amp``: the sampled output."""
@@ -237,13 +237,13 @@ def _px4_flown(dt: float, n: int, every: int, same_sample: bool, amp: float, lim
     for k in range(n):
         y = x
         e = amp - y
-        v = K * P * e + xi
+        v = K * kp * e + xi
         u = min(max(v, -lim), lim)
         if same_sample:
             pos, neg = v > lim, v < -lim
         ei = min(e, 0.0) if pos else (max(e, 0.0) if neg else e)
         fade = max(0.0, 1.0 - (ei / math.radians(400.0)) ** 2)
-        xi = min(max(xi + fade * K * I * ei * dt, -int_lim), int_lim)
+        xi = min(max(xi + fade * K * ki * ei * dt, -int_lim), int_lim)
         if not same_sample and k % every == 0:
             pos, neg = v > lim, v < -lim
         ys.append(y)

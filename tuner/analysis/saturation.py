@@ -135,6 +135,10 @@ class SaturatedStep:
 # -- the laws, one sample per call: u = law(r, y) --------------------------------------------------------------
 
 class _PX4:
+    #: the saturation flags as the allocator delivers them (:func:`px4_flag_period`); False: this sample's own, what
+    #: this module simulated before issue 40 (``bench/dpath.py`` measures the difference)
+    flags_late = True
+
     def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
         self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
         self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
@@ -165,6 +169,8 @@ class _PX4:
         self.q += self.aq * (self.k * (self.p * e - self.d * yd) + self.xi + self.ff * r - self.q)
         v = self.q
         u = min(max(v, self.lo), self.hi)
+        if not self.flags_late:
+            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
         ei = e  # no growth into saturation, by the flags the law holds (the allocator's earlier run)
         if self.sat_pos:
             ei = min(ei, 0.0)
@@ -172,7 +178,7 @@ class _PX4:
             ei = max(ei, 0.0)
         fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
         self.xi = min(max(self.xi + fade * self.k * self.i * ei * self.dt, -self.lim), self.lim)
-        if self.k_sample % self.every == 0:  # the allocator publishes this sample's status; the law reads it next
+        if self.flags_late and self.k_sample % self.every == 0:  # published now: the law reads it next sample
             self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
         self.k_sample += 1
         return u, u != v
