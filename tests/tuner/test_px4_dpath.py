@@ -287,3 +287,12 @@ def test_the_nlp_symbols_give_the_numbers(order, raw):
     for sym, num in zip(st.coeffs(x, dt, cs.exp), st.coeffs(x, 1 / 400, np.exp)):
         f = cs.Function("f", [dt], [cs.vertcat(*[cs.SX(c) for c in sym])])
         np.testing.assert_allclose(np.asarray(f(1 / 400)).ravel(), np.asarray(num, float), rtol=1e-12, atol=1e-15)
+
+
+def test_firmware_without_the_raw_rate_d_path_keeps_the_loop_rate_law():
+    """v1.6 (pyulog's sample_appended_multiple.ulg says 0x01060000): no IMU_DGYRO_CUTOFF, no raw-rate D path."""
+    raw = {k: v for k, v in PX4_RAW.items() if k != "IMU_DGYRO_CUTOFF"}
+    v = vehicle_from_raw(raw, axis="roll", source="old.ulg", log={"ver_sw_release": 0x01060000,
+                                                                   "gyro_rate_hz": 1000.0})
+    assert v.fixed["dgyro_order"] == 1.0 and v.fixed["raw_hz"] == 0.0
+    assert any("before v1.11" in n for n in v.notes)

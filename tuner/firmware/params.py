@@ -231,7 +231,8 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
         notes += _ardupilot_unmodelled(raw, axis, source, field)
     loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes, field)
     if fw == "px4":
-        fixed.update(_px4_dpath(log, loop_hz, fixed["dgyro_hz"], source, notes))
+        fixed.update(_px4_dpath(log, loop_hz, fixed["dgyro_hz"] if names["dgyro_hz"] in raw else None, source,
+                                notes))
     notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
@@ -334,10 +335,14 @@ def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], sour
 PX4_ALPHA_DGYRO_RELEASE = (1, 13)
 
 
-def _px4_dpath(log: Mapping[str, Any] | None, loop_hz: float | None, dgyro_hz: float, source: str,
+def _px4_dpath(log: Mapping[str, Any] | None, loop_hz: float | None, dgyro_hz: float | None, source: str,
                notes: list[str]) -> dict[str, float]:
     """PX4's D path for :func:`tuner.firmware.laws.dgyro_filter`: ``dgyro_order`` and ``raw_hz``, with a note for
-    what was assumed.
+    what was assumed. ``dgyro_hz`` is the vehicle's ``IMU_DGYRO_CUTOFF``, None where its parameters lack it.
+
+    * Firmware without ``IMU_DGYRO_CUTOFF`` (before v1.11, which added ``vehicle_angular_acceleration``, PX4 PR
+      #14034) computes the D term in the rate controller at the loop rate: the loop-rate law (first order, the
+      loop rate), said; that generation's own D filter (``MC_DTERM_CUTOFF``) is not modelled.
 
     * The generation from the log's firmware version (``ver_sw_release``): releases before v1.13 filter the
       difference with a ``LowPassFilter2p`` (second order: v1.12 moved the D path onto the raw FIFO samples, PX4
@@ -352,6 +357,11 @@ def _px4_dpath(log: Mapping[str, Any] | None, loop_hz: float | None, dgyro_hz: f
     """
     log = log or {}
     rel = log.get("ver_sw_release")
+    if dgyro_hz is None:
+        notes.append(f"IMU_DGYRO_CUTOFF is not in {source} (PX4 before v1.11): the D term is taken as differenced and "
+                     "first-order filtered at the loop rate (that firmware computes it in the rate controller; its "
+                     "MC_DTERM_CUTOFF filter is not modelled)")
+        return {"dgyro_order": 1.0, "raw_hz": 0.0}
     if rel:
         major, minor, patch = (rel >> 24) & 0xFF, (rel >> 16) & 0xFF, (rel >> 8) & 0xFF
         order = 2.0 if (major, minor) < PX4_ALPHA_DGYRO_RELEASE else 1.0
