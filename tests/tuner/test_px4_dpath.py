@@ -296,3 +296,11 @@ def test_firmware_without_the_raw_rate_d_path_keeps_the_loop_rate_law():
                                                                    "gyro_rate_hz": 1000.0})
     assert v.fixed["dgyro_order"] == 1.0 and v.fixed["raw_hz"] == 0.0
     assert any("before v1.11" in n for n in v.notes)
+
+
+def test_a_generation_that_is_none_is_refused_by_name():
+    from tuner.errors import InvalidControllerError
+
+    with pytest.raises(InvalidControllerError, match="dgyro_order must be 1") as e:
+        controller_tf("px4_rate", {"P": 0.1, "I": 0.1, "D": 0.001, "FF": 0.0, "dgyro_order": 3.0}, dt=0.0025)
+    assert e.value.field == ("gains", "dgyro_order")

@@ -217,6 +217,8 @@ def dgyro_filter(fixed: dict[str, float], dt: Any) -> tuple[list, list]:
     if order not in (1, 2):
         raise ValueError(f"dgyro_order must be 1 or 2, got {fixed.get('dgyro_order')!r}")
     if raw > 0:
+        if f >= raw / 2:  # AlphaFilter::setCutoffFreq and LowPassFilter2p refuse it: no filtering
+            return [1, 0], [1, 0]
         m, dt_r = dt * raw, 1.0 / raw
     else:
         m, dt_r = 1, dt
