@@ -16,6 +16,11 @@ D term on the derivative of the measured rate through the D-gyro low-pass, gains
     C_fb(z) = K [P + I dt/(z - 1) + D a_d (z - 1)/(dt (z - (1 - a_d)))] H_q      acting on -w
     C_r(z)  = (K [P + I dt/(z - 1)] + FF) H_q                                    acting on w_sp
 
+where the D path ``a_d z/(z - (1 - a_d))`` is, in general, :func:`dgyro_filter`: the firmware differences and
+filters the rate on every raw gyro sample (``raw_hz``), first order (``AlphaFilter``) or, before v1.13, second order
+(``LowPassFilter2p``, ``dgyro_order`` 2), and the loop reads the last value; with ``raw_hz`` 0 (the loop rate) and
+first order it is the formula above.
+
 ``H_q`` is the output low-pass ``MulticopterRateControl::Run`` applies to the yaw torque after the law and before it
 publishes ``vehicle_torque_setpoint``: ``torque_setpoint(2) = _output_lpf_yaw.update(torque_setpoint(2), dt)``, an
 ``AlphaFilter`` (``y += a (x - y)``, ``a = dt/(dt + 1/(2 pi f))``) at ``_output_lpf_yaw.setCutoffFreq(
