@@ -7,8 +7,10 @@ what the integrator does then is the law's own. Here the law runs as it runs on 
 amplitude ``A`` (:class:`Actuator`):
 
 * ``px4_rate``: PX4's ``RateControl``: the integrator's update after the output, clamped to ``+-int_lim``, no
-  growth in the direction the output saturates (the allocator's saturation flags), and the fade
-  ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``, ``updateIntegral``);
+  growth in the direction the output saturates (the allocator's saturation flags, as they arrive: see
+  :func:`px4_flag_period`), and the fade ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``,
+  ``updateIntegral``); the D path as the firmware computes it at the raw gyro rate
+  (:func:`tuner.firmware.laws.dgyro_filter`);
 * ``ardupilot_rate``: ArduPilot's ``AC_PID``: the integrator updated before the output, clamped to ``+-IMAX``, and
   while the mixer reports a limit it only shrinks (``AC_PID::update_i`` with ``limit`` set);
 * ``pid2``: the law ``tuner export`` writes for it (conditional integration: the integral held while the unclamped
@@ -33,10 +35,32 @@ import numpy as np
 from ..errors import TunerError
 from .response import SAMPLES_PER_DT, StepMetrics, StepResponse, default_horizon, lifted_with_switch, step_metrics
 
-__all__ = ["Actuator", "SaturatedStep", "saturated_step", "MAX_SAT_SAMPLES"]
+__all__ = ["Actuator", "SaturatedStep", "saturated_step", "MAX_SAT_SAMPLES", "px4_flag_period"]
 
 MAX_SAT_SAMPLES = 200_000  # samples of one simulated step (the horizon is cut there, and said)
 _FADE_RAD_S = math.radians(400.0)  # PX4's integrator fade: the error at which the integration stops
+#: ControlAllocator::Run publishes control_allocator_status "at limited rate": ``if (now - _last_status_pub >= 5_ms)``
+#: (src/modules/control_allocator/ControlAllocator.cpp, PX4-Autopilot main 2023-2025)
+PX4_STATUS_INTERVAL_S = 5e-3
+
+
+def px4_flag_period(dt: float) -> int:
+    """Every how many rate-loop samples PX4's saturation flags are new: ``ceil(5 ms/dt)``.
+
+    ``ControlAllocator::Run`` runs on each torque setpoint, after the rate loop's sample, and publishes
+    ``control_allocator_status`` only when 5 ms have passed since its last publication (:data:`PX4_STATUS_INTERVAL_S`);
+    ``MulticopterRateControl::Run`` sets the flags (``unallocated_torque`` > 0: positive, < 0: negative) only when a
+    new status arrived (``_control_allocator_status_sub.update``) and keeps them otherwise. So at loop sample ``k``
+    the law uses the flags of the allocator's run at the last publication before ``k``: 1 to ``ceil(5 ms/dt)``
+    samples late (1-2 at 400 Hz and at 250 Hz, 1-5 at 1 kHz).
+
+    Examples
+    --------
+    >>> from tuner.analysis.saturation import px4_flag_period
+    >>> px4_flag_period(1 / 400), px4_flag_period(1 / 250), px4_flag_period(1 / 1000), px4_flag_period(0.01)
+    (2, 2, 5, 1)
+    """
+    return max(1, math.ceil(PX4_STATUS_INTERVAL_S / dt - 1e-9))
 
 
 @dataclass(frozen=True)
@@ -111,25 +135,52 @@ class SaturatedStep:
 # -- the laws, one sample per call: u = law(r, y) --------------------------------------------------------------
 
 class _PX4:
+    #: the saturation flags as the allocator delivers them (:func:`px4_flag_period`); False: this sample's own, what
+    #: this module simulated before issue 40 (``bench/dpath.py`` measures the difference)
+    flags_late = True
+
     def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
         self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
         self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
-        f, fq = g["dgyro_hz"], g.get("tq_hz", 0.0)
-        self.a = 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
+        fq = g.get("tq_hz", 0.0)
+        from ..firmware.laws import dgyro_filter
+
+        nd, qd = dgyro_filter(g, dt)  # the D path at the loop rate (the raw-rate filter decimated)
+        self.dn = [float(c) / float(qd[0]) for c in nd]
+        self.dq = [float(c) / float(qd[0]) for c in qd]
+        self.ds = [0.0] * (len(self.dq) - 1)  # its state (transposed direct form II)
         self.aq = 1.0 if fq <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * fq))  # the yaw torque low-pass
-        self.xi = self.y_prev = self.yd = self.q = 0.0
+        self.xi = self.y_prev = self.q = 0.0
+        self.every, self.k_sample = px4_flag_period(dt), 0
+        self.sat_pos = self.sat_neg = False  # the flags as the law holds them (the last status received)
+
+    def _dpath(self, x: float) -> float:
+        b, a, s = self.dn, self.dq, self.ds
+        out = b[0] * x + s[0]
+        for i in range(len(s)):
+            s[i] = b[i + 1] * x - a[i + 1] * out + (s[i + 1] if i + 1 < len(s) else 0.0)
+        return out
 
     def __call__(self, r: float, y: float) -> tuple[float, bool]:
         e = r - y
-        self.yd += self.a * ((y - self.y_prev) / self.dt - self.yd)
+        yd = self._dpath((y - self.y_prev) / self.dt)
         self.y_prev = y
         # the law's torque, then MulticopterRateControl's yaw low-pass (MC_YAW_TQ_CUTOFF) before the allocator clamps
-        self.q += self.aq * (self.k * (self.p * e - self.d * self.yd) + self.xi + self.ff * r - self.q)
+        self.q += self.aq * (self.k * (self.p * e - self.d * yd) + self.xi + self.ff * r - self.q)
         v = self.q
         u = min(max(v, self.lo), self.hi)
-        ei = 0.0 if (v > self.hi and e > 0) or (v < self.lo and e < 0) else e  # no growth into saturation
+        if not self.flags_late:
+            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
+        ei = e  # no growth into saturation, by the flags the law holds (the allocator's earlier run)
+        if self.sat_pos:
+            ei = min(ei, 0.0)
+        if self.sat_neg:
+            ei = max(ei, 0.0)
         fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
         self.xi = min(max(self.xi + fade * self.k * self.i * ei * self.dt, -self.lim), self.lim)
+        if self.flags_late and self.k_sample % self.every == 0:  # published now: the law reads it next sample
+            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
+        self.k_sample += 1
         return u, u != v
 
 

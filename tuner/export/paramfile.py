@@ -305,8 +305,12 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
             f"loop rate {loop_hz:g} Hz (dt {dt:g} s)" if loop_hz else "loop rate: not recorded"]
     if fw == "px4":
         tq = values.get("tq_hz", 0.0)
+        d_order, raw = values.get("dgyro_order", 1.0), values.get("raw_hz", 0.0)
         head.append(f"filters assumed: D-term low-pass IMU_DGYRO_CUTOFF {values['dgyro_hz']:g} Hz (not written: set it "
-                    "to this value)" + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
+                    "to this value), " + ("second order (LowPassFilter2p, PX4 before v1.13)" if d_order == 2 else
+                                          "first order (AlphaFilter, PX4 v1.13 and later)")
+                    + (f", on every raw gyro sample at {raw:g} Hz" if raw > 0 else ", differenced at the loop rate")
+                    + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
                                         "written: set it to this value)" if tq > 0 else "")
                     + "; " + _gyro_words(result, vehicle, "IMU_GYRO_CUTOFF"))
     else:

@@ -230,6 +230,9 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     if fw == "ardupilot":
         notes += _ardupilot_unmodelled(raw, axis, source, field)
     loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes, field)
+    if fw == "px4":
+        fixed.update(_px4_dpath(log, loop_hz, fixed["dgyro_hz"] if names["dgyro_hz"] in raw else None, source,
+                                notes))
     notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
@@ -326,6 +329,70 @@ def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], sour
     default = _DEFAULT_LOOP_HZ[fw]
     notes.append(f"{name} not in {source}: the firmware's default {default:g} Hz assumed for the loop rate")
     return default, f"assumed: the firmware's default {default:g} Hz ({name} is not in {source})"
+
+
+#: the first PX4 release whose D path is the first-order AlphaFilter (see :func:`_px4_dpath`)
+PX4_ALPHA_DGYRO_RELEASE = (1, 13)
+
+
+def _px4_dpath(log: Mapping[str, Any] | None, loop_hz: float | None, dgyro_hz: float | None, source: str,
+               notes: list[str]) -> dict[str, float]:
+    """PX4's D path for :func:`tuner.firmware.laws.dgyro_filter`: ``dgyro_order`` and ``raw_hz``, with a note for
+    what was assumed. ``dgyro_hz`` is the vehicle's ``IMU_DGYRO_CUTOFF``, None where its parameters lack it.
+
+    * Firmware without ``IMU_DGYRO_CUTOFF`` (before v1.11, which added ``vehicle_angular_acceleration``, PX4 PR
+      #14034) computes the D term in the rate controller at the loop rate: the loop-rate law (first order, the
+      loop rate), said; that generation's own D filter (``MC_DTERM_CUTOFF``) is not modelled.
+
+    * The generation from the log's firmware version (``ver_sw_release``): releases before v1.13 filter the
+      difference with a ``LowPassFilter2p`` (second order: v1.12 moved the D path onto the raw FIFO samples, PX4
+      PR #15820, with ``IMU_DGYRO_CUTOFF`` 30 Hz by default, PR #16188); later ones with an ``AlphaFilter`` (first
+      order; in main by October 2022, PR #20521 discussing "the delay from the AlphaFilter"). The boundary is taken as
+      v1.13 (not checked against the v1.13.0 tag). Without a version (a parameter file, an old log): first order,
+      the current firmware's, said.
+    * The raw gyro rate: the log's ``vehicle_imu_status.gyro_raw_rate_hz`` (the FIFO's), else its ``gyro_rate_hz``
+      (the gyro's publication rate: a FIFO driver's raw rate is higher, said), else the timing of
+      ``sensor_combined``; without a log, the loop rate (0: the D path differenced at the loop rate, conservative
+      for the first-order filter, not for the second-order one), said.
+    """
+    log = log or {}
+    rel = log.get("ver_sw_release")
+    if dgyro_hz is None:
+        notes.append(f"IMU_DGYRO_CUTOFF is not in {source} (PX4 before v1.11): the D term is taken as differenced and "
+                     "first-order filtered at the loop rate (that firmware computes it in the rate controller; its "
+                     "MC_DTERM_CUTOFF filter is not modelled)")
+        return {"dgyro_order": 1.0, "raw_hz": 0.0}
+    if rel:
+        major, minor, patch = (rel >> 24) & 0xFF, (rel >> 16) & 0xFF, (rel >> 8) & 0xFF
+        order = 2.0 if (major, minor) < PX4_ALPHA_DGYRO_RELEASE else 1.0
+        if dgyro_hz > 0:
+            notes.append(f"PX4 v{major}.{minor}.{patch} (ver_sw_release in {source}): the D path's filter is "
+                         + ("second order (LowPassFilter2p, the releases before v1.13)" if order == 2 else
+                            "first order (AlphaFilter, v1.13 and later)"))
+    else:
+        order = 1.0
+        if dgyro_hz > 0:
+            notes.append(f"the firmware version is not in {source}: the D path's filter assumed first order "
+                         "(AlphaFilter, PX4 v1.13 and later); releases before v1.13 filter it with a second-order "
+                         "LowPassFilter2p (give a ULog of the vehicle, whose ver_sw_release says which)")
+    raw, what = None, ""
+    for key, words in (("gyro_raw_rate_hz", "vehicle_imu_status.gyro_raw_rate_hz"),
+                       ("gyro_rate_hz", "vehicle_imu_status.gyro_rate_hz (the gyro's publication rate; a FIFO "
+                                        "gyro's raw samples may be faster)"),
+                       ("logged_gyro_hz", "the timing of sensor_combined (a lower bound)")):
+        v = log.get(key)
+        if v and v > 0:
+            raw, what = float(v), words
+            break
+    if raw is None:
+        notes.append(f"the raw gyro rate is not in {source}: PX4 differences and filters the D path on every raw "
+                     "gyro sample (1-8 kHz); assumed at the loop rate (conservative for the first-order filter, not "
+                     "for the second-order one; a ULog of the vehicle gives the rate)")
+        return {"dgyro_order": order, "raw_hz": 0.0}
+    if loop_hz and raw <= loop_hz * (1 + 1e-6):
+        return {"dgyro_order": order, "raw_hz": 0.0}  # the D path runs at the loop rate: the law as it was
+    notes.append(f"the D path is differenced and filtered at the raw gyro rate {raw:.0f} Hz ({what} in {source})")
+    return {"dgyro_order": order, "raw_hz": float(round(raw))}
 
 
 def _ardupilot_unmodelled(raw: Mapping[str, float], axis: str, source: str, fld: str) -> list[str]:
