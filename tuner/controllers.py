@@ -50,6 +50,7 @@ import numpy as np
 
 from .errors import InvalidControllerError, TunerError
 from .firmware import laws
+from .firmware.registry import firmwares
 from .lti import SS, Zpk, realize, roots_of
 from .plant import MAX_ORDER, check_dt, tf_freqresp
 from .tolerances import SAME_COEFF_RTOL
@@ -601,9 +602,8 @@ STRUCTURES: dict[str, Structure] = {
             _leadlag,
             orderings=(("wz1", "wp1"), ("wp2", "wz2")),
         ),
-        _firmware("px4_rate", (laws.px4_coeffs, laws.px4_ref_coeffs), laws.PX4_FIXED, "px4"),
-        _firmware("ardupilot_rate", (laws.ardupilot_coeffs, laws.ardupilot_ref_coeffs), laws.ARDUPILOT_FIXED,
-                  "ardupilot"),
+        # every registered firmware's rate law (tuner.firmware.registry: px4_rate, ardupilot_rate, ...)
+        *(_firmware(fw.structure, (fw.coeffs, fw.ref_coeffs), fw.fixed, fw.name) for fw in firmwares()),
     )
 }
 

@@ -6,7 +6,8 @@ The linear verifier's step is that of a unit reference with an unbounded actuato
 what the integrator does then is the law's own. Here the law runs as it runs on the target, for a step of
 amplitude ``A`` (:class:`Actuator`):
 
-* ``px4_rate``: PX4's ``RateControl``: the integrator's update after the output, clamped to ``+-int_lim``, no
+* a firmware's rate law, as its module's simulator runs it (:attr:`tuner.firmware.base.Firmware.simulator`):
+  ``px4_rate``: PX4's ``RateControl``: the integrator's update after the output, clamped to ``+-int_lim``, no
   growth in the direction the output saturates (the allocator's saturation flags), and the fade
   ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``, ``updateIntegral``);
 * ``ardupilot_rate``: ArduPilot's ``AC_PID``: the integrator updated before the output, clamped to ``+-IMAX``, and
@@ -36,7 +37,6 @@ from .response import SAMPLES_PER_DT, StepMetrics, StepResponse, default_horizon
 __all__ = ["Actuator", "SaturatedStep", "saturated_step", "MAX_SAT_SAMPLES"]
 
 MAX_SAT_SAMPLES = 200_000  # samples of one simulated step (the horizon is cut there, and said)
-_FADE_RAD_S = math.radians(400.0)  # PX4's integrator fade: the error at which the integration stops
 
 
 @dataclass(frozen=True)
@@ -110,56 +110,6 @@ class SaturatedStep:
 
 # -- the laws, one sample per call: u = law(r, y) --------------------------------------------------------------
 
-class _PX4:
-    def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
-        self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
-        self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
-        f, fq = g["dgyro_hz"], g.get("tq_hz", 0.0)
-        self.a = 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
-        self.aq = 1.0 if fq <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * fq))  # the yaw torque low-pass
-        self.xi = self.y_prev = self.yd = self.q = 0.0
-
-    def __call__(self, r: float, y: float) -> tuple[float, bool]:
-        e = r - y
-        self.yd += self.a * ((y - self.y_prev) / self.dt - self.yd)
-        self.y_prev = y
-        # the law's torque, then MulticopterRateControl's yaw low-pass (MC_YAW_TQ_CUTOFF) before the allocator clamps
-        self.q += self.aq * (self.k * (self.p * e - self.d * self.yd) + self.xi + self.ff * r - self.q)
-        v = self.q
-        u = min(max(v, self.lo), self.hi)
-        ei = 0.0 if (v > self.hi and e > 0) or (v < self.lo and e < 0) else e  # no growth into saturation
-        fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
-        self.xi = min(max(self.xi + fade * self.k * self.i * ei * self.dt, -self.lim), self.lim)
-        return u, u != v
-
-
-class _ArduPilot:
-    def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
-        def alpha(f: float) -> float:
-            return 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
-
-        self.p, self.i, self.d, self.ff, self.imax = g["P"], g["I"], g["D"], g["FF"], g["imax"]
-        self.at, self.ae, self.ad = alpha(g["fltt_hz"]), alpha(g["flte_hz"]), alpha(g["fltd_hz"])
-        self.dt, self.lo, self.hi = dt, lo, hi
-        self.dff = g.get("dff", 0.0)
-        self.t = self.e = self.de = self.integ = self.e_prev = 0.0
-        self.limit = False
-
-    def __call__(self, r: float, y: float) -> tuple[float, bool]:
-        t_prev = self.t
-        self.t += self.at * (r - self.t)
-        self.e += self.ae * ((self.t - y) - self.e)
-        self.de += self.ad * ((self.e - self.e_prev) / self.dt - self.de)
-        self.e_prev = self.e
-        step = self.i * self.e * self.dt
-        if not self.limit or (self.integ > 0 > step) or (self.integ < 0 < step):  # only shrink while limited
-            self.integ = min(max(self.integ + step, -self.imax), self.imax)
-        v = self.p * self.e + self.d * self.de + self.integ + self.ff * self.t + self.dff * (self.t - t_prev) / self.dt
-        u = min(max(v, self.lo), self.hi)
-        self.limit = u != v
-        return u, self.limit
-
-
 class _TwoDof:
     """tuner export's pid2 law (tuner.export.twodof._lines), conditional integration or back-calculation."""
 
@@ -229,7 +179,10 @@ class _Difference:
 
 def _law(loop: Any, structure: str | None, gains: dict[str, float] | None, act: Actuator) -> tuple[Any, str]:
     dt = loop.dt
-    if structure in ("px4_rate", "ardupilot_rate"):
+    from ..firmware.registry import by_structure
+
+    fw = by_structure(structure)
+    if fw is not None:  # a firmware's law, as the firmware runs it (its module's simulator)
         from ..controllers import get_structure
 
         st = get_structure(structure)
@@ -237,10 +190,7 @@ def _law(loop: Any, structure: str | None, gains: dict[str, float] | None, act: 
         missing = [k for k in (*st.params, *st.fixed_values) if k not in g]
         if missing:
             raise TunerError(f"{structure}: the gains lack {', '.join(missing)}", field="gains")
-        cls = _PX4 if structure == "px4_rate" else _ArduPilot
-        what = ("PX4's rate law (integrator limit int_lim, no growth into saturation, the 400 deg/s fade)"
-                if structure == "px4_rate" else "ArduPilot's AC_PID (IMAX; the integrator only shrinks while limited)")
-        return cls(g, dt, act.u_min, act.u_max), what
+        return fw.simulator(g, dt, act.u_min, act.u_max), fw.simulator_words
     if structure == "pid2":
         from ..export.twodof import two_dof_law
 

@@ -1,0 +1,155 @@
+"""PX4's multicopter rate law behind the firmware seam (:class:`~tuner.firmware.base.Firmware`).
+
+The law's arithmetic is :func:`tuner.firmware.laws.px4_coeffs` / :func:`~tuner.firmware.laws.px4_ref_coeffs`
+(``src/lib/rate_control/rate_control.cpp``, ``RateControl::update``; the module's docstring there names the
+sources); the names and documented ranges are :data:`tuner.firmware.names.PX4` and ``RANGES["px4"]``
+(``mc_rate_control_params.c`` and the files its docstring names). Here: the loop rate from a log or the parameters
+(``VehicleAngularVelocity``), the integrator's behaviour in saturation (:class:`Simulator`), the QGroundControl
+``.params`` lines, and what to fly for an identification.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from . import laws
+from . import names as _names
+from .base import Firmware
+
+__all__ = ["FIRMWARE", "Simulator"]
+
+_FADE_RAD_S = math.radians(400.0)  # PX4's integrator fade: the error at which the integration stops
+_FILES = "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)"
+
+
+class Simulator:
+    """PX4's ``RateControl`` one sample per call, ``u = law(r, y)``: the integrator's update after the output,
+    clamped to ``+-int_lim``, no growth in the direction the output saturates (the allocator's saturation flags),
+    and the fade ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``, ``updateIntegral``); the yaw torque low-pass
+    ``MC_YAW_TQ_CUTOFF`` (``MulticopterRateControl::Run``) before the allocator clamps."""
+
+    def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
+        self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
+        self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
+        f, fq = g["dgyro_hz"], g.get("tq_hz", 0.0)
+        self.a = 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
+        self.aq = 1.0 if fq <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * fq))  # the yaw torque low-pass
+        self.xi = self.y_prev = self.yd = self.q = 0.0
+
+    def __call__(self, r: float, y: float) -> tuple[float, bool]:
+        e = r - y
+        self.yd += self.a * ((y - self.y_prev) / self.dt - self.yd)
+        self.y_prev = y
+        # the law's torque, then MulticopterRateControl's yaw low-pass (MC_YAW_TQ_CUTOFF) before the allocator clamps
+        self.q += self.aq * (self.k * (self.p * e - self.d * self.yd) + self.xi + self.ff * r - self.q)
+        v = self.q
+        u = min(max(v, self.lo), self.hi)
+        ei = 0.0 if (v > self.hi and e > 0) or (v < self.lo and e < 0) else e  # no growth into saturation
+        fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
+        self.xi = min(max(self.xi + fade * self.k * self.i * ei * self.dt, -self.lim), self.lim)
+        return u, u != v
+
+
+def loop_rate(raw: Mapping[str, float], names: Mapping[str, str], source: str, log: Mapping[str, Any] | None,
+              notes: list[str], fld: str) -> tuple[float | None, str] | None:
+    """PX4's loop rate (None: not told; the caller assumes the default). ``MulticopterRateControl::Run`` runs on
+    every ``vehicle_angular_velocity``, which the gyro drives and ``VehicleAngularVelocity`` publishes from
+    ``IMU_GYRO_RATEMAX`` ("maximum publication rate", ``imu_gyro_parameters.c``): every ``samples =
+    roundf(gyro_rate / RATEMAX)`` (at least 1) gyro publications (``VehicleAngularVelocity::UpdateSampleRate``,
+    ``src/modules/sensors/vehicle_angular_velocity/``, PX4-Autopilot main: ``set_required_updates(samples)`` and a
+    minimum interval of ``1/RATEMAX - 1/(2 gyro_rate)``), so the loop runs at ``gyro_rate / samples``: a 2 kHz gyro
+    under a cap of 800 at 667 Hz, a 1 kHz one at 1 kHz (above the "cap"). A log's
+    ``vehicle_imu_status.gyro_rate_hz`` gives the gyro's rate (taken as its publication rate: a FIFO driver that
+    publishes in batches runs the loop slower, said). The parameter alone is a stated fallback."""
+    name = names["loop_hz"]
+    gyro = (log or {}).get("gyro_rate_hz")
+    cap = raw.get(name)
+    if gyro:
+        where = f"vehicle_imu_status.gyro_rate_hz in {source}"
+        if cap is None or cap <= 0:
+            return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}; no {name} cap in it)"
+        samples = max(1, math.floor(gyro / cap + 0.5))  # roundf: half away from zero (both positive here)
+        if samples == 1:
+            return float(round(gyro)), (f"the gyro's rate {gyro:.1f} Hz ({where}), every sample published under "
+                                        f"the cap {name} {cap:g}")
+        return float(gyro / samples), (f"the gyro's rate {gyro:.1f} Hz ({where}) over {samples}: "
+                                       f"VehicleAngularVelocity publishes every {samples} samples under {name} "
+                                       f"{cap:g} (a FIFO gyro that publishes in batches runs the loop slower)")
+    logged = (log or {}).get("logged_gyro_hz")
+    if cap is None and logged:
+        notes.append(f"{name} not in {source} (older firmware): the loop rate is taken from the log's timing")
+        return float(round(logged)), (f"the timing of sensor_combined in {source}: the gyro's samples as logged, "
+                                      f"{logged:.1f} Hz (a lower bound if the logger thinned the topic; the "
+                                      "log has no vehicle_imu_status)")
+    if cap is not None:
+        why = ("the log has no vehicle_imu_status" if log is not None else
+               "a parameter file; a ULog's vehicle_imu_status would give the gyro's rate")
+        return float(cap), f"{name} {cap:g} Hz in {source}: a cap on the gyro's rate, taken as the loop's ({why})"
+    return None
+
+
+def _loop_fix(loop_hz: float | None, loop_source: str, names: Mapping[str, str], notes: list[str],
+              rng: tuple[float, float]) -> tuple[float | None, str]:
+    """``IMU_GYRO_RATEMAX = 0``: PX4 runs the loop at the gyro's own rate, which a parameter file does not say."""
+    if loop_hz is not None and loop_hz == 0:
+        notes.append(f"{names['loop_hz']} = 0: PX4 then runs the rate loop at the gyro's own rate, which the "
+                     "parameters do not say: give dt (the rate loop's sample time)")
+        return None, ""
+    return loop_hz, loop_source
+
+
+def _vehicle_notes(axis: str, fixed: Mapping[str, float]) -> list[str]:
+    if axis == "yaw" and fixed["tq_hz"] > 0:
+        return [f"PX4 low-passes the yaw torque at MC_YAW_TQ_CUTOFF = {fixed['tq_hz']:g} Hz after the rate law "
+                "and before it publishes vehicle_torque_setpoint: the filter is part of the designed loop (a "
+                "plant identified from vehicle_torque_setpoint starts after it)"]
+    return []
+
+
+def _filters_header(values: Mapping[str, float], gyro_words: str) -> str:
+    tq = values.get("tq_hz", 0.0)
+    return (f"filters assumed: D-term low-pass IMU_DGYRO_CUTOFF {values['dgyro_hz']:g} Hz (not written: set it "
+            "to this value)" + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
+                                "written: set it to this value)" if tq > 0 else "")
+            + "; " + gyro_words)
+
+
+def _log_signals(axis: str) -> dict[str, str]:
+    i = {"roll": 0, "pitch": 1, "yaw": 2}[axis]
+    return {"input": f"vehicle_torque_setpoint.xyz[{i}]", "output": f"vehicle_angular_velocity.xyz[{i}]",
+            "reference": f"vehicle_rates_setpoint.{axis}"}
+
+
+def what_to_fly(axis: str | None) -> str:
+    """What to fly and log on PX4 (``src/modules/logger/params.c`` SDLOG_PROFILE bit 3 "system identification")."""
+    from ..identify.flight import SWEEP
+
+    ax = axis or "roll"
+    s = _log_signals(ax)
+    return ("PX4: arm and take off, then fly Acro (rate setpoints from the sticks, no attitude loop) with " + SWEEP
+            + ", or let the multicopter autotune (MC_AT_EN 1, started from the ground station) inject its "
+              "excitation; log with SDLOG_PROFILE bit 3 (system identification, +8) set, so "
+              "vehicle_torque_setpoint, vehicle_angular_velocity and "
+              f"vehicle_rates_setpoint are logged at the loop rate; identify {s['input']} -> "
+              f"{s['output']} with {s['reference']} as the reference")
+
+
+FIRMWARE = Firmware(
+    name="px4", title="PX4", structure="px4_rate", coeffs=laws.px4_coeffs, ref_coeffs=laws.px4_ref_coeffs,
+    fixed=laws.PX4_FIXED, axis_defaults={"yaw": laws._AXIS_DEFAULTS[("px4", "yaw")]},
+    names=lambda ax: _names.PX4[ax], ranges=lambda ax: _names.RANGES["px4"][ax],
+    scale=lambda ax: _names.SCALE["px4"][ax], integer=_names.INTEGER["px4"], clamped=_names.CLAMPED["px4"],
+    range_source=_names.SOURCE["px4"],
+    export_format="px4", suffix="params", files=_FILES, export_order=("P", "I", "D", "FF", "K", "int_lim"),
+    write_line=lambda name, value, ids: f"{ids[0]}\t{ids[1]}\t{name}\t{value}\t9", ids_in_file=True,
+    filters_header=_filters_header, gyro_param="IMU_GYRO_CUTOFF",
+    detect_prefixes=("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "IMU_GYRO_", "SYS_AUTOSTART"),
+    default_loop_hz=400.0,  # IMU_GYRO_RATEMAX's default (firmware.md)
+    loop_rate=loop_rate, loop_fix=_loop_fix, vehicle_notes=_vehicle_notes,
+    formats=("qgc", "ulog"), refused_formats={"parm": "a .parm file is ArduPilot's"},
+    simulator=Simulator,
+    simulator_words="PX4's rate law (integrator limit int_lim, no growth into saturation, the 400 deg/s fade)",
+    what_to_fly=what_to_fly, log_signals=_log_signals, gain_scale="K",
+)
