@@ -153,7 +153,7 @@ FIRMWARE = Firmware(
     default_loop_hz=400.0,  # SCHED_LOOP_RATE's default (firmware.md)
     loop_rate=loop_rate, loop_fix=_loop_fix, vehicle_checks=_unmodelled, formats=("parm", "qgc"),
     simulator=Simulator, simulator_words="ArduPilot's AC_PID (IMAX; the integrator only shrinks while limited)",
-    what_to_fly=what_to_fly, log_signals=_log_signals,
+    what_to_fly=what_to_fly, log_signals=_log_signals, integrator_limit="imax",
     no_scale_advice=("ArduPilot's rate law has no gain scale: check the plant's units (the identified input is the "
                      "mixer's normalised command, the output the body rate in rad/s)"),
 )

@@ -79,6 +79,8 @@ class Firmware:
     loop_fix: Callable[..., tuple[float | None, str]] | None = None
     vehicle_checks: Callable[..., list[str]] | None = None
     vehicle_notes: Callable[[str, Mapping[str, float]], list[str]] | None = None
+    #: the fixed value that limits the integrator (PX4's ``int_lim``, ArduPilot's ``imax``)
+    integrator_limit: str | None = None
     #: the quantity that scales P, I and D together (PX4's ``K``), None when the law has none
     gain_scale: str | None = None
     #: what to say of a gain held on a range's end when the law has no gain scale

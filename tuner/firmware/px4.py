@@ -151,5 +151,5 @@ FIRMWARE = Firmware(
     formats=("qgc", "ulog"), refused_formats={"parm": "a .parm file is ArduPilot's"},
     simulator=Simulator,
     simulator_words="PX4's rate law (integrator limit int_lim, no growth into saturation, the 400 deg/s fade)",
-    what_to_fly=what_to_fly, log_signals=_log_signals, gain_scale="K",
+    what_to_fly=what_to_fly, log_signals=_log_signals, gain_scale="K", integrator_limit="int_lim",
 )
