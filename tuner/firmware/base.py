@@ -79,6 +79,11 @@ class Firmware:
     loop_fix: Callable[..., tuple[float | None, str]] | None = None
     vehicle_checks: Callable[..., list[str]] | None = None
     vehicle_notes: Callable[[str, Mapping[str, float]], list[str]] | None = None
+    #: fixed values that are the firmware's own constants per axis, not parameters (no name in a file)
+    constants: tuple[str, ...] = ()
+    #: ``(raw, axis, fixed, notes) -> fixed``: what the firmware flies where one parameter overrides another (a
+    #: dynamic filter's cutoff over the static one), said in ``notes``; None: the parameters as read
+    fixed_from: Callable[..., dict[str, float]] | None = None
     #: the fixed value that limits the integrator (PX4's ``int_lim``, ArduPilot's ``imax``)
     integrator_limit: str | None = None
     #: the quantity that scales P, I and D together (PX4's ``K``), None when the law has none

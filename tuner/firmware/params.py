@@ -229,6 +229,8 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     gains = {"P": get("P", None), "I": get("I", None), "D": get("D", None), "FF": get("FF", 0.0)}
     defaults = law_defaults(fw, axis)  # the axis's own defaults (ArduPilot's yaw FLTE 2.5 Hz, PX4's yaw filter 2 Hz)
     fixed = {k: get(k, v) for k, v in defaults.items()}
+    if law.fixed_from is not None:  # a value the firmware flies in place of the parameter's (said in the notes)
+        fixed = law.fixed_from(raw, axis, fixed, notes)
     if law.vehicle_checks is not None:  # the firmware's parameters outside its law: refused by name, or said
         notes += law.vehicle_checks(raw, axis, source, field)
     loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes, field)
