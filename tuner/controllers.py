@@ -632,8 +632,10 @@ def get_structure(name: str) -> Structure:
     >>> from tuner import STRUCTURES, get_structure
     >>> get_structure("pid").params
     ('Kp', 'Ki', 'Kd', 'Tf')
-    >>> sorted(STRUCTURES)
-    ['ardupilot_rate', 'lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z', 'px4_rate']
+    >>> sorted(s for s in STRUCTURES if not get_structure(s).firmware)  # and every registered firmware's rate law
+    ['lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z']
+    >>> {"px4_rate", "ardupilot_rate"} <= set(STRUCTURES)
+    True
     >>> get_structure("pdi")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...

@@ -205,11 +205,9 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
         raise TunerError(f"{source} holds {found} parameters; {want.structure} needs {want.files}", field=field)
     fw = firmware or found
     if fw is None:
-        which = [f"{f.title}'s ({f.names('roll')['P']}, ...)" for f in firmwares()]
-        which_words = (f"neither {which[0]} nor {which[1]}" if len(which) == 2 else
-                       "none of " + ", ".join(which[:-1]) + " or " + which[-1])
-        raise TunerError(f"{source}: {which_words} rate parameters are in it: give the vehicle's parameter file",
-                         field=field)
+        which = ", ".join(f"{f.title}'s ({f.names('roll')['P']}, ...)" for f in firmwares())
+        raise TunerError(f"{source}: none of the known firmwares' rate parameters ({which}) are in it: give the "
+                         "vehicle's parameter file", field=field)
     law = get_firmware(fw)
     names = law_names(fw, axis)
     missing = [names[k] for k in ("P", "I", "D") if names[k] not in raw]
