@@ -20,6 +20,7 @@ __all__ = ["MODULES", "firmwares", "get_firmware", "by_structure", "by_format", 
 MODULES = (
     "tuner.firmware.px4",
     "tuner.firmware.ardupilot",
+    "tuner.firmware.betaflight",
 )
 
 
