@@ -120,13 +120,13 @@ def vehicle_of(body: Any, identification_record: Any = None) -> Any:
     v = getattr(body, "vehicle", None)
     if v is None:
         return None
-    from tuner.firmware.bind import FIRMWARE_OF
+    from tuner.firmware.bind import FIRMWARE_OF, law_choices
     from tuner.firmware.params import vehicle_from_text
 
     structure = body.structure if hasattr(body, "structure") else getattr(body.controller, "structure", None)
     if structure not in FIRMWARE_OF:
         raise FieldError(("body", "vehicle"), f"vehicle sets a firmware rate law's fixed values; the structure is "
-                         f"{structure!r}: use px4_rate or ardupilot_rate")
+                         f"{structure!r}: use {law_choices()}")
     firmware = FIRMWARE_OF[structure]
     if v.from_identification:
         params = None if identification_record is None else (identification_record.result or {}).get(

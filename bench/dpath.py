@@ -78,26 +78,24 @@ def compare(af, order: int, dgyro_hz: float, gains: dict, n: int = 20000) -> dic
 def flags(af, step: float = 8.0, u_max: float = 0.4) -> dict:
     """The saturated step of ``step`` rad/s with ``|u| <= u_max`` (the README's firmware bench figures) and PX4's
     default gains on ``af``'s plant as the tuner models it: the flags as the allocator publishes them (the
-    saturation module) against this sample's own (what it simulated before: ``_PX4.flags_late = False``)."""
+    saturation module) against this sample's own (what it simulated before: ``px4.Simulator.flags_late = False``)."""
     from tuner import analyze, controller_tf
-    from tuner.analysis import saturation
     from tuner.analysis.saturation import Actuator
 
     g = {**DEFAULTS, "K": af.start_scale, "dgyro_hz": 20.0, "int_lim": 0.3, "dgyro_order": 1.0, "raw_hz": af.raw_hz}
     c = controller_tf("px4_rate", g, dt=af.dt)
     act = Actuator.of(u_max=u_max, step_size=step)
 
-    class SameSample(saturation._PX4):
-        flags_late = False
+    from tuner.firmware import px4
 
     out = {}
-    for name, cls in (("late", saturation._PX4), ("same", SameSample)):
-        saturation._PX4, orig = cls, saturation._PX4
+    for name, late in (("late", True), ("same", False)):
+        px4.Simulator.flags_late = late
         try:
             a = analyze(af.plant_tf("px4"), c, dt=af.dt, delay=af.delay_s, actuator=act, structure="px4_rate",
                         gains=g)
         finally:
-            saturation._PX4 = orig
+            px4.Simulator.flags_late = True
         s = a.saturated
         out[name] = (s.metrics.overshoot_pct, s.metrics.settling_time_s, s.saturated_fraction)
     return out

@@ -103,6 +103,7 @@ def range_reason(st: Any, entries: list[dict[str, Any]], k0: float) -> str | Non
     """A failing design's gain held on an end of its documented range: what that means for the plant and what to
     change (PX4's ``K`` scales P, I and D together; ArduPilot has no such scale), or None."""
     from .firmware.names import law_names
+    from .firmware.registry import get_firmware
 
     hits = [e for e in entries if e.get("param") in st.params and st.param_range(e["param"]) is not None
             and "documented range" in e.get("rule", "")]
@@ -112,14 +113,17 @@ def range_reason(st: Any, entries: list[dict[str, Any]], k0: float) -> str | Non
     parts = [f"{names.get(e['param'], e['param'])} at the {e['bound']} end of its documented range "
              f"({_fmt(e['limit'])})" for e in hits]
     low = any(e["bound"] == "lower" for e in hits)
-    if st.firmware == "px4":
-        k = dict(st.fixed).get("K", 1.0)
-        scale = (f"scale the whole law with {names['K']} (K = {k:g} now; it multiplies P, I and D, documented "
-                 "range 0.01 to 5): " + ("a smaller K" if low else "a larger K") + " moves the gains the plant "
-                 "needs into their ranges; set it on the vehicle and tune again with its parameters (--params)")
+    fw = get_firmware(st.firmware)
+    gs = fw.gain_scale
+    if gs is not None:
+        k = dict(st.fixed).get(gs, 1.0)
+        lo_k, hi_k = fw.ranges(st.axis or "roll").get(gs, (0.01, 5.0))
+        scale = (f"scale the whole law with {names[gs]} ({gs} = {k:g} now; it multiplies P, I and D, documented "
+                 f"range {lo_k:g} to {hi_k:g}): " + (f"a smaller {gs}" if low else f"a larger {gs}") + " moves the "
+                 "gains the plant needs into their ranges; set it on the vehicle and tune again with its parameters "
+                 "(--params)")
     else:
-        scale = ("ArduPilot's rate law has no gain scale: check the plant's units (the identified input is the "
-                 "mixer's normalised command, the output the body rate in rad/s)")
+        scale = fw.no_scale_advice
     need = "less" if low else "more"
     return (f"{' and '.join(parts)}: the design this plant needs lies outside what the vehicle's parameter file can "
             f"hold (this loop needs {need} gain there; the plant's ultimate gain K0 is {k0:.3g}); {scale}")

@@ -115,11 +115,11 @@ def _read_vehicle(a: argparse.Namespace, structure: str | None) -> Any:
     """The vehicle of ``--params`` (None without it), for the law ``structure``."""
     if a.params is None:
         return None
-    from .firmware.bind import FIRMWARE_OF
+    from .firmware.bind import FIRMWARE_OF, law_choices
     from .firmware.params import read_params
 
     if structure not in FIRMWARE_OF:
-        raise TunerError(f"--params: sets a firmware rate law's vehicle; give --structure px4_rate or ardupilot_rate "
+        raise TunerError(f"--params: sets a firmware rate law's vehicle; give --structure {law_choices()} "
                          f"(got {structure!r})")
     with field("--params"):
         return read_params(a.params, axis=a.axis, firmware=FIRMWARE_OF[structure])
@@ -270,6 +270,7 @@ def suggestion_flags(suggest: dict[str, Any]) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``tuner`` argument parser (every subcommand; ``tuner --help`` prints it with the exit codes)."""
+    from .firmware.registry import structures
     p = _Parser(prog="tuner", description="Optimisation-based controller tuning with an independent verifier.",
                 epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress; print the traceback of an "
@@ -287,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--dt", type=float, default=None, help="sample time of the controller (and of a z plant)")
     a.add_argument("--delay", type=float, default=0.0, help="plant input delay, seconds")
     a.add_argument("--controller", help="controller expression (in z with --dt, else in s)")
-    a.add_argument("--structure", choices=("px4_rate", "ardupilot_rate"),
+    a.add_argument("--structure", choices=structures(),
                    help="instead of --controller: the firmware rate law with the vehicle's current gains (--params)")
     _add_vehicle_args(a)
     _add_actuator_args(a)
@@ -445,6 +446,8 @@ def analysis_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
 def _cmd_analyze(a: argparse.Namespace) -> int:
     from .analysis.verify import analyze
     from .controllers import controller_from_expr
+    from .firmware.bind import law_choices
+    from .firmware.registry import structures
     from .jsonio import jsonable
     from .plant import check_dt, plant_from_expr
 
@@ -459,13 +462,13 @@ def _cmd_analyze(a: argparse.Namespace) -> int:
     if (a.plant is None) == (a.identified is None):
         raise TunerError("give --plant (a model) or --identified ID.json (a model identified from a log), not both")
     if (a.controller is None) == (a.structure is None):
-        raise TunerError("give --controller (an expression) or --structure px4_rate|ardupilot_rate with --params "
-                         "(the law the vehicle flies, with its current gains), not both")
+        raise TunerError(f"give --controller (an expression) or --structure {'|'.join(structures())} "
+                         "with --params (the law the vehicle flies, with its current gains), not both")
     if a.structure is not None and a.params is None:
         raise TunerError(f"--structure {a.structure}: needs --params FILE (the vehicle's parameters: its current "
                          "gains, loop rate and filters)")
     if a.params is not None and a.structure is None:
-        raise TunerError("--params: give --structure px4_rate or ardupilot_rate (the law the parameters belong to)")
+        raise TunerError(f"--params: give --structure {law_choices()} (the law the parameters belong to)")
     with field("--dt"):  # name the right argument (an s-plant ignores dt, so it would surface at --controller)
         check_dt(a.dt)
     vehicle, dt = _read_vehicle(a, a.structure), a.dt

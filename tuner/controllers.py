@@ -50,6 +50,7 @@ import numpy as np
 
 from .errors import InvalidControllerError, TunerError
 from .firmware import laws
+from .firmware.registry import firmwares
 from .lti import SS, Zpk, realize, roots_of
 from .plant import MAX_ORDER, check_dt, tf_freqresp
 from .tolerances import SAME_COEFF_RTOL
@@ -604,9 +605,8 @@ STRUCTURES: dict[str, Structure] = {
             _leadlag,
             orderings=(("wz1", "wp1"), ("wp2", "wz2")),
         ),
-        _firmware("px4_rate", (laws.px4_coeffs, laws.px4_ref_coeffs), laws.PX4_FIXED, "px4"),
-        _firmware("ardupilot_rate", (laws.ardupilot_coeffs, laws.ardupilot_ref_coeffs), laws.ARDUPILOT_FIXED,
-                  "ardupilot"),
+        # every registered firmware's rate law (tuner.firmware.registry: px4_rate, ardupilot_rate, ...)
+        *(_firmware(fw.structure, (fw.coeffs, fw.ref_coeffs), fw.fixed, fw.name) for fw in firmwares()),
     )
 }
 
@@ -635,8 +635,10 @@ def get_structure(name: str) -> Structure:
     >>> from tuner import STRUCTURES, get_structure
     >>> get_structure("pid").params
     ('Kp', 'Ki', 'Kd', 'Tf')
-    >>> sorted(STRUCTURES)
-    ['ardupilot_rate', 'lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z', 'px4_rate']
+    >>> sorted(s for s in STRUCTURES if not get_structure(s).firmware)  # and every registered firmware's rate law
+    ['lag', 'lead', 'leadlag', 'p', 'pd', 'pi', 'pid', 'pid2', 'pid_mf2', 'pid_z']
+    >>> {"px4_rate", "ardupilot_rate"} <= set(STRUCTURES)
+    True
     >>> get_structure("pdi")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...

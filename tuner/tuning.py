@@ -576,7 +576,10 @@ def _problem(plant_or_plants: Any, structure: Any, spec: Spec | None, dt: float 
             _, _, current_gains = bind_law(plant_or_plants.structure, vehicle, plant_or_plants.dt, field="vehicle")
         else:
             if structure is None:
-                raise TunerError("give the firmware law, structure='px4_rate' or 'ardupilot_rate'", field="structure")
+                from .firmware.registry import structures
+
+                raise TunerError("give the firmware law, structure=" + " or ".join(repr(s) for s in structures()),
+                                 field="structure")
             structure, dt, current_gains = bind_law(structure, vehicle, dt, field="vehicle")
     if isinstance(plant_or_plants, TuningProblem):
         if structure is not None or spec is not None or dt is not None or delay is not None:

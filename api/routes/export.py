@@ -8,6 +8,7 @@ from fastapi import APIRouter, Depends, Query
 from fastapi.responses import PlainTextResponse, Response
 
 from tuner.errors import TunerError
+from tuner.firmware.registry import by_format, firmwares, formats
 
 from ..convert import FieldError, error_type
 from ..deps import get_store
@@ -34,7 +35,10 @@ _DOC = ("The stored controller as it runs on the target, in direct form II trans
         "documented range; a design that does not meet its spec (or meets it on the model only), or a value outside "
         "its range, needs `force=true` (a 422 at `force` otherwise), and the file's header then says so. "
         "422 (with `loc`) for a bad format, name, dt, method or limits.")
-_SUFFIX = {"c": "c", "python": "py", "text": "txt", "px4": "params", "ardupilot": "parm"}
+_SUFFIX = {"c": "c", "python": "py", "text": "txt", **{f.export_format: f.suffix for f in firmwares()}}
+#: c, python, text and every registered firmware's parameter file (tuner.firmware.registry)
+ExportFormat = Literal[("c", "python", "text", *formats())]  # type: ignore[valid-type]
+_FORMAT_DOC = f"c, python or text; {' or '.join(formats())}: a rate law's parameter file"
 _QUERY = {"name", "dt", "method", "u_min", "u_max", "format", "anti_windup", "tt"}
 
 
@@ -42,8 +46,8 @@ _QUERY = {"name", "dt", "method", "u_min", "u_max", "format", "anti_windup", "tt
             responses={**NOT_FOUND, 200: {"content": {"text/plain": {"schema": {"type": "string"}}}}})
 async def export_tune(
     tune_id: str = TuneId,
-    format: Literal["c", "python", "text", "px4", "ardupilot"] = Query(
-        ..., description="c, python or text; px4 or ardupilot: a rate law's parameter file"),
+    format: ExportFormat = Query(
+        ..., description=_FORMAT_DOC),
     axis: Literal["roll", "pitch", "yaw"] | None = Query(None, description="px4/ardupilot: the axis (default: the "
                                                           "tune's vehicle's, else roll)"),
     name: str = Query("controller", min_length=1, max_length=56, description="a C identifier: N_state, N_init, "
@@ -70,10 +74,10 @@ async def export_tune(
     except TunerError as e:
         raise FieldError(("query", "name"), str(e), type=error_type(e)) from None
     rec = await _record(store, tune_id)
-    if format in ("px4", "ardupilot"):
+    if by_format(format) is not None:
         return _param_file(rec.result, format, axis, force, {"dt": dt, "u_min": u_min, "u_max": u_max, "tt": tt})
     if force:
-        raise FieldError(("query", "force"), "force: only for format px4 or ardupilot (a parameter file)")
+        raise FieldError(("query", "force"), f"force: only for format {' or '.join(formats())} (a parameter file)")
     try:
         de = equation_of(rec.result, dt=dt, method=method, u_min=u_min, u_max=u_max, anti_windup=anti_windup, tt=tt)
         text = render(de, format, name)

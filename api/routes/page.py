@@ -36,6 +36,7 @@ _ASSETS = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; c
 def page_config(settings: Settings) -> dict[str, Any]:
     """What the form is built from: structures (parameters, discrete only), spec fields, limits."""
     from tuner.controllers import DEPRECATED_STRUCTURES, STRUCTURES
+    from tuner.firmware.registry import firmwares
     from tuner.limits import EFFORT_NAMES, page_limits
     from tuner.spec import DEFAULT_LIMITS, OBJECTIVES, Spec
     from tuner.tradeoff import MAX_POINTS, Y_AXES
@@ -45,6 +46,10 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "structures": [{"name": s.name, "params": list(s.params), "discrete_only": s.discrete_only}
                        for s in STRUCTURES.values()],
         "deprecated_structures": dict(DEPRECATED_STRUCTURES),  # old name -> new (a stored tune's form)
+        # every registered firmware (tuner.firmware.registry): its law, its parameter file, its loop rate's name
+        "firmwares": [{"name": f.name, "title": f.title, "structure": f.structure, "format": f.export_format,
+                       "suffix": f.suffix, "files": f.files, "loop_param": f.names("roll")["loop_hz"]}
+                      for f in firmwares()],
         "objectives": ["auto", *OBJECTIVES],  # (auto, the default: the structure decides)
         "spec_defaults": Spec().model_dump(mode="json"),
         "spec_help": {k: v.get("description", "") for k, v in schema.items()},

@@ -212,7 +212,18 @@ function syncSliders() {
   }
 }
 
-const FIRMWARE = new Set(["px4_rate", "ardupilot_rate"]);
+// every registered firmware (the service's registry): its law, its parameter file's format and its export tab
+const FIRMWARE = new Set(CONFIG.firmwares.map((f) => f.structure));
+const PARAM_FORMATS = new Set(CONFIG.firmwares.map((f) => f.format));
+for (const f of CONFIG.firmwares) {  // a tab per firmware's parameter file, shown for that law's results
+  const b = document.createElement("button");
+  b.type = "button";
+  b.dataset.format = f.format;
+  b.hidden = true;
+  b.title = `the parameter file its ground station loads: ${f.files}`;
+  b.textContent = `${f.title} .${f.suffix}`;
+  $("#export-name").closest("label").before(b);
+}
 
 function vehicleRow() { $("#vehicle-row").hidden = !FIRMWARE.has(field("structure").value); }
 
@@ -612,11 +623,11 @@ function showResult(d, { title = "Result" } = {}) {
     for (const k of ["phase_margin_deg", "gain_margin_db", "ms", "overshoot_pct", "settling_time_s"]) rows.push([label(k), `${fmt(d.current.metrics[k])} (proposed ${fmt(d.metrics[k])})`]);
     table($("#current"), rows);
   }
-  for (const [fmtName, law] of [["px4", "px4_rate"], ["ardupilot", "ardupilot_rate"]]) {
-    const b = $(`#export .tabs button[data-format=${fmtName}]`);
-    b.hidden = d.structure !== law;
+  for (const f of CONFIG.firmwares) {
+    const b = $(`#export .tabs button[data-format=${f.format}]`);
+    b.hidden = d.structure !== f.structure;
   }
-  if (!FIRMWARE.has(d.structure) && ["px4", "ardupilot"].includes(state.exportFormat)) state.exportFormat = "c";
+  if (!FIRMWARE.has(d.structure) && PARAM_FORMATS.has(state.exportFormat)) state.exportFormat = "c";
   const s = d.solver || {};
   $("#solver").textContent = `${s.method || "solver"}: ${fmt(s.wall_time_s)} s, seed ${fmt(s.seed)}` +
     (s.budget_exhausted ? "; the time budget ran out (best verified design)" : "") +
@@ -685,8 +696,8 @@ async function loadExport() {
   const f = state.exportFormat;
   const root = $("#export");
   for (const b of $$("#export .tabs button[data-format]")) b.classList.toggle("on", b.dataset.format === f);
-  $("#export-force-field").hidden = !(f === "px4" || f === "ardupilot");
-  if (f === "px4" || f === "ardupilot") { await loadParamFile(f); return; }
+  $("#export-force-field").hidden = !PARAM_FORMATS.has(f);
+  if (PARAM_FORMATS.has(f)) { await loadParamFile(f); return; }
   $("#export-warnings").hidden = true;
   clearErrors(root);
   for (const b of $$(".tabs button[data-format]", root)) b.classList.toggle("on", b.dataset.format === f);
@@ -886,7 +897,7 @@ async function loadULog(file) {
     src.textContent = `dt from the vehicle: ${d.loop_from || "its loop rate"} = ${csv.loopHz} Hz in ${file.name}`;
     syncURL();
   } else {
-    src.textContent = `${file.name} does not name the rate loop's rate (${d.firmware === "ardupilot" ? "SCHED_LOOP_RATE" : "IMU_GYRO_RATEMAX"}): `
+    src.textContent = `${file.name} does not name the rate loop's rate (${CONFIG.firmwares.find((f) => f.name === d.firmware)?.loop_param || "its loop rate parameter"}): `
       + "dt is left empty (a firmware law takes the vehicle's rate, the result says from where), not the log's grid; give the loop's sample time if you know it";
   }
   $("#vehicle-from-log").disabled = !csv.params;

@@ -87,7 +87,7 @@ def test_missing_values_are_the_firmware_defaults_and_said():
 @pytest.mark.parametrize("text, firmware, what", [
     ("ATC_RAT_RLL_P,0.1\nATC_RAT_RLL_I,0.1\nATC_RAT_RLL_D,0.001\n", "px4", "ArduPilot|ardupilot"),
     ("MC_ROLLRATE_P,0.1\nMC_ROLLRATE_I,0.1\n", None, "MC_ROLLRATE_D"),
-    ("FOO,1\n", None, "neither"),
+    ("FOO,1\n", None, "none of the known firmwares' rate parameters"),
     ("MC_ROLLRATE_P,abc\n", None, "not a number"),
     ("MC_ROLLRATE_P,nan\n", None, "not a finite number"),
     ("MC_ROLLRATE_P,0.1\nMC_ROLLRATE_I,0.1\nMC_ROLLRATE_D,0.001\nMC_ROLLRATE_K,0\n", None, "MC_ROLLRATE_K"),

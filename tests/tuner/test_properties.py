@@ -360,7 +360,10 @@ def test_tune_returns_a_verified_result_or_a_tuner_error(p, structure, dt, spec,
         assert_tuner_error(e)
         return
     assert all(math.isfinite(v) for v in res.gains.values())
-    assert len(res.analyses) == n_plants
+    from tuner.problem import gain_variation
+
+    # a firmware law also holds the nominal plant's gain x0.8 and x1.25 (gain_variation "auto"): those members too
+    assert len(res.analyses) == n_plants + len(gain_variation(spec or Spec(), get_structure(structure)))
     for an in res.analyses:
         assert_honest(an)
     out = res.to_json()

@@ -6,10 +6,11 @@ The linear verifier's step is that of a unit reference with an unbounded actuato
 what the integrator does then is the law's own. Here the law runs as it runs on the target, for a step of
 amplitude ``A`` (:class:`Actuator`):
 
-* ``px4_rate``: PX4's ``RateControl``: the integrator's update after the output, clamped to ``+-int_lim``, no
-  growth in the direction the output saturates (the allocator's saturation flags, as they arrive: see
-  :func:`px4_flag_period`), and the fade ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``,
-  ``updateIntegral``); the D path as the firmware computes it at the raw gyro rate
+* a firmware's rate law, as its module's simulator runs it (:attr:`tuner.firmware.base.Firmware.simulator`):
+  ``px4_rate``: PX4's ``RateControl``: the integrator's update after the output, clamped to ``+-int_lim``, no
+  growth in the direction the output saturates (the allocator's saturation flags), and the fade
+  ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``, ``updateIntegral``), the flags as they arrive
+  (:func:`tuner.firmware.px4.px4_flag_period`) and the D path as the firmware computes it at the raw gyro rate
   (:func:`tuner.firmware.laws.dgyro_filter`);
 * ``ardupilot_rate``: ArduPilot's ``AC_PID``: the integrator updated before the output, clamped to ``+-IMAX``, and
   while the mixer reports a limit it only shrinks (``AC_PID::update_i`` with ``limit`` set);
@@ -33,34 +34,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import TunerError
+from ..firmware.px4 import px4_flag_period
 from .response import SAMPLES_PER_DT, StepMetrics, StepResponse, default_horizon, lifted_with_switch, step_metrics
 
 __all__ = ["Actuator", "SaturatedStep", "saturated_step", "MAX_SAT_SAMPLES", "px4_flag_period"]
 
 MAX_SAT_SAMPLES = 200_000  # samples of one simulated step (the horizon is cut there, and said)
-_FADE_RAD_S = math.radians(400.0)  # PX4's integrator fade: the error at which the integration stops
-#: ControlAllocator::Run publishes control_allocator_status "at limited rate": ``if (now - _last_status_pub >= 5_ms)``
-#: (src/modules/control_allocator/ControlAllocator.cpp, PX4-Autopilot main 2023-2025)
-PX4_STATUS_INTERVAL_S = 5e-3
-
-
-def px4_flag_period(dt: float) -> int:
-    """Every how many rate-loop samples PX4's saturation flags are new: ``ceil(5 ms/dt)``.
-
-    ``ControlAllocator::Run`` runs on each torque setpoint, after the rate loop's sample, and publishes
-    ``control_allocator_status`` only when 5 ms have passed since its last publication (:data:`PX4_STATUS_INTERVAL_S`);
-    ``MulticopterRateControl::Run`` sets the flags (``unallocated_torque`` > 0: positive, < 0: negative) only when a
-    new status arrived (``_control_allocator_status_sub.update``) and keeps them otherwise. So at loop sample ``k``
-    the law uses the flags of the allocator's run at the last publication before ``k``: 1 to ``ceil(5 ms/dt)``
-    samples late (1-2 at 400 Hz and at 250 Hz, 1-5 at 1 kHz).
-
-    Examples
-    --------
-    >>> from tuner.analysis.saturation import px4_flag_period
-    >>> px4_flag_period(1 / 400), px4_flag_period(1 / 250), px4_flag_period(1 / 1000), px4_flag_period(0.01)
-    (2, 2, 5, 1)
-    """
-    return max(1, math.ceil(PX4_STATUS_INTERVAL_S / dt - 1e-9))
 
 
 @dataclass(frozen=True)
@@ -134,83 +113,6 @@ class SaturatedStep:
 
 # -- the laws, one sample per call: u = law(r, y) --------------------------------------------------------------
 
-class _PX4:
-    #: the saturation flags as the allocator delivers them (:func:`px4_flag_period`); False: this sample's own, what
-    #: this module simulated before issue 40 (``bench/dpath.py`` measures the difference)
-    flags_late = True
-
-    def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
-        self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
-        self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
-        fq = g.get("tq_hz", 0.0)
-        from ..firmware.laws import dgyro_filter
-
-        nd, qd = dgyro_filter(g, dt)  # the D path at the loop rate (the raw-rate filter decimated)
-        self.dn = [float(c) / float(qd[0]) for c in nd]
-        self.dq = [float(c) / float(qd[0]) for c in qd]
-        self.ds = [0.0] * (len(self.dq) - 1)  # its state (transposed direct form II)
-        self.aq = 1.0 if fq <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * fq))  # the yaw torque low-pass
-        self.xi = self.y_prev = self.q = 0.0
-        self.every, self.k_sample = px4_flag_period(dt), 0
-        self.sat_pos = self.sat_neg = False  # the flags as the law holds them (the last status received)
-
-    def _dpath(self, x: float) -> float:
-        b, a, s = self.dn, self.dq, self.ds
-        out = b[0] * x + s[0]
-        for i in range(len(s)):
-            s[i] = b[i + 1] * x - a[i + 1] * out + (s[i + 1] if i + 1 < len(s) else 0.0)
-        return out
-
-    def __call__(self, r: float, y: float) -> tuple[float, bool]:
-        e = r - y
-        yd = self._dpath((y - self.y_prev) / self.dt)
-        self.y_prev = y
-        # the law's torque, then MulticopterRateControl's yaw low-pass (MC_YAW_TQ_CUTOFF) before the allocator clamps
-        self.q += self.aq * (self.k * (self.p * e - self.d * yd) + self.xi + self.ff * r - self.q)
-        v = self.q
-        u = min(max(v, self.lo), self.hi)
-        if not self.flags_late:
-            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
-        ei = e  # no growth into saturation, by the flags the law holds (the allocator's earlier run)
-        if self.sat_pos:
-            ei = min(ei, 0.0)
-        if self.sat_neg:
-            ei = max(ei, 0.0)
-        fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
-        self.xi = min(max(self.xi + fade * self.k * self.i * ei * self.dt, -self.lim), self.lim)
-        if self.flags_late and self.k_sample % self.every == 0:  # published now: the law reads it next sample
-            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
-        self.k_sample += 1
-        return u, u != v
-
-
-class _ArduPilot:
-    def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
-        def alpha(f: float) -> float:
-            return 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
-
-        self.p, self.i, self.d, self.ff, self.imax = g["P"], g["I"], g["D"], g["FF"], g["imax"]
-        self.at, self.ae, self.ad = alpha(g["fltt_hz"]), alpha(g["flte_hz"]), alpha(g["fltd_hz"])
-        self.dt, self.lo, self.hi = dt, lo, hi
-        self.dff = g.get("dff", 0.0)
-        self.t = self.e = self.de = self.integ = self.e_prev = 0.0
-        self.limit = False
-
-    def __call__(self, r: float, y: float) -> tuple[float, bool]:
-        t_prev = self.t
-        self.t += self.at * (r - self.t)
-        self.e += self.ae * ((self.t - y) - self.e)
-        self.de += self.ad * ((self.e - self.e_prev) / self.dt - self.de)
-        self.e_prev = self.e
-        step = self.i * self.e * self.dt
-        if not self.limit or (self.integ > 0 > step) or (self.integ < 0 < step):  # only shrink while limited
-            self.integ = min(max(self.integ + step, -self.imax), self.imax)
-        v = self.p * self.e + self.d * self.de + self.integ + self.ff * self.t + self.dff * (self.t - t_prev) / self.dt
-        u = min(max(v, self.lo), self.hi)
-        self.limit = u != v
-        return u, self.limit
-
-
 class _TwoDof:
     """tuner export's pid2 law (tuner.export.twodof._lines), conditional integration or back-calculation."""
 
@@ -280,7 +182,10 @@ class _Difference:
 
 def _law(loop: Any, structure: str | None, gains: dict[str, float] | None, act: Actuator) -> tuple[Any, str]:
     dt = loop.dt
-    if structure in ("px4_rate", "ardupilot_rate"):
+    from ..firmware.registry import by_structure
+
+    fw = by_structure(structure)
+    if fw is not None:  # a firmware's law, as the firmware runs it (its module's simulator)
         from ..controllers import get_structure
 
         st = get_structure(structure)
@@ -288,10 +193,7 @@ def _law(loop: Any, structure: str | None, gains: dict[str, float] | None, act: 
         missing = [k for k in (*st.params, *st.fixed_values) if k not in g]
         if missing:
             raise TunerError(f"{structure}: the gains lack {', '.join(missing)}", field="gains")
-        cls = _PX4 if structure == "px4_rate" else _ArduPilot
-        what = ("PX4's rate law (integrator limit int_lim, no growth into saturation, the 400 deg/s fade)"
-                if structure == "px4_rate" else "ArduPilot's AC_PID (IMAX; the integrator only shrinks while limited)")
-        return cls(g, dt, act.u_min, act.u_max), what
+        return fw.simulator(g, dt, act.u_min, act.u_max), fw.simulator_words
     if structure == "pid2":
         from ..export.twodof import two_dof_law
 

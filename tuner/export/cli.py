@@ -12,6 +12,7 @@ import sys
 from typing import Any
 
 from ..errors import TunerError
+from ..firmware.registry import by_format, formats
 
 __all__ = ["add_parser"]
 
@@ -47,7 +48,7 @@ def add_parser(sub: Any) -> None:
     src.add_argument("--result", metavar="FILE.json", help="a result: the output of 'tuner tune --json' or the "
                      "answer of GET /tunes/{id}")
     p.add_argument("--dt", type=float, default=None, help="sample time, s (of a z controller; to discretise an s one)")
-    p.add_argument("--format", required=True, choices=["c", "python", "text", "px4", "ardupilot"],
+    p.add_argument("--format", required=True, choices=["c", "python", "text", *formats()],
                    help="what to write: code (c, python, text), or the parameter file the ground station loads for a "
                         "px4_rate (px4: QGroundControl .params) or ardupilot_rate (ardupilot: .parm) result")
     p.add_argument("--axis", choices=("roll", "pitch", "yaw"), default=None,
@@ -129,11 +130,11 @@ def _cmd_export(a: argparse.Namespace) -> int:
         from ..fileio import check_output
 
         check_output(a.out, label=f"--out {a.out}")
-    if a.format in ("px4", "ardupilot"):
+    if by_format(a.format) is not None:
         return _write(a, _cmd_param_file(a))
     if a.axis is not None or a.att_p is not None or a.force:
         flag = "--axis" if a.axis is not None else "--att-p" if a.att_p is not None else "--force"
-        raise TunerError(f"{flag}: only for --format px4 or ardupilot")
+        raise TunerError(f"{flag}: only for --format {' or '.join(formats())}")
     try:
         check_name(a.name)
         src = _source(a)

@@ -36,7 +36,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import unicodedata
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,12 +45,30 @@ import numpy as np
 from ..errors import TunerError
 from ..firmware.laws import LATER_FIXED
 from ..firmware.names import AXES, law_names, range_problem, stored_value
+from ..firmware.registry import by_format, formats, get_firmware
 
 __all__ = ["PARAM_FORMATS", "ParamFile", "param_file", "make_param_file", "clean"]
 
+
+
+class _Formats(Mapping):
+    """export format -> (the law it writes, the firmware), for every registered firmware."""
+
+    def __getitem__(self, fmt: str) -> tuple[str, str]:
+        fw = by_format(fmt)
+        if fw is None:
+            raise KeyError(fmt)
+        return fw.structure, fw.name
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(formats())
+
+    def __len__(self) -> int:
+        return len(formats())
+
+
 #: export format -> (the law it writes, the firmware)
-PARAM_FORMATS = {"px4": ("px4_rate", "px4"), "ardupilot": ("ardupilot_rate", "ardupilot")}
-_SUFFIX = {"px4": "params", "ardupilot": "parm"}
+PARAM_FORMATS: Mapping[str, tuple[str, str]] = _Formats()
 _MAX_TEXT = 300  # a header's text from a file or a log, at most (characters)
 
 
@@ -139,9 +157,11 @@ def _advice(fw: str, key: str, side: str) -> str:
 
 def _refuse_value(fw: str, name: str, key: str, v: float, prob: dict, k_law: tuple[str, float] | None = None
                   ) -> TunerError:
+    """A tuned value outside its documented range, refused; ``k_law``: the law's gain scale (PX4's ``K``)."""
     lo, hi = prob["lo"], prob["hi"]
     rng = f"[{lo:g}, {hi:g}]" if math.isfinite(hi) else f">= {lo:g}"
-    scaled = (f" (PX4 multiplies P, I and D by {k_law[0]} = {k_law[1]:g}: the law's gains are these times it)"
+    scaled = (f" ({get_firmware(fw).title} multiplies P, I and D by {k_law[0]} = {k_law[1]:g}: the law's gains are "
+              "these times it)"
               if k_law is not None and key in ("P", "I", "D") and k_law[1] != 1 else "")
     return TunerError(
         f"{name} = {v:.6g} is outside {fw}'s documented range {rng} ({prob['source']}): the range is the parameter "
@@ -228,6 +248,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     if format not in PARAM_FORMATS:
         raise TunerError(f"format must be one of {', '.join(PARAM_FORMATS)}, got {format!r}", field="format")
     law, fw = PARAM_FORMATS[format]
+    firmware = get_firmware(fw)
     structure = result.get("structure")
     if structure != law:
         raise TunerError(f"a {format} parameter file holds the {law} law; this result's structure is "
@@ -276,8 +297,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
                          "written for it only with --force (HTTP force=true), and its header then says so",
                          field="force")
     names = law_names(fw, ax)
-    order = ["P", "I", "D", "FF", "K", "int_lim"] if fw == "px4" else \
-        ["P", "I", "D", "FF", "imax", "fltt_hz", "flte_hz", "fltd_hz"]
+    order = list(firmware.export_order)
     if att_p is not None:
         order.append("att_p")
     stored, forced = {}, []
@@ -291,8 +311,8 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
         prob = range_problem(fw, ax, k, stored[k])
         if prob is not None:
             if not force:
-                raise _refuse_value(fw, names[k], k, stored[k], prob,
-                                    (names["K"], values["K"]) if fw == "px4" else None)
+                gs = firmware.gain_scale
+                raise _refuse_value(fw, names[k], k, stored[k], prob, (names[gs], values[gs]) if gs else None)
             lo, hi = prob["lo"], prob["hi"]
             forced.append(f"{names[k]} = {stored[k]:.6g} is outside {fw}'s documented range "
                           f"[{lo:g}, {hi:g}] ({prob['source']}; ground-station metadata, not enforced by the firmware)")
@@ -303,22 +323,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     when = (date or _dt.date.today()).isoformat()
     head = [f"tuner {clean(_version(), 40)}, {when}: the {law} law ({fw}, {ax} axis), as the firmware computes it",
             f"loop rate {loop_hz:g} Hz (dt {dt:g} s)" if loop_hz else "loop rate: not recorded"]
-    if fw == "px4":
-        tq = values.get("tq_hz", 0.0)
-        d_order, raw = values.get("dgyro_order", 1.0), values.get("raw_hz", 0.0)
-        head.append(f"filters assumed: D-term low-pass IMU_DGYRO_CUTOFF {values['dgyro_hz']:g} Hz (not written: set it "
-                    "to this value), " + ("second order (LowPassFilter2p, PX4 before v1.13)" if d_order == 2 else
-                                          "first order (AlphaFilter, PX4 v1.13 and later)")
-                    + (f", on every raw gyro sample at {raw:g} Hz" if raw > 0 else ", differenced at the loop rate")
-                    + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
-                                        "written: set it to this value)" if tq > 0 else "")
-                    + "; " + _gyro_words(result, vehicle, "IMU_GYRO_CUTOFF"))
-    else:
-        dff = values.get("dff", 0.0)
-        head.append(f"filters assumed (written): FLTT {values['fltt_hz']:g} Hz, FLTE {values['flte_hz']:g} Hz, "
-                    f"FLTD {values['fltd_hz']:g} Hz" + (f"; D_FF {dff:g} in the designed loop (not written)" if dff
-                                                        else "") + "; " + _gyro_words(result, vehicle,
-                                                                                      "INS_GYRO_FILTER"))
+    head.append(firmware.filters_header(values, _gyro_words(result, vehicle, firmware.gyro_param)))
     warnings: list[str] = []
     if vehicle is not None:
         gyro = _num(vehicle.get("gyro_cutoff_hz"))
@@ -349,7 +354,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
                     "assumed " + ", ".join(f"{names[k]} {stored[k]:.6g}" for k in skip) + ")")
     ids = vehicle.get("ids") if vehicle is not None else None
     sys_id, comp_id = (int(ids[0]), int(ids[1])) if isinstance(ids, list) and len(ids) == 2 else (1, 1)
-    if fw == "px4":
+    if firmware.ids_in_file:
         head.append(f"vehicle id {sys_id}, component id {comp_id}" + (" (from the vehicle's file)" if ids else
                                                                        " (assumed: no QGroundControl file given)"))
     head += [f"WARNING: {w}" for w in warnings]
@@ -357,12 +362,9 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     for k in order:
         if k in skip:
             continue
-        if fw == "px4":
-            lines.append(f"{sys_id}\t{comp_id}\t{names[k]}\t{_written(stored[k])}\t9")
-        else:
-            lines.append(f"{names[k]},{_written(stored[k])}")
+        lines.append(firmware.write_line(names[k], _written(stored[k]), (sys_id, comp_id)))
     text = "\n".join([f"# {clean(h, 2000)}" for h in head] + lines) + "\n"
-    return ParamFile(text=text, name=f"{law}_{ax}.{_SUFFIX[format]}", warnings=tuple(warnings))
+    return ParamFile(text=text, name=f"{law}_{ax}.{firmware.suffix}", warnings=tuple(warnings))
 
 
 def _gyro_words(result: Mapping[str, Any], vehicle: Mapping[str, Any] | None, name: str) -> str:

@@ -72,8 +72,11 @@ def equation_of(controller: Any, *, dt: float | None = None, method: str = "tust
     if structure == "pid2" and gains is not None:
         return two_dof_law(gains, ctrl.dt, dt=dt, method=method, u_min=u_min, u_max=u_max,
                            anti_windup=anti_windup, tt=tt)
-    if structure in ("px4_rate", "ardupilot_rate"):  # the autopilot runs the law itself: its parameters are the export
-        fmt = "px4" if structure == "px4_rate" else "ardupilot"
+    from ..firmware.registry import by_structure
+
+    law = by_structure(structure)
+    if law is not None:  # the autopilot runs the law itself: its parameters are the export
+        fmt = law.export_format
         raise InvalidControllerError(f"a {structure} result runs as the firmware's own law: export its parameter file "
                                      f"(format {fmt}), which the ground station loads", field="format")
     if ctrl.two_dof:

@@ -4,17 +4,41 @@ to ``px4_rate`` / ``ardupilot_rate``, and the vehicle's current gains as that la
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from ..errors import TunerError
 from ..tolerances import SAME_DT_RTOL
+from .registry import by_structure, get_firmware, names, structures
 
-__all__ = ["FIRMWARE_OF", "bind_law", "vehicle_dict", "typed_plant"]
+__all__ = ["FIRMWARE_OF", "bind_law", "vehicle_dict", "typed_plant", "law_choices"]
 
-#: the firmware each law's parameters belong to
-FIRMWARE_OF = {"px4_rate": "px4", "ardupilot_rate": "ardupilot"}
-_FILES = {"px4": "PX4 parameters (a QGroundControl .params file, or a ULog .ulg, whose parameters are read)",
-          "ardupilot": "ArduPilot parameters (a Mission Planner .parm file)"}
+
+
+class _FirmwareOf(Mapping):
+    """The firmware each law's parameters belong to (``px4_rate`` -> ``px4``), read from the registry."""
+
+    def __getitem__(self, structure: str) -> str:
+        fw = by_structure(structure)
+        if fw is None:
+            raise KeyError(structure)
+        return fw.name
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(structures())
+
+    def __len__(self) -> int:
+        return len(structures())
+
+
+#: the firmware each law's parameters belong to (every registered firmware's structure)
+FIRMWARE_OF: Mapping[str, str] = _FirmwareOf()
+
+
+def law_choices(sep: str = " or ") -> str:
+    """The registered rate laws in words: ``px4_rate or ardupilot_rate`` (``sep`` between the last two)."""
+    st = structures()
+    return st[0] if len(st) == 1 else ", ".join(st[:-1]) + sep + st[-1]
 
 
 def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "params"
@@ -39,15 +63,16 @@ def bind_law(structure: Any, vehicle: Any, dt: float | None, *, field: str = "pa
     from ..controllers import Structure, get_structure
 
     st = structure if isinstance(structure, Structure) else get_structure(structure)
-    want = FIRMWARE_OF.get(st.name)
-    if want is None:
-        raise TunerError(f"vehicle parameters set a firmware rate law: give structure px4_rate or "
-                         f"ardupilot_rate (got {st.name!r})", field="structure")
+    law = by_structure(st.name)
+    if law is None:
+        raise TunerError(f"vehicle parameters set a firmware rate law: give structure {law_choices()} "
+                         f"(got {st.name!r})", field="structure")
+    want = law.name
     fw = getattr(vehicle, "firmware", None)
     src = getattr(vehicle, "source", "the parameters")
     if fw != want:
         raise TunerError(f"{src} holds {fw or 'unknown'} parameters, but {st.name} is {want}'s law: give "
-                         f"{_FILES[want]}", field=field)
+                         f"{law.files}", field=field)
     loop_hz = getattr(vehicle, "loop_hz", None)
     vdt = 1.0 / float(loop_hz) if loop_hz else None
     if dt is not None and vdt is not None and abs(dt - vdt) > SAME_DT_RTOL * vdt:
@@ -93,7 +118,7 @@ def typed_plant(plant: Any, vehicle: Any) -> tuple[Any, dict[str, Any]]:
 
     from ..plant import make_plant_zpk
 
-    name = {"px4": "IMU_GYRO_CUTOFF", "ardupilot": "INS_GYRO_FILTER"}.get(getattr(vehicle, "firmware", None), "")
+    name = get_firmware(getattr(vehicle, "firmware", None)).gyro_param
     f = getattr(vehicle, "gyro_cutoff_hz", None)
     rec: dict[str, Any] = {"typed": True, "name": name, "gyro_filter_hz": None}
     if not f or f <= 0:
@@ -128,10 +153,8 @@ def vehicle_dict(vehicle: Any) -> dict[str, Any]:
         out["ids"] = [int(ids[0]), int(ids[1])]
     raw = getattr(vehicle, "raw", None)
     fw, axis = getattr(vehicle, "firmware", None), getattr(vehicle, "axis", None)
-    if raw and fw in ("px4", "ardupilot") and axis:  # which of the law's parameters the vehicle's list holds
-        from .names import law_names
-
-        out["has"] = sorted(n for n in law_names(fw, axis).values() if n in raw)
+    if raw and fw in names() and axis:  # which of the law's parameters the vehicle's list holds
+        out["has"] = sorted(n for n in get_firmware(fw).law_names(axis).values() if n in raw)
     notes = getattr(vehicle, "notes", ())
     if notes:
         out["notes"] = list(notes)

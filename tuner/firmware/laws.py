@@ -84,7 +84,8 @@ _AXIS_DEFAULTS = {("px4", "yaw"): {"tq_hz": 2.0}, ("ardupilot", "yaw"): {"flte_h
 
 
 def law_defaults(firmware: str, axis: str) -> dict[str, float]:
-    """The firmware's defaults of what its law fixes on ``axis`` (see the module's docstring for the sources).
+    """The firmware's defaults of what its law fixes on ``axis`` (see the module's docstring for the sources; the
+    registered firmware's :meth:`~tuner.firmware.base.Firmware.law_defaults`: an unknown firmware is an error).
 
     Examples
     --------
@@ -94,8 +95,9 @@ def law_defaults(firmware: str, axis: str) -> dict[str, float]:
     >>> law_defaults("px4", "yaw")["tq_hz"], law_defaults("px4", "pitch")["tq_hz"]
     (2.0, 0.0)
     """
-    base = dict(PX4_FIXED if firmware == "px4" else ARDUPILOT_FIXED)
-    return base | _AXIS_DEFAULTS.get((firmware, axis), {})
+    from .registry import get_firmware
+
+    return get_firmware(firmware).law_defaults(axis)
 
 
 def axis_fixed(firmware: str, axis: str, fixed: dict[str, float]) -> dict[str, float]:
@@ -108,8 +110,9 @@ def axis_fixed(firmware: str, axis: str, fixed: dict[str, float]) -> dict[str, f
     >>> axis_fixed("ardupilot", "yaw", {"flte_hz": 0.0}), axis_fixed("ardupilot", "yaw", {"flte_hz": 5.0})
     ({'flte_hz': 2.5}, {})
     """
-    base = dict(PX4_FIXED if firmware == "px4" else ARDUPILOT_FIXED)
-    return {k: v for k, v in _AXIS_DEFAULTS.get((firmware, axis), {}).items() if fixed.get(k) == base[k]}
+    from .registry import get_firmware
+
+    return get_firmware(firmware).axis_fixed(axis, fixed)
 
 
 def alpha(f_hz: float, dt: Any) -> Any:

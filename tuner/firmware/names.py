@@ -32,15 +32,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
 __all__ = ["AXES", "PX4", "ARDUPILOT", "law_names", "law_ranges", "RANGES", "CLAMPED", "SOURCE", "INTEGER", "SCALE",
            "FLOAT32_MAX", "FLOAT32_EPS", "stored_value", "range_problem"]
 
 AXES = ("roll", "pitch", "yaw")
 _INF = math.inf
-FLOAT32_MAX = float(np.finfo(np.float32).max)  # 3.4028235e38
-FLOAT32_EPS = float(np.finfo(np.float32).eps)  # 2^-23: single precision's relative resolution
+FLOAT32_MAX = (2.0 - 2.0 ** -23) * 2.0 ** 127  # 3.4028235e38, numpy's finfo(float32).max (numpy not imported here:
+#                                               the firmware registry is read by the command line's parser)
+FLOAT32_EPS = 2.0 ** -23  # single precision's relative resolution, finfo(float32).eps
 
 
 def _px4(axis: str) -> dict[str, str]:
@@ -132,8 +131,9 @@ def law_names(firmware: str, axis: str) -> dict[str, str]:
     >>> law_names("px4", "pitch")["int_lim"], law_names("ardupilot", "yaw")["P"]
     ('MC_PR_INT_LIM', 'ATC_RAT_YAW_P')
     """
-    table = {"px4": PX4, "ardupilot": ARDUPILOT}[firmware]
-    return dict(table[axis])
+    from .registry import get_firmware
+
+    return get_firmware(firmware).law_names(axis)
 
 
 def law_ranges(firmware: str, axis: str) -> dict[str, tuple[float, float]]:
@@ -147,7 +147,9 @@ def law_ranges(firmware: str, axis: str) -> dict[str, tuple[float, float]]:
     >>> law_ranges("px4", "roll")["P"], law_ranges("ardupilot", "yaw")["I"]
     ((0.01, 0.5), (0.01, 1.0))
     """
-    r = RANGES[firmware][axis]
+    from .registry import get_firmware
+
+    r = get_firmware(firmware).ranges(axis)
     return {k: tuple(r[k]) for k in ("P", "I", "D", "FF") if k in r}
 
 
@@ -168,9 +170,16 @@ def stored_value(firmware: str, axis: str, key: str, value: float) -> float:
     if not math.isfinite(v) or abs(v) > FLOAT32_MAX:
         raise ValueError(f"{v!r} is not a value {firmware} can store (single precision: finite, at most "
                          f"{FLOAT32_MAX:.8g} in magnitude)")
-    scale = SCALE.get(firmware, {}).get(axis, {}).get(key, 1.0)
+    from .registry import get_firmware
+
+    fw = get_firmware(firmware)
+    scale = fw.scale(axis).get(key, 1.0)
     if abs(v) < FLOAT32_EPS * scale:
         return 0.0
+    if key in fw.integer:  # stored as an integer: the whole number nearest
+        return float(round(v))
+    import numpy as np
+
     return float(np.float32(v))
 
 
@@ -185,14 +194,17 @@ def range_problem(firmware: str, axis: str, key: str, value: float) -> dict[str,
     >>> range_problem("px4", "roll", "K", 50.0)["side"], range_problem("px4", "roll", "K", 1.0)
     ('high', None)
     """
-    lo, hi = RANGES.get(firmware, {}).get(axis, {}).get(key, (-_INF, _INF))
+    from .registry import get_firmware
+
+    fw = get_firmware(firmware)
+    lo, hi = fw.ranges(axis).get(key, (-_INF, _INF))
     v = float(value)
-    enforced = CLAMPED.get(firmware, {}).get(key)
-    src = SOURCE.get(firmware, {}).get(key, f"{firmware}'s parameter metadata")
+    enforced = fw.clamped.get(key)
+    src = fw.range_source.get(key, f"{firmware}'s parameter metadata")
     if v < lo:
         return {"lo": lo, "hi": hi, "side": "low", "enforced": enforced, "source": src}
     if v > hi:
         return {"lo": lo, "hi": hi, "side": "high", "enforced": enforced, "source": src}
-    if key in INTEGER.get(firmware, ()) and v != round(v):
+    if key in fw.integer and v != round(v):
         return {"lo": lo, "hi": hi, "side": "integer", "enforced": None, "source": src}
     return None

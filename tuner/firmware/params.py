@@ -34,16 +34,14 @@ from typing import Any
 
 from ..errors import TunerError
 from .laws import law_defaults
-from .names import ARDUPILOT_SLEW, ARDUPILOT_UNMODELLED, AXES, FLOAT32_MAX, RANGES, law_names, range_problem
+from .names import AXES, FLOAT32_MAX, law_names, range_problem
+from .registry import firmwares, get_firmware
 
 __all__ = ["MAX_PARAMS_BYTES", "VehicleParams", "parse_params_text", "read_params", "vehicle_from_text",
            "vehicle_from_raw", "detect_firmware"]
 
 MAX_PARAMS_BYTES = 4 << 20  # a full PX4 .params is about 60 kB
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
-_FILES = {"px4": "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)",
-          "ardupilot": "ArduPilot parameters (a Mission Planner .parm file)"}
-_DEFAULT_LOOP_HZ = {"px4": 400.0, "ardupilot": 400.0}  # IMU_GYRO_RATEMAX, SCHED_LOOP_RATE defaults (firmware.md)
 
 
 @dataclass(frozen=True)
@@ -117,6 +115,10 @@ def parse_params_text(text: str, fmt: str | None = None, *, source: str = "param
     >>> parse_params_text("ATC_RAT_RLL_P,0.135\\nATC_RAT_RLL_I 0.135\\n")
     ({'ATC_RAT_RLL_P': 0.135, 'ATC_RAT_RLL_I': 0.135}, 'parm')
     """
+    for fw in firmwares():  # a firmware's own text format (Betaflight's CLI dump), told by its lines or named
+        own = fw.read_text is not None and fw.sniff is not None
+        if own and (fmt in fw.formats or (fmt is None and fw.sniff(text))):
+            return fw.read_text(text, source=source, field=field), fw.formats[0]
     lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
     lines = [(i, ln) for i, ln in lines if ln and not ln.startswith("#")]
     qgc = bool(lines) and len(lines[0][1].split("\t")) == 5
@@ -180,14 +182,10 @@ def qgc_ids(text: str) -> tuple[int, int] | None:
 
 
 def detect_firmware(raw: Mapping[str, float]) -> str | None:
-    """``"px4"``, ``"ardupilot"`` or None, from the parameter names (rate-law names first, then typical ones)."""
-    px4 = any(k.startswith(("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "IMU_GYRO_", "SYS_AUTOSTART"))
-              for k in raw)
-    ardu = any(k.startswith(("ATC_RAT_", "ATC_ANG_", "SCHED_LOOP_RATE", "INS_GYRO_FILTER", "FRAME_CLASS"))
-               for k in raw)
-    if px4 == ardu:
-        return None
-    return "px4" if px4 else "ardupilot"
+    """The registered firmware whose parameter names ``raw`` holds (each one's ``detect_prefixes``: rate-law names
+    first, then typical ones), or None when none or more than one match."""
+    found = [fw.name for fw in firmwares() if any(k.startswith(fw.detect_prefixes) for k in raw)]
+    return found[0] if len(found) == 1 else None
 
 
 def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: str | None = None,
@@ -200,20 +198,22 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     if axis not in AXES:
         raise TunerError(f"axis must be one of {', '.join(AXES)}, got {axis!r}", field="axis")
     found = detect_firmware(raw)
-    if firmware is not None and fmt == "parm" and firmware == "px4":
-        raise TunerError(f"{source}: a .parm file is ArduPilot's; px4_rate needs {_FILES['px4']}", field=field)
-    if firmware is not None and found is not None and found != firmware:
-        law = "px4_rate" if firmware == "px4" else "ardupilot_rate"
-        raise TunerError(f"{source} holds {found} parameters; {law} needs {_FILES[firmware]}", field=field)
+    want = get_firmware(firmware) if firmware is not None else None
+    if want is not None and fmt in want.refused_formats:
+        raise TunerError(f"{source}: {want.refused_formats[fmt]}; {want.structure} needs {want.files}", field=field)
+    if want is not None and found is not None and found != firmware:
+        raise TunerError(f"{source} holds {found} parameters; {want.structure} needs {want.files}", field=field)
     fw = firmware or found
     if fw is None:
-        raise TunerError(f"{source}: neither PX4's (MC_ROLLRATE_P, ...) nor ArduPilot's (ATC_RAT_RLL_P, ...) rate "
-                         "parameters are in it: give the vehicle's parameter file", field=field)
+        which = ", ".join(f"{f.title}'s ({f.names('roll')['P']}, ...)" for f in firmwares())
+        raise TunerError(f"{source}: none of the known firmwares' rate parameters ({which}) are in it: give the "
+                         "vehicle's parameter file", field=field)
+    law = get_firmware(fw)
     names = law_names(fw, axis)
     missing = [names[k] for k in ("P", "I", "D") if names[k] not in raw]
     if missing:
         raise TunerError(f"{source} has no {', '.join(missing)} (the {axis} rate law's gains): give the vehicle's "
-                         f"full parameter file ({_FILES[fw]})", field=field)
+                         f"full parameter file ({law.files})", field=field)
     notes = []
 
     def get(key: str, default: float | None) -> float | None:
@@ -227,12 +227,13 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     gains = {"P": get("P", None), "I": get("I", None), "D": get("D", None), "FF": get("FF", 0.0)}
     defaults = law_defaults(fw, axis)  # the axis's own defaults (ArduPilot's yaw FLTE 2.5 Hz, PX4's yaw filter 2 Hz)
     fixed = {k: get(k, v) for k, v in defaults.items()}
-    if fw == "ardupilot":
-        notes += _ardupilot_unmodelled(raw, axis, source, field)
+    if law.fixed_from is not None:  # a value the firmware flies in place of the parameter's (said in the notes)
+        fixed = law.fixed_from(raw, axis, fixed, notes)
+    if law.vehicle_checks is not None:  # the firmware's parameters outside its law: refused by name, or said
+        notes += law.vehicle_checks(raw, axis, source, field)
     loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes, field)
-    if fw == "px4":
-        fixed.update(_px4_dpath(log, loop_hz, fixed["dgyro_hz"] if names["dgyro_hz"] in raw else None, source,
-                                notes))
+    if law.log_fixed is not None:  # what the log (or its absence) says of values no parameter names
+        fixed.update(law.log_fixed(raw, names, log, loop_hz, source, notes))
     notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
@@ -241,25 +242,19 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
                              "it; correct the file (a vehicle's own parameters, as its ground station saved them)",
                              field=field)
     warnings = _range_warnings(fw, axis, names, raw, source)
-    if loop_hz is not None and fw == "px4" and loop_hz == 0:
-        notes.append(f"{names['loop_hz']} = 0: PX4 then runs the rate loop at the gyro's own rate, which the "
-                     "parameters do not say: give dt (the rate loop's sample time)")
-        loop_hz, loop_source = None, ""
+    if law.loop_fix is not None:  # what the firmware does with the rate (PX4's 0: the gyro's; ArduPilot's clamp)
+        loop_hz, loop_source = law.loop_fix(loop_hz, loop_source, names, notes, law.ranges(axis)["loop_hz"])
     if loop_hz is not None and not loop_hz > 0:
         raise TunerError(f"{source}: {names['loop_hz']} = {loop_hz:g}: a loop rate is > 0 Hz", field=field)
-    lo_hz, hi_hz = RANGES[fw][axis]["loop_hz"]
-    if loop_hz is not None and fw == "ardupilot" and not lo_hz <= loop_hz <= hi_hz:
-        loop_hz = min(max(loop_hz, lo_hz), hi_hz)  # what the vehicle runs (AP_Scheduler's clamp, at start)
     for k, v in fixed.items():
-        if v is not None and (v < 0 or (k == "K" and v <= 0)):
-            raise TunerError(f"{source}: {names[k]} = {v:g} must be " + ("> 0" if k == "K" else ">= 0"), field=field)
+        pos = k == law.gain_scale
+        if v is not None and (v < 0 or (pos and v <= 0)):
+            raise TunerError(f"{source}: {names[k]} = {v:g} must be " + ("> 0" if pos else ">= 0"), field=field)
     for k, v in gains.items():
         if v is not None and v < 0:
             raise TunerError(f"{source}: {names[k]} = {v:g}: the rate law's gains are >= 0", field=field)
-    if fw == "px4" and axis == "yaw" and fixed["tq_hz"] > 0:
-        notes.append(f"PX4 low-passes the yaw torque at MC_YAW_TQ_CUTOFF = {fixed['tq_hz']:g} Hz after the rate law "
-                     "and before it publishes vehicle_torque_setpoint: the filter is part of the designed loop (a "
-                     "plant identified from vehicle_torque_setpoint starts after it)")
+    if law.vehicle_notes is not None:
+        notes += law.vehicle_notes(axis, fixed)
     return VehicleParams(firmware=fw, axis=axis, loop_hz=loop_hz, gains=gains, fixed=fixed,
                          gyro_cutoff_hz=get("gyro_hz", None), att_p=get("att_p", None),
                          rate_max_dps=get("rate_max_dps", None) if "rate_max_dps" in names else None,
@@ -269,152 +264,17 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
 
 def _loop_rate(fw: str, raw: Mapping[str, float], names: Mapping[str, str], source: str,
                log: Mapping[str, Any] | None, notes: list[str], fld: str) -> tuple[float | None, str]:
-    """The rate loop's rate and where it came from, in words.
-
-    * PX4: ``MulticopterRateControl::Run`` runs on every ``vehicle_angular_velocity``, which the gyro drives and
-      ``VehicleAngularVelocity`` publishes from ``IMU_GYRO_RATEMAX`` ("maximum publication rate",
-      ``imu_gyro_parameters.c``): every ``samples = roundf(gyro_rate / RATEMAX)`` (at least 1) gyro publications
-      (``VehicleAngularVelocity::UpdateSampleRate``, ``src/modules/sensors/vehicle_angular_velocity/``, PX4-Autopilot
-      main: ``set_required_updates(samples)`` and a minimum interval of ``1/RATEMAX - 1/(2 gyro_rate)``), so the loop
-      runs at ``gyro_rate / samples``: a 2 kHz gyro under a cap of 800 at 667 Hz, a 1 kHz one at 1 kHz (above the
-      "cap"). A log's ``vehicle_imu_status.gyro_rate_hz`` gives the gyro's rate (taken as its publication rate: a
-      FIFO driver that publishes in batches runs the loop slower, said). The parameter alone is a stated fallback.
-    * ArduPilot: ``SCHED_LOOP_RATE``; with the fast-rate thread (``FSTRATE_ENABLE`` > 0, ArduCopter
-      ``Parameters.cpp``: "the actual rate is the gyro rate in Hz divided by" ``FSTRATE_DIV``) the gyro's rate
-      ``INS_GYRO_RATE`` (0: 1 kHz, 1: 2 kHz, 2: 4 kHz, 3: 8 kHz, ``AP_InertialSensor.cpp``) over ``FSTRATE_DIV``.
-    """
+    """The rate loop's rate and where it came from, in words: the firmware's own account
+    (:attr:`~tuner.firmware.base.Firmware.loop_rate`: PX4's from the gyro's rate, ArduPilot's fast-rate thread),
+    else its default, assumed and said."""
+    law = get_firmware(fw)
+    told = law.loop_rate(raw, names, source, log, notes, fld)
+    if told is not None:
+        return told
     name = names["loop_hz"]
-    if fw == "px4":
-        gyro = (log or {}).get("gyro_rate_hz")
-        cap = raw.get(name)
-        if gyro:
-            where = f"vehicle_imu_status.gyro_rate_hz in {source}"
-            if cap is None or cap <= 0:
-                return float(round(gyro)), f"the gyro's rate {gyro:.1f} Hz ({where}; no {name} cap in it)"
-            samples = max(1, math.floor(gyro / cap + 0.5))  # roundf: half away from zero (both positive here)
-            if samples == 1:
-                return float(round(gyro)), (f"the gyro's rate {gyro:.1f} Hz ({where}), every sample published under "
-                                            f"the cap {name} {cap:g}")
-            return float(gyro / samples), (f"the gyro's rate {gyro:.1f} Hz ({where}) over {samples}: "
-                                           f"VehicleAngularVelocity publishes every {samples} samples under {name} "
-                                           f"{cap:g} (a FIFO gyro that publishes in batches runs the loop slower)")
-        logged = (log or {}).get("logged_gyro_hz")
-        if cap is None and logged:
-            notes.append(f"{name} not in {source} (older firmware): the loop rate is taken from the log's timing")
-            return float(round(logged)), (f"the timing of sensor_combined in {source}: the gyro's samples as logged, "
-                                          f"{logged:.1f} Hz (a lower bound if the logger thinned the topic; the "
-                                          "log has no vehicle_imu_status)")
-        if cap is not None:
-            why = ("the log has no vehicle_imu_status" if log is not None else
-                   "a parameter file; a ULog's vehicle_imu_status would give the gyro's rate")
-            return float(cap), f"{name} {cap:g} Hz in {source}: a cap on the gyro's rate, taken as the loop's ({why})"
-    else:
-        fast = raw.get("FSTRATE_ENABLE", 0.0)
-        if fast > 0:
-            if "INS_GYRO_RATE" not in raw:
-                notes.append(f"FSTRATE_ENABLE = {fast:g}: the rate loop runs in the fast-rate thread at the gyro's "
-                             "rate over FSTRATE_DIV, and INS_GYRO_RATE is not in the file: give dt")
-                return None, ""
-            code = raw["INS_GYRO_RATE"]
-            if code not in (0, 1, 2, 3):  # (AP_InertialSensor.cpp: 0: 1 kHz, 1: 2 kHz, 2: 4 kHz, 3: 8 kHz)
-                raise TunerError(f"{source}: INS_GYRO_RATE = {code:g} is not one of ArduPilot's gyro rates (0: 1 kHz, "
-                                 "1: 2 kHz, 2: 4 kHz, 3: 8 kHz): correct the file", field=fld)
-            gyro_hz = 1000.0 * 2 ** int(code)
-            div = max(1.0, float(raw.get("FSTRATE_DIV", 1.0)))
-            how = ("a dynamic divisor from FSTRATE_DIV up: at most this rate" if fast == 1 else "a fixed divisor")
-            return gyro_hz / div, (f"the fast-rate thread (FSTRATE_ENABLE {fast:g}, {how}): INS_GYRO_RATE "
-                                   f"{gyro_hz:g} Hz / FSTRATE_DIV {div:g} in {source}")
-        if name in raw:
-            return float(raw[name]), f"{name} {float(raw[name]):g} Hz in {source}"
-    default = _DEFAULT_LOOP_HZ[fw]
+    default = law.default_loop_hz
     notes.append(f"{name} not in {source}: the firmware's default {default:g} Hz assumed for the loop rate")
     return default, f"assumed: the firmware's default {default:g} Hz ({name} is not in {source})"
-
-
-#: the first PX4 release whose D path is the first-order AlphaFilter (see :func:`_px4_dpath`)
-PX4_ALPHA_DGYRO_RELEASE = (1, 13)
-
-
-def _px4_dpath(log: Mapping[str, Any] | None, loop_hz: float | None, dgyro_hz: float | None, source: str,
-               notes: list[str]) -> dict[str, float]:
-    """PX4's D path for :func:`tuner.firmware.laws.dgyro_filter`: ``dgyro_order`` and ``raw_hz``, with a note for
-    what was assumed. ``dgyro_hz`` is the vehicle's ``IMU_DGYRO_CUTOFF``, None where its parameters lack it.
-
-    * Firmware without ``IMU_DGYRO_CUTOFF`` (before v1.11, which added ``vehicle_angular_acceleration``, PX4 PR
-      #14034) computes the D term in the rate controller at the loop rate: the loop-rate law (first order, the
-      loop rate), said; that generation's own D filter (``MC_DTERM_CUTOFF``) is not modelled.
-
-    * The generation from the log's firmware version (``ver_sw_release``): releases before v1.13 filter the
-      difference with a ``LowPassFilter2p`` (second order: v1.12 moved the D path onto the raw FIFO samples, PX4
-      PR #15820, with ``IMU_DGYRO_CUTOFF`` 30 Hz by default, PR #16188); later ones with an ``AlphaFilter`` (first
-      order; in main by October 2022, PR #20521 discussing "the delay from the AlphaFilter"). The boundary is taken as
-      v1.13 (not checked against the v1.13.0 tag). Without a version (a parameter file, an old log): first order,
-      the current firmware's, said.
-    * The raw gyro rate: the log's ``vehicle_imu_status.gyro_raw_rate_hz`` (the FIFO's), else its ``gyro_rate_hz``
-      (the gyro's publication rate: a FIFO driver's raw rate is higher, said), else the timing of
-      ``sensor_combined``; without a log, the loop rate (0: the D path differenced at the loop rate, conservative
-      for the first-order filter, not for the second-order one), said.
-    """
-    log = log or {}
-    rel = log.get("ver_sw_release")
-    if dgyro_hz is None:
-        notes.append(f"IMU_DGYRO_CUTOFF is not in {source} (PX4 before v1.11): the D term is taken as differenced and "
-                     "first-order filtered at the loop rate (that firmware computes it in the rate controller; its "
-                     "MC_DTERM_CUTOFF filter is not modelled)")
-        return {"dgyro_order": 1.0, "raw_hz": 0.0}
-    if rel:
-        major, minor, patch = (rel >> 24) & 0xFF, (rel >> 16) & 0xFF, (rel >> 8) & 0xFF
-        order = 2.0 if (major, minor) < PX4_ALPHA_DGYRO_RELEASE else 1.0
-        if dgyro_hz > 0:
-            notes.append(f"PX4 v{major}.{minor}.{patch} (ver_sw_release in {source}): the D path's filter is "
-                         + ("second order (LowPassFilter2p, the releases before v1.13)" if order == 2 else
-                            "first order (AlphaFilter, v1.13 and later)"))
-    else:
-        order = 1.0
-        if dgyro_hz > 0:
-            notes.append(f"the firmware version is not in {source}: the D path's filter assumed first order "
-                         "(AlphaFilter, PX4 v1.13 and later); releases before v1.13 filter it with a second-order "
-                         "LowPassFilter2p (give a ULog of the vehicle, whose ver_sw_release says which)")
-    raw, what = None, ""
-    for key, words in (("gyro_raw_rate_hz", "vehicle_imu_status.gyro_raw_rate_hz"),
-                       ("gyro_rate_hz", "vehicle_imu_status.gyro_rate_hz (the gyro's publication rate; a FIFO "
-                                        "gyro's raw samples may be faster)"),
-                       ("logged_gyro_hz", "the timing of sensor_combined (a lower bound)")):
-        v = log.get(key)
-        if v and v > 0:
-            raw, what = float(v), words
-            break
-    if raw is None:
-        notes.append(f"the raw gyro rate is not in {source}: PX4 differences and filters the D path on every raw "
-                     "gyro sample (1-8 kHz); assumed at the loop rate (conservative for the first-order filter, not "
-                     "for the second-order one; a ULog of the vehicle gives the rate)")
-        return {"dgyro_order": order, "raw_hz": 0.0}
-    if loop_hz and raw <= loop_hz * (1 + 1e-6):
-        return {"dgyro_order": order, "raw_hz": 0.0}  # the D path runs at the loop rate: the law as it was
-    notes.append(f"the D path is differenced and filtered at the raw gyro rate {raw:.0f} Hz ({what} in {source})")
-    return {"dgyro_order": order, "raw_hz": float(round(raw))}
-
-
-def _ardupilot_unmodelled(raw: Mapping[str, float], axis: str, source: str, fld: str) -> list[str]:
-    """ArduPilot's AC_PID terms outside the linear law: PDMX, NTF, NEF set (non-zero) are refused, naming the
-    parameter; SMAX is read and what it does said (see :data:`tuner.firmware.names.ARDUPILOT_UNMODELLED`)."""
-    a = {"roll": "RLL", "pitch": "PIT", "yaw": "YAW"}[axis]
-    what = {"PDMX": "the P+D output limit (a clamp on |P + D| in AC_PID::update_all)",
-            "NTF": "a notch filter on the target (AP_Filter, FILTn_*)", "NEF": "a notch filter on the error "
-            "(AP_Filter, FILTn_*)"}
-    for suffix in ARDUPILOT_UNMODELLED:
-        name = f"ATC_RAT_{a}_{suffix}"
-        if float(raw.get(name, 0.0)) != 0:
-            raise TunerError(f"{source}: {name} = {float(raw[name]):g} sets {what[suffix]}, which the tuner's model "
-                             f"of the {axis} rate law does not hold, so its margins would not be the vehicle's: set "
-                             f"{name} to 0 in the file given to the tuner (and fly the design with it off), or tune "
-                             "without it", field=fld)
-    smax = f"ATC_RAT_{a}_{ARDUPILOT_SLEW}"
-    if float(raw.get(smax, 0.0)) > 0:
-        return [f"{smax} = {float(raw[smax]):g}: ArduPilot's slew limiter lowers P and D only when the P+D output "
-                "slews faster than that in alternating directions (an oscillation); a loop that does not oscillate "
-                "flies the linear law designed here, which does not include it"]
-    return []
 
 
 def range_warning(fw: str, name: str, value: float, problem: dict, what: str = "the tune uses it as read") -> str:
@@ -433,13 +293,13 @@ def _range_warnings(fw: str, axis: str, names: Mapping[str, str], raw: Mapping[s
                     ) -> list[str]:
     """Each value of the law's parameters in ``raw`` outside its documented range, in words (read, not refused)."""
     out = []
-    for key in RANGES[fw][axis]:
+    for key in get_firmware(fw).ranges(axis):
         name = names.get(key)
         if name is None or name not in raw:
             continue
         v = float(raw[name])
         prob = range_problem(fw, axis, key, v)
-        if prob is None or (fw == "px4" and key == "loop_hz" and v == 0):
+        if prob is None:  # (PX4's IMU_GYRO_RATEMAX 0, the gyro's own rate, is inside its documented 0-2000)
             continue
         what = ("the vehicle runs at the clamped rate, and the tune too" if prob.get("enforced")
                 else "the tune uses it as read")
@@ -536,6 +396,7 @@ def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = 
     text = read_text(p, limit=MAX_PARAMS_BYTES, field=field,
                      hint="give a QGroundControl .params, a Mission Planner .parm, a ULog .ulg or a DataFlash .bin")
     fmt = {".params": "qgc", ".parm": "parm"}.get(p.suffix.lower())
-    if fmt == "parm" and firmware == "px4":
-        raise TunerError(f"{p}: a .parm file is ArduPilot's; px4_rate needs {_FILES['px4']}", field=field)
+    want = get_firmware(firmware) if firmware is not None else None
+    if want is not None and fmt in want.refused_formats:
+        raise TunerError(f"{p}: {want.refused_formats[fmt]}; {want.structure} needs {want.files}", field=field)
     return vehicle_from_text(text, axis=axis, firmware=firmware, fmt=fmt, source=p.name, field=field)

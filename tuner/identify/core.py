@@ -397,7 +397,9 @@ def zoh_factor(w: np.ndarray, dt: float) -> np.ndarray:
 
 def _fly(firmware: str | None) -> str:
     """The advice on what to fly, as the end of a sentence ("" without a firmware)."""
-    if firmware not in ("px4", "ardupilot"):
+    from ..firmware.registry import names
+
+    if firmware not in names():
         return ""
     from .flight import what_to_fly
 

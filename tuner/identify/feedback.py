@@ -70,10 +70,11 @@ def known_controller(parameters: Mapping[str, float], input_name: str, dt: float
     from ..controllers import get_structure
     from ..errors import TunerError
     from ..firmware.params import vehicle_from_raw
+    from ..firmware.registry import get_firmware
 
     try:
         v = vehicle_from_raw(dict(parameters), axis=axis)
-        st = get_structure("px4_rate" if v.firmware == "px4" else "ardupilot_rate").with_fixed(v.fixed)
+        st = get_structure(get_firmware(v.firmware).structure).with_fixed(v.fixed)
         return st.tf({**v.gains, **st.fixed_values}, dt)
     except TunerError:
         return None

@@ -206,39 +206,28 @@ def setpoint_reference(name: str | None) -> bool:
     return bool(name) and any(str(name).startswith(p) for p in _RATE_SETPOINTS)
 
 
+#: the sweep flown for an identification, any firmware (each firmware's module says how to fly and log it)
+SWEEP = ("one axis at a time, a frequency sweep from about 0.3 rad/s (0.05 Hz) to twice the loop's intended "
+         "bandwidth (about 60 rad/s, 10 Hz, for a multicopter's rate loop), at a small amplitude around hover "
+         "(rates of 20-50 deg/s; about 5-10 % of the torque range), 60-90 s a sweep, two or three sweeps, then "
+         "doublets for the check")
+
+
 def what_to_fly(firmware: str | None, axis: str | None = None) -> str:
-    """What to fly, and log, for an identification on ``firmware`` (``px4``, ``ardupilot``, None: both), one axis
-    at a time. The band and durations are the rotorcraft practice (Tischler & Remple, *Aircraft and Rotorcraft
-    System Identification*, ch. 5: sweeps from about 0.3 rad/s to twice the intended bandwidth, 60-90 s, repeated,
-    doublets after); the firmware's settings from its sources (PX4 ``src/modules/logger/params.c`` SDLOG_PROFILE
-    bit 3 "system identification"; ArduCopter ``mode_systemid.cpp`` SID_* and ``Copter.h``'s LOG_BITMASK bits).
+    """What to fly, and log, for an identification on ``firmware`` (a registered firmware's name; None: every
+    one's), one axis at a time. The band and durations are the rotorcraft practice (Tischler & Remple, *Aircraft and
+    Rotorcraft System Identification*, ch. 5: sweeps from about 0.3 rad/s to twice the intended bandwidth, 60-90 s,
+    repeated, doublets after) (:data:`SWEEP`); the firmware's settings from its sources, in its module
+    (:attr:`tuner.firmware.base.Firmware.what_to_fly`: PX4 ``src/modules/logger/params.c`` SDLOG_PROFILE bit 3
+    "system identification"; ArduCopter ``mode_systemid.cpp`` SID_* and ``Copter.h``'s LOG_BITMASK bits).
 
     Examples
     --------
     >>> "SDLOG_PROFILE" in what_to_fly("px4")
     True
     """
-    ax = axis or "roll"
-    i = {"roll": 0, "pitch": 1, "yaw": 2}.get(ax, 0)
-    common = ("one axis at a time, a frequency sweep from about 0.3 rad/s (0.05 Hz) to twice the loop's intended "
-              "bandwidth (about 60 rad/s, 10 Hz, for a multicopter's rate loop), at a small amplitude around hover "
-              "(rates of 20-50 deg/s; about 5-10 % of the torque range), 60-90 s a sweep, two or three sweeps, then "
-              "doublets for the check")
-    px4 = ("PX4: arm and take off, then fly Acro (rate setpoints from the sticks, no attitude loop) with " + common
-           + ", or let the multicopter autotune (MC_AT_EN 1, started from the ground station) inject its "
-             "excitation; log with SDLOG_PROFILE bit 3 (system identification, +8) set, so "
-             "vehicle_torque_setpoint, vehicle_angular_velocity and "
-             f"vehicle_rates_setpoint are logged at the loop rate; identify vehicle_torque_setpoint.xyz[{i}] -> "
-             f"vehicle_angular_velocity.xyz[{i}] with vehicle_rates_setpoint.{ax} as the reference")
-    ap_axis = {"roll": 7, "pitch": 8, "yaw": 9}.get(ax, 7)
-    r = {"roll": "R", "pitch": "P", "yaw": "Y"}.get(ax, "R")
-    ap = ("ArduPilot: hover in a stabilised mode and switch to SystemID mode (mode 25) with SID_AXIS "
-          f"{ap_axis} (rate {ax}), SID_MAGNITUDE 10-30 (deg/s), SID_F_START_HZ 0.05, SID_F_STOP_HZ 10, SID_T_REC "
-          "60-90 s, SID_T_FADE_IN 5 and SID_T_FADE_OUT 2 (or fly ACRO with " + common + "); log with LOG_BITMASK "
-          "bits 0 and 1 (attitude fast and medium: RATE and SIDD at the loop rate) and 12 (PID: PIDR/PIDP/PIDY) set; "
-          f"identify RATE.{r}Out -> RATE.{r} with RATE.{r}Des (or SIDD.Targ) as the reference")
-    if firmware == "px4":
-        return px4
-    if firmware == "ardupilot":
-        return ap
-    return f"{px4}. {ap}"
+    from ..firmware.registry import firmwares, get_firmware
+
+    if firmware is None:
+        return ". ".join(f.what_to_fly(axis) for f in firmwares())
+    return get_firmware(firmware).what_to_fly(axis)

@@ -226,8 +226,10 @@ class LoopDef(BaseModel):
                 raise ValueError("actuator: the saturated step runs the law at its sample time: give dt")
             self.actuator.to_actuator()
         if self.params is not None and get_structure(self.structure).firmware is None:
-            raise ValueError(f"params: the vehicle's parameters set a firmware rate law; give structure px4_rate or "
-                             f"ardupilot_rate (got {self.structure!r})")
+            from ..firmware.bind import law_choices
+
+            raise ValueError(f"params: the vehicle's parameters set a firmware rate law; give structure "
+                             f"{law_choices()} (got {self.structure!r})")
         if self.plant_dt is not None and self.delay:  # a plant in s takes any delay, exactly (also sampled)
             n = self.delay / self.plant_dt
             if abs(n - round(n)) > 1e-6 * max(1.0, n):

@@ -1,0 +1,135 @@
+"""Betaflight's rate PID (tuner/firmware/betaflight.py) against pidController written here from its source
+(betaflight/betaflight src/main/flight/pid.c at 47f4485, pid_init.c's pidInitConfig, mixer.c's PID_MIXER_SCALING),
+in the firmware's own units (deg/s in, the PID sum out), and its CLI files. The contract suite
+(test_contract.py) covers what every firmware must do; these are Betaflight's own facts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from tuner.controllers import get_structure
+from tuner.errors import TunerError
+from tuner.export.paramfile import make_param_file
+from tuner.firmware.params import read_params, vehicle_from_text
+
+DT = 1.0 / 8000.0
+
+DUMP = """# diff all
+# version
+# Betaflight / STM32F7X2 (S7X2) 4.4.2
+board_name MATEKF722
+feature -AIRMODE
+set gyro_lpf1_static_hz = 0
+set dterm_lpf1_dyn_min_hz = 75
+set dterm_lpf1_dyn_max_hz = 150
+set dterm_lpf1_type = PT1
+set pid_process_denom = 2
+profile 1
+set p_roll = 60
+profile 0
+set p_roll = 45
+set i_roll = 80
+set d_roll = 40
+set f_roll = 120
+set d_min_roll = 30
+set iterm_relax = RP
+set p_yaw = 45
+set i_yaw = 80
+set d_yaw = 0
+set f_yaw = 120
+rateprofile 0
+set roll_rc_rate = 100
+# restore original profile selection
+profile 0
+save
+"""
+
+
+def pid_controller(r_dps, y_dps, P, I, D, F, *, lpf1, lpf2, yaw_lpf, yaw, dt):  # noqa: E741 (pid.h's names)
+    """pidController per loop (no limit reached): the PID sum, in PID units, from setpoints and gyro in deg/s."""
+    kp, ki, kd, kf = 0.032029 * P, 0.244381 * I, 0.000529 * D, 0.013754 * (F * 0.01)
+    if yaw:
+        ki *= 2.5  # pid_init.c: pidCoefficient[FD_YAW].Ki *= 2.5f
+
+    def k(f):  # pt1FilterGain
+        return 1.0 if f <= 0 else dt / (1.0 / (2 * math.pi * f) + dt)
+
+    s1 = s2 = prev_g = i_term = prev_sp = p_state = 0.0
+    out = []
+    for sp, gyro in zip(r_dps, y_dps):
+        s1 = s1 + k(lpf1) * (gyro - s1)
+        s2 = s2 + k(lpf2) * (s1 - s2)
+        err = sp - gyro
+        p = kp * err
+        if yaw:
+            p_state = p_state + k(yaw_lpf) * (p - p_state)
+            p = p_state
+        i_term = i_term + ki * dt * err
+        d = kd * -(s2 - prev_g) / dt
+        prev_g = s2
+        f = kf * (sp - prev_sp) / dt
+        prev_sp = sp
+        out.append(p + i_term + d + f)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("axis", ["roll", "yaw"])
+def test_the_law_is_pidcontroller(axis):
+    rng = np.random.default_rng(5)
+    r, w = rng.standard_normal(800), rng.standard_normal(800)  # rad/s
+    st = get_structure("betaflight_rate")
+    fixed = {**st.fixed_values, **({"yaw_lpf_hz": 100.0, "i_mult": 2.5} if axis == "yaw" else {})}
+    g = {"P": 45.0, "I": 80.0, "D": 40.0 if axis == "roll" else 10.0, "FF": 120.0, **fixed}
+    c = st.tf(g, DT)
+    u = signal.lfilter(c.num_r, c.den, r) - signal.lfilter(c.num, c.den, w)
+    pid_sum = pid_controller(np.degrees(r), np.degrees(w), 45.0, 80.0, g["D"], 120.0, lpf1=75.0, lpf2=150.0,
+                             yaw_lpf=100.0, yaw=axis == "yaw", dt=DT)
+    # mixer.c: Sum / PID_MIXER_SCALING (the transfer function's poles near 1 at 8 kHz: 1e-10 of the output's scale)
+    np.testing.assert_allclose(u, pid_sum / 1000.0, rtol=1e-9, atol=1e-9 * np.max(np.abs(u)))
+
+
+def test_a_cli_diff_is_read_from_the_selected_profile():
+    v = vehicle_from_text(DUMP, axis="roll", source="quad.txt")
+    assert v.firmware == "betaflight"
+    assert v.gains == {"P": 45.0, "I": 80.0, "D": 40.0, "FF": 120.0}  # profile 0's, not profile 1's 60
+    assert v.fixed["dlpf1_hz"] == 75.0 and v.fixed["dlpf2_hz"] == 150.0 and v.fixed["i_mult"] == 1.0
+    assert v.loop_hz == 4000.0 and "8 kHz" in v.loop_source  # 8 kHz over pid_process_denom 2, assumed and said
+    text = " ".join(v.notes)
+    assert "d_min_roll = 30" in text and "iterm_relax" in text and "dterm_lpf1_dyn_min_hz = 75" in text
+    y = vehicle_from_text(DUMP, axis="yaw", source="quad.txt")
+    assert y.fixed["i_mult"] == 2.5 and y.fixed["yaw_lpf_hz"] == 100.0  # yaw_lowpass_hz not in it: the default
+
+
+@pytest.mark.parametrize("line, name", [("set dterm_lpf1_type = BIQUAD", "dterm_lpf1_type"),
+                                        ("set dterm_lpf2_type = PT2", "dterm_lpf2_type"),
+                                        ("set dterm_notch_hz = 260", "dterm_notch_hz")])
+def test_what_the_model_does_not_hold_is_refused_by_name(line, name):
+    with pytest.raises(TunerError, match=name):
+        vehicle_from_text(DUMP + line + "\n", axis="roll", source="quad.txt")
+
+
+def test_the_export_is_cli_set_lines_with_whole_gains(tmp_path):
+    res = {"structure": "betaflight_rate", "controller": {"dt": DT}, "meets_spec": True, "axis": "pitch",
+           "gains": {"P": 47.4, "I": 83.6, "D": 46.0, "FF": 125.0, "dlpf1_hz": 75.0, "dlpf2_hz": 150.0,
+                     "yaw_lpf_hz": 0.0, "iterm_limit": 400.0, "i_mult": 1.0}}
+    pf = make_param_file(res, "betaflight")
+    lines = [ln for ln in pf.text.splitlines() if not ln.startswith("#")]
+    assert lines == ["set p_pitch = 47", "set i_pitch = 84", "set d_pitch = 46", "set f_pitch = 125",
+                     "set iterm_limit = 400"]
+    assert pf.name == "betaflight_rate_pitch.txt"
+    p = tmp_path / pf.name
+    p.write_text(pf.text)
+    v = read_params(p, axis="pitch")
+    assert v.firmware == "betaflight" and v.gains == {"P": 47.0, "I": 84.0, "D": 46.0, "FF": 125.0}
+
+
+def test_a_gain_beyond_its_range_is_refused_at_export():
+    res = {"structure": "betaflight_rate", "controller": {"dt": DT}, "meets_spec": True,
+           "gains": {"P": 300.0, "I": 80.0, "D": 40.0, "FF": 120.0, "dlpf1_hz": 75.0, "dlpf2_hz": 150.0,
+                     "yaw_lpf_hz": 0.0, "iterm_limit": 400.0, "i_mult": 1.0}}
+    with pytest.raises(TunerError, match=r"p_roll = 300 is outside betaflight's documented range \[0, 250\]"):
+        make_param_file(res, "betaflight")
