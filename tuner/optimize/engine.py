@@ -15,10 +15,10 @@ so far). The search stops when
   random starts have reached ``w`` distinct local optima, the posterior expectation of the total relative volume of
   the regions of attraction not yet reached is ``w (w + 1) / (n (n - 1))``; the search may claim its answer when that
   is at most :data:`UNSEEN_LEVEL`. Its sample is each restart's own draw (:meth:`Engine._restart`): a fresh
-  scrambled-Sobol set over the whole box (seeded by the user's seed and the restart: independent draws), its best
-  quarter by batch score kept (the reduced sample of multi-level multistart: the estimate then speaks of the basins
-  of that level set), one point of it picked at random (seeded) and refined to its own local optimum, wherever it
-  lies. The distinct optima are counted by value: two draws reached one optimum when their scores agree within the
+  scrambled-Sobol set over the whole box (seeded by the user's seed and the restart: independent draws), the best
+  quarter by batch score of its points that meet the spec kept (the reduced sample of multi-level multistart: the
+  estimate then speaks of the basins of that level set; where none meets the spec, the best point), one point of it
+  picked at random (seeded) and refined to its own local optimum, wherever it lies. The distinct optima are counted by value: two draws reached one optimum when their scores agree within the
   search's tolerance (half a sample of settling time, or 0.1 %), never when their scores differ, however close in
   the box (infeasible ends: within ``Effort.basin`` of each other). The search stops when at least
   ``max(Effort.confirm, Effort.refind)`` restarts ran, the last one found nothing better than that tolerance, and
@@ -97,6 +97,17 @@ RAY_DECADES = tuple(sorted({sgn * 0.04 * 2.0 ** -k for k in range(7) for sgn in 
 # a distinct basin within this of the incumbent (relative) leaves its convergence not confirmed (Engine.optimality)
 CLAIM_RIVAL = 0.01
 CLAIM_MOVED = 1e-3  # ... and an incumbent that improved by more than this (relative) after round 0
+# the finalists' parameters are rounded to this many significant digits before the verifier judges them (issue 41,
+# the same answer on either batch path): the compiled kernels and the numpy path score a candidate alike to 1e-10
+# (the settling time's interpolation) and their refinements end alike to about 1e-14, so the verified answer is
+# bitwise the same on both unless a parameter falls within ~1e-14 of a rounding boundary (about 1e-4 a parameter)
+ANSWER_DIGITS = 10
+
+
+def _decimal(x: np.ndarray) -> np.ndarray:
+    """``x`` rounded to :data:`ANSWER_DIGITS` significant digits (decimal: what the answer prints is what was
+    verified)."""
+    return np.array([float(f"{a:.{ANSWER_DIGITS}g}") for a in np.asarray(x, float)])
 
 
 @dataclass(frozen=True)
@@ -734,7 +745,7 @@ class Engine:
                     if score < self.best.score:
                         self.best = _Best(float(score), v)
                     if j == 0:
-                        self._contained_x = self.space.params(v)
+                        self._contained_x = _decimal(self.space.params(v))
                 else:
                     out.append(v)
         self.info.seeded_from = name
@@ -790,11 +801,13 @@ class Engine:
 
     def _draw(self, scores: np.ndarray) -> int:
         """The evidence rule's start in a restart's fresh points (their batch ``scores``): one of the best
-        ``Effort.draw_share`` of them (at least one; ties in the fresh set's order), picked at random by a generator
-        seeded by the user's seed and the restart, so that the draws are independent of each other and of how the
-        search went so far."""
+        ``Effort.draw_share`` of those that meet the spec (the reduced sample: a random start in the level set of
+        the feasible designs' better part; at least one; ties in the fresh set's order; where none meets it, the
+        best), picked at random by a generator seeded by the user's seed and the restart, so that the draws are
+        independent of each other and of how the search went so far."""
         order = np.argsort(scores, kind="stable")
-        keep = max(1, int(math.ceil(self.effort.draw_share * len(order))))
+        feasible = int(np.sum(scores < INFEASIBLE))
+        keep = max(1, int(math.ceil(self.effort.draw_share * feasible)))
         rng = np.random.default_rng([self.seed, self.restarts, 21])
         return int(order[int(rng.integers(keep))])
 
@@ -1080,7 +1093,7 @@ class Engine:
                 out.append((s, v))
             if len(out) >= k:
                 break
-        return [(s, self.space.params(v)) for s, v in out]
+        return [(s, _decimal(self.space.params(v))) for s, v in out]
 
     def verify_best(self, k: int | None = None) -> tuple[np.ndarray, Scored]:
         """Full-resolution verification of the ``k`` (``Effort.verify``) finalists in the search's order: the
