@@ -18,9 +18,10 @@ so far). The search stops when
   scrambled-Sobol set over the whole box (seeded by the user's seed and the restart: independent draws), the best
   quarter by batch score of its points that meet the spec kept (the reduced sample of multi-level multistart: the
   estimate then speaks of the basins of that level set; where none meets the spec, the best point), one point of it
-  picked at random (seeded) and refined to its own local optimum, wherever it lies. The distinct optima are counted by value: two draws reached one optimum when their scores agree within the
-  search's tolerance (half a sample of settling time, or 0.1 %), never when their scores differ, however close in
-  the box (infeasible ends: within ``Effort.basin`` of each other). The search stops when at least
+  picked at random (seeded) and refined to its own local optimum, wherever it lies. The distinct optima are counted by
+  value: two draws reached one optimum when their scores agree within the search's tolerance (half a sample of
+  settling time, or 0.1 %), never when their scores differ, however close in the box (infeasible ends: within
+  ``Effort.basin`` of each other). The search stops when at least
   ``max(Effort.confirm, Effort.refind)`` restarts ran, the last one found nothing better than that tolerance, and
   the estimate is at most :data:`UNSEEN_LEVEL`; the result claims "converged" only if ``Effort.refind`` of those
   draws also reached the incumbent's value (the draw that first found it does not count). One draw can never make
@@ -102,6 +103,15 @@ CLAIM_MOVED = 1e-3  # ... and an incumbent that improved by more than this (rela
 # (the settling time's interpolation) and their refinements end alike to about 1e-14, so the verified answer is
 # bitwise the same on both unless a parameter falls within ~1e-14 of a rounding boundary (about 1e-4 a parameter)
 ANSWER_DIGITS = 10
+# ... and what a refinement starts from (the start's batch figures, the incumbent's settling time) to this many: the
+# refinement's grid (its horizon, points per sample) follows them, and a figure a rounding's width apart on the two
+# paths must not give two grids
+INPUT_DIGITS = 7
+
+
+def _sig(a: float, digits: int) -> float:
+    """``a`` rounded to ``digits`` significant digits (non-finite: as is)."""
+    return float(f"{a:.{digits}g}") if math.isfinite(a) else a
 
 
 def _decimal(x: np.ndarray) -> np.ndarray:
@@ -494,10 +504,15 @@ class Engine:
                 self.best = _Best(float(s), v)
         return r.score
 
-    def _start(self, v: np.ndarray) -> Start | None:
-        """What the batch said about the pooled point ``v`` (None if it was not scored here)."""
+    def _start(self, v: np.ndarray, digits: int | None = None) -> Start | None:
+        """What the batch said about the pooled point ``v`` (None if it was not scored here); ``digits``: each figure
+        rounded to that many significant digits."""
         row = self._starts.get(v.tobytes())
-        return None if row is None else Start.row(*row)
+        if row is None:
+            return None
+        st = Start.row(*row)
+        return st if digits is None else Start(*(np.array([_sig(float(a), digits) for a in f]) for f in
+                                                 (st.settle, st.wc, st.wp, st.horizon, st.overshoot)))
 
     @property
     def _settling(self) -> bool:
@@ -572,8 +587,8 @@ class Engine:
             try:
                 res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                              build_cap=None if self.build_cap is None else self.build_cap - self.reserve_s,
-                             incumbent=self.best.score if self._settling and not own else None,
-                             start=self._start(v),
+                             incumbent=_sig(self.best.score, INPUT_DIGITS) if self._settling and not own else None,
+                             start=self._start(v, digits=INPUT_DIGITS),
                              fine=fine, detail=self.effort.detail)
             except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation
                 # step of a stiff plant below the smallest sample time, a loop gain beyond double precision for
