@@ -53,7 +53,8 @@ its gap, the restarts and whether one improved. The final choice is made by the 
 the search: the best verified of ``Effort.verify`` finalists.
 
 ``effort`` (:data:`EFFORTS`) trades time for confidence: ``fast`` is round 0 alone (its own agreement
-ends it), ``default`` adds 2-4 restarts, ``thorough`` 4-8 with more starts, points and refinements.
+ends it), ``default`` adds 4 restarts (the rule cannot hold before the fourth draw), ``thorough`` 4-8 with more
+starts, points and refinements.
 """
 
 from __future__ import annotations
