@@ -108,13 +108,14 @@ def test_fast_effort_needs_no_restart_and_is_never_better_than_default():
 
 
 def test_a_larger_budget_returns_the_same_converged_answer():
-    """The search is deterministic and converges well within the budget: more budget, the same answer. (Both
+    """The search is deterministic and ends on its own (its evidence rule or its work budget of restarts) well within
+    the budget: more budget, the same answer. (Both
     budgets are far above what the search uses even at -n 8 on 2 cores: the engine cuts a batch or skips an NLP
     build by the time left, so a budget the load makes tight is a different search, not a worse-budget test.)"""
     p = plant_from_expr("2/((s+1)*(0.3s+1))")
     a = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=120, diagnose=False)
     b = tune(p, structure="pid", dt=0.05, seed=1, time_budget_s=600, diagnose=False)
-    assert a.solver["stop"] == b.solver["stop"] == "converged"
+    assert a.solver["stop"] == b.solver["stop"] and a.solver["stop"] in ("converged", "work")
     assert b.objective == a.objective and b.gains == a.gains
 
 
