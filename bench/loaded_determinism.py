@@ -29,14 +29,17 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--busy", type=int, default=2)
     ap.add_argument("--out", default=str(HERE / "results" / "loaded_determinism"))
+    ap.add_argument("--budget", type=float, default=None,
+                    help="the command's --budget (a hard wall limit in place of the default 60 s cap; default: none)")
     a = ap.parse_args()
+    command = COMMAND + ([] if a.budget is None else ["--budget", f"{a.budget:g}"])
     tuner = str(Path(sys.executable).parent / "tuner")
     busy = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(a.busy)]
     runs = []
     try:
         for i in range(a.runs):
             t0 = time.perf_counter()
-            p = subprocess.run([tuner, *COMMAND], capture_output=True, text=True, cwd=ROOT)
+            p = subprocess.run([tuner, *command], capture_output=True, text=True, cwd=ROOT)
             wall = time.perf_counter() - t0
             if p.returncode != 0:
                 runs.append({"run": i, "returncode": p.returncode, "stderr": p.stderr[-2000:], "wall_s": wall})
@@ -54,7 +57,7 @@ def main() -> None:
             b.kill()
             b.wait()
     gains = [json.dumps(r.get("gains_repr"), sort_keys=True) for r in runs]
-    res = {"command": "tuner " + " ".join(COMMAND), "busy": a.busy, "runs": runs,
+    res = {"command": "tuner " + " ".join(command), "busy": a.busy, "runs": runs,
            "identical_gains": len(set(gains)) == 1 and all("gains" in r for r in runs),
            "distinct_gains": len(set(gains))}
     Path(a.out + ".json").write_text(json.dumps(res, indent=1))

@@ -326,10 +326,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="time budget, seconds, a hard wall-time limit (default: one that fits the problem: 10 s of "
                         "search, 20 s for pid2, the NLP builds not counted, 60 s in all at most)")
     t.add_argument("--effort", choices=EFFORT_NAMES, default="default",
-                   help="how hard to search: fast (the first round alone), default (plus an independent restart "
-                        "that must find nothing better), thorough (three such restarts in a row, more starts, a finer "
-                        "polish: about 3x the default's time); the output's 'optimality' line says what the search "
-                        "knows")
+                   help="how hard to search: fast (the first round alone), default (plus 4 independent restarts, "
+                        "'converged' only where their draws all reach one optimum), thorough (4-8 restarts, more "
+                        "starts, a finer polish: about 3x the default's time); the output's 'optimality' line says "
+                        "what the search knows")
     t.add_argument("--json", action="store_true")
     _add_plot_args(t)
     _add_spec_args(t)

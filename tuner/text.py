@@ -233,9 +233,10 @@ def optimality_line(s: dict[str, Any] | None) -> str:
     gap = o.get("gap")
     parts.append("no distinct alternative" if gap is None else f"best distinct alternative {gap * 100:+.3g} %")
     if ev.get("unseen") is not None:
-        parts.append(f"unreached-basin estimate {ev['unseen']:.2g} (Good-Turing: {ev['singletons']} basin"
-                     f"{'s' if ev['singletons'] != 1 else ''} reached once in {ev['refinements']} restart refinement"
-                     f"{'s' if ev['refinements'] != 1 else ''}; level {ev['level']:.2g})")
+        w, n = ev.get("basins", 0), ev["refinements"]
+        parts.append(f"unreached-basin estimate {ev['unseen']:.2g} (multistart's Bayesian rule, w(w+1)/(n(n-1)): "
+                     f"{w} optim{'a' if w != 1 else 'um'} reached by {n} random restart draw{'s' if n != 1 else ''}"
+                     f"; level {ev['level']:.2g})")
     claim = o.get("claim") or ("converged" if s.get("stop") == "converged" else "budget")
     verdict_ = {"converged": "converged", "not confirmed": "not confirmed"}.get(claim, "budget used (not confirmed)")
     return (f"optimality ({o.get('effort', 'default')} effort, {verdict_}): " + ", ".join(parts)
@@ -256,7 +257,7 @@ def _unconfirmed(o: dict[str, Any]) -> str:
                        f"answer's basin, of the {ev.get('refind', 2)} the claim needs")
         if ev.get("unseen") is None or ev["unseen"] > ev.get("level", 0.2):
             est = "unknown" if ev.get("unseen") is None else f"{ev['unseen']:.2g}"
-            why.append(f"the Good-Turing estimate of the basins the restarts have not reached is {est}, above the "
+            why.append(f"the estimated share of the basins the restarts' draws have not reached is {est}, above the "
                        f"{ev.get('level', 0.2):.2g} level")
         if o.get("stop") == "work":
             why.append(f"the {o.get('max_restarts')} restarts the effort affords have run")

@@ -370,16 +370,17 @@ def tune(
     effort : str
         How hard to search (:data:`tuner.optimize.engine.EFFORTS`): ``"fast"`` is the first round alone
         (it stops when two refinements agree; without an independent restart it never claims convergence),
-        ``"default"`` adds independent space-filling restarts (2 to 3) until their refinements' Good-Turing
-        estimate of the basins they have not reached is at most 0.2 (with 2 or 3 refinements it can only be 0,
-        1/2 or 1, or 0, 1/3, 2/3 or 1: it passes only at 0; it estimates the unreached basins' mass, it does not
-        bound whether a better design exists), ``"thorough"`` more (3 to 8, three refinements each), more
-        starts and points and a sharper polish (twice the grid detail, the settling time between the grid's
-        points, each step confirmed by the verifier); measured costs in bench/QUALITY.md. "converged" (the
-        ``claim`` of ``solver["optimality"]``, and ``solver["converged"]``) only where at least 2 (thorough 3)
-        restarts re-found the answer's basin and that estimate, which ``solver["optimality"]["evidence"]`` holds
-        with the figures behind it, is at most 0.2 (:meth:`tuner.optimize.engine.Engine.evidence`); otherwise
-        "not confirmed" (bench/convergence.py measures the claim).
+        ``"default"`` adds 4 independent space-filling restarts (its work budget; multistart's Bayesian stopping rule
+        cannot hold before the fourth: Boender and Rinnooy Kan 1987: after n restart draws reached w distinct optima,
+        counted by value, the posterior expected share of the regions of attraction not reached, w (w + 1) / (n (n -
+        1)), is at most 0.2: it needs at least 4 draws, all in one optimum; it estimates what the draws leave
+        unexplored, it does not bound whether a better design exists), ``"thorough"`` more (4 to 8, three refinements
+        each), more starts and points and a sharper polish (twice the grid detail, the settling time between the
+        grid's points, each step confirmed by the verifier); measured costs in bench/QUALITY.md. "converged" (the
+        ``claim`` of ``solver["optimality"]``, and ``solver["converged"]``) only where that estimate, which
+        ``solver["optimality"]["evidence"]`` holds with the figures behind it, is at most 0.2 and at least 2 (thorough
+        3) restarts' draws re-found the answer's value (:meth:`tuner.optimize.engine.Engine.evidence`); otherwise "not
+        confirmed" (bench/convergence.py measures the claim).
     vehicle : tuner.firmware.VehicleParams, optional
         With ``px4_rate`` or ``ardupilot_rate``: what the vehicle fixes (loop rate, filters, PX4's ``K``, the
         integrator limit; :func:`tuner.firmware.read_params` reads them from a ``.params``, ``.parm`` or ULog

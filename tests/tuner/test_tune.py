@@ -216,7 +216,7 @@ def test_solver_information(tuned, name, structure):
     if o["claim"] == "not confirmed":
         assert "not confirmed: " in o["summary"] and "thorough effort" in o["summary"]
     else:
-        assert o["evidence"]["holds"] and o["restarts"] >= 2 and "Good-Turing" in o["summary"]
+        assert o["evidence"]["holds"] and o["restarts"] >= 4 and "Bayesian rule" in o["summary"]
     assert res.structure == structure and res.spec == THESIS
 
 

@@ -84,3 +84,39 @@ def test_an_explicit_budget_is_a_hard_cap_that_says_what_it_cut():
     s = res.solver
     assert s["stop"] == "budget" and s["cut"] is not None and s["cut"]["cap_s"] == 0.05
     assert "cut by the time cap" in s["optimality"]["summary"]
+
+
+@pytest.mark.parametrize("expr, structure, dt", [(PLANT, "pi", 0.1), ("1/(s+1)^3", "pid", 0.1)])
+def test_the_kernels_and_the_numpy_path_give_bitwise_the_same_gains(expr, structure, dt, monkeypatch):
+    """The service's solvers and the study workers score with the compiled kernels, a one-shot command with numpy;
+    the two agree on a score to about 1e-10 (the settling time's interpolation), not bitwise. The answer must not
+    depend on which ran: the same tune on each path gives bitwise the same gains, after the same search."""
+    pytest.importorskip("numba")
+    from tuner.optimize import batch as batch_mod
+
+    used: list[bool] = []
+    real_init = batch_mod.BatchEvaluator.__init__
+
+    def init(self, *a, **k):
+        real_init(self, *a, **k)
+        used.append(self.kernels is not None)
+
+    monkeypatch.setattr(batch_mod.BatchEvaluator, "__init__", init)
+
+    def run(mode: str):
+        used.clear()
+        with monkeypatch.context() as m:
+            m.setenv("TUNER_KERNELS", mode)
+            m.setattr(batch_mod, "_KERNELS", {"module": None, "spawned": True})  # (this process's choice kept apart)
+            res = tune(plant_from_expr(expr), structure=structure, dt=dt, seed=3, diagnose=False)
+        return res, set(used)
+
+    numpy_res, numpy_used = run("off")
+    kernel_res, kernel_used = run("on")
+    assert numpy_used == {False} and kernel_used == {True}  # each ran on its own path alone
+    for r in (numpy_res, kernel_res):
+        assert r.solver["stop"] in ("converged", "work") and r.solver["cut"] is None, \
+            (r.solver["cut"], r.solver["wall_time_s"])  # (not cut by the clock)
+    assert kernel_res.gains == numpy_res.gains  # bitwise
+    assert kernel_res.objective == numpy_res.objective
+    assert kernel_res.solver["global_evaluations"] == numpy_res.solver["global_evaluations"]  # the same search

@@ -9,22 +9,31 @@ polished once on the NLP's fine grid (:meth:`Engine._polish`). Later rounds are 
 (:meth:`Engine._restart`; with ``Effort.optuna`` also Optuna's seeded sampler, told every point scored
 so far). The search stops when
 
-* **converged**: the evidence rule holds (:meth:`Engine.evidence`, issue 41: on a principle, not a suite). Each
-  restart (:meth:`Engine._restart`) scores a fresh scrambled-Sobol set over the whole box (seeded by the user's seed
-  and the restart) and refines the best of it to its own local optimum, wherever it lies: an independent draw of
-  where a refinement from a space-filling start ends. The search stops when at least ``max(Effort.confirm,
-  Effort.refind)`` restarts ran, the last one found nothing better than the tolerance (half a sample of settling
-  time, or 0.1 %), and the Good-Turing estimate of the chance that a further draw reaches a basin none has reached
-  (basins reached exactly once / draws: an estimate of the probability mass of the basins the draws have not
-  reached, not a bound on whether a better basin exists) is at most :data:`UNSEEN_LEVEL`; the result claims
-  "converged" only if ``Effort.refind`` of those restarts also re-found the incumbent's basin
-  (:meth:`Engine.optimality`). At default effort the estimate rests on 2 or 3 restart refinements (0, 1/2 or 1;
-  after three, 0, 1/3, 2/3 or 1), so it passes only at 0, and the held-out suite still shows 1 false "converged"
-  of 5 claims at default, 0 of 9 at thorough (bench/results/convergence.md). Round 0
-  agreeing with itself (two refinements from distinct starts reaching the same value) ends ``effort="fast"``,
-  which claims nothing without a restart. A restart also refines, at ``Effort.restart_refines`` > 0, the best
-  candidates outside every basin refined so far (``Effort.restart_spread``: those farthest from every point
-  refined), scans around an incumbent it has not scanned and casts the loop-gain ray from one it has not; or
+* **converged**: the evidence rule holds (:meth:`Engine.evidence`, issue 41: on a principle, not a suite). The
+  principle is multistart's Bayesian stopping rule (Boender and Rinnooy Kan, "Bayesian stopping rules for multistart
+  global optimization methods", Math. Programming 37 (1987) 59-80): after ``n`` local searches from independent
+  random starts have reached ``w`` distinct local optima, the posterior expectation of the total relative volume of
+  the regions of attraction not yet reached is ``w (w + 1) / (n (n - 1))``; the search may claim its answer when that
+  is at most :data:`UNSEEN_LEVEL`. Its sample is each restart's own draw (:meth:`Engine._restart`): a fresh
+  scrambled-Sobol set over the whole box (seeded by the user's seed and the restart: independent draws), the best
+  quarter by batch score of its points that meet the spec kept (the reduced sample of multi-level multistart: the
+  estimate then speaks of the basins of that level set; where none meets the spec, the best point), one point of it
+  picked at random (seeded) and refined to its own local optimum, wherever it lies. The distinct optima are counted by
+  value: two draws reached one optimum when their scores agree within the search's tolerance (half a sample of
+  settling time, or 0.1 %), never when their scores differ, however close in the box (infeasible ends: within
+  ``Effort.basin`` of each other). The search stops when at least
+  ``max(Effort.confirm, Effort.refind)`` restarts ran, the last one found nothing better than that tolerance, and
+  the estimate is at most :data:`UNSEEN_LEVEL`; the result claims "converged" only if ``Effort.refind`` of those
+  draws also reached the incumbent's value (the draw that first found it does not count). One draw can never make
+  the claim; with every draw in one optimum the estimate is 1/3 after 3 draws and 1/6 after 4, so a claim needs at
+  least 4 draws (default effort affords 4 restarts, thorough 8); any second optimum reached (better or worse) needs
+  more (w = 2: 7 draws). It is an estimate of what the draws' distribution leaves unexplored, not a bound on whether
+  a better design exists: a better basin that random starts of the best quarter seldom reach is missed whatever
+  the estimate. Round 0 agreeing with itself (two refinements from distinct starts reaching the same value) ends
+  ``effort="fast"``, which claims nothing without a restart. A restart also refines, at
+  ``Effort.restart_refines`` > 0, the best candidates outside every basin refined so far (``Effort.restart_spread``:
+  those farthest from every point refined; not the rule's sample), scans around an incumbent it has not scanned and
+  casts the loop-gain ray from one it has not; or
 * **work**: the restarts the effort affords (``Effort.max_restarts``) ran without that evidence: the default
   stopping rule counts work, never seconds, so a seed gives the same steps, and the same gains, on an idle and on a
   loaded machine, for every run the time cap did not cut; or
@@ -44,7 +53,8 @@ its gap, the restarts and whether one improved. The final choice is made by the 
 the search: the best verified of ``Effort.verify`` finalists.
 
 ``effort`` (:data:`EFFORTS`) trades time for confidence: ``fast`` is round 0 alone (its own agreement
-ends it), ``default`` adds 2-3 restarts, ``thorough`` 3-8 with more starts, points and refinements.
+ends it), ``default`` adds 4 restarts (the rule cannot hold before the fourth draw), ``thorough`` 4-8 with more
+starts, points and refinements.
 """
 
 from __future__ import annotations
@@ -89,6 +99,26 @@ RAY_DECADES = tuple(sorted({sgn * 0.04 * 2.0 ** -k for k in range(7) for sgn in 
 # a distinct basin within this of the incumbent (relative) leaves its convergence not confirmed (Engine.optimality)
 CLAIM_RIVAL = 0.01
 CLAIM_MOVED = 1e-3  # ... and an incumbent that improved by more than this (relative) after round 0
+# the finalists' parameters are rounded to this many significant digits before the verifier judges them (issue 41,
+# the same answer on either batch path): the compiled kernels and the numpy path score a candidate alike to 1e-10
+# (the settling time's interpolation) and their refinements end alike to about 1e-14, so the verified answer is
+# bitwise the same on both unless a parameter falls within ~1e-14 of a rounding boundary (about 1e-4 a parameter)
+ANSWER_DIGITS = 10
+# ... and what a refinement starts from (the start's batch figures, the incumbent's settling time) to this many: the
+# refinement's grid (its horizon, points per sample) follows them, and a figure a rounding's width apart on the two
+# paths must not give two grids
+INPUT_DIGITS = 7
+
+
+def _sig(a: float, digits: int) -> float:
+    """``a`` rounded to ``digits`` significant digits (non-finite: as is)."""
+    return float(f"{a:.{digits}g}") if math.isfinite(a) else a
+
+
+def _decimal(x: np.ndarray) -> np.ndarray:
+    """``x`` rounded to :data:`ANSWER_DIGITS` significant digits (decimal: what the answer prints is what was
+    verified)."""
+    return np.array([float(f"{a:.{ANSWER_DIGITS}g}") for a in np.asarray(x, float)])
 
 
 @dataclass(frozen=True)
@@ -128,14 +158,18 @@ class Effort:
     # found nothing its round 0's five starts had not
     restart_spread: int = 0
     # -- the evidence rule (see the module docstring and Engine.evidence) -------------------------------------------
-    refind: int = 2  # restarts whose own draw must re-find the incumbent's basin before "converged"
-    max_restarts: int = 6  # the work budget: restarts after round 0 at most (the default stopping rule counts work)
+    refind: int = 2  # restarts whose own draw must re-find the incumbent's value before "converged"
+    # the work budget: restarts after round 0 at most (the default stopping rule counts work); the rule's estimate
+    # w (w + 1) / (n (n - 1)) needs n >= 4 draws to reach UNSEEN_LEVEL at all, so an effort that may claim affords 4
+    max_restarts: int = 6
+    # the reduced sample a restart's draw starts from: a random one of the best this share of its Sobol points
+    draw_share: float = 0.25
 
 
-#: the stated level of the evidence rule: "converged" only where the Good-Turing estimate of the chance that a further
-#: restart's refinement ends in a basin no restart has seen (basins seen exactly once / restart refinements: the
-#: estimated probability mass of the basins not yet reached, which does not bound whether a better basin exists) is
-#: at most this
+#: the stated level of the evidence rule: "converged" only where the posterior expected relative volume of the regions
+#: of attraction no restart's draw has reached (Boender and Rinnooy Kan 1987: w (w + 1) / (n (n - 1)) after n draws
+#: reached w distinct optima; an estimate of what the draws' distribution leaves unexplored, not a bound on whether a
+#: better basin exists) is at most this
 UNSEEN_LEVEL = 0.2
 
 EFFORTS = {
@@ -144,7 +178,7 @@ EFFORTS = {
     # default: two round-0 refinements and one per restart cost 30 % less than three and two, and on every fourth
     # suite case changed no ratio by more than 0.3 % (bench/QUALITY.md)
     "default": Effort("default", n_starts=2, design_points=48, confirm=1, restart_points=64,
-                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=3),
+                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=4),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2, refind=3, max_restarts=8),
 }
@@ -471,10 +505,15 @@ class Engine:
                 self.best = _Best(float(s), v)
         return r.score
 
-    def _start(self, v: np.ndarray) -> Start | None:
-        """What the batch said about the pooled point ``v`` (None if it was not scored here)."""
+    def _start(self, v: np.ndarray, digits: int | None = None) -> Start | None:
+        """What the batch said about the pooled point ``v`` (None if it was not scored here); ``digits``: each figure
+        rounded to that many significant digits."""
         row = self._starts.get(v.tobytes())
-        return None if row is None else Start.row(*row)
+        if row is None:
+            return None
+        st = Start.row(*row)
+        return st if digits is None else Start(*(np.array([_sig(float(a), digits) for a in f]) for f in
+                                                 (st.settle, st.wc, st.wp, st.horizon, st.overshoot)))
 
     @property
     def _settling(self) -> bool:
@@ -549,8 +588,8 @@ class Engine:
             try:
                 res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                              build_cap=None if self.build_cap is None else self.build_cap - self.reserve_s,
-                             incumbent=self.best.score if self._settling and not own else None,
-                             start=self._start(v),
+                             incumbent=_sig(self.best.score, INPUT_DIGITS) if self._settling and not own else None,
+                             start=self._start(v, digits=INPUT_DIGITS),
                              fine=fine, detail=self.effort.detail)
             except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation
                 # step of a stiff plant below the smallest sample time, a loop gain beyond double precision for
@@ -722,7 +761,7 @@ class Engine:
                     if score < self.best.score:
                         self.best = _Best(float(score), v)
                     if j == 0:
-                        self._contained_x = self.space.params(v)
+                        self._contained_x = _decimal(self.space.params(v))
                 else:
                     out.append(v)
         self.info.seeded_from = name
@@ -752,14 +791,14 @@ class Engine:
         proj = self._projections()
         sc = self._score(np.array(self._affordable(proj + list(fresh))), source="restart")
         if self.local and self._time_left() > 0:
-            # the evidence rule's sample (Engine.evidence): the best of this restart's own space-filling set, refined
-            # wherever it lies (an independent draw of where a refinement from a random start ends: it re-finds the
-            # incumbent's basin, or reaches another)
-            fs = sc[len(proj):]
+            # the evidence rule's sample (Engine.evidence): a random point of the best Effort.draw_share of this
+            # restart's own space-filling set (the reduced sample), refined wherever it lies: an independent draw of
+            # where a refinement from a random start of that level set ends
+            fs = np.asarray(sc[len(proj):], float)
             if len(fs) == len(fresh) and len(fs):
                 self._in_restart = True
                 try:
-                    self._refine([self.pool[len(self.pool) - len(fs) + int(np.argmin(fs))][1]], own=True)
+                    self._refine([self.pool[len(self.pool) - len(fs) + self._draw(fs)][1]], own=True)
                 finally:
                     self._in_restart = False
         if self.local and self._time_left() > 0 and self.effort.restart_refines:
@@ -775,6 +814,18 @@ class Engine:
             # (the ray from an incumbent it started from before repeats itself point for point: not again)
             self._ray()
         self._polish()
+
+    def _draw(self, scores: np.ndarray) -> int:
+        """The evidence rule's start in a restart's fresh points (their batch ``scores``): one of the best
+        ``Effort.draw_share`` of those that meet the spec (the reduced sample: a random start in the level set of
+        the feasible designs' better part; at least one; ties in the fresh set's order; where none meets it, the
+        best), picked at random by a generator seeded by the user's seed and the restart, so that the draws are
+        independent of each other and of how the search went so far."""
+        order = np.argsort(scores, kind="stable")
+        feasible = int(np.sum(scores < INFEASIBLE))
+        keep = max(1, int(math.ceil(self.effort.draw_share * feasible)))
+        rng = np.random.default_rng([self.seed, self.restarts, 21])
+        return int(order[int(rng.integers(keep))])
 
     def _projections(self) -> list[np.ndarray]:
         """The incumbent with one gain at a time set to zero or shrunk by 10^-2 and 10^-4 (a PID's optimum may
@@ -903,9 +954,9 @@ class Engine:
                         break
                     continue
                 # the evidence rule (Engine.evidence): enough restarts, the last one found nothing better, and the
-                # Good-Turing estimate of the basins their draws have not reached is at most UNSEEN_LEVEL; whether
-                # they re-found the incumbent's basin decides
-                # the claim (optimality), not the stop: more draws of the same few basins would add nothing
+                # posterior expected volume of the regions of attraction their draws have not reached
+                # (w (w + 1) / (n (n - 1))) is at most UNSEEN_LEVEL; whether they re-found the incumbent's value
+                # decides the claim (optimality), not the stop: more draws of the same few optima would add little
                 ev = self.evidence()
                 if stale >= 1 and self.restarts >= max(eff.confirm, eff.refind) and ev["unseen"] is not None \
                         and ev["unseen"] <= UNSEEN_LEVEL:
@@ -933,25 +984,30 @@ class Engine:
         return improved
 
     def evidence(self) -> dict[str, Any]:
-        """The evidence rule's figures, from where the restarts' own refinements ended (each refinement's best point;
-        round 0's designed starts are not a random sample of the box and do not count): ``refinements``, how many;
-        ``refound``, how many restarts had one end in the incumbent's basin (within ``Effort.basin`` of it, over the
-        box's span, or at its value within the search's tolerance), not counting the one that first found it;
-        ``singletons``, the basins exactly one refinement ended in; ``unseen``, the Good-Turing
-        estimate singletons / refinements of the chance that a further restart's refinement ends in a basin none
-        has reached, i.e. of the probability mass of the basins the draws have not reached (it does not bound
-        whether a better basin exists; with 2 or 3 refinements it can only be 0, 1/2, 1 or 0, 1/3, 2/3, 1; None
-        without a refinement); ``holds``: refound >= ``Effort.refind`` and unseen <= :data:`UNSEEN_LEVEL`."""
+        """The evidence rule's figures, from where the restarts' own draws ended (each draw's refinement's best point;
+        round 0's designed starts and a restart's explored refinements are not random draws and do not count):
+        ``refinements`` (n), how many draws; ``basins`` (w), the distinct optima they reached, counted by value (two
+        draws reached one optimum when their scores agree within the search's tolerance, never when their scores
+        differ, however close in the box; infeasible ends when within ``Effort.basin`` of each other over the box's
+        span); ``refound``, how many restarts' draws reached the incumbent's value (within that tolerance), not
+        counting the one that first found it (where round 0 did not); ``singletons`` and ``good_turing`` (optima
+        reached by exactly one draw, and that over n: the Good-Turing estimate, for information); ``unseen``, the
+        posterior expected relative volume of the regions of attraction no draw has reached, w (w + 1) / (n (n - 1))
+        (Boender and Rinnooy Kan 1987; 1 below two draws; None without a draw): what the draws' distribution
+        leaves unexplored, not a bound on whether a better basin exists; ``holds``: refound >= ``Effort.refind`` and
+        unseen <= :data:`UNSEEN_LEVEL`."""
         span = self._span(weights=self.problem.spec.objective in ("settling_time", "itae"))
         tol = self._tol()
-        # a basin: the endpoints within Effort.basin of its first one, or at its value within the search's tolerance
-        # (a flat valley's ends, or designs the objective cannot tell apart, are one for the question asked: is
-        # there a better one)
-        reps: list[tuple[float, np.ndarray]] = [] if self.best.v is None else [(self.best.score, self.best.v)]
-        counts = [0] * len(reps)
+
+        def same(sc: float, v: np.ndarray, rs: float, w: np.ndarray) -> bool:
+            if sc < INFEASIBLE and rs < INFEASIBLE:
+                return abs(sc - rs) <= tol  # one optimum by value: different values are never merged
+            return sc >= INFEASIBLE and rs >= INFEASIBLE and np.linalg.norm((v - w) / span) <= self.effort.basin
+
+        inc = [] if self.best.v is None else [(self.best.score, self.best.v)]
+        reps: list[tuple[float, np.ndarray]] = []  # the optima the draws reached (each its first draw's end)
+        counts: list[int] = []
         refound: set[int] = set()
-        same = lambda sc, v, rs, w: np.linalg.norm((v - w) / span) <= self.effort.basin or (
-            sc < INFEASIBLE and rs < INFEASIBLE and abs(sc - rs) <= tol)
         for k, sc, v in self.restart_ends:
             i = next((j for j, (rs, w) in enumerate(reps) if same(sc, v, rs, w)), None)
             if i is None:
@@ -959,17 +1015,17 @@ class Engine:
                 counts.append(0)
                 i = len(reps) - 1
             counts[i] += 1
-            if i == 0 and self.best.v is not None:
+            if inc and same(sc, v, *inc[0]):
                 refound.add(k)
-        if self.best.v is not None and refound and not any(
-                same(sc, v, self.best.score, self.best.v) for sc, v in self.refined[:self._round0_refined]):
-            refound.discard(min(refound))  # the restart that first found the incumbent's basin did not re-find it
-        n = len(self.restart_ends)
+        if inc and refound and not any(same(sc, v, *inc[0]) for sc, v in self.refined[:self._round0_refined]):
+            refound.discard(min(refound))  # the restart that first found the incumbent's optimum did not re-find it
+        n, w = len(self.restart_ends), len(reps)
         singles = sum(c == 1 for c in counts)
-        unseen = singles / n if n else None
+        unseen = None if not n else (1.0 if n < 2 else min(1.0, w * (w + 1) / (n * (n - 1))))
         holds = unseen is not None and len(refound) >= self.effort.refind and unseen <= UNSEEN_LEVEL
-        return {"refinements": n, "refound": len(refound), "singletons": singles, "unseen": unseen,
-                "level": UNSEEN_LEVEL, "refind": self.effort.refind, "holds": bool(holds)}
+        return {"refinements": n, "basins": w, "refound": len(refound), "singletons": singles,
+                "good_turing": singles / n if n else None, "unseen": unseen, "level": UNSEEN_LEVEL,
+                "refind": self.effort.refind, "holds": bool(holds)}
 
     def optimality(self, best_score: float | None = None) -> dict[str, Any]:
         """What the search knows about how close its answer is to the optimum (in the search's scores):
@@ -1002,8 +1058,9 @@ class Engine:
         r0 = None if not (math.isfinite(self.round0_best) and ok(self.best.score)) else \
             (self.round0_best - self.best.score) / abs(self.best.score)
         # the claim (issue 41: on a principle, not a suite). "converged": the search stopped by the evidence rule
-        # (Engine.evidence: at least Effort.refind restarts re-found the incumbent's basin, and the Good-Turing
-        # estimate of the unreached basins' mass is at most UNSEEN_LEVEL); "not confirmed": it stopped otherwise (the
+        # (Engine.evidence: at least Effort.refind restarts' draws re-found the incumbent's value, and the posterior
+        # expected volume of the regions of attraction no draw reached is at most UNSEEN_LEVEL); "not confirmed": it
+        # stopped otherwise (the
         # restarts the effort affords ran without that evidence, fast's round 0 agreeing with itself, a search without
         # the local stage); "budget": the time cap (or an explicit time budget) cut it. ``moved`` and ``rival`` are
         # kept as information (the incumbent improved after round 0; a distinct basin within CLAIM_RIVAL): issue 30's
@@ -1052,7 +1109,7 @@ class Engine:
                 out.append((s, v))
             if len(out) >= k:
                 break
-        return [(s, self.space.params(v)) for s, v in out]
+        return [(s, _decimal(self.space.params(v))) for s, v in out]
 
     def verify_best(self, k: int | None = None) -> tuple[np.ndarray, Scored]:
         """Full-resolution verification of the ``k`` (``Effort.verify``) finalists in the search's order: the

@@ -578,6 +578,18 @@ def _other_objective(ev: BatchEvaluator, space: Space, solve: _Solves, xs: np.nd
         x = ok
 
 
+def _judged(ev: BatchEvaluator, X: np.ndarray) -> Any:
+    """One candidate judged on the batch's numpy path (the reference), whichever path the batch scores with: the
+    compiled kernels give its figures to about 1e-10, not bitwise, and a refinement's accept-or-not against an edge
+    it rides (the settling envelope's) must not depend on which path ran (issue 41: the same answer on the service,
+    which loads the kernels, and the command line, which does not)."""
+    k, ev.kernels = ev.kernels, None
+    try:
+        return ev.evaluate(X)
+    finally:
+        ev.kernels = k
+
+
 def _corrected(ev: BatchEvaluator, space: Space, solve: _Solves, x: np.ndarray, ts: float, edge: float,
                res: RefineResult, to_search: Any, exchange: Any, out_of_time: Any) -> np.ndarray | None:
     """Solves with the envelope from ``ts`` on, each answer a candidate, corrected by the verifier's output until the
@@ -591,7 +603,7 @@ def _corrected(ev: BatchEvaluator, space: Space, solve: _Solves, x: np.ndarray, 
         res.candidates.append(v)
         if not math.isfinite(r[0]) or out_of_time():
             return None
-        if float(np.max(ev.evaluate(space.params(v)[None]).metrics["settling_time_s"])) <= edge:
+        if float(np.max(_judged(ev, space.params(v)[None]).metrics["settling_time_s"])) <= edge:
             return x
         # the envelope constrains the NLP's output plus what the verifier's differs from it at this answer
         ctrl = ev.st.tf(space.params(v), ev.dt)
@@ -902,7 +914,7 @@ def _measured_os(ev: BatchEvaluator, space: Space, v: np.ndarray, on_grid: float
     from the crossover's phase per grid step (:func:`_resolves_peak`): a PI on an unstable plant at wc dt = 0.87 and
     8 points a sample peaks at a sample instant, which every grid holds (9.85 % at the tight limit, 18.82 s; 9.895 %,
     18.68 s). None if the batch cannot tell."""
-    r = ev.evaluate(space.params(v)[None])
+    r = _judged(ev, space.params(v)[None])
     seen = float(r.metrics["overshoot_pct"][0]) / 100.0
     if not math.isfinite(seen):
         return None
