@@ -247,8 +247,9 @@ def test_local_workers_share_a_sqlite_study(tmp_path, capsys):
 
 
 def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
-    """A worker's early plots carry a fingerprint (loop definition + gains): the report uses them for
-    that result only, and draws again for another (e.g. a re-tuned loop in the same folder)."""
+    """A worker's early figures carry a fingerprint (loop definition + gains), one mark per figure: the report uses
+    them for that result only, and only when every figure of the loop is there; it draws again otherwise (e.g. a
+    re-tuned loop in the same folder, or a worker killed between two figures)."""
     from tuner.studies.cli import _drawn_early, _fingerprint
 
     f, _ = _study_file(tmp_path)
@@ -257,14 +258,17 @@ def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
     plots = tmp_path / "plots"
     plots.mkdir()
     result = {"gains": {"K": 1.0, "a1": -0.5, "a2": 0.1}}
-    for kind in ("step", "bode"):
+    fp = _fingerprint(study, yaw, result)
+    for kind in ("step", "bode", "nyquist"):
         (plots / f"yaw_{kind}.png").write_bytes(b"\x89PNG")
-    (plots / "yaw.plotted").write_text(json.dumps({"fingerprint": _fingerprint(study, yaw, result),
-                                                   "figures": {"step": "yaw_step.png", "bode": "yaw_bode.png"}}))
-    assert _drawn_early(study, yaw, result, plots) == {"step": plots / "yaw_step.png", "bode": plots / "yaw_bode.png"}
+        (plots / f"yaw_{kind}.plotted").write_text(json.dumps({"fingerprint": fp, "figure": f"yaw_{kind}.png"}))
+    assert _drawn_early(study, yaw, result, plots) == {k: plots / f"yaw_{k}.png" for k in ("step", "bode", "nyquist")}
     assert _drawn_early(study, yaw, {"gains": {**result["gains"], "K": 2.0}}, plots) is None  # other gains
     (plots / "yaw_bode.png").unlink()
     assert _drawn_early(study, yaw, result, plots) is None  # a figure is missing
+    (plots / "yaw_bode.png").write_bytes(b"\x89PNG")
+    (plots / "yaw_nyquist.plotted").unlink()
+    assert _drawn_early(study, yaw, result, plots) is None  # a figure was not marked (its drawing did not end)
 
 
 def test_a_done_loop_is_not_read_again(tmp_path):
