@@ -56,37 +56,30 @@ _STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", 
           "tuner.analysis.plots")
 
 
-def _preload_stack(plots: bool = True) -> None:
-    """Import what the workers tune with and the parent reports with, once, before forking the workers (the plots'
-    module, matplotlib's 0.2 s, only where plots are drawn: the start is serial, before any worker runs), and load
-    the batch's compiled kernels (:func:`tuner.optimize.batch.preload_kernels`; each kernel called once, so that
-    numba has loaded its machine code from the cache) where this machine has them: a worker tunes many loops."""
+def _preload_stack(plots: bool = False) -> None:
+    """Import what the workers tune with, once, before forking the workers (the plots' module, matplotlib's half
+    second of CPU, only if ``plots``: the start is serial, before any worker runs, and a worker imports it when it
+    first draws)."""
     import importlib
 
     for mod in _STACK:
         if plots or mod != "tuner.analysis.plots":
             importlib.import_module(mod)
-    _load_kernels()
-
-
-_WARM = {"done": False}  # this process (or the one it was forked from) has loaded and warmed the kernels
 
 
 def _load_kernels() -> None:
-    """The batch's compiled kernels loaded (:func:`tuner.optimize.batch.preload_kernels`, where this machine has
-    them) and each called once (:func:`tuner.optimize.kernels.warm`), so that numba has loaded their machine code
-    from its cache before the first tune: done lazily, inside the first batch, it made that batch look dear (over 20
-    s of wall at a load of 8 on 2 cores, on a worker's first loop), and the search, which prices what the time left
-    affords by its last batch's cost per point, cut that loop's search in round 0 (bench/results/
-    study_workers_issue41.md)."""
-    if _WARM["done"]:
-        return
+    """A worker's start: the batch's compiled kernels loaded (:func:`tuner.optimize.batch.preload_kernels`, where
+    this machine has them) and each called once (:func:`tuner.optimize.kernels.warm`), so that numba has loaded
+    their machine code from its cache before the first tune. Loaded lazily, inside the first batch, it made that
+    batch look dear (numba's cache load: seconds at a load of 8 on 2 cores), and the search, which prices what the
+    time left affords by its last batch's cost per point, cut the worker's first loop in round 0 (at a 120 s budget,
+    after 22 s: bench/results/study_workers_issue41.md). In the worker, not before the fork: the process that
+    runs the study (a test's, a notebook's) keeps its own choice of the batch's path."""
     from ..optimize.batch import preload_kernels
 
     kernels = preload_kernels()
     if kernels is not None:
         kernels.warm()
-    _WARM["done"] = True
 
 
 def _context() -> Any:
@@ -111,26 +104,11 @@ def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pi
         threading.Thread(target=watchdog, daemon=True).start()
     from threadpoolctl import threadpool_limits
 
-    _load_kernels()  # (forked: loaded by the parent already; spawned: loaded here)
+    _load_kernels()
     study = load_study(path)
     with threadpool_limits(limits=1):  # inherited when forked; a spawned worker (not Linux) sets it itself
         work(Coordinator(study, open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)), wakeup=wakeup,
              idle=_idle_plotter(study, plots_dir))
-
-
-def _create_tables(url: str, heartbeat_s: int, grace_s: int, conn: Any) -> None:
-    """A helper process: open the storage once (Optuna creates its tables on first use, about 0.8 s of CPU on a new
-    SQLite file: alembic's stamp included) while the parent imports the tuning stack; sends None, or the error's
-    message."""
-    from .runner import open_storage
-
-    try:
-        open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
-        conn.send(None)
-    except Exception as e:  # (StorageError: the message the parent raises; anything else, said as it is)
-        conn.send(str(e) if isinstance(e, TunerError) else f"{type(e).__name__}: {e}")
-    finally:
-        conn.close()
 
 
 def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
@@ -295,32 +273,21 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     """Run ``workers`` workers on this machine until every loop is done; returns the statuses.
 
     One path for every worker count: the workers (one included) are processes forked from this one once it has
-    imported the tuning stack and loaded the batch's compiled kernels (:func:`_preload_stack`; none of them does
-    it again), so that one worker tunes exactly as each of several does (the same seed gives bitwise the same
-    gains whatever the count: the kernels' figures agree with numpy's only to rounding) and the start is paid
-    once. Meanwhile a helper process creates the storage's tables (:func:`_create_tables`): the two run side by
-    side. This process opens the storage and starts its progress thread after the fork; the workers wake each
-    other when a loop is done, and draw the plots of the loops that are done when no loop is left for them to
-    tune (:func:`_idle_plotter`)."""
-    from .runner import Coordinator, StorageError, Wakeup, open_storage, redact
+    imported the tuning stack (:func:`_preload_stack`; none of them does it again), and each loads the batch's
+    compiled kernels at its start (:func:`_load_kernels`), so that one worker tunes exactly as each of several does
+    (the same seed gives bitwise the same gains whatever the count: the kernels' figures agree with numpy's only to
+    rounding, and a study run in this process tuned on numpy where its forked workers tuned on the kernels). This
+    process opens the storage and starts its progress thread after the fork; the workers wake each
+    other when a loop is done, and draw the figures of the loops that are done when no loop is left for them to
+    tune (:func:`_idle_plotter`), importing matplotlib only then (a worker that never draws never pays it)."""
+    from .runner import Coordinator, Wakeup, open_storage
 
+    # Optuna creates its tables on first use: once, here (workers starting together would race), with no connection
+    # left open across the fork; the workers inherit what opening it imported (alembic, SQLAlchemy's dialect: about
+    # half a second of CPU that each worker would pay again)
+    open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
+    _preload_stack()
     ctx = _context()
-    # Optuna creates its tables on first use: once, in a helper (workers starting together would race), with no
-    # connection left open across the fork
-    recv, send = ctx.Pipe(duplex=False)
-    helper = ctx.Process(target=_create_tables, args=(url, heartbeat_s, grace_s, send), name="tuner-storage")
-    helper.start()
-    send.close()
-    try:
-        _preload_stack(plots=plots_dir is not None)
-        error = recv.recv() if recv.poll(None) else "the helper that opens it ended without an answer"
-    except EOFError:
-        error = "the helper that opens it ended without an answer"
-    finally:
-        recv.close()
-        helper.join()
-    if error is not None:
-        raise StorageError(error if error.startswith("--storage") else f"--storage {redact(url)}: {error}")
     wakeup = Wakeup(ctx)
     pdir = str(plots_dir) if plots_dir is not None else None
     procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
