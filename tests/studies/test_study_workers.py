@@ -118,6 +118,13 @@ def test_idle_workers_draw_each_figure_once_and_the_report_uses_them(tmp_path, m
     assert a(statuses) is False  # nothing left for this process (it does not try a figure twice)
 
 
+def test_the_figures_the_workers_mark_are_the_loop_plots():
+    """The studies name a loop's figures without importing the plots' module (matplotlib): the same names."""
+    from tuner.analysis.plots import LOOP_PLOTS
+
+    assert scli._FIGURES == LOOP_PLOTS
+
+
 def test_a_worker_draws_only_when_no_loop_is_free_and_drains_the_figures_at_the_end(tmp_path, monkeypatch):
     """Loops first: ``work`` calls ``idle`` only when it finds nothing to claim, and once every loop is done it calls
     it until it says there is nothing left, then returns; a stopped worker does not."""

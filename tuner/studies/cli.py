@@ -121,6 +121,12 @@ def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
     return hashlib.sha256(doc.encode()).hexdigest()[:16]
 
 
+# the figures of a loop, tuner.analysis.plots.LOOP_PLOTS, named here without importing matplotlib (half a second of
+# CPU the parent would pay at the end, serially, to read the workers' marks; tests/studies/test_study_workers.py
+# checks the two agree)
+_FIGURES = ("step", "bode", "nyquist")
+
+
 def _marker(plots_dir: Path, name: str, kind: str) -> Path:
     """The file that says a figure of loop ``name`` was drawn early, and for which result (:func:`_idle_plotter`)."""
     return plots_dir / f"{name}_{kind}.plotted"
@@ -157,15 +163,13 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
     evals: dict[tuple[str, str], Any] = {}  # this process's evaluations (a loop's figures may fall to one process)
 
     def draw(statuses: dict[str, Any]) -> bool:
-        from ..analysis.plots import LOOP_PLOTS
-
         for lp in study.order():
             st = statuses.get(lp.name)
             result = st.result if st is not None and st.state == "done" else None
             if lp.inner is not None or not isinstance(result, dict) or "gains" not in result:
                 continue
             fp = _fingerprint(study, lp, result)
-            for kind in LOOP_PLOTS:
+            for kind in _FIGURES:
                 if (lp.name, kind, fp) in tried:
                     continue
                 tried.add((lp.name, kind, fp))
@@ -213,10 +217,8 @@ def _draw_figure(study: Any, lp: Any, result: dict[str, Any], kind: str, fp: str
 
 def _drawn_early(study: Any, lp: Any, result: dict[str, Any], plots_dir: Path) -> dict[str, Path] | None:
     """The plots workers drew for this very result, if every one of them was (see :func:`_idle_plotter`)."""
-    from ..analysis.plots import LOOP_PLOTS
-
     fp = _fingerprint(study, lp, result)
-    figs = {kind: _drawn(plots_dir, lp.name, kind, fp) for kind in LOOP_PLOTS}
+    figs = {kind: _drawn(plots_dir, lp.name, kind, fp) for kind in _FIGURES}
     return figs if all(p is not None for p in figs.values()) else None  # type: ignore[misc]
 
 
