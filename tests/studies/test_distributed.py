@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import time
 import uuid
@@ -20,7 +19,7 @@ import pytest
 from optuna.trial import TrialState
 from pg import require_pg_base_url
 from quadrotor import ROLL, YAW
-from study_workers import finish_worker, start_worker
+from study_workers import finish_worker, start_worker, worker_ids
 
 from tuner.cli import main
 from tuner.studies.runner import Coordinator, delete_study_records, open_storage
@@ -117,17 +116,19 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         a = start_worker(f, pg_url, tmp_path / "a")
         b = start_worker(f, pg_url, tmp_path / "b")
         procs += [a, b]
-        wid_a = f"{socket.gethostname()}:{a.pid}"
-        wid_b = f"{socket.gethostname()}:{b.pid}"
+        ids_b: set[str] = set()  # the command's worker (forked: its id is the child's pid)
         killed_loop = None
         deadline = time.monotonic() + 120
         while killed_loop is None and time.monotonic() < deadline:
+            ids_a = worker_ids(a)
+            ids_b |= worker_ids(b)
             sts = coord.statuses()
-            a_running = [n for n, s in sts.items() if s.state == "running" and s.worker == wid_a]
-            b_started = any(s.worker == wid_b for s in sts.values())
+            a_running = [n for n, s in sts.items() if s.state == "running" and s.worker in ids_a]
+            b_started = any(s.worker in ids_b for s in sts.values())
             if a_running and b_started:
                 killed_loop = a_running[0]
                 killed_epoch = sts[killed_loop].epoch
+                wid_a = sts[killed_loop].worker
                 os.kill(a.pid, signal.SIGKILL)  # mid-run: its loop's claim is RUNNING, its heartbeat stops
                 a.wait(timeout=30)
             else:
@@ -137,6 +138,8 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
 
         out_b = finish_worker(b, tmp_path / "b", 300)
         assert b.returncode == 0, out_b
+        assert len(ids_b) == 1, ids_b  # (one worker per command here)
+        wid_b = next(iter(ids_b))
 
         claims = _claims(coord)
         # every loop completed exactly once, across all workers and attempts
