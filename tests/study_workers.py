@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-__all__ = ["start_worker", "finish_worker"]
+__all__ = ["start_worker", "finish_worker", "worker_ids"]
 
 
 def start_worker(f: Path, url: str, out: Path) -> subprocess.Popen:
@@ -34,3 +35,13 @@ def finish_worker(p: subprocess.Popen, out: Path, timeout: float) -> str:
         pytest.fail(f"the worker did not finish in {timeout} s; its output ends:\n"
                     f"{(out.parent / f'{out.name}.log').read_text()[-3000:]}")
     return (out.parent / f"{out.name}.log").read_text()
+
+
+def worker_ids(p: subprocess.Popen) -> set[str]:
+    """The ids (``host:pid``) under which a ``tuner study run`` command's workers claim loops: its child processes
+    (every worker count forks its workers, the single one included); empty once it has ended."""
+    try:
+        kids = Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()
+    except OSError:
+        return set()
+    return {f"{socket.gethostname()}:{k}" for k in kids}

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import time
 import uuid
@@ -20,7 +19,7 @@ import pytest
 from optuna.trial import TrialState
 from pg import require_pg_base_url
 from quadrotor import ROLL, YAW
-from study_workers import finish_worker, start_worker
+from study_workers import finish_worker, start_worker, worker_ids
 
 from tuner.cli import main
 from tuner.studies.runner import Coordinator, delete_study_records, open_storage
@@ -117,17 +116,19 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
         a = start_worker(f, pg_url, tmp_path / "a")
         b = start_worker(f, pg_url, tmp_path / "b")
         procs += [a, b]
-        wid_a = f"{socket.gethostname()}:{a.pid}"
-        wid_b = f"{socket.gethostname()}:{b.pid}"
+        ids_b: set[str] = set()  # the command's worker (forked: its id is the child's pid)
         killed_loop = None
         deadline = time.monotonic() + 120
         while killed_loop is None and time.monotonic() < deadline:
+            ids_a = worker_ids(a)
+            ids_b |= worker_ids(b)
             sts = coord.statuses()
-            a_running = [n for n, s in sts.items() if s.state == "running" and s.worker == wid_a]
-            b_started = any(s.worker == wid_b for s in sts.values())
+            a_running = [n for n, s in sts.items() if s.state == "running" and s.worker in ids_a]
+            b_started = any(s.worker in ids_b for s in sts.values())
             if a_running and b_started:
                 killed_loop = a_running[0]
                 killed_epoch = sts[killed_loop].epoch
+                wid_a = sts[killed_loop].worker
                 os.kill(a.pid, signal.SIGKILL)  # mid-run: its loop's claim is RUNNING, its heartbeat stops
                 a.wait(timeout=30)
             else:
@@ -137,6 +138,8 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
 
         out_b = finish_worker(b, tmp_path / "b", 300)
         assert b.returncode == 0, out_b
+        assert len(ids_b) == 1, ids_b  # (one worker per command here)
+        wid_b = next(iter(ids_b))
 
         claims = _claims(coord)
         # every loop completed exactly once, across all workers and attempts
@@ -247,8 +250,9 @@ def test_local_workers_share_a_sqlite_study(tmp_path, capsys):
 
 
 def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
-    """A worker's early plots carry a fingerprint (loop definition + gains): the report uses them for
-    that result only, and draws again for another (e.g. a re-tuned loop in the same folder)."""
+    """A worker's early figures carry a fingerprint (loop definition + gains), one mark per figure: the report uses
+    them for that result only, and only when every figure of the loop is there; it draws again otherwise (e.g. a
+    re-tuned loop in the same folder, or a worker killed between two figures)."""
     from tuner.studies.cli import _drawn_early, _fingerprint
 
     f, _ = _study_file(tmp_path)
@@ -257,14 +261,17 @@ def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
     plots = tmp_path / "plots"
     plots.mkdir()
     result = {"gains": {"K": 1.0, "a1": -0.5, "a2": 0.1}}
-    for kind in ("step", "bode"):
+    fp = _fingerprint(study, yaw, result)
+    for kind in ("step", "bode", "nyquist"):
         (plots / f"yaw_{kind}.png").write_bytes(b"\x89PNG")
-    (plots / "yaw.plotted").write_text(json.dumps({"fingerprint": _fingerprint(study, yaw, result),
-                                                   "figures": {"step": "yaw_step.png", "bode": "yaw_bode.png"}}))
-    assert _drawn_early(study, yaw, result, plots) == {"step": plots / "yaw_step.png", "bode": plots / "yaw_bode.png"}
+        (plots / f"yaw_{kind}.plotted").write_text(json.dumps({"fingerprint": fp, "figure": f"yaw_{kind}.png"}))
+    assert _drawn_early(study, yaw, result, plots) == {k: plots / f"yaw_{k}.png" for k in ("step", "bode", "nyquist")}
     assert _drawn_early(study, yaw, {"gains": {**result["gains"], "K": 2.0}}, plots) is None  # other gains
     (plots / "yaw_bode.png").unlink()
     assert _drawn_early(study, yaw, result, plots) is None  # a figure is missing
+    (plots / "yaw_bode.png").write_bytes(b"\x89PNG")
+    (plots / "yaw_nyquist.plotted").unlink()
+    assert _drawn_early(study, yaw, result, plots) is None  # a figure was not marked (its drawing did not end)
 
 
 def test_a_done_loop_is_not_read_again(tmp_path):

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -21,7 +20,7 @@ from pathlib import Path
 import pytest
 from optuna.trial import TrialState
 from pg import require_pg_base_url
-from study_workers import finish_worker, start_worker
+from study_workers import finish_worker, start_worker, worker_ids
 
 from tuner.studies.runner import Coordinator, delete_study_records, open_storage
 from tuner.studies.schema import load_study
@@ -61,14 +60,17 @@ def test_suite_study_two_separate_workers_one_killed(tmp_path):
     try:
         a, b = start_worker(f, url, tmp_path / "a"), start_worker(f, url, tmp_path / "b")
         procs += [a, b]
-        wid_a, wid_b = f"{socket.gethostname()}:{a.pid}", f"{socket.gethostname()}:{b.pid}"
+        ids_b: set[str] = set()  # each command's worker is its forked child (its id: the child's pid)
         killed = None
         deadline = time.monotonic() + 180
         while killed is None and time.monotonic() < deadline:
+            ids_a = worker_ids(a)
+            ids_b |= worker_ids(b)
             sts = coord.statuses()
-            held = [n for n, s in sts.items() if s.state == "running" and s.worker == wid_a]
-            if held and any(s.worker == wid_b for s in sts.values()):
+            held = [n for n, s in sts.items() if s.state == "running" and s.worker in ids_a]
+            if held and any(s.worker in ids_b for s in sts.values()):
                 killed = held[0]
+                wid_a = sts[killed].worker
                 os.kill(a.pid, signal.SIGKILL)
                 a.wait(timeout=30)
             else:
@@ -76,6 +78,8 @@ def test_suite_study_two_separate_workers_one_killed(tmp_path):
         assert killed is not None, "worker A never held a loop while B was working"
         out_b = finish_worker(b, tmp_path / "b", 400)
         assert b.returncode in (0, 1), out_b  # 1: a loop of the suite may not meet its spec
+        assert len(ids_b) == 1, ids_b
+        wid_b = next(iter(ids_b))
         claims = _claims(coord)
         for loop, rows in claims.items():  # none lost, none repeated
             assert len([r for r in rows if r[1] == TrialState.COMPLETE.name]) == 1, (loop, rows)

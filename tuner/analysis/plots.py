@@ -42,7 +42,7 @@ from .cascade import CascadeResponse
 from .margins import Margins, frequency_grid, margins
 
 __all__ = ["KINDS", "FORMATS", "InvalidPlotError", "render", "figure", "step_figure", "bode_figure",
-           "nyquist_figure", "figure_bytes", "loop_plots"]
+           "nyquist_figure", "figure_bytes", "loop_plots", "LOOP_PLOTS"]
 
 KINDS = ("all", "step", "bode", "nyquist")
 FORMATS = ("png", "svg")
@@ -395,16 +395,24 @@ def render(obj: Any, kind: str = "all", fmt: str = "png", *, dpi: float = 100, *
     return figure_bytes(figure(obj, kind, **kw), fmt=fmt, dpi=dpi)
 
 
+LOOP_PLOTS = ("step", "bode", "nyquist")  # the figures of a loop (loop_plots), in the order they are drawn
+
+
 def loop_plots(obj: Any, out_dir: str | Path, name: str, *, spec: Spec | None = None,
-               cascade: CascadeResponse | None = None, fmt: str = "png") -> dict[str, Path]:
-    """The three plots of one loop as ``<name>_step.png``, ``<name>_bode.png``, ``<name>_nyquist.png``."""
+               cascade: CascadeResponse | None = None, fmt: str = "png",
+               kinds: Sequence[str] = LOOP_PLOTS) -> dict[str, Path]:
+    """The three plots of one loop as ``<name>_step.png``, ``<name>_bode.png``, ``<name>_nyquist.png`` (``kinds``:
+    those of :data:`LOOP_PLOTS` to draw, e.g. one, where several processes share a loop's figures)."""
     from ..fileio import write_output
 
+    unknown = [k for k in kinds if k not in LOOP_PLOTS]
+    if unknown:
+        raise InvalidPlotError(f"unknown loop plot {unknown[0]!r}: use {', '.join(LOOP_PLOTS)}", field="kind")
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
     titles = {"step": f"{name}: unit step response", "bode": f"{name}: open loop L", "nyquist": f"{name}: Nyquist"}
     out = {}
-    for kind, title in titles.items():
+    for kind, title in ((k, titles[k]) for k in LOOP_PLOTS if k in kinds):
         p = d / f"{name}_{kind}.{fmt}"
         write_output(p, render(obj, kind, fmt, dpi=110, spec=spec, cascade=cascade, title=title))
         out[kind] = p

@@ -56,14 +56,30 @@ _STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", 
           "tuner.analysis.plots")
 
 
-def _preload_stack(plots: bool = True) -> None:
-    """Import what the workers tune with and the parent reports with, once, before forking the workers (the plots'
-    module, matplotlib's 0.2 s, only where plots are drawn: the start is serial, before any worker runs)."""
+def _preload_stack(plots: bool = False) -> None:
+    """Import what the workers tune with, once, before forking the workers (the plots' module, matplotlib's half
+    second of CPU, only if ``plots``: the start is serial, before any worker runs, and a worker imports it when it
+    first draws)."""
     import importlib
 
     for mod in _STACK:
         if plots or mod != "tuner.analysis.plots":
             importlib.import_module(mod)
+
+
+def _load_kernels() -> None:
+    """A worker's start: the batch's compiled kernels loaded (:func:`tuner.optimize.batch.preload_kernels`, where
+    this machine has them) and each called once (:func:`tuner.optimize.kernels.warm`), so that numba has loaded
+    their machine code from its cache before the first tune. Loaded lazily, inside the first batch, it made that
+    batch look dear (numba's cache load: seconds at a load of 8 on 2 cores), and the search, which prices what the
+    time left affords by its last batch's cost per point, cut the worker's first loop in round 0 (at a 120 s budget,
+    after 22 s: bench/results/study_workers_issue41.md). In the worker, not before the fork: the process that
+    runs the study (a test's, a notebook's) keeps its own choice of the batch's path."""
+    from ..optimize.batch import preload_kernels
+
+    kernels = preload_kernels()
+    if kernels is not None:
+        kernels.warm()
 
 
 def _context() -> Any:
@@ -88,13 +104,11 @@ def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pi
         threading.Thread(target=watchdog, daemon=True).start()
     from threadpoolctl import threadpool_limits
 
-    from ..optimize.batch import preload_kernels
-
-    preload_kernels()  # the batch's compiled kernels, where this machine has them (a worker tunes many loops)
+    _load_kernels()
     study = load_study(path)
     with threadpool_limits(limits=1):  # inherited when forked; a spawned worker (not Linux) sets it itself
         work(Coordinator(study, open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)), wakeup=wakeup,
-             on_done=_early_plotter(study, plots_dir))
+             idle=_idle_plotter(study, plots_dir))
 
 
 def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
@@ -107,44 +121,105 @@ def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
     return hashlib.sha256(doc.encode()).hexdigest()[:16]
 
 
-def _early_plotter(study: Any, plots_dir: str | None) -> Any:
-    """``on_done`` of a worker: draw a loop's plots as soon as it is tuned, while other loops are still
-    being tuned (loops without an inner loop: an outer one's plots need its inner loop's evaluation,
-    which :func:`write_outputs` draws). A ``<name>.plotted`` file names the plots and what they show."""
+# the figures of a loop, tuner.analysis.plots.LOOP_PLOTS, named here without importing matplotlib (half a second of
+# CPU the parent would pay at the end, serially, to read the workers' marks; tests/studies/test_study_workers.py
+# checks the two agree)
+_FIGURES = ("step", "bode", "nyquist")
+
+
+def _marker(plots_dir: Path, name: str, kind: str) -> Path:
+    """The file that says a figure of loop ``name`` was drawn early, and for which result (:func:`_idle_plotter`)."""
+    return plots_dir / f"{name}_{kind}.plotted"
+
+
+def _drawn(plots_dir: Path, name: str, kind: str, fingerprint: str) -> Path | None:
+    """The figure of ``kind`` drawn early for the result with ``fingerprint``, if it was (and is still there)."""
+    try:
+        doc = json.loads(_marker(plots_dir, name, kind).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(doc, dict) or doc.get("fingerprint") != fingerprint or not isinstance(doc.get("figure"), str):
+        return None
+    p = plots_dir / doc["figure"]
+    return p if p.exists() else None
+
+
+def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
+    """``idle`` of a worker (:func:`tuner.studies.runner.work`): draw one figure of a loop that is done and whose
+    figure nobody has drawn, whichever worker tuned it; True if it drew one (False: nothing left to draw here).
+
+    A worker runs it only when no loop is free to tune, so the figures fill the time a worker would otherwise wait
+    while the others tune the last loops, and once every loop is done the workers draw what is left side by side:
+    the figures are small units of work (a quarter to a third of a second each), so the workers end together. A
+    figure is taken by creating its lock file (``O_EXCL``: one process draws it); a ``<name>_<kind>.plotted`` file
+    names the figure and the result it shows (:func:`_fingerprint`), and :func:`write_outputs` uses the figure for
+    that result only, drawing whatever is missing (a worker killed while drawing leaves its lock and no mark).
+    Loops without an inner loop only: an outer one's plots need its inner loop's evaluation, which
+    :func:`write_outputs` draws."""
     if plots_dir is None:
         return None
+    pdir = Path(plots_dir)
+    tried: set[tuple[str, str, str]] = set()
+    evals: dict[tuple[str, str], Any] = {}  # this process's evaluations (a loop's figures may fall to one process)
 
-    def draw(lp: Any, result: dict[str, Any]) -> None:
-        if lp.inner is not None or "gains" not in result:
-            return
-        from .schema import controller_of
+    def draw(statuses: dict[str, Any]) -> bool:
+        for lp in study.order():
+            st = statuses.get(lp.name)
+            result = st.result if st is not None and st.state == "done" else None
+            if lp.inner is not None or not isinstance(result, dict) or "gains" not in result:
+                continue
+            fp = _fingerprint(study, lp, result)
+            for kind in _FIGURES:
+                if (lp.name, kind, fp) in tried:
+                    continue
+                tried.add((lp.name, kind, fp))
+                if _drawn(pdir, lp.name, kind, fp) is not None:
+                    continue
+                lock = pdir / f"{lp.name}_{kind}.{fp}.lock"
+                try:
+                    pdir.mkdir(parents=True, exist_ok=True)
+                    os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+                except OSError:  # another process draws it (or the folder is not writable: the parent says so)
+                    continue
+                try:
+                    if _drawn(pdir, lp.name, kind, fp) is None:  # (not drawn between the check and the lock)
+                        _draw_figure(study, lp, result, kind, fp, pdir, evals)
+                    return True
+                except Exception:  # the parent draws what is missing
+                    import logging
 
-        try:
-            ctrl = controller_of(lp, result["gains"])
-            _, figs = _evaluate_and_plot(study, lp, {lp.name: ctrl}, None, Path(plots_dir))
-            marker = Path(plots_dir) / f"{lp.name}.plotted"
-            tmp = marker.with_suffix(f".tmp{os.getpid()}")
-            tmp.write_text(json.dumps({"fingerprint": _fingerprint(study, lp, result),
-                                       "figures": {k: Path(v).name for k, v in figs.items()}}))
-            tmp.replace(marker)
-        except Exception:  # the parent draws what is missing
-            import logging
-
-            logging.getLogger(__name__).exception("plots of loop %s not drawn early", lp.name)
+                    logging.getLogger(__name__).exception("plot %s of loop %s not drawn early", kind, lp.name)
+                    return True
+                finally:
+                    lock.unlink(missing_ok=True)
+        return False
 
     return draw
 
 
+def _draw_figure(study: Any, lp: Any, result: dict[str, Any], kind: str, fp: str, pdir: Path,
+                 evals: dict[tuple[str, str], Any]) -> None:
+    """One figure of a loop drawn early, and its mark (:func:`_idle_plotter`)."""
+    from ..analysis.plots import loop_plots
+    from .evaluate import evaluate_loop
+    from .schema import controller_of
+
+    e = evals.get((lp.name, fp))
+    if e is None:
+        ctrl = controller_of(lp, result["gains"])
+        e = evals[(lp.name, fp)] = evaluate_loop(study, lp, ctrl, {lp.name: ctrl})
+    path = loop_plots(e, pdir, lp.name, kinds=(kind,))[kind]
+    marker = _marker(pdir, lp.name, kind)
+    tmp = marker.with_suffix(f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps({"fingerprint": fp, "figure": path.name}))
+    tmp.replace(marker)
+
+
 def _drawn_early(study: Any, lp: Any, result: dict[str, Any], plots_dir: Path) -> dict[str, Path] | None:
-    """The plots a worker drew for this very result, if any (see :func:`_early_plotter`)."""
-    try:
-        doc = json.loads((plots_dir / f"{lp.name}.plotted").read_text())
-    except (OSError, ValueError):
-        return None
-    if doc.get("fingerprint") != _fingerprint(study, lp, result):
-        return None
-    figs = {k: plots_dir / v for k, v in doc.get("figures", {}).items()}
-    return figs if figs and all(p.exists() for p in figs.values()) else None
+    """The plots workers drew for this very result, if every one of them was (see :func:`_idle_plotter`)."""
+    fp = _fingerprint(study, lp, result)
+    figs = {kind: _drawn(plots_dir, lp.name, kind, fp) for kind in _FIGURES}
+    return figs if all(p is not None for p in figs.values()) else None  # type: ignore[misc]
 
 
 def _progress_loop(study: Any, storage: Any, stop: threading.Event) -> None:
@@ -199,24 +274,28 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
               progress: bool = True, plots_dir: Path | None = None) -> dict[str, Any]:
     """Run ``workers`` workers on this machine until every loop is done; returns the statuses.
 
-    Several workers are forked from this process once it has imported the tuning stack (none of
-    them imports it again), before this process opens the storage or starts its progress thread;
-    they wake each other when a loop is done."""
-    from .runner import Coordinator, Wakeup, open_storage, work
+    One path for every worker count: the workers (one included) are processes forked from this one once it has
+    imported the tuning stack (:func:`_preload_stack`; none of them does it again), and each loads the batch's
+    compiled kernels at its start (:func:`_load_kernels`), so that one worker tunes exactly as each of several does
+    (the same seed gives bitwise the same gains whatever the count: the kernels' figures agree with numpy's only to
+    rounding, and a study run in this process tuned on numpy where its forked workers tuned on the kernels). This
+    process opens the storage and starts its progress thread after the fork; the workers wake each
+    other when a loop is done, and draw the figures of the loops that are done when no loop is left for them to
+    tune (:func:`_idle_plotter`), importing matplotlib only then (a worker that never draws never pays it)."""
+    from .runner import Coordinator, Wakeup, open_storage
 
-    procs = []
-    if workers > 1:
-        # Optuna creates its tables on first use: once, here (workers starting together would race), with
-        # no connection left open across the fork
-        open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
-        _preload_stack(plots=plots_dir is not None)
-        ctx = _context()
-        wakeup = Wakeup(ctx)
-        pdir = str(plots_dir) if plots_dir is not None else None
-        procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
-                             name=f"tuner-worker-{i}") for i in range(workers)]
-        for p in procs:
-            p.start()
+    # Optuna creates its tables on first use: once, here (workers starting together would race), with no connection
+    # left open across the fork; the workers inherit what opening it imported (alembic, SQLAlchemy's dialect: about
+    # half a second of CPU that each worker would pay again)
+    open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
+    _preload_stack()
+    ctx = _context()
+    wakeup = Wakeup(ctx)
+    pdir = str(plots_dir) if plots_dir is not None else None
+    procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
+                         name=f"tuner-worker-{i}") for i in range(workers)]
+    for p in procs:
+        p.start()
     storage = open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)
     stop = threading.Event()
     mon = None
@@ -225,8 +304,6 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
                                                                                 grace_s=grace_s), stop), daemon=True)
         mon.start()
     try:
-        if workers <= 1:
-            work(Coordinator(study, storage), on_done=_early_plotter(study, str(plots_dir) if plots_dir else None))
         for p in procs:
             p.join()
     finally:

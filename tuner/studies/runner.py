@@ -494,16 +494,23 @@ class Wakeup:
 
 def work(coord: Coordinator, *, poll_s: float = 0.5, stop: threading.Event | None = None,
          on_claim: Callable[[str], None] | None = None, wakeup: Wakeup | None = None,
-         on_done: Callable[[LoopDef, dict[str, Any]], None] | None = None) -> dict[str, LoopStatus]:
+         on_done: Callable[[LoopDef, dict[str, Any]], None] | None = None,
+         idle: Callable[[dict[str, LoopStatus]], bool] | None = None) -> dict[str, LoopStatus]:
     """Claim and tune loops until every loop of the study is done; returns the final statuses.
 
-    With nothing to claim (every free loop taken, or waiting for its inner loop) the worker waits
-    for ``wakeup`` (a loop done on this machine) or ``poll_s``, whichever comes first. ``on_done``
-    runs after each loop this worker completed (e.g. to draw its plots while others still tune)."""
+    With nothing to claim (every free loop taken, or waiting for its inner loop) the worker first runs ``idle``
+    (the statuses it read; True when it did a piece of work, e.g. drew one figure of a loop that is done, and
+    should be asked again) and otherwise waits for ``wakeup`` (a loop done on this machine) or ``poll_s``,
+    whichever comes first; once every loop is done it runs ``idle`` until it has nothing left, then returns.
+    Loops come first: a worker that finds a loop to claim tunes it before any of that work, so the work fills the
+    time a worker would otherwise wait while others tune the last loops. ``on_done`` runs after each loop this
+    worker completed."""
     while True:
         seen = wakeup.seen() if wakeup is not None else 0
         statuses = coord.statuses()
         if all(s.state == "done" for s in statuses.values()):
+            while idle is not None and not (stop is not None and stop.is_set()) and idle(statuses):
+                pass
             return statuses
         if stop is not None and stop.is_set():
             return statuses
@@ -526,6 +533,8 @@ def work(coord: Coordinator, *, poll_s: float = 0.5, stop: threading.Event | Non
             claimed = True
             break
         if not claimed:
+            if idle is not None and idle(statuses):
+                continue  # (it did something: read the storage again at once)
             if wakeup is not None:
                 wakeup.wait(seen, poll_s)
             else:
