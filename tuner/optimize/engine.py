@@ -89,6 +89,12 @@ RAY_DECADES = tuple(sorted({sgn * 0.04 * 2.0 ** -k for k in range(7) for sgn in 
 # a distinct basin within this of the incumbent (relative) leaves its convergence not confirmed (Engine.optimality)
 CLAIM_RIVAL = 0.01
 CLAIM_MOVED = 1e-3  # ... and an incumbent that improved by more than this (relative) after round 0
+# a restart's own refinement (the evidence rule's draw) runs on the NLP grid of a loop settling in this many times the
+# incumbent's settling time (refine's ``reach``: its horizon three times that), whatever its start's settling time: one
+# problem shape for every restart of every seed (round 0 is the same for all seeds, so is its incumbent), which a warm
+# process builds once. A basin that settles later than that is no rival; a start settling later is asked first to
+# settle within 0.9 of the horizon, and its refinement's end is scored by the batch as every draw's is
+OWN_REACH = 4.0
 
 
 @dataclass(frozen=True)
@@ -550,6 +556,7 @@ class Engine:
                 res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                              build_cap=None if self.build_cap is None else self.build_cap - self.reserve_s,
                              incumbent=self.best.score if self._settling and not own else None,
+                             reach=OWN_REACH * self.best.score if self._settling and own else None,
                              start=self._start(v),
                              fine=fine, detail=self.effort.detail)
             except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation

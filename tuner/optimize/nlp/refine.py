@@ -74,6 +74,12 @@ INTEGRAL_FLOOR = 1e-3  # a start's integral gain keeps at least this fraction of
 NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
 POLISH_STEPS = 2.0  # a polish's first lower end: this many coarse-grid steps below the incumbent's settling time
 FIRST = 0.95  # the first solve from a start (no better incumbent) asks for this fraction of its settling time
+# a restart's own refinement (``refine(reach=)``: the evidence rule's draw, not bounded by the incumbent) runs on a
+# grid of REACH_HORIZON times ``reach`` (the engine's OWN_REACH times the incumbent's settling time), whatever its
+# start's settling time: one shape per problem (its points a sample from ``reach``, doubled for the start's crossover
+# as the ripple rule asks), so that the restarts of every seed share the builds a warm process holds; a start that
+# settles later than the horizon is asked first to settle within 0.9 of it (the bisection's own rule)
+REACH_HORIZON = 3.0
 # the fine polish, where its grid resolves the overshoot's peak (:func:`_resolves_peak`; a head grid where a uniform
 # one cannot, :func:`_head_grid`; the sharp polish: where the batch's points see no higher peak than the grid's,
 # :func:`_measured_os`) and the overshoot limit is active at its answer, bisects on with the limit only this much
@@ -148,14 +154,16 @@ def _target(start: Start, incumbent: float | None) -> float:
     return settle
 
 
-def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False
-             ) -> float:
-    """What the objective needs: three target settling times (:func:`_target`) for the settling time, the
-    start's own horizon (ten time constants of its slowest pole, where the verifier integrates) for the
-    integral objectives."""
+def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
+             reach: float | None = None) -> float:
+    """What the objective needs: three target settling times (:func:`_target`) for the settling time (a restart's
+    own refinement, ``reach``: REACH_HORIZON times it), the start's own horizon (ten time constants of its slowest
+    pole, where the verifier integrates) for the integral objectives."""
     settle = _target(start, incumbent)
     unit = ev.dt if ev.dt else 1.0 / w0
     if ev.spec.objective == "settling_time":
+        if reach is not None and not fine:
+            return REACH_HORIZON * reach
         if not (math.isfinite(settle) and settle > 0):
             return 60 * unit
         if not fine:
@@ -173,10 +181,11 @@ def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | Non
 
 
 def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None, K: int = 0,
-                       fine: bool = False, detail: int = 1) -> int:
+                       fine: bool = False, detail: int = 1, reach: float | None = None) -> int:
     """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
-    them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway)."""
-    settle = _target(start, incumbent)
+    them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway).
+    ``reach`` (a restart's own refinement): the samples counted up to it, not to the start's settling time."""
+    settle = reach if reach is not None and not fine else _target(start, incumbent)
     samples = settle / ev.dt if math.isfinite(settle) else math.inf
     base = POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
     # a loop can settle slowly and still cross over fast (an unstable plant's slow tail after a fast rise): its
@@ -271,11 +280,11 @@ def _at_overshoot_limit(ev: BatchEvaluator, start: Start) -> bool:
 
 
 def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
-          detail: int = 1, c_fast: float = 0.0) -> _Grid:
-    T = _horizon(ev, start, w0, incumbent, fine)
+          detail: int = 1, c_fast: float = 0.0, reach: float | None = None) -> _Grid:
+    T = _horizon(ev, start, w0, incumbent, fine, reach)
     if ev.dt is not None:
         K = _bucket(int(math.ceil(T / ev.dt)))
-        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine, detail), step=ev.dt, h=None)
+        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine, detail, reach), step=ev.dt, h=None)
     # the fine step resolves the loop (H_WC rad of the fastest crossover per step) as well as the horizon: a
     # slow closed-loop pole of small residue (a PI zero next to a plant pole) must not stretch the step over
     # the loop's own dynamics (1/(4s+1) with pidf2: T = 204 s would give h = 0.5 s against wc = 2.7 rad/s);
@@ -663,7 +672,7 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
 
 def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
            solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False,
-           detail: int = 1, build_cap: float | None = None) -> RefineResult:
+           detail: int = 1, build_cap: float | None = None, reach: float | None = None) -> RefineResult:
     """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
 
     ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
@@ -682,10 +691,13 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     and where the overshoot limit is active its looser margin is measured at the answer (:func:`_measured_os`) and
     starts from the incumbent when the tight one cannot hold even the incumbent's own settling time. ``build_cap``
     (a tune on the default budget): the NLP's build does not count against ``deadline`` (it is moved on by the
-    build's time), only against this wall-clock cap."""
+    build's time), only against this wall-clock cap. ``reach`` (settling time, without an ``incumbent``: a restart's
+    own refinement to its start's local optimum): the NLP's horizon is REACH_HORIZON times this, whatever the start's
+    settling time, so that such refinements share one problem shape (the caller passes a multiple of its incumbent's
+    settling time: a basin that settles later than that is no rival)."""
     res = RefineResult()
     r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
-               detail=detail, build_cap=build_cap)
+               detail=detail, build_cap=build_cap, reach=reach)
     if r is None:  # (res.status says why)
         return res
     if r.out_of_time():
@@ -749,16 +761,16 @@ class _Refinement:
 
 
 def _grids(ev: BatchEvaluator, space: Space, start: Start, incumbent: float | None, fine: bool, detail: int,
-           c_fast: float = 0.0) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
+           c_fast: float = 0.0, reach: float | None = None) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
     """The NLP's time grid, the coarse one (a polish's own start), the head grid (where the polish's looser overshoot
     limit needs the peak resolved), whether the polish is sharp, and whether the fine grid is the coarse one."""
     spec = ev.spec
-    grid = _grid(ev, start, space.w0, incumbent, fine, detail, c_fast)
+    grid = _grid(ev, start, space.w0, incumbent, fine, detail, c_fast, reach)
     # the polish's looser overshoot limit (below) needs the peak resolved
     headed = _head_grid(start, grid) if fine and spec.objective == "settling_time" and \
         _at_overshoot_limit(ev, start) else None
     grid = headed or grid
-    coarse = _grid(ev, start, space.w0, incumbent, False, detail, c_fast) if fine else grid
+    coarse = _grid(ev, start, space.w0, incumbent, False, detail, c_fast, reach) if fine else grid
     if fine and headed is None:
         grid = _settle_head(ev, start, incumbent, grid, detail)
     # the sharp polish (``detail`` >= 2): Ts interpolated between the grid's points and the overshoot margin measured
@@ -792,7 +804,7 @@ def _key(ev: BatchEvaluator, space: Space, data: _PlantData, grid: _Grid, solver
 
 def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, *, deadline: float | None,
            solver: str, incumbent: float | None, start: Start | None, fine: bool, detail: int,
-           build_cap: float | None = None) -> _Refinement | None:
+           build_cap: float | None = None, reach: float | None = None) -> _Refinement | None:
     """The start, the grids, the NLP (built, or None when its build does not fit the time left), its parameters and
     bounds, the sharp polish's verifier, the objective's level: what the solves need."""
     spec = ev.spec
@@ -808,7 +820,9 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
     # the thesis pitch model 0.204 s against 0.195 s; the other objectives take the NLP's answer as it is)
     c_fast = float(np.max(np.abs(ctrl0.zpk.poles), initial=0.0)) \
         if ev.dt is None and spec.objective != "settling_time" else 0.0
-    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail, c_fast)
+    reach = reach if spec.objective == "settling_time" and incumbent is None and reach is not None and \
+        math.isfinite(reach) and reach > 0 else None
+    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail, c_fast, reach)
     if same and not _resolves_peak(start, grid):
         res.status = "the fine grid is the coarse one"
         return None
