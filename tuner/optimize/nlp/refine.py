@@ -93,6 +93,12 @@ _TIGHT_OS_FINE = 0.9995
 # (PID on a lightly damped plant settling in 3.3 samples, 16 points a sample: 0.5 % above the reference optimum;
 # interpolated, 0.03 % below it; a split of 8 left it 0.03 % above and a lead on an integrating plant 0.1 %)
 INTERP_SPLIT = 32
+# the bisection on the grid (not interpolated): Ts asked only at the grid's points (the envelope starts at the first
+# point at or after Ts, so every Ts between two points asks the same problem: a bisection on the time axis asked it
+# again), at the secant of the NLP's slack between the bracket's ends where both are known (the slack is nearly
+# linear in Ts near the edge: PID on the thesis roll model, -0.0106 at 0.304 s and +0.0075 at 0.416 s, the edge at
+# 0.362 s), kept within SECANT_CLAMP of the bracket from either end (a secant that keeps one end twice halves)
+SECANT_CLAMP = 0.1
 SETTLE_STEPS = 100  # continuous loops, another objective under a settling-time limit: steps up to the limit
 SETTLING_MAX_TRIES = 4  # solves of another objective under a settling-time limit (see _other_objective)
 
@@ -488,6 +494,7 @@ class _Solves:
         # the sharp polish (set by refine): ``accept(x, ts)``, whether the verifier confirms that solution ``x`` settles
         # by ``ts``; a solution it does not confirm counts as infeasible
         self.accept: Any = None
+        self.last_ok = False  # the last solve succeeded (its slack, feasible or not, is the NLP's optimum at its Ts)
 
     def _params(self, ts: float) -> np.ndarray:
         """The parameter vector with the envelope from ``ts`` on (``inf``: none)."""
@@ -554,6 +561,7 @@ class _Solves:
         if self.solver == "ipopt":  # warm start the next bisection solve from this one's multipliers
             self.lam.update(lam_x0=np.asarray(sol["lam_x"]).ravel(), lam_g0=np.asarray(sol["lam_g"]).ravel())
         ok = stats.get("success", False) or res.status == "Solved_To_Acceptable_Level"
+        self.last_ok = bool(ok)
         if prob.key.objective == "settling_time":
             if ok and x[self.slack] >= 0 and self.accept is not None and not self.accept(x, ts):
                 ok = False  # the bisection does not go on from a solution the verifier does not confirm
@@ -955,35 +963,63 @@ def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, gri
         return None
     best = exchange(r[1], hi)
     res.candidates.append(to_search(best))
+    s_hi = float(best[solve.slack]) if solve.last_ok else None  # (the slack at hi, where known; at lo, below)
     ts_nlp = solve.settles_at(best)
     if 0 < ts_nlp < hi:
-        hi = ts_nlp
+        hi, s_hi = ts_nlp, None
     # the lower end: a guess near hi when the target is an incumbent (another refinement's local optimum:
     # this one is likely to end near it), widened to 0.3 hi if the bisection reaches the guess untested
     lo, proven = (NEAR * hi, False) if near else (0.3 * hi, True)
     if lo_step is not None and hi - lo_step > lo:
         lo, proven = hi - lo_step, False
+    s_lo: float | None = None
+    kept = 0  # the secant's steps in a row that moved the same end
     while not out_of_time():
         # the NLP's resolution of Ts: its grid's (the verifier then judges between its points), or a part of it
-        if hi - lo <= grid.spacing(hi) / solve.split:
+        on_grid = solve.split == 1
+        if hi - lo <= grid.spacing(hi) / solve.split or (on_grid and _grid_gap(tgrid, lo, hi) <= 1):
             if proven:
                 break
-            lo, proven = 0.3 * hi, True
+            lo, proven, s_lo = 0.3 * hi, True, None
             continue
-        mid = 0.5 * (lo + hi)
+        mid = _grid_step(tgrid, lo, hi, s_lo, s_hi, kept) if on_grid else 0.5 * (lo + hi)
         r = solve(mid, best)
         if r is not None and r[0] >= 0:
+            kept = kept + 1 if kept >= 0 else 1
+            s_hi = float(r[0])
             hi, best = mid, exchange(r[1], mid)
             res.candidates.append(to_search(best))
             # the solution may settle earlier than asked (on the NLP's grid): jump there; the verifier judges
             # every candidate afterwards
             ts_nlp = solve.settles_at(best)
             if 0 < ts_nlp < hi:
-                hi = ts_nlp
+                hi, s_hi = ts_nlp, None
                 if hi <= lo:  # lo was a failed solve, not an infeasible problem (or a guess): reopen the bracket
                     if proven and solve.accept is not None:
                         break  # (the sharp polish: lo a solve the verifier refused; the bracket is closed)
-                    lo, proven = 0.3 * hi, True
+                    lo, proven, s_lo = 0.3 * hi, True, None
         else:
+            kept = kept - 1 if kept <= 0 else -1
+            s_lo = float(r[0]) if r is not None and solve.last_ok and r[0] < 0 else None
             lo, proven = mid, True
     return hi, best
+
+
+def _grid_gap(tgrid: np.ndarray, lo: float, hi: float) -> int:
+    """How many grid points apart the envelopes asked at ``lo`` and ``hi`` start (each at the first point at or
+    after its Ts): at most 1, no Ts between them asks anything new."""
+    i_lo, i_hi = np.searchsorted(tgrid, [lo - 1e-12, hi - 1e-12])
+    return int(i_hi - i_lo)
+
+
+def _grid_step(tgrid: np.ndarray, lo: float, hi: float, s_lo: float | None, s_hi: float | None, kept: int
+               ) -> float:
+    """The bisection's next Ts on the grid: a grid point strictly between the envelopes asked at ``lo`` and ``hi``,
+    at the secant of the slacks ``s_lo`` < 0 <= ``s_hi`` where both are known (clamped to SECANT_CLAMP of the
+    bracket; the midpoint after two steps in a row that kept one end, ``kept``), else at the middle."""
+    i_lo, i_hi = (int(i) for i in np.searchsorted(tgrid, [lo - 1e-12, hi - 1e-12]))
+    frac = 0.5
+    if s_lo is not None and s_hi is not None and s_hi > s_lo and abs(kept) < 2:
+        frac = min(max(-s_lo / (s_hi - s_lo), SECANT_CLAMP), 1.0 - SECANT_CLAMP)
+    m = i_lo + int(round(frac * (i_hi - i_lo)))
+    return float(tgrid[min(max(m, i_lo + 1), i_hi - 1)])
