@@ -74,11 +74,13 @@ INTEGRAL_FLOOR = 1e-3  # a start's integral gain keeps at least this fraction of
 NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
 POLISH_STEPS = 2.0  # a polish's first lower end: this many coarse-grid steps below the incumbent's settling time
 FIRST = 0.95  # the first solve from a start (no better incumbent) asks for this fraction of its settling time
-# a restart's own refinement (``refine(reach=)``: the evidence rule's draw, not bounded by the incumbent) runs on a
-# grid of REACH_HORIZON times ``reach`` (the engine's OWN_REACH times the incumbent's settling time), whatever its
-# start's settling time: one shape per problem (its points a sample from ``reach``, doubled for the start's crossover
-# as the ripple rule asks), so that the restarts of every seed share the builds a warm process holds; a start that
-# settles later than the horizon is asked first to settle within 0.9 of it (the bisection's own rule)
+# a restart's own refinement (``refine(reach=)``: the evidence rule's draw, not bounded by the incumbent) runs on the
+# grid of a start settling by ``reach`` (the engine's OWN_REACH times the incumbent's settling time) at the latest:
+# REACH_HORIZON times its settling time or ``reach``, whichever is less, its points a sample by the same rule. A start
+# that settles later (the common case: the best of a restart's space-filling set settles 7-13 times later than the
+# roll loop's incumbent) gets one shape per problem, so that the restarts of every seed share the builds a warm
+# process holds; a start that settles later than the horizon is asked first to settle within 0.9 of it (the
+# bisection's own rule); one that settles earlier, or not at all (sixty samples), gets the grid it always had
 REACH_HORIZON = 3.0
 # the fine polish, where its grid resolves the overshoot's peak (:func:`_resolves_peak`; a head grid where a uniform
 # one cannot, :func:`_head_grid`; the sharp polish: where the batch's points see no higher peak than the grid's,
@@ -163,13 +165,13 @@ def _target(start: Start, incumbent: float | None) -> float:
 def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
              reach: float | None = None) -> float:
     """What the objective needs: three target settling times (:func:`_target`) for the settling time (a restart's
-    own refinement, ``reach``: REACH_HORIZON times it), the start's own horizon (ten time constants of its slowest
-    pole, where the verifier integrates) for the integral objectives."""
+    own refinement, ``reach``: the start's settling time capped at it), the start's own horizon (ten time constants
+    of its slowest pole, where the verifier integrates) for the integral objectives."""
     settle = _target(start, incumbent)
     unit = ev.dt if ev.dt else 1.0 / w0
     if ev.spec.objective == "settling_time":
-        if reach is not None and not fine:
-            return REACH_HORIZON * reach
+        if reach is not None and not fine and math.isfinite(settle) and settle > 0:
+            return REACH_HORIZON * min(settle, reach)
         if not (math.isfinite(settle) and settle > 0):
             return 60 * unit
         if not fine:
@@ -190,8 +192,10 @@ def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None
                        fine: bool = False, detail: int = 1, reach: float | None = None) -> int:
     """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
     them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway).
-    ``reach`` (a restart's own refinement): the samples counted up to it, not to the start's settling time."""
-    settle = reach if reach is not None and not fine else _target(start, incumbent)
+    ``reach`` (a restart's own refinement): the samples counted up to the start's settling time capped at it."""
+    settle = _target(start, incumbent)
+    if reach is not None and not fine:
+        settle = min(settle, reach)
     samples = settle / ev.dt if math.isfinite(settle) else math.inf
     base = POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
     # a loop can settle slowly and still cross over fast (an unstable plant's slow tail after a fast rise): its
@@ -700,9 +704,9 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     starts from the incumbent when the tight one cannot hold even the incumbent's own settling time. ``build_cap``
     (a tune on the default budget): the NLP's build does not count against ``deadline`` (it is moved on by the
     build's time), only against this wall-clock cap. ``reach`` (settling time, without an ``incumbent``: a restart's
-    own refinement to its start's local optimum): the NLP's horizon is REACH_HORIZON times this, whatever the start's
-    settling time, so that such refinements share one problem shape (the caller passes a multiple of its incumbent's
-    settling time: a basin that settles later than that is no rival)."""
+    own refinement to its start's local optimum): the NLP's grid is that of a start settling by this at the latest, so
+    that refinements from starts settling later share one problem shape (the caller passes a multiple of its
+    incumbent's settling time: a basin that settles later than that is no rival)."""
     res = RefineResult()
     r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
                detail=detail, build_cap=build_cap, reach=reach)
