@@ -597,3 +597,78 @@ def test_the_default_budget_does_not_count_the_nlp_builds(monkeypatch):
     assert auto.solver["nlp_solves"] > 0 and auto.solver["build_s"] >= 0.6
     assert auto.solver["wall_time_s"] > 0.4 + 0.6  # past the given budget: the builds cut nothing
     assert auto.objective <= given.objective
+
+
+def test_restart_refinements_share_one_shape(monkeypatch):
+    """A restart's own refinement (``refine(reach=)``) runs on the horizon of ``reach``, whatever its start's settling
+    time: starts that settle 3x apart get one horizon K (ceil(3 reach / dt), bucketed) and, with the same points a
+    sample, one build; without ``reach`` their horizons differ (the precondition)."""
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    keys: list = []
+    real = refine_mod.get_problem
+
+    def recording(key, st, space):
+        keys.append(key)
+        return real(key, st, space)
+
+    monkeypatch.setattr(refine_mod, "get_problem", recording)
+    plant = plant_from_expr(ROLL)
+    batch, space = _batch(plant, "pid_z")
+    starts = [_slow_start(plant, get_structure("pid_z"), d)[1] for d in (-1.0, -1.5)]
+    settles = [float(np.max(batch.evaluate(space.params(v)[None]).per_plant[0]["settling_time_s"])) for v in starts]
+    assert settles[1] > 2 * settles[0], "precondition: the starts settle far apart"
+    for v in starts:
+        refine(batch, space, v, deadline=time.perf_counter() + BUDGET)
+    assert keys[0].K != keys[1].K, "precondition: their own horizons differ"
+    reach = 0.5
+    keys.clear()
+    before = transcribe.BUILDS["count"]
+    for v in starts:
+        res = refine(batch, space, v, deadline=time.perf_counter() + BUDGET, reach=reach)
+        assert res.candidates, res.status
+    assert keys[0].K == keys[1].K == refine_mod._bucket(math.ceil(refine_mod.REACH_HORIZON * reach / DT))
+    assert keys[0] == keys[1] and transcribe.BUILDS["count"] - before <= 1  # (these starts' crossovers: one N)
+
+
+def test_grid_bisection_finds_the_first_feasible_grid_point():
+    """The bisection's steps on the grid (``_grid_step``, ``_grid_gap``) against a brute-force scan: a slack that is a
+    step function of Ts on the grid (the envelope starts at the first grid point at or after Ts) and linear in that
+    point; the bracket closes on the first feasible grid point, asking only grid points, in fewer solves than
+    halving the time axis to the grid's spacing."""
+    t = np.arange(200) * 0.01
+    for root in (0.0137, 0.362, 0.8951, 1.2049):
+        def slack(ts, root=root):
+            g = t[np.searchsorted(t, ts - 1e-12)]
+            return 0.2 * (g - root) + (0.03 * (g - root) ** 2 if g > root else 0.0)
+        first = float(t[np.flatnonzero([slack(x) >= 0 for x in t])[0]])  # brute force
+        lo, hi = 0.003, 1.9
+        s_lo, s_hi, kept, asked = slack(lo), slack(hi), 0, []
+        while refine_mod._grid_gap(t, lo, hi) > 1:
+            mid = refine_mod._grid_step(t, lo, hi, s_lo, s_hi, kept)
+            assert np.any(np.isclose(t, mid, rtol=0, atol=1e-12)) and lo < mid < hi
+            asked.append(mid)
+            s = slack(mid)
+            if s >= 0:
+                hi, s_hi, kept = mid, s, kept + 1 if kept >= 0 else 1
+            else:
+                lo, s_lo, kept = mid, s, kept - 1 if kept <= 0 else -1
+        assert math.isclose(t[np.searchsorted(t, hi - 1e-12)], first), (root, hi, first)
+        halvings = math.ceil(math.log2((1.9 - 0.003) / 0.01))
+        assert len(asked) < halvings, (root, asked)
+
+
+@pytest.mark.slow
+def test_warm_tunes_of_other_seeds_do_not_rebuild(monkeypatch):
+    """Round 0 is the same for every seed, and a restart's own refinement runs on the horizon of a multiple of the
+    incumbent's settling time (``engine.OWN_REACH``), not of its random start's: once a process has tuned the roll
+    loop with two seeds, other seeds build nothing (before, each restart's start brought its own horizon: seeds 0-5
+    built 7 more problems after a first tune)."""
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    plant = plant_from_expr(ROLL)
+    for seed in (100, 101):
+        tune(plant, structure="pid_z", dt=DT, seed=seed, time_budget_s=BUDGET)
+    c0 = transcribe.BUILDS["count"]
+    for seed in range(4):
+        r = tune(plant_from_expr(ROLL), structure="pid_z", dt=DT, seed=seed, time_budget_s=BUDGET)
+        assert r.solver["optimality"]["restarts"] >= 2, "precondition: restarts ran"
+    assert transcribe.BUILDS["count"] == c0

@@ -119,6 +119,12 @@ def _decimal(x: np.ndarray) -> np.ndarray:
     """``x`` rounded to :data:`ANSWER_DIGITS` significant digits (decimal: what the answer prints is what was
     verified)."""
     return np.array([float(f"{a:.{ANSWER_DIGITS}g}") for a in np.asarray(x, float)])
+# a restart's own refinement (the evidence rule's draw) runs on the NLP grid of a loop settling in this many times the
+# incumbent's settling time (refine's ``reach``: its horizon three times that), whatever its start's settling time: one
+# problem shape for every restart of every seed (round 0 is the same for all seeds, so is its incumbent), which a warm
+# process builds once. A basin that settles later than that is no rival; a start settling later is asked first to
+# settle within 0.9 of the horizon, and its refinement's end is scored by the batch as every draw's is
+OWN_REACH = 4.0
 
 
 @dataclass(frozen=True)
@@ -589,6 +595,7 @@ class Engine:
                 res = refine(self.batch, self.space, v, deadline=self.deadline - self.reserve_s, solver=self.solver,
                              build_cap=None if self.build_cap is None else self.build_cap - self.reserve_s,
                              incumbent=_sig(self.best.score, INPUT_DIGITS) if self._settling and not own else None,
+                             reach=_sig(OWN_REACH * self.best.score, INPUT_DIGITS) if self._settling and own else None,
                              start=self._start(v, digits=INPUT_DIGITS),
                              fine=fine, detail=self.effort.detail)
             except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation

@@ -74,6 +74,14 @@ INTEGRAL_FLOOR = 1e-3  # a start's integral gain keeps at least this fraction of
 NEAR = 0.85  # the bisection's first lower end, as a fraction of an incumbent's settling time
 POLISH_STEPS = 2.0  # a polish's first lower end: this many coarse-grid steps below the incumbent's settling time
 FIRST = 0.95  # the first solve from a start (no better incumbent) asks for this fraction of its settling time
+# a restart's own refinement (``refine(reach=)``: the evidence rule's draw, not bounded by the incumbent) runs on the
+# grid of a start settling by ``reach`` (the engine's OWN_REACH times the incumbent's settling time) at the latest:
+# REACH_HORIZON times its settling time or ``reach``, whichever is less, its points a sample by the same rule. A start
+# that settles later (the common case: the best of a restart's space-filling set settles 7-13 times later than the
+# roll loop's incumbent) gets one shape per problem, so that the restarts of every seed share the builds a warm
+# process holds; a start that settles later than the horizon is asked first to settle within 0.9 of it (the
+# bisection's own rule); one that settles earlier, or not at all (sixty samples), gets the grid it always had
+REACH_HORIZON = 3.0
 # the fine polish, where its grid resolves the overshoot's peak (:func:`_resolves_peak`; a head grid where a uniform
 # one cannot, :func:`_head_grid`; the sharp polish: where the batch's points see no higher peak than the grid's,
 # :func:`_measured_os`) and the overshoot limit is active at its answer, bisects on with the limit only this much
@@ -87,6 +95,12 @@ _TIGHT_OS_FINE = 0.9995
 # (PID on a lightly damped plant settling in 3.3 samples, 16 points a sample: 0.5 % above the reference optimum;
 # interpolated, 0.03 % below it; a split of 8 left it 0.03 % above and a lead on an integrating plant 0.1 %)
 INTERP_SPLIT = 32
+# the bisection on the grid (not interpolated): Ts asked only at the grid's points (the envelope starts at the first
+# point at or after Ts, so every Ts between two points asks the same problem: a bisection on the time axis asked it
+# again), at the secant of the NLP's slack between the bracket's ends where both are known (the slack is nearly
+# linear in Ts near the edge: PID on the thesis roll model, -0.0106 at 0.304 s and +0.0075 at 0.416 s, the edge at
+# 0.362 s), kept within SECANT_CLAMP of the bracket from either end (a secant that keeps one end twice halves)
+SECANT_CLAMP = 0.1
 SETTLE_STEPS = 100  # continuous loops, another objective under a settling-time limit: steps up to the limit
 SETTLING_MAX_TRIES = 4  # solves of another objective under a settling-time limit (see _other_objective)
 
@@ -148,14 +162,16 @@ def _target(start: Start, incumbent: float | None) -> float:
     return settle
 
 
-def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False
-             ) -> float:
-    """What the objective needs: three target settling times (:func:`_target`) for the settling time, the
-    start's own horizon (ten time constants of its slowest pole, where the verifier integrates) for the
-    integral objectives."""
+def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
+             reach: float | None = None) -> float:
+    """What the objective needs: three target settling times (:func:`_target`) for the settling time (a restart's
+    own refinement, ``reach``: the start's settling time capped at it), the start's own horizon (ten time constants
+    of its slowest pole, where the verifier integrates) for the integral objectives."""
     settle = _target(start, incumbent)
     unit = ev.dt if ev.dt else 1.0 / w0
     if ev.spec.objective == "settling_time":
+        if reach is not None and not fine and math.isfinite(settle) and settle > 0:
+            return REACH_HORIZON * min(settle, reach)
         if not (math.isfinite(settle) and settle > 0):
             return 60 * unit
         if not fine:
@@ -173,10 +189,13 @@ def _horizon(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | Non
 
 
 def _points_per_sample(ev: BatchEvaluator, start: Start, incumbent: float | None = None, K: int = 0,
-                       fine: bool = False, detail: int = 1) -> int:
+                       fine: bool = False, detail: int = 1, reach: float | None = None) -> int:
     """Between-sample points the NLP constrains: a loop that settles in a few samples can ripple between
-    them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway)."""
+    them (the thesis's attitude loops: 3 samples), a slow one cannot by much (the verifier checks anyway).
+    ``reach`` (a restart's own refinement): the samples counted up to the start's settling time capped at it."""
     settle = _target(start, incumbent)
+    if reach is not None and not fine:
+        settle = min(settle, reach)
     samples = settle / ev.dt if math.isfinite(settle) else math.inf
     base = POINTS_PER_SAMPLE if samples <= 15 else (2 if samples <= 40 else 1)
     # a loop can settle slowly and still cross over fast (an unstable plant's slow tail after a fast rise): its
@@ -271,11 +290,11 @@ def _at_overshoot_limit(ev: BatchEvaluator, start: Start) -> bool:
 
 
 def _grid(ev: BatchEvaluator, start: Start, w0: float, incumbent: float | None = None, fine: bool = False,
-          detail: int = 1, c_fast: float = 0.0) -> _Grid:
-    T = _horizon(ev, start, w0, incumbent, fine)
+          detail: int = 1, c_fast: float = 0.0, reach: float | None = None) -> _Grid:
+    T = _horizon(ev, start, w0, incumbent, fine, reach)
     if ev.dt is not None:
         K = _bucket(int(math.ceil(T / ev.dt)))
-        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine, detail), step=ev.dt, h=None)
+        return _Grid(K=K, N=_points_per_sample(ev, start, incumbent, K, fine, detail, reach), step=ev.dt, h=None)
     # the fine step resolves the loop (H_WC rad of the fastest crossover per step) as well as the horizon: a
     # slow closed-loop pole of small residue (a PI zero next to a plant pole) must not stretch the step over
     # the loop's own dynamics (1/(4s+1) with pidf2: T = 204 s would give h = 0.5 s against wc = 2.7 rad/s);
@@ -479,6 +498,7 @@ class _Solves:
         # the sharp polish (set by refine): ``accept(x, ts)``, whether the verifier confirms that solution ``x`` settles
         # by ``ts``; a solution it does not confirm counts as infeasible
         self.accept: Any = None
+        self.last_ok = False  # the last solve succeeded (its slack, feasible or not, is the NLP's optimum at its Ts)
 
     def _params(self, ts: float) -> np.ndarray:
         """The parameter vector with the envelope from ``ts`` on (``inf``: none)."""
@@ -545,6 +565,7 @@ class _Solves:
         if self.solver == "ipopt":  # warm start the next bisection solve from this one's multipliers
             self.lam.update(lam_x0=np.asarray(sol["lam_x"]).ravel(), lam_g0=np.asarray(sol["lam_g"]).ravel())
         ok = stats.get("success", False) or res.status == "Solved_To_Acceptable_Level"
+        self.last_ok = bool(ok)
         if prob.key.objective == "settling_time":
             if ok and x[self.slack] >= 0 and self.accept is not None and not self.accept(x, ts):
                 ok = False  # the bisection does not go on from a solution the verifier does not confirm
@@ -675,7 +696,7 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
 
 def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
            solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False,
-           detail: int = 1, build_cap: float | None = None) -> RefineResult:
+           detail: int = 1, build_cap: float | None = None, reach: float | None = None) -> RefineResult:
     """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
 
     ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
@@ -694,10 +715,13 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     and where the overshoot limit is active its looser margin is measured at the answer (:func:`_measured_os`) and
     starts from the incumbent when the tight one cannot hold even the incumbent's own settling time. ``build_cap``
     (a tune on the default budget): the NLP's build does not count against ``deadline`` (it is moved on by the
-    build's time), only against this wall-clock cap."""
+    build's time), only against this wall-clock cap. ``reach`` (settling time, without an ``incumbent``: a restart's
+    own refinement to its start's local optimum): the NLP's grid is that of a start settling by this at the latest, so
+    that refinements from starts settling later share one problem shape (the caller passes a multiple of its
+    incumbent's settling time: a basin that settles later than that is no rival)."""
     res = RefineResult()
     r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
-               detail=detail, build_cap=build_cap)
+               detail=detail, build_cap=build_cap, reach=reach)
     if r is None:  # (res.status says why)
         return res
     if r.out_of_time():
@@ -761,16 +785,16 @@ class _Refinement:
 
 
 def _grids(ev: BatchEvaluator, space: Space, start: Start, incumbent: float | None, fine: bool, detail: int,
-           c_fast: float = 0.0) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
+           c_fast: float = 0.0, reach: float | None = None) -> tuple[_Grid, _Grid, _Grid | None, bool, bool]:
     """The NLP's time grid, the coarse one (a polish's own start), the head grid (where the polish's looser overshoot
     limit needs the peak resolved), whether the polish is sharp, and whether the fine grid is the coarse one."""
     spec = ev.spec
-    grid = _grid(ev, start, space.w0, incumbent, fine, detail, c_fast)
+    grid = _grid(ev, start, space.w0, incumbent, fine, detail, c_fast, reach)
     # the polish's looser overshoot limit (below) needs the peak resolved
     headed = _head_grid(start, grid) if fine and spec.objective == "settling_time" and \
         _at_overshoot_limit(ev, start) else None
     grid = headed or grid
-    coarse = _grid(ev, start, space.w0, incumbent, False, detail, c_fast) if fine else grid
+    coarse = _grid(ev, start, space.w0, incumbent, False, detail, c_fast, reach) if fine else grid
     if fine and headed is None:
         grid = _settle_head(ev, start, incumbent, grid, detail)
     # the sharp polish (``detail`` >= 2): Ts interpolated between the grid's points and the overshoot margin measured
@@ -804,7 +828,7 @@ def _key(ev: BatchEvaluator, space: Space, data: _PlantData, grid: _Grid, solver
 
 def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, *, deadline: float | None,
            solver: str, incumbent: float | None, start: Start | None, fine: bool, detail: int,
-           build_cap: float | None = None) -> _Refinement | None:
+           build_cap: float | None = None, reach: float | None = None) -> _Refinement | None:
     """The start, the grids, the NLP (built, or None when its build does not fit the time left), its parameters and
     bounds, the sharp polish's verifier, the objective's level: what the solves need."""
     spec = ev.spec
@@ -820,7 +844,9 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
     # the thesis pitch model 0.204 s against 0.195 s; the other objectives take the NLP's answer as it is)
     c_fast = float(np.max(np.abs(ctrl0.zpk.poles), initial=0.0)) \
         if ev.dt is None and spec.objective != "settling_time" else 0.0
-    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail, c_fast)
+    reach = reach if spec.objective == "settling_time" and incumbent is None and reach is not None and \
+        math.isfinite(reach) and reach > 0 else None
+    grid, coarse, headed, sharp, same = _grids(ev, space, start, incumbent, fine, detail, c_fast, reach)
     if same and not _resolves_peak(start, grid):
         res.status = "the fine grid is the coarse one"
         return None
@@ -953,35 +979,63 @@ def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, gri
         return None
     best = exchange(r[1], hi)
     res.candidates.append(to_search(best))
+    s_hi = float(best[solve.slack]) if solve.last_ok else None  # (the slack at hi, where known; at lo, below)
     ts_nlp = solve.settles_at(best)
     if 0 < ts_nlp < hi:
-        hi = ts_nlp
+        hi, s_hi = ts_nlp, None
     # the lower end: a guess near hi when the target is an incumbent (another refinement's local optimum:
     # this one is likely to end near it), widened to 0.3 hi if the bisection reaches the guess untested
     lo, proven = (NEAR * hi, False) if near else (0.3 * hi, True)
     if lo_step is not None and hi - lo_step > lo:
         lo, proven = hi - lo_step, False
+    s_lo: float | None = None
+    kept = 0  # the secant's steps in a row that moved the same end
     while not out_of_time():
         # the NLP's resolution of Ts: its grid's (the verifier then judges between its points), or a part of it
-        if hi - lo <= grid.spacing(hi) / solve.split:
+        on_grid = solve.split == 1
+        if hi - lo <= grid.spacing(hi) / solve.split or (on_grid and _grid_gap(tgrid, lo, hi) <= 1):
             if proven:
                 break
-            lo, proven = 0.3 * hi, True
+            lo, proven, s_lo = 0.3 * hi, True, None
             continue
-        mid = 0.5 * (lo + hi)
+        mid = _grid_step(tgrid, lo, hi, s_lo, s_hi, kept) if on_grid else 0.5 * (lo + hi)
         r = solve(mid, best)
         if r is not None and r[0] >= 0:
+            kept = kept + 1 if kept >= 0 else 1
+            s_hi = float(r[0])
             hi, best = mid, exchange(r[1], mid)
             res.candidates.append(to_search(best))
             # the solution may settle earlier than asked (on the NLP's grid): jump there; the verifier judges
             # every candidate afterwards
             ts_nlp = solve.settles_at(best)
             if 0 < ts_nlp < hi:
-                hi = ts_nlp
+                hi, s_hi = ts_nlp, None
                 if hi <= lo:  # lo was a failed solve, not an infeasible problem (or a guess): reopen the bracket
                     if proven and solve.accept is not None:
                         break  # (the sharp polish: lo a solve the verifier refused; the bracket is closed)
-                    lo, proven = 0.3 * hi, True
+                    lo, proven, s_lo = 0.3 * hi, True, None
         else:
+            kept = kept - 1 if kept <= 0 else -1
+            s_lo = float(r[0]) if r is not None and solve.last_ok and r[0] < 0 else None
             lo, proven = mid, True
     return hi, best
+
+
+def _grid_gap(tgrid: np.ndarray, lo: float, hi: float) -> int:
+    """How many grid points apart the envelopes asked at ``lo`` and ``hi`` start (each at the first point at or
+    after its Ts): at most 1, no Ts between them asks anything new."""
+    i_lo, i_hi = np.searchsorted(tgrid, [lo - 1e-12, hi - 1e-12])
+    return int(i_hi - i_lo)
+
+
+def _grid_step(tgrid: np.ndarray, lo: float, hi: float, s_lo: float | None, s_hi: float | None, kept: int
+               ) -> float:
+    """The bisection's next Ts on the grid: a grid point strictly between the envelopes asked at ``lo`` and ``hi``,
+    at the secant of the slacks ``s_lo`` < 0 <= ``s_hi`` where both are known (clamped to SECANT_CLAMP of the
+    bracket; the midpoint after two steps in a row that kept one end, ``kept``), else at the middle."""
+    i_lo, i_hi = (int(i) for i in np.searchsorted(tgrid, [lo - 1e-12, hi - 1e-12]))
+    frac = 0.5
+    if s_lo is not None and s_hi is not None and s_hi > s_lo and abs(kept) < 2:
+        frac = min(max(-s_lo / (s_hi - s_lo), SECANT_CLAMP), 1.0 - SECANT_CLAMP)
+    m = i_lo + int(round(frac * (i_hi - i_lo)))
+    return float(tgrid[min(max(m, i_lo + 1), i_hi - 1)])
