@@ -141,7 +141,7 @@ def loop_rate(raw: Mapping[str, float], names: Mapping[str, str], source: str, l
     return None
 
 
-#: the first PX4 release whose D path is the first-order AlphaFilter (see :func:`_px4_dpath`)
+#: the first PX4 release whose D path is the first-order AlphaFilter (see :func:`dpath_fixed`)
 PX4_ALPHA_DGYRO_RELEASE = (1, 13)
 
 

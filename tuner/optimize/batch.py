@@ -68,7 +68,7 @@ UNSTABLE = 1e5
 
 
 # the compiled kernels (tuner.optimize.kernels): loaded on a batch's first use, never by importing tuner
-_KERNELS: dict[str, Any] = {"module": None, "spawned": False}
+_KERNELS: dict[str, Any] = {"module": None, "spawned": False, "warm": False}
 
 
 def kernels(*, compile_now: bool = False) -> Any:
@@ -92,8 +92,22 @@ def kernels(*, compile_now: bool = False) -> Any:
 
 def preload_kernels() -> Any:
     """Load the kernels now, at a long-lived process's start (``TUNER_KERNELS`` ``auto`` or ``on``), where this
-    machine has compiled them (the cache's ready mark); where it has not, start their compile in a detached
-    background process, once per machine, and stay on numpy. The module, or None."""
+    machine has compiled them (the cache's ready mark), and call each once (:func:`tuner.optimize.kernels.warm`) so
+    that numba has loaded their machine code before the first tune; where it has not, start their compile in a
+    detached background process, once per machine, and stay on numpy. The module, or None.
+
+    The warm call matters for the answer, not only for speed: loaded lazily inside a process's first batch, numba's
+    cache load (seconds on a loaded machine) made that batch look dear, and the search, which prices what its time
+    left affords by the last batch's cost per point, cut the first tune in round 0 (the service's solver processes
+    and the study workers alike; bench/results/study_workers_issue41.md)."""
+    mod = _preload()
+    if mod is not None and not _KERNELS.get("warm"):
+        mod.warm()
+        _KERNELS["warm"] = True
+    return mod
+
+
+def _preload() -> Any:
     import os
 
     mode = os.environ.get("TUNER_KERNELS", "auto").strip().lower()

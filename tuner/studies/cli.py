@@ -68,18 +68,14 @@ def _preload_stack(plots: bool = False) -> None:
 
 
 def _load_kernels() -> None:
-    """A worker's start: the batch's compiled kernels loaded (:func:`tuner.optimize.batch.preload_kernels`, where
-    this machine has them) and each called once (:func:`tuner.optimize.kernels.warm`), so that numba has loaded
-    their machine code from its cache before the first tune. Loaded lazily, inside the first batch, it made that
-    batch look dear (numba's cache load: seconds at a load of 8 on 2 cores), and the search, which prices what the
-    time left affords by its last batch's cost per point, cut the worker's first loop in round 0 (at a 120 s budget,
-    after 22 s: bench/results/study_workers_issue41.md). In the worker, not before the fork: the process that
-    runs the study (a test's, a notebook's) keeps its own choice of the batch's path."""
+    """A worker's start: the batch's compiled kernels loaded and warmed (:func:`tuner.optimize.batch.preload_kernels`,
+    where this machine has them), so that numba has loaded their machine code from its cache before the first tune
+    (loaded lazily inside the first batch, it made that batch look dear and the search cut the worker's first loop in
+    round 0: bench/results/study_workers_issue41.md). In the worker, not before the fork: the process that runs the
+    study (a test's, a notebook's) keeps its own choice of the batch's path."""
     from ..optimize.batch import preload_kernels
 
-    kernels = preload_kernels()
-    if kernels is not None:
-        kernels.warm()
+    preload_kernels()
 
 
 def _context() -> Any:
