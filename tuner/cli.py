@@ -82,10 +82,11 @@ def _add_spec_args(p: argparse.ArgumentParser) -> None:
 
 
 def _add_vehicle_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("vehicle (the firmware rate laws px4_rate and ardupilot_rate)")
+    g = p.add_argument_group("vehicle (the firmware rate laws: px4_rate, ardupilot_rate, betaflight_rate, ...)")
     g.add_argument("--params", metavar="FILE",
                    help="what the vehicle fixes: loop rate, filter cutoffs, integrator limit, PX4's K, and its current "
-                   "gains; a QGroundControl .params or a ULog .ulg (PX4), a Mission Planner .parm (ArduPilot)")
+                   "gains; a QGroundControl .params or a ULog .ulg (PX4), a Mission Planner .parm or a DataFlash .bin "
+                   "(ArduPilot), a CLI dump (Betaflight)")
     g.add_argument("--axis", choices=("roll", "pitch", "yaw"), default="roll", help="the axis whose rate law (roll)")
 
 

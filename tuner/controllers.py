@@ -57,6 +57,7 @@ from .tolerances import SAME_COEFF_RTOL
 
 GAIN_SPAN = 100.0
 MAX_CONTROLLER_ORDER = 2 * MAX_ORDER  # one limit for every form (expression, coefficients): 40
+MAX_RAW_GYRO_HZ = 100_000.0  # raw_hz (PX4's raw gyro rate) at most this: 32 kHz is the fastest gyro PX4 drives
 
 __all__ = [
     "GAIN_SPAN",
@@ -371,7 +372,8 @@ class Structure:
     nonneg: bool = False
     #: the integral gain's name (None: no integral action, or a form without one named gain)
     integral: str | None = None
-    #: the firmware this structure's parameters belong to ("px4", "ardupilot"), None for the generic forms
+    #: the firmware this structure's parameters belong to (a registered firmware's name: "px4", "ardupilot", ...),
+    #: None for the generic forms
     firmware: str | None = None
     #: a firmware law's documented parameter ranges on one axis, ``(name, lo, hi)`` (the ground station's metadata,
     #: :func:`tuner.firmware.names.law_ranges`): the search stays inside them, so that a design can be written to
@@ -423,6 +425,10 @@ class Structure:
             if not math.isfinite(f) or (low is not None and f < low) or (k == "K" and f <= 0):
                 raise InvalidControllerError(f"{self.name}: {k} must be finite and "
                                              + ("> 0" if k == "K" else ">= 0") + f", got {v!r}",
+                                             field=("gains", k))
+            if k == "raw_hz" and f > MAX_RAW_GYRO_HZ:  # (a rate beyond any gyro's: the D filter's poles underflow)
+                raise InvalidControllerError(f"{self.name}: raw_hz must be at most {MAX_RAW_GYRO_HZ:g} Hz (the raw "
+                                             f"gyro rate; PX4's fastest gyros sample at 32 kHz), got {v!r}",
                                              field=("gains", k))
             if k == "dgyro_order" and f not in (1.0, 2.0):  # PX4's D filter: AlphaFilter or LowPassFilter2p
                 raise InvalidControllerError(f"{self.name}: dgyro_order must be 1 (first order, PX4 v1.13 on) or 2 "

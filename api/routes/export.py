@@ -48,8 +48,8 @@ async def export_tune(
     tune_id: str = TuneId,
     format: ExportFormat = Query(
         ..., description=_FORMAT_DOC),
-    axis: Literal["roll", "pitch", "yaw"] | None = Query(None, description="px4/ardupilot: the axis (default: the "
-                                                          "tune's vehicle's, else roll)"),
+    axis: Literal["roll", "pitch", "yaw"] | None = Query(None, description="a firmware's parameter file: the axis "
+                                                          "(default: the tune's vehicle's, else roll)"),
     name: str = Query("controller", min_length=1, max_length=56, description="a C identifier: N_state, N_init, "
                       "N_update, and the Python class"),
     dt: float | None = Query(None, description="sample time, s: needed for a continuous result"),

@@ -133,3 +133,33 @@ def test_a_gain_beyond_its_range_is_refused_at_export():
                      "yaw_lpf_hz": 0.0, "iterm_limit": 400.0, "i_mult": 1.0}}
     with pytest.raises(TunerError, match=r"p_roll = 300 is outside betaflight's documented range \[0, 250\]"):
         make_param_file(res, "betaflight")
+
+
+def test_a_typed_plant_is_told_betaflights_gyro_filters_are_not_modelled():
+    # (review: the note said "the vehicle's file gives no gyro low-pass" of a file that sets gyro_lpf1_static_hz; its
+    # chain (PT1s, dynamic by default, notches, RPM filter) is not PX4's or ArduPilot's Butterworth, so none is added)
+    from types import SimpleNamespace
+
+    from tuner import make_plant
+    from tuner.export.paramfile import _gyro_words
+    from tuner.firmware.bind import typed_plant
+
+    plant = make_plant([10.0], [1.0, 1.0])
+    out, rec = typed_plant(plant, SimpleNamespace(firmware="betaflight", gyro_cutoff_hz=100.0))
+    assert out is plant and rec["unmodelled"] and "not modelled" in rec["note"]
+    words = _gyro_words({}, {"typed_plant": rec}, "gyro_lpf1_static_hz")
+    assert "not modelled" in words and "gives none" not in words
+
+
+def test_a_gain_the_whole_numbers_change_is_said_and_one_they_zero_refused():
+    # (review: a tuned I of 0.19 was written as i_roll = 0 under a header of the tuned design's figures)
+    base = {"structure": "betaflight_rate", "controller": {"dt": DT}, "meets_spec": True,
+            "gains": {"P": 1.88, "I": 0.19, "D": 40.0, "FF": 120.0, "dlpf1_hz": 75.0, "dlpf2_hz": 150.0,
+                      "yaw_lpf_hz": 0.0, "iterm_limit": 400.0, "i_mult": 1.0}}
+    with pytest.raises(TunerError, match=r"i_roll = 0\.19 is stored as a whole number, 0") as e:
+        make_param_file(base, "betaflight")
+    assert e.value.field == ("gains", "I")
+    pf = make_param_file(base, "betaflight", force=True)
+    assert "i_roll 0.19 -> 0" in pf.text and "p_roll 1.88 -> 2" in pf.text and "set i_roll = 0" in pf.text
+    ok = {**base, "gains": {**base["gains"], "P": 45.2, "I": 80.0}}  # 45.2 -> 45: 0.4 %, not said
+    assert "by more than 1 %" not in make_param_file(ok, "betaflight").text

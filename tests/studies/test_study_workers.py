@@ -171,3 +171,19 @@ def test_a_worker_draws_only_when_no_loop_is_free_and_drains_the_figures_at_the_
     events.clear()
     runner.work(Coordinator(study, open_storage(url2), worker="A"), idle=idle2, poll_s=0.01, stop=stop)
     assert events == []  # stopped: it neither tunes nor draws
+
+
+def test_a_figure_lock_a_killed_worker_left_is_cleared_when_stale(tmp_path):
+    # (review: a worker killed mid-draw left its lock for good, so no later run's idle worker drew that figure)
+    import os
+    import time
+
+    from tuner.studies.cli import STALE_LOCK_S, _clear_stale_locks
+
+    old, new = tmp_path / "roll_step.abc.lock", tmp_path / "pitch_step.abc.lock"
+    old.touch()
+    new.touch()
+    past = time.time() - STALE_LOCK_S - 5
+    os.utime(old, (past, past))
+    _clear_stale_locks(tmp_path)
+    assert not old.exists() and new.exists()

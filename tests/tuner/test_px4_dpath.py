@@ -304,3 +304,18 @@ def test_a_generation_that_is_none_is_refused_by_name():
     with pytest.raises(InvalidControllerError, match="dgyro_order must be 1") as e:
         controller_tf("px4_rate", {"P": 0.1, "I": 0.1, "D": 0.001, "FF": 0.0, "dgyro_order": 3.0}, dt=0.0025)
     assert e.value.field == ("gains", "dgyro_order")
+
+
+@pytest.mark.parametrize("extra, field, words", [
+    ({"dgyro_order": 2, "raw_hz": 8000, "dgyro_hz": 1e-9}, "dgyro_hz", "not resolvable in double precision"),
+    ({"dgyro_order": 2, "raw_hz": 1e300}, "raw_hz", "at most 100000 Hz"),
+    ({"raw_hz": 100}, "raw_hz", "below the loop rate 400 Hz"),
+])
+def test_a_d_path_no_vehicle_has_is_refused_naming_the_gain(extra, field, words):
+    # (review: these were a 500 from a bare ValueError in dgyro_filter, or silently modelled: a raw rate below the
+    # loop's); the service answers InvalidControllerError as a 422 at the gain's field
+    from tuner.errors import InvalidControllerError
+
+    with pytest.raises(InvalidControllerError, match=words) as e:
+        controller_tf("px4_rate", {"P": 0.15, "I": 0.2, "D": 0.003, "FF": 0.0, **extra}, dt=0.0025)
+    assert e.value.field == ("gains", field)

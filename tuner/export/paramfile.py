@@ -69,6 +69,8 @@ class _Formats(Mapping):
 
 #: export format -> (the law it writes, the firmware)
 PARAM_FORMATS: Mapping[str, tuple[str, str]] = _Formats()
+#: a gain stored as a whole number (Betaflight's P, I, D, F) that moves by more than this share is said in a warning
+ROUNDING_SAID = 0.01
 _MAX_TEXT = 300  # a header's text from a file or a log, at most (characters)
 
 
@@ -300,7 +302,7 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     order = list(firmware.export_order)
     if att_p is not None:
         order.append("att_p")
-    stored, forced = {}, []
+    stored, forced, rounded = {}, [], []
     for k in order:
         v = values[k]
         try:
@@ -308,6 +310,14 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
         except ValueError as e:
             raise TunerError(f"{names[k]} = {v:.6g}: {e}; the result's gains are not a design", field=("gains", k)) \
                 from None
+        if k in firmware.integer and stored[k] != v:  # (Betaflight's P, I, D, F: whole numbers)
+            if stored[k] == 0 and v != 0 and not force:
+                raise TunerError(f"{names[k]} = {v:.6g} is stored as a whole number, 0: the file would remove the term "
+                                 "the design was verified with; retune with that gain at 0 or at least 1 (or write it "
+                                 "anyway with --force, HTTP force=true, and its header then says so)",
+                                 field=("gains", k))
+            if abs(stored[k] - v) > ROUNDING_SAID * abs(v):
+                rounded.append(f"{names[k]} {v:.6g} -> {stored[k]:g}")
         prob = range_problem(fw, ax, k, stored[k])
         if prob is not None:
             if not force:
@@ -347,6 +357,10 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
     if not ok:
         warnings.append(f"written with --force: {why}" + (" (the verdict above)" if verdict else ""))
     warnings += [f"written with --force: {f}" for f in forced]
+    if rounded:
+        warnings.append(f"stored as the firmware stores them (whole numbers), by more than {100 * ROUNDING_SAID:g} %: "
+                        + ", ".join(rounded) + "; the figures above are the tuned design's, not the stored values' "
+                        "(tuner analyze with the stored gains checks them)")
     has = vehicle.get("has") if vehicle is not None and isinstance(vehicle.get("has"), list) else None
     skip = [k for k in order if has is not None and k not in ("P", "I", "D") and names[k] not in has]
     if skip:  # the vehicle's firmware lacks them (an older generation): a ground station would refuse the file
@@ -372,6 +386,8 @@ def _gyro_words(result: Mapping[str, Any], vehicle: Mapping[str, Any] | None, na
     typed = (vehicle or {}).get("typed_plant")
     if not isinstance(typed, Mapping):
         return f"the gyro low-pass {name} is part of the identified plant"
+    if typed.get("unmodelled") and isinstance(typed.get("note"), str):
+        return clean(typed["note"], _MAX_TEXT)
     f = _num(typed.get("gyro_filter_hz"))
     if math.isfinite(f) and f > 0:
         return f"typed plant: the gyro low-pass {name} {f:g} Hz (second order) added to it in the designed loop"

@@ -94,6 +94,10 @@ class Firmware:
     gain_scale: str | None = None
     #: what to say of a gain held on a range's end when the law has no gain scale
     no_scale_advice: str = ""
+    #: whether :func:`tuner.firmware.bind.typed_plant` adds ``gyro_param``'s low-pass to a typed plant (a
+    #: second-order Butterworth at that cutoff, PX4's and ArduPilot's); False: the firmware's gyro filter chain is not
+    #: modelled, and a typed plant is said to need to hold it
+    gyro_filter_modelled: bool = True
     #: the header written with an export's lines (the vehicle's ids): whether the file names the vehicle
     ids_in_file: bool = False
 

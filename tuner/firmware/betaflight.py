@@ -72,7 +72,8 @@ YAW_KI_FACTOR = 2.5  # pid_init.c: pidCoefficient[FD_YAW].Ki *= 2.5f
 _C = (180.0 / math.pi) / PID_MIXER_SCALING  # rad/s in, the mixer's normalised command out
 _INF = math.inf
 _AX = {"roll": "roll", "pitch": "pitch", "yaw": "yaw"}
-_FILES = "Betaflight parameters (its CLI dump or diff: set NAME = VALUE lines, a .txt)"
+_FILES = ("Betaflight parameters (its CLI dump: set NAME = VALUE lines, a .txt; a diff lists only what differs from "
+          "the defaults, so a stock PID is missing from it: give the dump)")
 #: the D-term low-pass types (settings.c lookupTableDtermLowpassType): only PT1 is modelled
 _LPF_TYPES = {"PT1": 0.0, "BIQUAD": 1.0, "PT2": 2.0, "PT3": 3.0}
 #: settings whose value is a word, read as 0 (OFF) or 1 (any other: on)
@@ -312,7 +313,7 @@ FIRMWARE = Firmware(
     range_source=dict.fromkeys(("P", "I", "D", "FF", "iterm_limit", "yaw_lpf_hz"), "Betaflight's pid.h / settings.c"),
     export_format="betaflight", suffix="txt", files=_FILES, export_order=("P", "I", "D", "FF", "iterm_limit"),
     write_line=lambda name, value, ids: f"set {name} = {int(float(value)) if float(value).is_integer() else value}",
-    filters_header=_filters_header, gyro_param="gyro_lpf1_static_hz",
+    filters_header=_filters_header, gyro_param="gyro_lpf1_static_hz", gyro_filter_modelled=False,
     detect_prefixes=("p_roll", "p_pitch", "p_yaw", "pid_process_denom", "dterm_lpf"),
     default_loop_hz=8000.0, loop_rate=loop_rate, formats=("cli",), read_text=read_cli, sniff=sniff,
     fixed_from=_fixed_from, vehicle_checks=_checks, simulator=Simulator,

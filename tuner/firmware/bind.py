@@ -118,9 +118,16 @@ def typed_plant(plant: Any, vehicle: Any) -> tuple[Any, dict[str, Any]]:
 
     from ..plant import make_plant_zpk
 
-    name = get_firmware(getattr(vehicle, "firmware", None)).gyro_param
+    fw = get_firmware(getattr(vehicle, "firmware", None))
+    name = fw.gyro_param
     f = getattr(vehicle, "gyro_cutoff_hz", None)
     rec: dict[str, Any] = {"typed": True, "name": name, "gyro_filter_hz": None}
+    if not fw.gyro_filter_modelled:
+        rec["note"] = (f"typed plant: {fw.title}'s gyro filters ({name} and the rest of its chain) are not modelled, "
+                       "so none is added: the plant typed must hold them (a plant identified from the logged, "
+                       "filtered gyro does)")
+        rec["unmodelled"] = True
+        return plant, rec
     if not f or f <= 0:
         rec["note"] = (f"typed plant: the vehicle's file gives no gyro low-pass ({name}), so none is added: the plant "
                        "typed must hold it")

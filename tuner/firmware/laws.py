@@ -225,6 +225,13 @@ def dgyro_filter(fixed: dict[str, float], dt: Any) -> tuple[list, list]:
     if order not in (1, 2):
         raise ValueError(f"dgyro_order must be 1 or 2, got {fixed.get('dgyro_order')!r}")
     if raw > 0:
+        if isinstance(dt, (int, float)) and raw * dt < 1 - 1e-9:
+            from ..errors import InvalidControllerError
+
+            raise InvalidControllerError(
+                f"raw_hz {raw:g} Hz is below the loop rate {1 / dt:g} Hz: PX4 runs the rate loop on gyro samples, so "
+                "the raw gyro rate is at least the loop's; give the gyro's raw rate (vehicle_imu_status."
+                "gyro_raw_rate_hz) or 0 (the D path at the loop rate)", field=("gains", "raw_hz"))
         if f >= raw / 2:  # AlphaFilter::setCutoffFreq and LowPassFilter2p refuse it: no filtering
             return [1, 0], [1, 0]
         m, dt_r = dt * raw, 1.0 / raw
@@ -247,7 +254,13 @@ def dgyro_filter(fixed: dict[str, float], dt: Any) -> tuple[list, list]:
 
     p = (-a1 + cmath.sqrt(a1 * a1 - 4 * a2)) / 2  # numbers here: raw_hz and f are fixed values
     if abs(p.imag) < 1e-12 or abs(p - 1) < 1e-12:
-        raise ValueError(f"IMU_DGYRO_CUTOFF {f:g} Hz at the raw rate {raw:g} Hz: the biquad's poles are not complex")
+        from ..errors import InvalidControllerError
+
+        raise InvalidControllerError(
+            f"IMU_DGYRO_CUTOFF {f:g} Hz at the raw gyro rate {raw:g} Hz: the second-order D filter's poles are not "
+            "resolvable in double precision (a cutoff this far below the raw rate is no vehicle's); give the "
+            "vehicle's IMU_DGYRO_CUTOFF (PX4's documented range 0-1000 Hz) and its raw gyro rate (at most 32 kHz)",
+            field=("gains", "dgyro_hz"))
     alpha2 = b0 * (p + 1) ** 2 / ((p - 1) * (p - p.conjugate()))
     gam = alpha2 / p
     r, th = abs(p), cmath.phase(p)

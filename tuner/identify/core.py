@@ -189,7 +189,7 @@ def identify(
         Why ``reference`` is not exogenous (a rate setpoint flown in an attitude mode, where it is the outer loop's
         output: :func:`tuner.identify.ulog.flown_edges` says so from the log): the joint estimate is then reported
         as biased by the outer loop, never as unbiased. Empty (default): the reference is taken as exogenous.
-    firmware : {"px4", "ardupilot"} or None
+    firmware : a registered firmware's name ("px4", "ardupilot", ...) or None
         The autopilot that flew the log: the advice on a weak or closed-loop log names what to fly on it
         (:func:`tuner.identify.flight.what_to_fly`).
 

@@ -27,7 +27,8 @@ so far). The search stops when
   draws also reached the incumbent's value (the draw that first found it does not count). One draw can never make
   the claim; with every draw in one optimum the estimate is 1/3 after 3 draws and 1/6 after 4, so a claim needs at
   least 4 draws (default effort affords 4 restarts, thorough 8); any second optimum reached (better or worse) needs
-  more (w = 2: 7 draws). It is an estimate of what the draws' distribution leaves unexplored, not a bound on whether
+  more (w = 2: 6 draws, 2·3/(6·5) = 0.2, the level inclusive). It is an estimate of what the draws' distribution
+  leaves unexplored, not a bound on whether
   a better design exists: a better basin that random starts of the best quarter seldom reach is missed whatever
   the estimate. Round 0 agreeing with itself (two refinements from distinct starts reaching the same value) ends
   ``effort="fast"``, which claims nothing without a restart. A restart also refines, at

@@ -211,6 +211,25 @@ def _draw_figure(study: Any, lp: Any, result: dict[str, Any], kind: str, fp: str
     tmp.replace(marker)
 
 
+#: a figure's lock (:func:`_idle_plotter`) older than this was left by a worker killed while drawing: a figure takes
+#: seconds, so no live process holds one this long
+STALE_LOCK_S = 600.0
+
+
+def _clear_stale_locks(plots_dir: Path) -> None:
+    """Remove the figure locks a killed worker left (older than :data:`STALE_LOCK_S`), so that a later run's idle
+    workers draw those figures again rather than leaving them to the parent."""
+    import time
+
+    now = time.time()
+    for lock in plots_dir.glob("*.lock"):
+        try:
+            if now - lock.stat().st_mtime > STALE_LOCK_S:
+                lock.unlink(missing_ok=True)
+        except OSError:
+            continue
+
+
 def _drawn_early(study: Any, lp: Any, result: dict[str, Any], plots_dir: Path) -> dict[str, Path] | None:
     """The plots workers drew for this very result, if every one of them was (see :func:`_idle_plotter`)."""
     fp = _fingerprint(study, lp, result)
@@ -375,6 +394,8 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
     ctrls = {lp.name: controller_of(lp, results[lp.name]["gains"]) for lp in study.order()
              if "gains" in results[lp.name]}
     plots_dir = out_dir / "plots" if plots else None
+    if plots_dir is not None:
+        _clear_stale_locks(plots_dir)
     drawn = {} if plots_dir is None else {
         lp.name: f for lp in study.order() if lp.name in ctrls
         and (f := _drawn_early(study, lp, results[lp.name], plots_dir)) is not None}
