@@ -424,6 +424,9 @@ class Structure:
                 raise InvalidControllerError(f"{self.name}: {k} must be finite and "
                                              + ("> 0" if k == "K" else ">= 0") + f", got {v!r}",
                                              field=("gains", k))
+            if k == "dgyro_order" and f not in (1.0, 2.0):  # PX4's D filter: AlphaFilter or LowPassFilter2p
+                raise InvalidControllerError(f"{self.name}: dgyro_order must be 1 (first order, PX4 v1.13 on) or 2 "
+                                             f"(second order, the releases before), got {v!r}", field=("gains", k))
             new[k] = f
         if new == names:
             return self

@@ -29,7 +29,8 @@ def _vehicle(af: Airframe, law: str):
         d = PX4_DEFAULTS
         return VehicleParams(firmware="px4", axis="roll", loop_hz=af.loop_hz,
                              gains={k: d[k] for k in ("P", "I", "D", "FF")},
-                             fixed={"K": d["K"], "dgyro_hz": d["dgyro_hz"], "int_lim": d["int_lim"]},
+                             fixed={"K": d["K"], "dgyro_hz": d["dgyro_hz"], "int_lim": d["int_lim"],
+                                    "dgyro_order": 1.0, "raw_hz": af.raw_hz},  # the D path at the raw rate (issue 40)
                              gyro_cutoff_hz=af.px4_gyro_hz, source=f"bench airframe {af.name}")
     d = AP_DEFAULTS
     return VehicleParams(firmware="ardupilot", axis="roll", loop_hz=af.loop_hz,
@@ -78,12 +79,12 @@ def ours(af: Airframe, law: str, **tune_kw: Any) -> dict:
 
 
 def tuner_view(af: Airframe, law: str, gains: dict) -> dict:
-    """The tuner's verifier on ``gains`` (its model of the law: the D path at the loop rate, the gyro low-pass
-    continuous): PM, GM, overshoot, settling, as it would claim them for this design."""
+    """The tuner's verifier on ``gains`` (its model of the law: the D path at the raw rate where the gains carry it,
+    ``raw_hz``; the gyro low-pass continuous): PM, GM, overshoot, settling, as it would claim them for this design."""
     from tuner import analyze, get_structure
 
     fw = FIRMWARE_OF_LAW[law]
-    keys = ("P", "I", "D", "FF", "K", "dgyro_hz", "int_lim") if fw == "px4" else (
+    keys = ("P", "I", "D", "FF", "K", "dgyro_hz", "int_lim", "dgyro_order", "raw_hz") if fw == "px4" else (
         "P", "I", "D", "FF", "fltt_hz", "flte_hz", "fltd_hz", "imax")
     c = get_structure(law).tf({k: gains[k] for k in keys if k in gains}, af.dt)
     a = analyze(af.plant_tf(fw), c, dt=af.dt, delay=af.delay_s)

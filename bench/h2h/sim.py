@@ -83,8 +83,12 @@ class Lifted:
 
 
 def lift(af: Airframe, firmware: str, *, dgyro_hz: float | None = None, raw_hz: float | None = None,
-         gyro_hz: float | None = None, sub: int | None = None) -> Lifted:
+         gyro_hz: float | None = None, sub: int | None = None, dgyro_order: int = 1) -> Lifted:
     """Lift ``af`` for ``firmware`` (``"px4"``: with the raw-rate D path at ``dgyro_hz``; ``"ardupilot"``).
+
+    ``dgyro_order`` 2: the D path's filter is the 2021-era ``LowPassFilter2p`` (the biquad above at the raw rate,
+    ``VehicleAngularVelocity.hpp``'s ``math::LowPassFilter2p _lp_filter_acceleration[3]`` of that generation) instead
+    of today's ``AlphaFilter``.
 
     ``raw_hz`` overrides the airframe's raw gyro rate (the sanity check sets it to the loop rate), ``gyro_hz`` its
     gyro low-pass; ``sub`` plant points per raw sample for the fine output (default: at least 16 points per loop
@@ -117,7 +121,9 @@ def lift(af: Airframe, firmware: str, *, dgyro_hz: float | None = None, raw_hz: 
     # indices
     i_d1, i_d2 = n, n + 1
     i_wp, i_af = (n + 2, n + 3) if px4 else (None, None)
-    i_reg = n + (4 if px4 else 2)
+    two = px4 and dgyro_order == 2 and 0 < fd < raw / 2
+    i_e1, i_e2 = n + 4, n + 5  # the D biquad's delay elements (second order only)
+    i_reg = n + (4 + 2 * two if px4 else 2)
     nreg = q + 1
     nx = i_reg + nreg
     nz = nx + 1
@@ -138,7 +144,18 @@ def lift(af: Airframe, firmware: str, *, dgyro_hz: float | None = None, raw_hz: 
     Pm[i_d2, i_d1] = 1.0
     if px4:
         acc = (row_out - np.eye(nz)[i_wp]) * raw  # (w_f - w_prev) * fs
-        row_af = np.eye(nz)[i_af] * (1 - ad) + ad * acc
+        if two:  # LowPassFilter2p::apply on the difference (direct form II, as the gyro's)
+            e0, e1, e2, ea1, ea2 = biquad(raw, fd)
+            row_e0 = acc.copy()
+            row_e0[i_e1] -= ea1
+            row_e0[i_e2] -= ea2
+            row_af = e0 * row_e0
+            row_af[i_e1] += e1
+            row_af[i_e2] += e2
+            Pm[i_e2] = np.eye(nz)[i_e1]
+            Pm[i_e1] = row_e0
+        else:
+            row_af = np.eye(nz)[i_af] * (1 - ad) + ad * acc
         Pm[i_af] = row_af
         Pm[i_wp] = row_out
     # the outputs the law reads, from Z before the processing at the loop instant

@@ -29,12 +29,12 @@ def sweep():
     return fly("sweep", seconds=60, seed=2, sweep_amplitude=3.0, turbulence=0.03)
 
 
-def _log(path, log, *, took_off_s=5.0, landed_s=None, mode=1, armed=True, extra=()):
+def _log(path, log, *, took_off_s=5.0, landed_s=None, mode=1, armed=True, extra=(), params=None):
     t_us = (T0 + np.round(log.t * 1e6)).astype(np.int64)
     ev = [(T0 - 500_000, 10)] if armed else []
     ev += [(T0 + int(took_off_s * 1e6), 28)] if took_off_s is not None else []
     ev += [(T0 + int(landed_s * 1e6), 18)] if landed_s is not None else []
-    msgs = [rate_message(t_us, log.r, log.y, log.u), parameters(AP_PARAMS),
+    msgs = [rate_message(t_us, log.r, log.y, log.u), params or parameters(AP_PARAMS),
             arm([(T0 - 500_000, 1 if armed else 0)]), modes([(T0 - 600_000, mode)]), *extra]
     if ev:
         msgs.append(events(ev))
@@ -250,3 +250,50 @@ def test_overlapping_exogenous_stretches_are_merged():
     from tuner.identify.flight import union
 
     assert union([(0, 2), (5, 6)], [(1, 3), (3, 4)]) == [(0, 4), (5, 6)]
+
+
+def _fmtu(type_id: int, unit_ids: str) -> Message:
+    """An FMTU message (``TimeUS,FmtType,UnitIds,MultIds``) giving message type ``type_id`` its units; a ``#`` marks
+    the instance field (ArduPilot's LogStructure.h, ``LOG_FORMAT_UNITS_MSG``)."""
+    return Message("FMTU", "QBNN", ["TimeUS", "FmtType", "UnitIds", "MultIds"],
+                   {"TimeUS": [2], "FmtType": [type_id], "UnitIds": [unit_ids.encode()],
+                    "MultIds": [("-" * len(unit_ids)).encode()]})
+
+
+def test_a_message_with_instances_is_read_by_its_instance(sweep, tmp_path):
+    # two gyros (IMU instance 0 and 1) logged at the RATE samples; the instance field is what FMTU marks with "#"
+    t_us = (T0 + np.round(sweep.t * 1e6)).astype(np.int64)
+    n = t_us.size
+    imu = Message("IMU", "QBf", ["TimeUS", "I", "GyrX"],
+                  {"TimeUS": np.r_[t_us, t_us], "I": np.r_[np.zeros(n, int), np.ones(n, int)],
+                   "GyrX": np.r_[np.full(n, 5.0), sweep.y]})
+    # write_dataflash numbers the types 129 (its MSG), 130, ... in the order given: IMU is 130
+    path = write_dataflash(tmp_path / "imu.bin", [imu, _fmtu(130, "s#E"), rate_message(t_us, sweep.r, sweep.y, sweep.u),
+                                                  parameters(AP_PARAMS), arm([(T0 - 500_000, 1)]),
+                                                  modes([(T0 - 600_000, 1)]), events([(T0 - 500_000, 10)])])
+    one = read_dataflash(path, {"input": "RATE.ROut", "output": "IMU:1.GyrX"})
+    np.testing.assert_allclose(one.outputs[0], sweep.y.astype(np.float32)[:one.outputs[0].size], atol=1e-6)
+    zero = read_dataflash(path, {"input": "RATE.ROut", "output": "IMU:0.GyrX"})
+    assert np.all(zero.outputs[0] == 5.0)
+    with pytest.raises(InvalidDataError, match=r"message 'IMU' has instances \[0, 1\], not 2"):
+        read_dataflash(path, {"input": "RATE.ROut", "output": "IMU:2.GyrX"})
+    with pytest.raises(InvalidDataError, match=r"message 'RATE' has no instances \(name it RATE.R\)"):
+        read_dataflash(path, {"input": "RATE.ROut", "output": "RATE:1.R"})
+
+
+def test_a_parameter_changed_in_flight_is_said_and_its_last_value_used(sweep, tmp_path):
+    # ArduPilot logs every parameter at the start and each change after, as a PARM message at the change's time
+    start = parameters(AP_PARAMS)
+    parm = Message("PARM", start.format, start.columns,
+                   {"TimeUS": [*start.rows["TimeUS"], T0 + 20_000_000, T0 + 40_000_000],
+                    "Name": [*start.rows["Name"], b"ATC_RAT_RLL_P", b"ATC_RAT_PIT_P"],
+                    "Value": [*start.rows["Value"], 0.2, 0.3]})
+    path, _ = _log(tmp_path / "changed.bin", sweep, params=parm)
+    v = read_params(path, axis="roll")
+    assert v.gains["P"] == pytest.approx(0.2)
+    said = [n for n in v.notes if "changed in flight" in n]
+    assert len(said) == 1 and said[0].startswith("ATC_RAT_RLL_P changed in flight (0.135 at 0.0 s, 0.2 at 21.0 s)")
+    first, later = read_dataflash_parameters(path, history=True)
+    # ATC_RAT_PIT_P was not in the start's list: its one PARM is its value, not a change
+    assert first["ATC_RAT_RLL_P"] == pytest.approx(0.135) and first["ATC_RAT_PIT_P"] == pytest.approx(0.3)
+    assert [(t, n) for t, n, _ in later] == [(pytest.approx(T0 * 1e-6 + 20.0), "ATC_RAT_RLL_P")]

@@ -48,8 +48,11 @@ def test_qgroundcontrol_params(tmp_path):
     v = read_params(p, axis="pitch")
     assert v.firmware == "px4" and v.axis == "pitch" and v.loop_hz == 800.0 and v.dt == pytest.approx(1 / 800)
     assert v.gains == pytest.approx({"P": 0.18, "I": 0.3, "D": 0.004, "FF": 0.0})
-    assert v.fixed == pytest.approx({"K": 0.8, "dgyro_hz": 30.0, "int_lim": 0.4, "tq_hz": 0.0})  # (no yaw filter)
-    assert v.gyro_cutoff_hz == 40.0 and v.att_p == 6.5 and v.notes == ()
+    assert v.fixed == pytest.approx({"K": 0.8, "dgyro_hz": 30.0, "int_lim": 0.4, "tq_hz": 0.0,  # (no yaw filter)
+                                     "dgyro_order": 1.0, "raw_hz": 0.0})  # (no version, no raw rate: assumed)
+    assert v.gyro_cutoff_hz == 40.0 and v.att_p == 6.5
+    # a parameter file says neither the firmware's version nor the raw gyro rate: the D path's two assumptions
+    assert len(v.notes) == 2 and "first order" in v.notes[0] and "raw gyro rate is not in" in v.notes[1]
 
 
 def test_ardupilot_parm(tmp_path):
@@ -76,7 +79,8 @@ def test_ulog_parameters(tmp_path):
 
 def test_missing_values_are_the_firmware_defaults_and_said():
     v = vehicle_from_text("MC_ROLLRATE_P,0.1\nMC_ROLLRATE_I,0.1\nMC_ROLLRATE_D,0.001\n", axis="roll")
-    assert v.fixed == {"K": 1.0, "dgyro_hz": 20.0, "int_lim": 0.3, "tq_hz": 0.0} and v.loop_hz == 400.0
+    assert v.fixed == {"K": 1.0, "dgyro_hz": 20.0, "int_lim": 0.3, "tq_hz": 0.0, "dgyro_order": 1.0, "raw_hz": 0.0} \
+        and v.loop_hz == 400.0
     assert any("IMU_GYRO_RATEMAX" in n for n in v.notes) and any("MC_ROLLRATE_K" in n for n in v.notes)
 
 

@@ -27,6 +27,8 @@ CASES = [
     ("pid2", {"Kp": 0.8, "Ki": 1.5, "Kd": 0.1, "Tf": 0.02, "b": 0.7, "c": 0.0}),
     ("lead", {"K": 0.8, "wz": 2.0, "wp": 20.0}),
     ("px4_rate", {"P": 0.8, "I": 1.5, "D": 0.08, "FF": 0.1, "K": 1.0, "dgyro_hz": 20.0, "int_lim": 1e9}),
+    ("px4_rate", {"P": 0.8, "I": 1.5, "D": 0.08, "FF": 0.1, "K": 1.0, "dgyro_hz": 10.0, "int_lim": 1e9,
+                  "dgyro_order": 2.0, "raw_hz": 800.0}),  # the 2021-era D path on 8 raw samples per loop sample
     ("ardupilot_rate", {"P": 0.8, "I": 1.5, "D": 0.08, "FF": 0.1, "fltt_hz": 10.0, "flte_hz": 15.0,
                         "fltd_hz": 20.0, "imax": 1e9}),
 ]

@@ -84,6 +84,9 @@ class Firmware:
     #: ``(raw, axis, fixed, notes) -> fixed``: what the firmware flies where one parameter overrides another (a
     #: dynamic filter's cutoff over the static one), said in ``notes``; None: the parameters as read
     fixed_from: Callable[..., dict[str, float]] | None = None
+    #: ``(log, loop_hz, raw, names, fixed, source, notes) -> {key: value}``: fixed values the log (or its absence)
+    #: decides (PX4's D path generation and raw gyro rate), said in ``notes``; None: none
+    log_fixed: Callable[..., dict[str, float]] | None = None
     #: the fixed value that limits the integrator (PX4's ``int_lim``, ArduPilot's ``imax``)
     integrator_limit: str | None = None
     #: the quantity that scales P, I and D together (PX4's ``K``), None when the law has none

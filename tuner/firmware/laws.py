@@ -16,6 +16,11 @@ D term on the derivative of the measured rate through the D-gyro low-pass, gains
     C_fb(z) = K [P + I dt/(z - 1) + D a_d (z - 1)/(dt (z - (1 - a_d)))] H_q      acting on -w
     C_r(z)  = (K [P + I dt/(z - 1)] + FF) H_q                                    acting on w_sp
 
+where the D path ``a_d z/(z - (1 - a_d))`` is, in general, :func:`dgyro_filter`: the firmware differences and
+filters the rate on every raw gyro sample (``raw_hz``), first order (``AlphaFilter``) or, before v1.13, second order
+(``LowPassFilter2p``, ``dgyro_order`` 2), and the loop reads the last value; with ``raw_hz`` 0 (the loop rate) and
+first order it is the formula above.
+
 ``H_q`` is the output low-pass ``MulticopterRateControl::Run`` applies to the yaw torque after the law and before it
 publishes ``vehicle_torque_setpoint``: ``torque_setpoint(2) = _output_lpf_yaw.update(torque_setpoint(2), dt)``, an
 ``AlphaFilter`` (``y += a (x - y)``, ``a = dt/(dt + 1/(2 pi f))``) at ``_output_lpf_yaw.setCutoffFreq(
@@ -54,7 +59,7 @@ from collections.abc import Sequence
 from typing import Any
 
 __all__ = ["PX4_FIXED", "ARDUPILOT_FIXED", "LATER_FIXED", "law_defaults", "axis_fixed", "alpha", "poly_add", "poly_mul",
-           "px4_coeffs", "px4_ref_coeffs", "ardupilot_coeffs", "ardupilot_ref_coeffs"]
+           "dgyro_filter", "px4_coeffs", "px4_ref_coeffs", "ardupilot_coeffs", "ardupilot_ref_coeffs"]
 
 #: what the vehicle fixes for PX4's law (defaults: firmware.md, PX4's parameter defaults): the gain K
 #: (``MC_ROLLRATE_K``), the D-gyro low-pass cutoff (``IMU_DGYRO_CUTOFF``, Hz) and the integrator limit
@@ -62,7 +67,11 @@ __all__ = ["PX4_FIXED", "ARDUPILOT_FIXED", "LATER_FIXED", "law_defaults", "axis_
 #: (``MC_RR_INT_LIM``; acts only when the output saturates or the integrator grows large), and the output low-pass
 #: ``tq_hz`` (``MC_YAW_TQ_CUTOFF`` on yaw, Hz; 0 = none: roll and pitch). These are the roll axis's; see
 #: :func:`law_defaults` for each axis's.
-PX4_FIXED: tuple[tuple[str, float], ...] = (("K", 1.0), ("dgyro_hz", 20.0), ("int_lim", 0.3), ("tq_hz", 0.0))
+#: The D path's generation and rate (:func:`dgyro_filter`): ``dgyro_order`` 1 (``AlphaFilter``, current firmware) or 2
+#: (``LowPassFilter2p``, the 2021-era releases before v1.13), ``raw_hz`` the raw gyro rate the difference and its
+#: filter run at (0: the loop rate, what the law was before the D path was modelled at the raw rate).
+PX4_FIXED: tuple[tuple[str, float], ...] = (("K", 1.0), ("dgyro_hz", 20.0), ("int_lim", 0.3), ("tq_hz", 0.0),
+                                            ("dgyro_order", 1.0), ("raw_hz", 0.0))
 #: ArduPilot's: the target, error and derivative filters (``ATC_RAT_RLL_FLTT/FLTE/FLTD``, Hz; 0 = off), the
 #: integrator limit ``IMAX`` and the target-derivative feed-forward ``D_FF`` (roll's defaults; yaw's FLTE is 2.5 Hz:
 #: :func:`law_defaults`)
@@ -70,7 +79,7 @@ ARDUPILOT_FIXED: tuple[tuple[str, float], ...] = (("fltt_hz", 20.0), ("flte_hz",
                                                   ("imax", 0.5), ("dff", 0.0))
 #: the fixed values a result file written before they were modelled may lack: each one's "off" value, which is
 #: what the law was then
-LATER_FIXED: dict[str, float] = {"tq_hz": 0.0, "dff": 0.0}
+LATER_FIXED: dict[str, float] = {"tq_hz": 0.0, "dff": 0.0, "dgyro_order": 1.0, "raw_hz": 0.0}
 _AXIS_DEFAULTS = {("px4", "yaw"): {"tq_hz": 2.0}, ("ardupilot", "yaw"): {"flte_hz": 2.5}}
 
 
@@ -144,14 +153,110 @@ def _scale(a: Sequence[Any], k: Any) -> list[Any]:
 
 
 def _px4_parts(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list, list]:
-    """PX4 over the denominator (z - 1)(z - (1 - a_d)): the P+I numerator, the D numerator, the denominator."""
+    """PX4 over the denominator (z - 1) Q(z) (times z for a D filter whose numerator has a constant term): the P+I
+    numerator, the D numerator, the denominator; ``N_q/Q`` is :func:`dgyro_filter`."""
     p, i, d = x[0], x[1], x[2]
-    a = alpha(fixed["dgyro_hz"], dt)
-    q = [1, -(1 - a)]
-    den = poly_mul([1, -1], q)
-    pi_num = poly_add(poly_mul([p, -p], q), _scale(q, i * dt))  # (P (z - 1) + I dt)(z - (1 - a))
-    d_num = poly_mul(_scale([1, -1], d * a / dt), [1, -1])  # D a/dt (z - 1)^2
+    nq, q = dgyro_filter(fixed, dt)
+    if len(nq) == 2:  # first order, a z/(z - (1 - a)): (1 - 1/z) H = a (z - 1)/(z - (1 - a))
+        den = poly_mul([1, -1], q)
+        d_num = poly_mul(_scale([1, -1], d * nq[0] / dt), [1, -1])  # D a/dt (z - 1)^2
+    else:  # second order: (1 - 1/z) N_q/Q = (z - 1) N_q/(z Q)
+        q = poly_mul(q, [1, 0])
+        den = poly_mul([1, -1], q)
+        d_num = poly_mul(poly_mul(_scale([1, -1], d / dt), [1, -1]), nq)  # D/dt (z - 1)^2 N_q
+    pi_num = poly_add(poly_mul([p, -p], q), _scale(q, i * dt))  # (P (z - 1) + I dt) Q
     return pi_num, d_num, den
+
+
+def _fn(name: str, x: Any) -> Any:
+    """``cos``, ``sin`` or ``tan`` of a number or a CasADi symbol (the NLP's ``dt`` is a parameter)."""
+    if type(x).__module__.startswith("casadi"):
+        import casadi
+
+        return getattr(casadi, name)(x)
+    return getattr(math, name)(x)
+
+
+def dgyro_filter(fixed: dict[str, float], dt: Any) -> tuple[list, list]:
+    """The D path's filter at the loop rate as PX4 computes it at the raw gyro rate, ``(N_q, Q)`` (highest power
+    first): the rate law's D input is ``N_q/Q`` applied to ``(w[k] - w[k-1])/dt``.
+
+    ``VehicleAngularVelocity`` differences the gyro-low-passed rate over the raw gyro ``dt_r`` and low-passes the
+    difference on every raw sample; the rate loop reads the last value (``src/modules/sensors/
+    vehicle_angular_velocity/VehicleAngularVelocity.cpp``, ``Run``'s FIFO loop ``delta_velocity = data[n] -
+    _angular_velocity_prev``, ``_lp_filter_acceleration[axis].apply``, ``/ dt_s``). The filter is an
+    ``AlphaFilter`` (first order, ``a = dt_r/(dt_r + 1/(2 pi f))``) in current firmware
+    (``VehicleAngularVelocity.hpp`` @ 85e60904e810939752623b4c9c2fa305504a73e4: ``AlphaFilter<float>
+    _lp_filter_acceleration[3]``) and a ``math::LowPassFilter2p`` (second-order Butterworth by the prewarped bilinear
+    transform, ``IMU_DGYRO_CUTOFF`` 30 Hz by default, ``imu_gyro_parameters.c`` @
+    050fa47acac5264c13eb2898851bdbd94417624a: "the 2nd order butterworth filter used on the time derivative")
+    in the 2021-era revision of the same files (``math::LowPassFilter2p _lp_filter_acceleration[3]``).
+
+    With ``m = raw_hz dt`` raw samples per loop sample, the difference over each raw sample is taken as the loop
+    sample's ``(w[k] - w[k-1])/m`` (the rate linear between the loop's samples), so the raw filter's input is held
+    over the ``m`` samples and the loop reads its output after the last: the filter decimated with its input held,
+    exact for that input. For a first-order filter ``y_k = (1 - a_r)^m y_{k-1} + (1 - (1 - a_r)^m) v_k``: the loop-rate
+    ``a = 1 - (1 - a_r)^m``. For the biquad, from its step response ``s[j] = 1 + 2 Re(alpha p^j)`` (``p`` a pole,
+    ``alpha = N(p)/((p - 1)(p - conj p))``): ``H = 1 + (z - 1) 2 Re(beta/(z - P))`` with ``P = p^m``, ``beta = alpha
+    p^(m-1)``. ``raw_hz <= 0`` is the loop rate (``m = 1``); ``m`` need not be a whole number in the formulas (the
+    NLP's ``dt`` is a symbol), PX4's is (a gyro rate over ``roundf(gyro/IMU_GYRO_RATEMAX)``).
+
+    The approximation is the rate's shape between the loop's samples: on a continuous plant the rate bends within a
+    sample. Measured against the exact loop (the plant, the gyro low-pass, the difference and the filter lifted over
+    the raw samples; ``bench/dpath.py``, ``bench/results/dpath_issue40.md``) on the head-to-head airframes with PX4's
+    default gains: PM within 0.03 deg and GM within 0.07 dB of the exact loop (first and second order), where the
+    loop-rate D path was off by up to 0.9 deg and 0.7 dB (first order) and 7.3 deg and 4.3 dB (second order).
+
+    Examples
+    --------
+    >>> from tuner.firmware.laws import dgyro_filter
+    >>> n, q = dgyro_filter({"dgyro_hz": 20.0, "dgyro_order": 1, "raw_hz": 0.0}, 0.0025)  # the loop rate
+    >>> round(n[0], 6), round(-q[1], 6)
+    (0.239057, 0.760943)
+    >>> n, q = dgyro_filter({"dgyro_hz": 20.0, "dgyro_order": 1, "raw_hz": 8000.0}, 0.0025)  # 20 raw samples
+    >>> round(n[0], 6)  # 1 - (1 - a_r)^20, near 1 - exp(-2 pi 20 dt) = 0.2695
+    0.267812
+    """
+    f = fixed["dgyro_hz"]
+    order = int(round(fixed.get("dgyro_order", 1.0)))
+    raw = fixed.get("raw_hz", 0.0)
+    if f <= 0:
+        return [1, 0], [1, 0]  # no filter (the first-order form with a = 1)
+    if order not in (1, 2):
+        raise ValueError(f"dgyro_order must be 1 or 2, got {fixed.get('dgyro_order')!r}")
+    if raw > 0:
+        if f >= raw / 2:  # AlphaFilter::setCutoffFreq and LowPassFilter2p refuse it: no filtering
+            return [1, 0], [1, 0]
+        m, dt_r = dt * raw, 1.0 / raw
+    else:
+        m, dt_r = 1, dt
+    if order == 1:
+        if raw <= 0:
+            a = alpha(f, dt)
+        else:
+            a = 1 - (1 - alpha(f, dt_r)) ** m
+        return [a, 0], [1, -(1 - a)]
+    # LowPassFilter2p: omega_n = 2 tan(pi f/fs), zeta = 1/sqrt(2), bilinear (LowPassFilter2p::set_cutoff_frequency)
+    wn = 2 * _fn("tan", math.pi * f * dt_r)
+    w2, t4 = wn * wn, 4 * math.sqrt(0.5) * wn
+    c = w2 + t4 + 4
+    b0, a1, a2 = w2 / c, (2 * w2 - 8) / c, (w2 - t4 + 4) / c
+    if raw <= 0:
+        return [b0, 2 * b0, b0], [1, a1, a2]
+    import cmath
+
+    p = (-a1 + cmath.sqrt(a1 * a1 - 4 * a2)) / 2  # numbers here: raw_hz and f are fixed values
+    if abs(p.imag) < 1e-12 or abs(p - 1) < 1e-12:
+        raise ValueError(f"IMU_DGYRO_CUTOFF {f:g} Hz at the raw rate {raw:g} Hz: the biquad's poles are not complex")
+    alpha2 = b0 * (p + 1) ** 2 / ((p - 1) * (p - p.conjugate()))
+    gam = alpha2 / p
+    r, th = abs(p), cmath.phase(p)
+    rm = r ** m
+    co, si = _fn("cos", m * th), _fn("sin", m * th)
+    re_p, mag2 = rm * co, rm * rm
+    re_b = rm * (gam.real * co - gam.imag * si)
+    re_bp = gam.real * mag2
+    return ([1 + 2 * re_b, -2 * re_p - 2 * re_b - 2 * re_bp, mag2 + 2 * re_bp], [1, -2 * re_p, mag2])
 
 
 def px4_coeffs(x: Sequence[Any], dt: Any, fixed: dict[str, float]) -> tuple[list, list]:

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -232,6 +232,8 @@ def vehicle_from_raw(raw: Mapping[str, float], *, axis: str = "roll", firmware: 
     if law.vehicle_checks is not None:  # the firmware's parameters outside its law: refused by name, or said
         notes += law.vehicle_checks(raw, axis, source, field)
     loop_hz, loop_source = _loop_rate(fw, raw, names, source, log, notes, field)
+    if law.log_fixed is not None:  # what the log (or its absence) says of the law (PX4's D path generation)
+        fixed.update(law.log_fixed(log, loop_hz, raw, names, fixed, source, notes))
     notes += list((log or {}).get("change_notes", ()))
     for name in names.values():  # no vehicle holds more than single precision
         if name in raw and abs(float(raw[name])) > FLOAT32_MAX:
@@ -318,6 +320,33 @@ def vehicle_from_text(text: str | Mapping[str, float], *, axis: str = "roll", fi
     return dataclasses.replace(v, ids=ids) if ids else v
 
 
+def change_notes(raw: dict[str, float], changes: Sequence[tuple[float, str, float]], firmware: str, axis: str
+                 ) -> list[str]:
+    """Apply a log's in-flight parameter ``changes`` (``(t_s, NAME, value)`` in order) to ``raw`` (the values at the
+    log's start), in place: the last value of each is what was flown at the log's end. Returns a note for each of the
+    rate law's parameters on ``axis`` that changed, saying when and which value is used.
+
+    Examples
+    --------
+    >>> from tuner.firmware.params import change_notes
+    >>> raw = {"MC_ROLLRATE_P": 0.15}
+    >>> change_notes(raw, [(12.0, "MC_ROLLRATE_P", 0.18), (30.0, "MC_PITCHRATE_P", 0.2)], "px4", "roll")[0][:48]
+    'MC_ROLLRATE_P changed in flight (0.15 at 0.0 s, '
+    >>> raw["MC_ROLLRATE_P"]
+    0.18
+    """
+    law = set(law_names(firmware, axis if axis in AXES else "roll").values())
+    seen: dict[str, list[tuple[float, float]]] = {}
+    for t, name, v in changes:
+        if name in raw and raw[name] != v or name in seen:
+            seen.setdefault(name, [(0.0, raw.get(name, math.nan))]).append((t, v))
+        raw[name] = v
+    return [f"{name} changed in flight ({', '.join(f'{v:g} at {t:.1f} s' for t, v in hist)}): the last value "
+            f"{hist[-1][1]:g} is used (what was flown from {hist[-1][0]:.1f} s); a stretch identified before that flew "
+            "the earlier value: give --params a file with it"
+            for name, hist in seen.items() if name in law]
+
+
 def _ulog_vehicle(path: Path, axis: str, field: str) -> tuple[dict[str, float], dict[str, Any]]:
     """A ULog's parameters with the in-flight changes applied (the last value set in the log: what was flown at
     its end; each change of the law's parameters said), and what the log showed (the gyro's rate)."""
@@ -328,17 +357,7 @@ def _ulog_vehicle(path: Path, axis: str, field: str) -> tuple[dict[str, float], 
     if not raw:
         raise TunerError(f"{path}: the log stores no parameters (a ULog logged with parameters, or the vehicle's "
                          ".params file)", field=field)
-    law = set(law_names("px4", axis if axis in AXES else "roll").values())
-    seen: dict[str, list[tuple[float, float]]] = {}
-    for t, name, v in log["changes"]:
-        if name in raw and raw[name] != v or name in seen:
-            seen.setdefault(name, [(0.0, raw.get(name, math.nan))]).append((t, v))
-        raw[name] = v
-    log["change_notes"] = [
-        f"{name} changed in flight ({', '.join(f'{v:g} at {t:.1f} s' for t, v in hist)}): the last value "
-        f"{hist[-1][1]:g} is used (what was flown from {hist[-1][0]:.1f} s); a stretch identified before that flew "
-        "the earlier value: give --params a file with it"
-        for name, hist in seen.items() if name in law]
+    log["change_notes"] = change_notes(raw, log["changes"], "px4", axis)
     return raw, log
 
 
@@ -371,8 +390,9 @@ def read_params(path: str | Path, *, axis: str = "roll", firmware: str | None = 
     if head[:3] == b"\xa3\x95\x80":  # an ArduPilot DataFlash log: its PARM messages (tuner.identify.dataflash)
         from ..identify.dataflash import read_dataflash_parameters
 
-        return vehicle_from_raw(read_dataflash_parameters(p, field=field), axis=axis, firmware=firmware,
-                                source=f"{p.name} (DataFlash PARM)", fmt="parm", field=field)
+        raw, changes = read_dataflash_parameters(p, field=field, history=True)
+        return vehicle_from_raw(raw, axis=axis, firmware=firmware, source=f"{p.name} (DataFlash PARM)", fmt="parm",
+                                field=field, log={"change_notes": change_notes(raw, changes, "ardupilot", axis)})
     text = read_text(p, limit=MAX_PARAMS_BYTES, field=field,
                      hint="give a QGroundControl .params, a Mission Planner .parm, a ULog .ulg or a DataFlash .bin")
     fmt = {".params": "qgc", ".parm": "parm"}.get(p.suffix.lower())

@@ -26,29 +26,59 @@ _FILES = "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)"
 
 class Simulator:
     """PX4's ``RateControl`` one sample per call, ``u = law(r, y)``: the integrator's update after the output,
-    clamped to ``+-int_lim``, no growth in the direction the output saturates (the allocator's saturation flags),
-    and the fade ``max(0, 1 - (e/400 deg/s)^2)`` (``rate_control.cpp``, ``updateIntegral``); the yaw torque low-pass
-    ``MC_YAW_TQ_CUTOFF`` (``MulticopterRateControl::Run``) before the allocator clamps."""
+    clamped to ``+-int_lim``, no growth in the direction the output saturates (the allocator's saturation flags, as
+    they arrive: :func:`tuner.analysis.saturation.px4_flag_period`), and the fade ``max(0, 1 - (e/400 deg/s)^2)``
+    (``rate_control.cpp``, ``updateIntegral``); the D path as the firmware computes it
+    (:func:`tuner.firmware.laws.dgyro_filter`); the yaw torque low-pass ``MC_YAW_TQ_CUTOFF``
+    (``MulticopterRateControl::Run``) before the allocator clamps."""
+
+    #: the saturation flags as the allocator delivers them (:func:`px4_flag_period`); False: this sample's own, what
+    #: this module simulated before issue 40 (``bench/dpath.py`` measures the difference)
+    flags_late = True
 
     def __init__(self, g: dict[str, float], dt: float, lo: float, hi: float) -> None:
         self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
         self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
-        f, fq = g["dgyro_hz"], g.get("tq_hz", 0.0)
-        self.a = 1.0 if f <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * f))
+        fq = g.get("tq_hz", 0.0)
+        from ..analysis.saturation import px4_flag_period
+        from .laws import dgyro_filter
+
+        nd, qd = dgyro_filter(g, dt)  # the D path at the loop rate (the raw-rate filter decimated)
+        self.dn = [float(c) / float(qd[0]) for c in nd]
+        self.dq = [float(c) / float(qd[0]) for c in qd]
+        self.ds = [0.0] * (len(self.dq) - 1)  # its state (transposed direct form II)
         self.aq = 1.0 if fq <= 0 else dt / (dt + 1.0 / (2.0 * math.pi * fq))  # the yaw torque low-pass
-        self.xi = self.y_prev = self.yd = self.q = 0.0
+        self.xi = self.y_prev = self.q = 0.0
+        self.every, self.k_sample = px4_flag_period(dt), 0
+        self.sat_pos = self.sat_neg = False  # the flags as the law holds them (the last status received)
+
+    def _dpath(self, x: float) -> float:
+        b, a, s = self.dn, self.dq, self.ds
+        out = b[0] * x + s[0]
+        for i in range(len(s)):
+            s[i] = b[i + 1] * x - a[i + 1] * out + (s[i + 1] if i + 1 < len(s) else 0.0)
+        return out
 
     def __call__(self, r: float, y: float) -> tuple[float, bool]:
         e = r - y
-        self.yd += self.a * ((y - self.y_prev) / self.dt - self.yd)
+        yd = self._dpath((y - self.y_prev) / self.dt)
         self.y_prev = y
         # the law's torque, then MulticopterRateControl's yaw low-pass (MC_YAW_TQ_CUTOFF) before the allocator clamps
-        self.q += self.aq * (self.k * (self.p * e - self.d * self.yd) + self.xi + self.ff * r - self.q)
+        self.q += self.aq * (self.k * (self.p * e - self.d * yd) + self.xi + self.ff * r - self.q)
         v = self.q
         u = min(max(v, self.lo), self.hi)
-        ei = 0.0 if (v > self.hi and e > 0) or (v < self.lo and e < 0) else e  # no growth into saturation
+        if not self.flags_late:
+            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
+        ei = e  # no growth into saturation, by the flags the law holds (the allocator's earlier run)
+        if self.sat_pos:
+            ei = min(ei, 0.0)
+        if self.sat_neg:
+            ei = max(ei, 0.0)
         fade = max(0.0, 1.0 - (ei / _FADE_RAD_S) ** 2)
         self.xi = min(max(self.xi + fade * self.k * self.i * ei * self.dt, -self.lim), self.lim)
+        if self.flags_late and self.k_sample % self.every == 0:  # published now: the law reads it next sample
+            self.sat_pos, self.sat_neg = v > self.hi, v < self.lo
+        self.k_sample += 1
         return u, u != v
 
 
@@ -90,6 +120,76 @@ def loop_rate(raw: Mapping[str, float], names: Mapping[str, str], source: str, l
     return None
 
 
+#: the first PX4 release whose D path is the first-order AlphaFilter (see :func:`_px4_dpath`)
+PX4_ALPHA_DGYRO_RELEASE = (1, 13)
+
+
+def _px4_dpath(log: Mapping[str, Any] | None, loop_hz: float | None, dgyro_hz: float | None, source: str,
+               notes: list[str]) -> dict[str, float]:
+    """PX4's D path for :func:`tuner.firmware.laws.dgyro_filter`: ``dgyro_order`` and ``raw_hz``, with a note for
+    what was assumed. ``dgyro_hz`` is the vehicle's ``IMU_DGYRO_CUTOFF``, None where its parameters lack it.
+
+    * Firmware without ``IMU_DGYRO_CUTOFF`` (before v1.11, which added ``vehicle_angular_acceleration``, PX4 PR
+      #14034) computes the D term in the rate controller at the loop rate: the loop-rate law (first order, the
+      loop rate), said; that generation's own D filter (``MC_DTERM_CUTOFF``) is not modelled.
+
+    * The generation from the log's firmware version (``ver_sw_release``): releases before v1.13 filter the
+      difference with a ``LowPassFilter2p`` (second order: v1.12 moved the D path onto the raw FIFO samples, PX4
+      PR #15820, with ``IMU_DGYRO_CUTOFF`` 30 Hz by default, PR #16188); later ones with an ``AlphaFilter`` (first
+      order; in main by October 2022, PR #20521 discussing "the delay from the AlphaFilter"). The boundary is taken as
+      v1.13 (not checked against the v1.13.0 tag). Without a version (a parameter file, an old log): first order,
+      the current firmware's, said.
+    * The raw gyro rate: the log's ``vehicle_imu_status.gyro_raw_rate_hz`` (the FIFO's), else its ``gyro_rate_hz``
+      (the gyro's publication rate: a FIFO driver's raw rate is higher, said), else the timing of
+      ``sensor_combined``; without a log, the loop rate (0: the D path differenced at the loop rate, conservative
+      for the first-order filter, not for the second-order one), said.
+    """
+    log = log or {}
+    rel = log.get("ver_sw_release")
+    if dgyro_hz is None:
+        notes.append(f"IMU_DGYRO_CUTOFF is not in {source} (PX4 before v1.11): the D term is taken as differenced and "
+                     "first-order filtered at the loop rate (that firmware computes it in the rate controller; its "
+                     "MC_DTERM_CUTOFF filter is not modelled)")
+        return {"dgyro_order": 1.0, "raw_hz": 0.0}
+    if rel:
+        major, minor, patch = (rel >> 24) & 0xFF, (rel >> 16) & 0xFF, (rel >> 8) & 0xFF
+        order = 2.0 if (major, minor) < PX4_ALPHA_DGYRO_RELEASE else 1.0
+        if dgyro_hz > 0:
+            notes.append(f"PX4 v{major}.{minor}.{patch} (ver_sw_release in {source}): the D path's filter is "
+                         + ("second order (LowPassFilter2p, the releases before v1.13)" if order == 2 else
+                            "first order (AlphaFilter, v1.13 and later)"))
+    else:
+        order = 1.0
+        if dgyro_hz > 0:
+            notes.append(f"the firmware version is not in {source}: the D path's filter assumed first order "
+                         "(AlphaFilter, PX4 v1.13 and later); releases before v1.13 filter it with a second-order "
+                         "LowPassFilter2p (give a ULog of the vehicle, whose ver_sw_release says which)")
+    raw, what = None, ""
+    for key, words in (("gyro_raw_rate_hz", "vehicle_imu_status.gyro_raw_rate_hz"),
+                       ("gyro_rate_hz", "vehicle_imu_status.gyro_rate_hz (the gyro's publication rate; a FIFO "
+                                        "gyro's raw samples may be faster)"),
+                       ("logged_gyro_hz", "the timing of sensor_combined (a lower bound)")):
+        v = log.get(key)
+        if v and v > 0:
+            raw, what = float(v), words
+            break
+    if raw is None:
+        notes.append(f"the raw gyro rate is not in {source}: PX4 differences and filters the D path on every raw "
+                     "gyro sample (1-8 kHz); assumed at the loop rate (conservative for the first-order filter, not "
+                     "for the second-order one; a ULog of the vehicle gives the rate)")
+        return {"dgyro_order": order, "raw_hz": 0.0}
+    if loop_hz and raw <= loop_hz * (1 + 1e-6):
+        return {"dgyro_order": order, "raw_hz": 0.0}  # the D path runs at the loop rate: the law as it was
+    notes.append(f"the D path is differenced and filtered at the raw gyro rate {raw:.0f} Hz ({what} in {source})")
+    return {"dgyro_order": order, "raw_hz": float(round(raw))}
+
+
+def _log_fixed(log: Mapping[str, Any] | None, loop_hz: float | None, raw: Mapping[str, float],
+               names: Mapping[str, str], fixed: Mapping[str, float], source: str, notes: list[str]) -> dict[str, float]:
+    """The D path's generation and raw rate (:func:`_px4_dpath`), from the log and the vehicle's parameters."""
+    return _px4_dpath(log, loop_hz, fixed["dgyro_hz"] if names["dgyro_hz"] in raw else None, source, notes)
+
+
 def _loop_fix(loop_hz: float | None, loop_source: str, names: Mapping[str, str], notes: list[str],
               rng: tuple[float, float]) -> tuple[float | None, str]:
     """``IMU_GYRO_RATEMAX = 0``: PX4 runs the loop at the gyro's own rate, which a parameter file does not say."""
@@ -110,9 +210,13 @@ def _vehicle_notes(axis: str, fixed: Mapping[str, float]) -> list[str]:
 
 def _filters_header(values: Mapping[str, float], gyro_words: str) -> str:
     tq = values.get("tq_hz", 0.0)
+    d_order, raw = values.get("dgyro_order", 1.0), values.get("raw_hz", 0.0)
     return (f"filters assumed: D-term low-pass IMU_DGYRO_CUTOFF {values['dgyro_hz']:g} Hz (not written: set it "
-            "to this value)" + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
-                                "written: set it to this value)" if tq > 0 else "")
+            "to this value), " + ("second order (LowPassFilter2p, PX4 before v1.13)" if d_order == 2 else
+                                  "first order (AlphaFilter, PX4 v1.13 and later)")
+            + (f", on every raw gyro sample at {raw:g} Hz" if raw > 0 else ", differenced at the loop rate")
+            + (f", yaw torque low-pass MC_YAW_TQ_CUTOFF {tq:g} Hz in the designed loop (not "
+               "written: set it to this value)" if tq > 0 else "")
             + "; " + gyro_words)
 
 
@@ -147,7 +251,8 @@ FIRMWARE = Firmware(
     filters_header=_filters_header, gyro_param="IMU_GYRO_CUTOFF",
     detect_prefixes=("MC_ROLLRATE_", "MC_PITCHRATE_", "MC_YAWRATE_", "IMU_GYRO_", "SYS_AUTOSTART"),
     default_loop_hz=400.0,  # IMU_GYRO_RATEMAX's default (firmware.md)
-    loop_rate=loop_rate, loop_fix=_loop_fix, vehicle_notes=_vehicle_notes,
+    loop_rate=loop_rate, loop_fix=_loop_fix, vehicle_notes=_vehicle_notes, log_fixed=_log_fixed,
+    constants=("dgyro_order", "raw_hz"),
     formats=("qgc", "ulog"), refused_formats={"parm": "a .parm file is ArduPilot's"},
     simulator=Simulator,
     simulator_words="PX4's rate law (integrator limit int_lim, no growth into saturation, the 400 deg/s fade)",

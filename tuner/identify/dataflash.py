@@ -302,18 +302,23 @@ def _series(r: Any, role: str, spec: str) -> tuple[np.ndarray, np.ndarray]:
     return timed_samples(t, x, role, spec)
 
 
-def _parameters(r: Any) -> dict[str, float]:
+def _parameters(r: Any, history: bool = False) -> Any:
     """The PARM messages' values by name, the last logged (ArduPilot logs every parameter at the start and each
-    change after)."""
-    d = _columns(r, "PARM", ["Name", "Value"])
-    if not d:
-        return {}
-    out: dict[str, float] = {}
-    for n, v in zip(d["Name"], d["Value"]):
+    change after); ``history``: ``(the first value of each, [(t_s, NAME, value), ...] the later ones in order)``."""
+    d = _columns(r, "PARM", ["TimeUS", "Name", "Value"])
+    first: dict[str, float] = {}
+    later: list[tuple[float, str, float]] = []
+    for t, n, v in zip(d.get("TimeUS", ()), d.get("Name", ()), d.get("Value", ())):
         name = bytes(n).split(b"\0", 1)[0].decode("ascii", "replace")
-        if math.isfinite(float(v)):
-            out[name] = float(v)
-    return out
+        if not math.isfinite(float(v)):
+            continue
+        if name in first:
+            later.append((float(t) * 1e-6, name, float(v)))
+        else:
+            first[name] = float(v)
+    if history:
+        return first, later
+    return first | {name: v for _, name, v in later}
 
 
 def _vehicle(r: Any) -> str:
@@ -412,15 +417,17 @@ def read_dataflash(src: str | Path | bytes, columns: Mapping[str, str], *, rate_
                    parameters=params)
 
 
-def read_dataflash_parameters(src: str | Path | bytes, *, field: str = "file") -> dict[str, float]:
+def read_dataflash_parameters(src: str | Path | bytes, *, field: str = "file", history: bool = False) -> Any:
     """The parameters a DataFlash log stores (its PARM messages, the last value of each), a damaged log refused as
-    :func:`read_dataflash` refuses it (``field``: the caller's name for the file)."""
+    :func:`read_dataflash` refuses it (``field``: the caller's name for the file); ``history``: ``(the values at the
+    log's start, [(t_s, NAME, value), ...] the changes in flight in order)``
+    (:func:`tuner.firmware.params.change_notes` applies and says them)."""
     try:
         with _open(src) as (r, name):
-            params = _parameters(r)
+            params = _parameters(r, history)
     except InvalidDataError as e:
         raise InvalidDataError(str(e), field=field) from None
-    if not params:
+    if not (params[0] if history else params):
         raise InvalidDataError(f"{name}: the log stores no parameters (no PARM messages)", field=field)
     return params
 

@@ -302,8 +302,10 @@ def read_vehicle_log(src: str | Path | bytes | LogHandle, *, field: str = "file"
     PX4's rate loop runs on every ``vehicle_angular_velocity``, which the gyro's rate drives, at most
     ``IMU_GYRO_RATEMAX``), ``gyro_instances`` (each instance's median) and ``logged_gyro_hz`` (the rate of
     ``sensor_combined`` as logged, from the median interval of its timestamps, or None: older logs' only trace of
-    the gyro's rate, a lower bound where the logger thinned the topic). Only those topics' data are parsed, through
-    the bounded reader."""
+    the gyro's rate, a lower bound where the logger thinned the topic), ``gyro_raw_rate_hz`` (that instance's
+    ``vehicle_imu_status.gyro_raw_rate_hz``, the raw FIFO sample rate, where logged, else None) and
+    ``ver_sw_release`` (the ULog info ``ver_sw_release``, ``0xMMmmppTT``: major, minor, patch, type; None if
+    absent or 0). Only those topics' data are parsed, through the bounded reader."""
     try:
         ul = _load(src, ["vehicle_imu_status", "sensor_combined"])
     except InvalidDataError as e:
@@ -312,7 +314,7 @@ def read_vehicle_log(src: str | Path | bytes | LogHandle, *, field: str = "file"
               if isinstance(v, (int, float)) and math.isfinite(float(v))}
     changes = [(float(t) * 1e-6, str(n), float(v)) for t, n, v in getattr(ul, "changed_parameters", ()) or ()
                if isinstance(v, (int, float)) and math.isfinite(float(v))]
-    rates, logged = {}, None
+    rates, raw_rates, logged = {}, {}, None
     for d in sorted(ul.data_list, key=lambda d: d.multi_id):
         if d.name == "sensor_combined":
             dts = np.diff(np.asarray(d.data.get("timestamp", ()), dtype=float)) * 1e-6
@@ -323,8 +325,17 @@ def read_vehicle_log(src: str | Path | bytes | LogHandle, *, field: str = "file"
         r = r[np.isfinite(r) & (r > 0)]
         if r.size:
             rates[int(d.multi_id)] = float(np.median(r))
+        r = np.asarray(d.data.get("gyro_raw_rate_hz", ()), dtype=float)  # the raw (FIFO) rate, newer logs
+        r = r[np.isfinite(r) & (r > 0)]
+        if r.size:
+            raw_rates[int(d.multi_id)] = float(np.median(r))
+    first = next(iter(rates), None)
+    info = dict(getattr(ul, "msg_info_dict", {}) or {})
+    release = info.get("ver_sw_release")
     return {"parameters": params, "changes": changes, "gyro_rate_hz": next(iter(rates.values()), None),
-            "gyro_instances": rates, "logged_gyro_hz": logged}
+            "gyro_instances": rates, "logged_gyro_hz": logged,
+            "gyro_raw_rate_hz": raw_rates.get(first) if first is not None else None,
+            "ver_sw_release": int(release) if isinstance(release, (int, float)) and release > 0 else None}
 
 
 def _topics_in(src: str | Path | bytes | LogHandle) -> list[str]:
