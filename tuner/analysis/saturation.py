@@ -33,33 +33,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import TunerError
+from ..firmware.px4 import PX4_STATUS_INTERVAL_S, px4_flag_period  # noqa: F401  (PX4's, re-exported here)
 from .response import SAMPLES_PER_DT, StepMetrics, StepResponse, default_horizon, lifted_with_switch, step_metrics
 
 __all__ = ["Actuator", "SaturatedStep", "saturated_step", "MAX_SAT_SAMPLES", "px4_flag_period"]
 
 MAX_SAT_SAMPLES = 200_000  # samples of one simulated step (the horizon is cut there, and said)
-#: ControlAllocator::Run publishes control_allocator_status "at limited rate": ``if (now - _last_status_pub >= 5_ms)``
-#: (src/modules/control_allocator/ControlAllocator.cpp, PX4-Autopilot main 2023-2025)
-PX4_STATUS_INTERVAL_S = 5e-3
-
-
-def px4_flag_period(dt: float) -> int:
-    """Every how many rate-loop samples PX4's saturation flags are new: ``ceil(5 ms/dt)``.
-
-    ``ControlAllocator::Run`` runs on each torque setpoint, after the rate loop's sample, and publishes
-    ``control_allocator_status`` only when 5 ms have passed since its last publication (:data:`PX4_STATUS_INTERVAL_S`);
-    ``MulticopterRateControl::Run`` sets the flags (``unallocated_torque`` > 0: positive, < 0: negative) only when a
-    new status arrived (``_control_allocator_status_sub.update``) and keeps them otherwise. So at loop sample ``k``
-    the law uses the flags of the allocator's run at the last publication before ``k``: 1 to ``ceil(5 ms/dt)``
-    samples late (1-2 at 400 Hz and at 250 Hz, 1-5 at 1 kHz).
-
-    Examples
-    --------
-    >>> from tuner.analysis.saturation import px4_flag_period
-    >>> px4_flag_period(1 / 400), px4_flag_period(1 / 250), px4_flag_period(1 / 1000), px4_flag_period(0.01)
-    (2, 2, 5, 1)
-    """
-    return max(1, math.ceil(PX4_STATUS_INTERVAL_S / dt - 1e-9))
 
 
 @dataclass(frozen=True)

@@ -18,16 +18,40 @@ from . import laws
 from . import names as _names
 from .base import Firmware
 
-__all__ = ["FIRMWARE", "Simulator"]
+__all__ = ["FIRMWARE", "Simulator", "px4_flag_period", "PX4_STATUS_INTERVAL_S"]
 
 _FADE_RAD_S = math.radians(400.0)  # PX4's integrator fade: the error at which the integration stops
 _FILES = "PX4 parameters (a QGroundControl .params file, or a ULog .ulg)"
 
 
+#: ControlAllocator::Run publishes control_allocator_status "at limited rate": ``if (now - _last_status_pub >= 5_ms)``
+#: (src/modules/control_allocator/ControlAllocator.cpp, PX4-Autopilot main 2023-2025)
+PX4_STATUS_INTERVAL_S = 5e-3
+
+
+def px4_flag_period(dt: float) -> int:
+    """Every how many rate-loop samples PX4's saturation flags are new: ``ceil(5 ms/dt)``.
+
+    ``ControlAllocator::Run`` runs on each torque setpoint, after the rate loop's sample, and publishes
+    ``control_allocator_status`` only when 5 ms have passed since its last publication (:data:`PX4_STATUS_INTERVAL_S`);
+    ``MulticopterRateControl::Run`` sets the flags (``unallocated_torque`` > 0: positive, < 0: negative) only when a
+    new status arrived (``_control_allocator_status_sub.update``) and keeps them otherwise. So at loop sample ``k``
+    the law uses the flags of the allocator's run at the last publication before ``k``: 1 to ``ceil(5 ms/dt)``
+    samples late (1-2 at 400 Hz and at 250 Hz, 1-5 at 1 kHz).
+
+    Examples
+    --------
+    >>> from tuner.firmware.px4 import px4_flag_period
+    >>> px4_flag_period(1 / 400), px4_flag_period(1 / 250), px4_flag_period(1 / 1000), px4_flag_period(0.01)
+    (2, 2, 5, 1)
+    """
+    return max(1, math.ceil(PX4_STATUS_INTERVAL_S / dt - 1e-9))
+
+
 class Simulator:
     """PX4's ``RateControl`` one sample per call, ``u = law(r, y)``: the integrator's update after the output,
     clamped to ``+-int_lim``, no growth in the direction the output saturates (the allocator's saturation flags, as
-    they arrive: :func:`tuner.analysis.saturation.px4_flag_period`), and the fade ``max(0, 1 - (e/400 deg/s)^2)``
+    they arrive: :func:`px4_flag_period`), and the fade ``max(0, 1 - (e/400 deg/s)^2)``
     (``rate_control.cpp``, ``updateIntegral``); the D path as the firmware computes it
     (:func:`tuner.firmware.laws.dgyro_filter`); the yaw torque low-pass ``MC_YAW_TQ_CUTOFF``
     (``MulticopterRateControl::Run``) before the allocator clamps."""
@@ -40,7 +64,6 @@ class Simulator:
         self.k, self.p, self.i, self.d, self.ff = g["K"], g["P"], g["I"], g["D"], g["FF"]
         self.lim, self.dt, self.lo, self.hi = g["int_lim"], dt, lo, hi
         fq = g.get("tq_hz", 0.0)
-        from ..analysis.saturation import px4_flag_period
         from .laws import dgyro_filter
 
         nd, qd = dgyro_filter(g, dt)  # the D path at the loop rate (the raw-rate filter decimated)
