@@ -191,6 +191,7 @@ def test_a_parameter_file_is_for_the_results_axis_and_its_verdict(client):
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "force"]
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_pid2_result_is_plotted_as_the_2dof_loop_that_was_tuned():
     """Issue 30: the service's plot of a pid2 result re-analyses the stored controller with its reference path (the
     1-DOF loop settled at 0.493 s beside a table saying 0.041 s)."""

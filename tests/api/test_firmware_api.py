@@ -52,6 +52,7 @@ def test_a_typed_plant_takes_the_vehicles_gyro_low_pass(client):
     assert rec["gyro_filter_hz"] == 20.0 and rec["name"] == "INS_GYRO_FILTER"
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_tune_with_a_vehicle(client):
     # (the default design of a firmware law holds three plants, the gain x0.8 and x1.25: a cold solver builds their
     # NLPs for seconds)

@@ -108,6 +108,7 @@ def test_unusable_records_found_by_the_library_are_422(client, body, log):
     _422(client, {**body, "delay": 0.05}, ["body", "delay"], "not a whole number of delay_step=0.04 s")
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_200000_sample_log_is_accepted_on_identify_but_other_routes_keep_their_cap(client):
     n = 200_000
     t = np.arange(n) / 1000.0  # 200 s at 1 kHz

@@ -144,6 +144,7 @@ def test_real_solve_with_a_budget_returns_a_verified_result(app, client):
     assert out["failing"] == sorted(c["name"] for c in out["checks"] if not c["ok"])
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_busy_service_answers_503_with_retry_after(client, inject):
     inject(testing.spin_job)
     first: dict = {}
@@ -214,6 +215,7 @@ def test_worker_killed_while_idle_costs_no_request(app, client):
     assert pid not in app.state.pool.pids()
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_job_no_solver_starts_is_run_on_fresh_solvers_not_waited_for(tmp_path):
     """A job is handed to pebble only when a solver is free, so it starts at once. Once in a fast-lane run the
     previous test's request waited 300 s: a solver gone that pebble neither replaced nor declared broken. Here the
@@ -239,6 +241,7 @@ def test_a_job_no_solver_starts_is_run_on_fresh_solvers_not_waited_for(tmp_path)
     wait_until(lambda: not alive(pid), what="the stopped solver gone")
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_job_not_started_beside_a_running_one_is_refused_and_the_running_one_finishes(tmp_path):
     """Two solvers: one runs a job, the other is stopped. A job handed to the pool is not started within the start
     timeout; rebuilding the pool would kill the running job (pebble then leaves its future running forever), so

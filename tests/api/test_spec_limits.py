@@ -32,6 +32,7 @@ def test_impossible_specs_are_422_at_the_field(client, spec, loc):
     assert any(d["loc"] == loc for d in r.json()["detail"]), r.json()
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_limits_are_reported_and_an_unmet_spec_says_why(client):
     r = client.post("/tune", json=_body(control_peak_max=2.0, mt_max=1.3, mks_max=50))
     assert r.status_code == 200, r.text

@@ -60,6 +60,7 @@ def test_an_upload_over_the_limit_is_refused_before_it_is_read(client):
     assert r.status_code == 413, r.text
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_damaged_log_is_422_at_the_data_at_once(client):
     """A valid header then 1.5 MB of zeros: pyulog would step through it byte by byte (issue 42: 17 MB held a
     solver 15-22 s); the bounded reader calls it damaged within its first 64 kB."""

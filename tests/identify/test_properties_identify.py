@@ -88,6 +88,7 @@ def test_identify_returns_or_raises_tuner_error_naming_a_field(rec, opts):
        su=st.sampled_from([1e-13, 1e-3, 1.0, 1e4, 1e59]), sy=st.sampled_from([1e-13, 1.0, 1e59]),
        delay=st.sampled_from(["auto", None]), holdout=st.sampled_from([0.0, 0.2]))
 @settings(max_examples=40, **SETTINGS)
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_well_excited_record_in_any_units_and_at_any_rate_is_identified(n, rate, su, sy, delay, holdout):
     """The same first-order lag, exactly sampled, in any units of input and output (1e-13 ... 1e59) and at any
     sample rate: a finite model, whose gain carries the units (sy / su) and whose pole does not."""

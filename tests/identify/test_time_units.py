@@ -38,6 +38,7 @@ def test_a_microsecond_timestamp_is_refused_then_read_when_said(log250):
           identify(log250.u, log250.y, time=log250.t, poles=2))
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_khz_log_in_milliseconds_is_refused_then_read_when_said():
     fk = fly(*AXES["pitch"], seed=8, duration_s=20.0, log_hz=2000.0, sim_hz=2000.0)
     with pytest.raises(InvalidDataError, match=r"steps by 0.5: milliseconds \(a 2000 Hz log\)\? say which unit it "

@@ -177,6 +177,7 @@ def test_two_workers_one_killed_nothing_lost_or_duplicated(tmp_path, pg_url):
     assert coord.claim_studies(study.loop[0]) == []
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_claims_are_exclusive_and_a_stale_claim_is_taken_over(tmp_path):
     """In-process, on SQLite: one claim per loop; a claim whose heartbeat stops is failed after the
     grace period and re-queued by Optuna, taken by exactly one worker; the zombie cannot complete it."""
@@ -411,6 +412,7 @@ def test_workers_take_loops_whose_nlps_have_one_shape_together(tmp_path):
 
 
 @pytest.mark.postgres
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_worker_stuck_inside_a_transaction_does_not_block_the_others(pg_url, monkeypatch):
     """A session of the storage that sits idle in a transaction holding a trial's row lock (a worker stopped or
     blocked mid-transaction) is ended by the server, and the worker failing that trial goes on instead of waiting

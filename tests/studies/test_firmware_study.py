@@ -38,6 +38,7 @@ def test_a_log_to_a_firmware_law_in_a_study(study):
     assert out["identification"]["quality"] in ("good", "acceptable")  # the joint estimate, with the reference
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_key_follows_the_vehicle(study):
     s = load_study(study)
     key = loop_key(s, "roll_rate")

@@ -172,6 +172,7 @@ def test_a_variant_changes_the_spec_only(tmp_path):
         load_study(bad)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_cascade_says_when_its_between_samples_simulation_did_not_run():
     """Issue 30: an inner plant with a delay: the whole cascade's simulation needs delay-free plants and is skipped;
     the report says so (it said the simulation ran)."""

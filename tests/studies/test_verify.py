@@ -25,6 +25,7 @@ def _write(tmp_path, data) -> str:
     return str(p)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_committed_gains_verify(capsys):
     assert main(["verify", str(QUAD), "--gains", str(GAINS)]) == 0
     out = capsys.readouterr().out
@@ -33,6 +34,7 @@ def test_committed_gains_verify(capsys):
         assert name in out
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_committed_gains_json_figures(capsys):
     assert main(["verify", str(QUAD), "--gains", str(GAINS), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
@@ -43,6 +45,7 @@ def test_committed_gains_json_figures(capsys):
     assert d["x"]["cascade"]["inner"] == "pitch" and d["y"]["cascade"]["inner"] == "roll"
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_pitch_gain_times_three_fails_and_is_named(tmp_path, gains, capsys):
     gains["pitch"]["gains"]["K"] *= 3
     assert main(["verify", str(QUAD), "--gains", _write(tmp_path, gains)]) == 1

@@ -43,6 +43,7 @@ def _run(problem: TuningProblem, budget: float, monkeypatch, effort: Any = "defa
 
 
 @pytest.mark.parametrize("expr, structure, dt", [("1/(s+1)^3", "pid", 0.1), ("2/(s*(0.5*s+1))", "pi", 0.05)])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_larger_budget_runs_a_longer_prefix_of_the_same_search(expr, structure, dt, monkeypatch):
     problem = TuningProblem.build(plant_from_expr(expr), structure=structure, spec=Spec.thesis(), dt=dt)
     full = _run(problem, 1e9, monkeypatch)  # every NLP it needs is built now: the budgets below cut only the search
@@ -70,6 +71,7 @@ def test_a_larger_budget_runs_a_longer_prefix_of_the_same_search(expr, structure
 
 
 @pytest.mark.parametrize("structure, effort", [("pid", "default"), ("pid", "fast"), ("pid2", "fast")])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_search_the_budget_cut_short_does_not_claim_convergence(structure, effort, monkeypatch):
     """Every budget from 1 % to all the search needs, in fine steps: a run that scored fewer points or ran fewer NLP
     solves than the full one was cut, and says ``budget`` (a polish the deadline cut inside its bisection, the last
@@ -93,6 +95,7 @@ def test_a_search_the_budget_cut_short_does_not_claim_convergence(structure, eff
     assert all(b1 <= b0 for b0, b1 in zip(bests, bests[1:])), bests  # more budget: never a worse incumbent
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_search_ends_at_its_work_budget_whatever_its_time_budget_and_does_not_claim_convergence(monkeypatch):
     """A time budget far beyond need (here: a simulated clock) does not let a search whose evidence never holds run
     for ever: it ends after its work budget of restarts (``Effort.max_restarts``), stop "work", unconfirmed."""

@@ -123,6 +123,7 @@ def test_argparse_errors_are_2():
 
 # -- verify -------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_verify_0_and_1(tmp_path, capsys):
     assert run(capsys, "verify", str(QUAD), "--gains", str(GAINS))[0] == EXIT_OK
     g = json.loads(GAINS.read_text())
@@ -165,6 +166,7 @@ def test_verify_bad_study_file_2(tmp_path, capsys):
 STUDY = 'name = "t"\ntime_budget_s = 1\n[[loop]]\nname = "a"\nplant = "1/(s+1)"\nstructure = "{s}"\n{extra}'
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_study_run_0_and_1(tmp_path, capsys):
     ok = tmp_path / "ok.toml"
     ok.write_text(STUDY.format(s="pi", extra=""))
@@ -227,6 +229,7 @@ def test_help_documents_exit_codes(capsys, argv):
     (["tune", "--plant", "1/(s+1)^2", "--dt", "0.1", "--structure", "pd", "--json"], EXIT_SPEC_NOT_MET, True),
     (["analyze", "--plant", "1/(s+1)^2", "--controller", "2 + 1/s", "--json"], EXIT_OK, False),
 ])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_command_that_built_nlps_ends_without_freeing_them_and_loses_no_output(argv, code, skipped):
     """``tuner`` (cli.entry) ends a process that built NLPs with os._exit, skipping the interpreter's teardown (an
     object of the script's is never freed); the exit code is main's, the exit handlers still run after the
@@ -262,6 +265,7 @@ def _witnessed(argv: list[str]) -> str:
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_output_that_cannot_be_written_is_said_with_status_120():
     """The early exit of cli.entry flushes what the command printed; where that fails (a full disk), it says so on
     stderr and exits with 120, as the interpreter's own exit would, never 0 with the output lost."""

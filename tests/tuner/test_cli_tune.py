@@ -111,6 +111,7 @@ def test_tune_output_round_trips_through_analyze(single, capsys):
         assert _close(d["metrics"][k], v, rel=1e-6), (k, d["metrics"][k], v)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_tune_robust_json(capsys):
     d = tune_json(capsys, "--plant", ROLL, "--plant", ROLL_FAST_GAIN, "--dt", str(DT), "--structure", "pid_z")
     assert len(d["plants"]) == 2
@@ -182,6 +183,7 @@ def test_tune_missing_structure_is_an_argparse_error(capsys):
     assert "Traceback" not in err and "--structure" in err
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_printed_controller_round_trips(capsys):
     """Issue 30: the C(z) the table prints, pasted back, is the controller that was verified (at 6 digits a PID's
     (z - 1) was lost: steady-state error FAIL); its factored line writes the integrator exactly."""

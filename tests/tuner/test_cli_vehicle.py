@@ -41,6 +41,7 @@ def identified(tmp_path_factory):
     return log, out
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_analyze_the_loop_the_vehicle_flew(identified, capsys):
     log, ident = identified
     assert main(["analyze", "--identified", str(ident), "--structure", "px4_rate", "--params", str(log),

@@ -206,6 +206,7 @@ def test_an_unmet_spec_says_which_limit_and_what_would_do():
     assert d["reasons"][0]["message"] == r.message and d["objective"]["name"] == "settling_time"
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_cli_limit_flags(capsys):
     """--mt/--mks/--disk-margin reach the spec; an impossible one is exit 2 with a line naming it."""
     import json

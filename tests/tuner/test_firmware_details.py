@@ -114,6 +114,7 @@ def test_px4_yaw_torque_low_pass_is_in_the_law(tq_hz):
     np.testing.assert_allclose(u, px4_law(r, w, g, DT).real, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_px4_yaw_default_gains_phase_margin_with_the_filter():
     """PX4's default yaw gains (MC_YAWRATE_P 0.2, I 0.1) on the yaw plant: 84.1 deg without the 2 Hz torque filter
     (the tool before), 57.2 deg with it (what the vehicle flies); both as computed here from the per-sample law."""
@@ -130,6 +131,7 @@ def test_px4_yaw_default_gains_phase_margin_with_the_filter():
     assert vehicle_from_text("MC_ROLLRATE_P,0.1\nMC_ROLLRATE_I,0.1\nMC_ROLLRATE_D,0.001\n").fixed["tq_hz"] == 0.0
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_ardupilot_yaw_flte_default_is_the_firmware_default():
     """A vehicle file without ATC_RAT_YAW_FLTE: ArduPilot flies AC_ATC_MULTI_RATE_YAW_FILT_HZ = 2.5 Hz
     (AC_AttitudeControl_Multi.h's Defaults block for _pid_rate_yaw); PM 88.7 deg with 0 (the tool before), 67.6 with
@@ -197,6 +199,7 @@ def _imu_log(path, gyro_hz, params, changed=(), topic="vehicle_imu_status"):
     return write_ulog(path, [tp], params=params, changed=changed)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_px4_loop_rate_is_the_gyros_not_the_cap(tmp_path):
     """PX4's rate loop runs on every vehicle_angular_velocity, which the gyro drives; IMU_GYRO_RATEMAX only caps it.
     A log whose gyro ran at 250 Hz under a cap of 800: the loop at 250 Hz, and the phase margin there (computed here

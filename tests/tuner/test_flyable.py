@@ -42,6 +42,7 @@ def _ultimate_gain(gnum, gden, dt):
     return 1.0 / abs(G[i])
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_default_pid_is_off_the_filter_floor_and_within_the_rules():
     res = tune(plant_from_expr(PITCH), structure="pid", dt=DT, time_budget_s=20)
     assert res.meets_spec
@@ -101,6 +102,7 @@ def test_matlab_pidtune_example_plant():
     assert isinstance(res.to_json()["at_bounds"], list)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_settling_limit_and_mks_objective():
     """The response-time knob: the most noise-robust pid settling within 0.5 s (pitch, no margins)."""
     sp = Spec(phase_margin_min_deg=0, gain_margin_min_db=0, objective="mks", settling_time_max=0.5)
@@ -125,6 +127,7 @@ def test_target_crossover():
     assert abs(wc - 12.0) <= 0.0101 * 12.0
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_disk_margin_objective_is_more_robust_than_the_fastest():
     p = plant_from_expr(ROLL)
     fast = tune(p, structure="pid", dt=DT)
@@ -209,6 +212,7 @@ def test_suggestions_are_never_tighter_nor_lifted_and_rerunning_meets():
     Spec(zero_steady_state_error=False, filter_n_max=0.05, bandwidth_min_rad_s=5),  # N and bandwidth fail
     Spec(noise_gain_max=0.05),  # the noise budget below 1/G(0): decided at once, in its own terms
 ])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_diagnosis_of_the_new_limits_never_crashes(spec):
     st = "pd" if not spec.zero_steady_state_error else "pid"
     res = tune(plant_from_expr("1/(s^2+0.5*s+0.1)") if st == "pd" else plant_from_expr(PITCH), structure=st,
@@ -244,6 +248,7 @@ def test_asymmetric_clamp_is_judged_per_side():
         export_controller(res, format="c", name="pitch", u_min=0.0, u_max=hi / 2)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_default_limits_on_a_discrete_plant_and_a_robust_set():
     from tests.reference import zoh
 

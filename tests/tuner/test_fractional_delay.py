@@ -305,6 +305,7 @@ def test_cascade_outer_plant_with_a_fractional_inner_delay():
     assert np.allclose(near.freqresp(w), whole.freqresp(w), rtol=1e-3)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_robust_set_mixing_whole_and_fractional_delays():
     """A plant set whose delays are 0, a fraction, one sample and 1.5 samples (ZOH plants of 2 and 3 states, 0 to
     1 register): one controller, the NLP on all of them, every plant's loop verified; the worst is the longest

@@ -22,6 +22,7 @@ def test_ki_min_is_a_registered_limit_everywhere():
         Spec(ki_min=0.0)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_ki_min_is_met_by_the_tune_and_checked_by_the_verifier():
     plant = plant_from_expr(RATE, delay=0.008)
     r = tune(plant, structure="pid", dt=0.004, spec=Spec(control_peak_max=3, ki_min=1.0), seed=0)

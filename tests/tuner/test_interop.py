@@ -38,6 +38,7 @@ def same_metrics(a, b, rtol=1e-9):
 
 # -- in ---------------------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_same_plant_as_expression_and_as_control_tf_tunes_identically():
     pe, pc = plant_from_expr(EXPR), make_plant(G)
     assert np.array_equal(pe.zpk.poles, pc.zpk.poles) and pe.zpk.gain == pc.zpk.gain
@@ -76,6 +77,7 @@ def test_a_discrete_model_keeps_its_dt_and_its_delay_is_whole_samples():
     assert ei.value.field == ("delay",)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_robust_tuning_over_a_list_of_control_models_with_per_plant_delays():
     plants = [ct.tf([1.0], [10.0, 1.0]), ct.tf([1.2], [10.0, 1.0]), ct.tf([0.8], [12.0, 1.0])]
     res = tune(plants, structure="pi", dt=0.5, delay=[1.0, 1.0, 1.5], time_budget_s=120)

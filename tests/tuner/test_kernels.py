@@ -76,6 +76,7 @@ def _same(x: np.ndarray, y: np.ndarray, key: str) -> None:
 
 
 @pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_kernels_match_the_numpy_path_on_random_candidates(kern, name):
     a, b, space = _pair(name, load_recovery=True)
     rng = np.random.default_rng(41)

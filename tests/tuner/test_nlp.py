@@ -565,6 +565,7 @@ def test_polish_grid_is_dense_where_the_settling_time_is_decided(monkeypatch):
     assert reached["head"] <= reached["uniform"] and reached["head"] <= inc * (1 + 1e-5)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_default_budget_does_not_count_the_nlp_builds(monkeypatch):
     """Issue 30: a budget that fits the problem. A build that takes longer than the whole search time (a 250 Hz
     loop's NLP takes seconds) ends a tune on an explicit budget before its first refinement, and the result says so

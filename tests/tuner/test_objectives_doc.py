@@ -72,6 +72,7 @@ def test_itae_is_t_abs_error_of_the_reference_step_on_the_horizon(pi):
     assert objective_value(pi, Spec(objective="itae")) == pytest.approx(ref, rel=1e-4)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_iae_is_abs_output_after_a_unit_load_step_at_the_plant_input(pi):
     from tuner.optimize.scoring import objective_value
 
@@ -80,6 +81,7 @@ def test_iae_is_abs_output_after_a_unit_load_step_at_the_plant_input(pi):
     assert objective_value(pi, Spec(objective="iae")) == pytest.approx(integrate.trapezoid(np.abs(y), t), rel=1e-4)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_ie_is_one_over_ki(pi):
     from tuner.optimize.scoring import objective_value
 

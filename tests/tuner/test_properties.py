@@ -251,6 +251,7 @@ def assert_honest(an) -> None:
 
 @given(p=plants(), dt=dts)
 @settings(max_examples=300, **SETTINGS)
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_plant_constructors_return_or_raise_tuner_error(p, dt):
     try:
         plant = build_plant(p, dt)
@@ -264,6 +265,7 @@ def test_plant_constructors_return_or_raise_tuner_error(p, dt):
 
 @given(c=controllers(), dt=dts)
 @settings(max_examples=300, **SETTINGS)
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_controller_constructors_return_or_raise_tuner_error(c, dt):
     try:
         ctrl = build_controller(c, dt)
@@ -328,6 +330,7 @@ def test_huge_gains_answer_honestly_or_name_the_field(gain, dt):
 @HOSTILE
 @given(p=plants(), structure=st.sampled_from(sorted(STRUCTURES)), dt=dts, spec=specs)
 @settings(max_examples=150, **SETTINGS)
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_problem_build_returns_or_raises_tuner_error(p, structure, dt, spec):
     try:
         plant = build_plant(p, dt)
@@ -372,6 +375,7 @@ def test_tune_returns_a_verified_result_or_a_tuner_error(p, structure, dt, spec,
 
 @pytest.mark.parametrize("structure", ["lead", "lag", "leadlag"])
 @pytest.mark.parametrize("dt", [1000.0, 1e4])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_lead_lag_at_a_large_dt(structure, dt):
     """The issue's class: inverted search bounds (Optuna's ValueError) for lead/lag/leadlag at a large dt.
 

@@ -136,6 +136,7 @@ def test_cli_effort_and_the_optimality_line(capsys):
     assert "--effort" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_thorough_is_never_worse_than_default():
     p = plant_from_expr("1/(s^2+0.4s+1)")
     d = tune(p, structure="pid", dt=0.1, seed=0, diagnose=False, time_budget_s=120)

@@ -83,6 +83,7 @@ def px4_default():
     return tune(QUAD, structure="px4_rate", dt=DT, delay=DELAY)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_firmware_laws_default_is_the_load_design_over_the_gain_range(px4_default):
     res = px4_default
     assert res.spec.objective == "ie" and res.spec.gain_variation == (0.8, 1.25)
@@ -116,6 +117,7 @@ def test_a_firmware_laws_default_is_the_load_design_over_the_gain_range(px4_defa
     assert res.objective == pytest.approx(1.0 / res.gains["I"], rel=2e-2)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_old_default_is_one_objective_away():
     """The fastest reference step without the load design is still there, asked for: it leaves the integrator all but
     off (a constant load is then never rejected), which the note says."""
@@ -133,6 +135,7 @@ def test_one_dof_structures_keep_the_settling_time():
 
 # -- the setpoint path after the feedback ----------------------------------------------------------------------------
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_pid2s_setpoint_weights_are_shaped_after_its_load_design():
     """pid2 on the pitch model: the feedback minimises the load IAE, then b and c alone are chosen for the reference
     step. The stage never moves the feedback, and no point of a brute-force grid over (b, c) written here, the feedback
@@ -160,6 +163,7 @@ def test_pid2s_setpoint_weights_are_shaped_after_its_load_design():
 # -- the firmware's documented ranges --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("law,axis", [("px4_rate", "roll"), ("px4_rate", "yaw"), ("ardupilot_rate", "pitch")])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_the_search_keeps_a_firmware_law_inside_its_documented_ranges(law, axis):
     fw = get_structure(law).firmware
     res = tune(QUAD, structure=law, dt=DT, delay=DELAY, axis=axis, effort="fast",
@@ -170,6 +174,7 @@ def test_the_search_keeps_a_firmware_law_inside_its_documented_ranges(law, axis)
         assert lo <= res.gains[p] <= hi, (p, res.gains[p], lo, hi)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_a_plant_that_needs_a_gain_below_its_range_is_said_with_what_to_change():
     """100 times the quad's effectiveness: its ultimate gain K0 is below MC_ROLLRATE_P's documented minimum 0.01 at
     K = 1, so no roll design inside the range meets the spec; the reason names the parameter and PX4's K. The yaw axis

@@ -230,6 +230,7 @@ def _nlp_contract(loops: list[tuple]) -> tuple[int, list[str]]:
     return checked, bad
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_nlp_step_contract_sample():
     checked, bad = _nlp_contract(_loops(6, seed=3))
     assert checked >= 4

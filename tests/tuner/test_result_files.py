@@ -136,6 +136,7 @@ json_values = st.recursive(st.none() | st.booleans() | st.integers(-10**20, 10**
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 @pytest.mark.parametrize("cmd", ["export px4", "export c (pid_z)", "analyze --identified"])
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_values_drawn_into_a_field_are_bad_input_or_read(cmd, saved, tmp_path_factory, capsys):
     base = saved[COMMANDS[cmd][0]]
     paths = _paths(base, depth=3)

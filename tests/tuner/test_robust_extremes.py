@@ -73,6 +73,7 @@ def log_uniform(lo: float, hi: float) -> st.SearchStrategy[float]:
        delay_sigma=st.one_of(log_uniform(-6, -2), log_uniform(-6, 3)),
        seed=st.integers(0, 10), strength=st.floats(0.0, 0.99), k=st.sampled_from([0.5, 2.0, 10.0]),
        dt=st.sampled_from([None, 0.0025, 0.04]))
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_any_identification_gives_a_set_or_a_refusal(gain, wn, zeta, delay, rel, delay_sigma, seed, strength,
                                                       k, dt):
     values = {"gain": gain, "pole_wn_1_rad_s": wn, "pole_zeta_1": zeta, "delay_s": delay}

@@ -185,6 +185,7 @@ def _engine(seed):
     return eng, info
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_engine_is_deterministic():
     e1, i1 = _engine(3)
     e2, i2 = _engine(3)
@@ -219,6 +220,7 @@ def stored(tmp_path_factory):
     return url, with_db, in_memory
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_storage_url_is_accepted_and_trials_land_in_it(stored):
     url, with_db, in_memory = stored
     names = optuna.get_all_study_names(url)

@@ -452,6 +452,7 @@ def test_special_plants_are_tuned_and_verified(special):
     assert math.isfinite(m.settling_time_s)
 
 
+@pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
 def test_open_loop_unstable_plant_is_stabilised_independently():
     """1/(s-1) with a PID at dt = 0.02: closed-loop roots of den + num of C(z) ZOH[G](z) computed here."""
     plant = make_plant([1], [1, -1])
