@@ -133,7 +133,9 @@ class Worker:
         opt = r.solver.get("optimality") or {}
         return {"wall_s": wall, "cpu_s": cpu, "settling_s": ts if math.isfinite(ts) else str(ts),
                 "meets_spec": bool(r.meets_spec), "failing": failing, "stop": r.solver.get("stop"),
-                "claim": opt.get("claim"), "objective": float(r.objective) if r.meets_spec else None}
+                "claim": opt.get("claim"), "objective": float(r.objective) if r.meets_spec else None,
+                # load-independent figures: the NLP solves the search ran, and the gains themselves (to compare trees)
+                "nlp_solves": opt.get("nlp_solves"), "gains": {k: float(v) for k, v in dict(r.gains).items()}}
 
 
 def main() -> int:

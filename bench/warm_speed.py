@@ -74,7 +74,12 @@ def measure(revs: list[str], seeds: int, loops: list[str] | None = None, budget:
                                      "median_settling_s": statistics.median(float(r["settling_s"]) for r in rs),
                                      "all_meet": all(r["meets_spec"] for r in rs),
                                      "claims": sorted({str(r.get("claim")) for r in rs}),
-                                     "stops": sorted({str(r.get("stop")) for r in rs})} for n, rs in runs.items()}}
+                                     "stops": sorted({str(r.get("stop")) for r in rs}),
+                                     "median_nlp_solves": statistics.median(r.get("nlp_solves") or 0 for r in rs),
+                                     # seed by seed: the same gains as this tree's, bitwise
+                                     "same_gains": sum(r.get("gains") == m.get("gains") for r, m in
+                                                       zip(rs, runs.get("this tree", rs)))}
+                                 for n, rs in runs.items()}}
                 rows.append(row)
                 done = ", ".join(f"{n} {t['median_wall_ms']:.0f} ms ({t['median_settling_s']:.4g} s)"
                                  for n, t in row["trees"].items())
@@ -97,8 +102,10 @@ def markdown(res: dict[str, Any]) -> str:
              "| loop | effort | " + " | ".join(f"{n} ms" for n in names) + " | " +
              " | ".join(f"ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} CPU ms" for n in names) + " | "
              + " | ".join(f"CPU ratio to {r}" for r in revs) + " | " + " | ".join(f"{n} settling" for n in names)
-             + " | " + " | ".join(f"{n} claims" for n in names) + " |",
-             "|" + "---|" * (2 + 4 * len(names) + 2 * len(revs))]
+             + " | " + " | ".join(f"{n} claims" for n in names) + " | "
+             + " | ".join(f"{n} NLP solves" for n in names) + " | "
+             + " | ".join(f"seeds with this tree's gains ({r})" for r in revs) + " |",
+             "|" + "---|" * (2 + 5 * len(names) + 3 * len(revs))]
     for row in res["rows"]:
         t = row["trees"]
         me = t["this tree"]["median_wall_ms"]
@@ -110,7 +117,11 @@ def markdown(res: dict[str, Any]) -> str:
                      + " | ".join(f"{t['this tree']['median_cpu_ms'] / t[r]['median_cpu_ms']:.2f}" if r in t else "—"
                                   for r in revs) + " | "
                      + " | ".join(cell(n, "median_settling_s", "{:.4f}") for n in names) + " | "
-                     + " | ".join(", ".join(t[n].get("claims", [])) if n in t else "—" for n in names) + " |")
+                     + " | ".join(", ".join(t[n].get("claims", [])) if n in t else "—" for n in names) + " | "
+                     + " | ".join(cell(n, "median_nlp_solves", "{:.0f}") if "median_nlp_solves" in t.get(n, {})
+                                  else "—" for n in names) + " | "
+                     + " | ".join(f"{t[r]['same_gains']}/{res['seeds']}" if "same_gains" in t.get(r, {}) else "—"
+                                  for r in revs) + " |")
     return "\n".join(lines) + "\n"
 
 

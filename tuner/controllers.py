@@ -51,7 +51,7 @@ import numpy as np
 from .errors import InvalidControllerError, TunerError
 from .firmware import laws
 from .firmware.registry import firmwares
-from .lti import SS, Zpk, realize, roots_of
+from .lti import SS, Zpk, realize, roots_of, trim_leading
 from .plant import MAX_ORDER, check_dt, tf_freqresp
 from .tolerances import SAME_COEFF_RTOL
 
@@ -111,7 +111,7 @@ class ControllerTF:
     def zpk(self) -> Zpk:
         """Zeros, poles and gain (a controller is low order: its roots are well conditioned)."""
         if "zpk" not in self._cache:
-            n, d = np.trim_zeros(self.num, "f"), np.trim_zeros(self.den, "f")
+            n, d = trim_leading(np.asarray(self.num)), trim_leading(np.asarray(self.den))
             zeros, poles = roots_of(n), roots_of(d)  # None: not computable in double precision
             with np.errstate(all="ignore"):
                 gain = float(n[0] / d[0]) if n.size else 0.0

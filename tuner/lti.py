@@ -87,6 +87,22 @@ class SS:
         return self._cache["schur"]
 
 
+def trim_leading(p: np.ndarray) -> np.ndarray:
+    """``np.trim_zeros(p, "f")`` of a 1-D array (a view of ``p`` from its first nonzero entry; empty if all are 0),
+    without its general machinery: it runs on every controller a search builds, where numpy's costs more than the
+    rest of the controller's factoring."""
+    nz = np.flatnonzero(p)
+    return p[nz[0]:] if nz.size else p[:0]
+
+
+def polymul(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) -> np.ndarray:
+    """``np.polymul(a, b)`` of two 1-D real coefficient arrays, bitwise (``poly1d``'s leading zeros trimmed, an all-zero
+    operand taken as ``[0.]``, then the same ``np.convolve``), without building ``poly1d`` objects."""
+    a, b = (np.atleast_1d(np.asarray(c)) for c in (a, b))
+    a, b = (t if t.size else np.zeros(1) for t in (trim_leading(a), trim_leading(b)))
+    return np.convolve(a, b)
+
+
 def conjugate_pairs(roots: np.ndarray) -> tuple[list[complex], list[float]]:
     """Split roots of a real polynomial into complex pairs (one of each, imag > 0) and real roots."""
     roots = np.asarray(roots, dtype=complex)
@@ -104,9 +120,9 @@ def poly_from_roots(roots: Sequence[complex]) -> np.ndarray:
     pos, real = conjugate_pairs(np.asarray(roots, dtype=complex))
     p = np.ones(1)
     for r in pos:
-        p = np.polymul(p, [1.0, -2.0 * r.real, abs(r) ** 2])
+        p = polymul(p, [1.0, -2.0 * r.real, abs(r) ** 2])
     for r in real:
-        p = np.polymul(p, [1.0, -r])
+        p = polymul(p, [1.0, -r])
     return p
 
 
@@ -119,7 +135,7 @@ def roots_of(p: np.ndarray) -> np.ndarray | None:
     the root near -1e-200 comes out as 0 beside three of magnitude 2e33). Every analysis treats a root that small
     beside the others as at DC already (:attr:`tuner.loop.Loop.integrating`), and a discrete loop's pole at
     ``z = 1e-300`` (a fast pole at a long ``dt``) is at the origin for every purpose: such roots are kept."""
-    p = np.trim_zeros(np.asarray(p, dtype=float), "f")
+    p = trim_leading(np.asarray(p, dtype=float))
     if p.size <= 1:
         return np.zeros(0, complex)
     with np.errstate(all="ignore"):
@@ -159,7 +175,7 @@ def _sections(zpk: Zpk) -> list[tuple[np.ndarray, np.ndarray]]:
             if len(ones) >= 2:
                 ones.sort(key=lambda i: _log_ratio(sec[i][2], zm))
                 i, j = sorted(ones[:2])
-                merged = [np.ones(1), np.polymul(sec[i][1], sec[j][1]), math.sqrt(max(sec[i][2] * sec[j][2], 0.0))]
+                merged = [np.ones(1), polymul(sec[i][1], sec[j][1]), math.sqrt(max(sec[i][2] * sec[j][2], 0.0))]
                 sec = [s for k, s in enumerate(sec) if k not in (i, j)] + [merged]
                 free = [len(sec) - 1]
         if not free:  # improper overall cannot happen for a proper system; a gain section absorbs it
@@ -168,7 +184,7 @@ def _sections(zpk: Zpk) -> list[tuple[np.ndarray, np.ndarray]]:
             if deg > 0:
                 raise ValueError("improper system: more zeros than poles")
         i = min(free, key=lambda i: _log_ratio(sec[i][2], zm))
-        sec[i][0] = np.polymul(sec[i][0], zf)
+        sec[i][0] = polymul(sec[i][0], zf)
     return [(s[0], s[1]) for s in sec]
 
 

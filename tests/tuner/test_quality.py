@@ -312,7 +312,7 @@ def test_the_convergence_claim_rests_on_restart_evidence():
         e = copy.copy(eng)
         e.info = copy.copy(eng.info)
         e.info.stop = stop
-        e.restart_ends = ends
+        e.restart_ends = [t if len(t) == 4 else (*t, True) for t in ends]  # (resolved unless said)
         if round0 is not None:
             e.refined, e._round0_refined = round0, len(round0)
         return e
@@ -352,6 +352,17 @@ def test_the_convergence_claim_rests_on_restart_evidence():
     first = with_ends([(1, b, v), (2, b, near), (3, b, v), (4, b, v)], round0=[(3 * b, far1)])
     assert first.optimality()["evidence"]["refound"] == 3 and first.optimality()["claim"] == "converged"
     assert with_ends([(1, b, v), (2, b, near)], round0=[(3 * b, far1)]).optimality()["evidence"]["refound"] == 1
+    # draws cut above the incumbent's value (Effort.draw_cutoff): each an optimum of its own, never merged with another
+    # draw's (not even one of equal score, resolved or not) and never a re-find, whatever its score says: w = 5 here
+    # (the answer's; each cut draw; the resolved draw at 3 b, which a cut draw at that score does not absorb), not 2
+    cut = with_ends([(1, b, near), (2, b, v), (3, 3 * b, far1, False), (4, 3 * b, far1, False),
+                     (5, 3 * b, far1), (6, b, v, False)], round0=[(b, v)])
+    ev = cut.optimality()["evidence"]
+    assert (ev["basins"], ev["refound"], ev["refinements"]) == (5, 2, 6)
+    assert ev["unseen"] == 1.0 and cut.optimality()["claim"] == "not confirmed"
+    resolved = with_ends([(1, b, near), (2, b, v), (3, 3 * b, far1), (4, 3 * b, far1), (5, 3 * b, far1), (6, b, v)],
+                         round0=[(b, v)]).optimality()["evidence"]
+    assert (resolved["basins"], resolved["refound"]) == (2, 3)  # (the same draws resolved: two optima)
     # a search the cap cut claims nothing, whatever its evidence
     assert with_ends(ok.restart_ends, stop="budget", round0=[(b, v)]).optimality()["claim"] == "budget"
     # fast: round 0's own agreement, no restart: not confirmed, and says why

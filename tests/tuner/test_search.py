@@ -299,3 +299,44 @@ def test_n_trials_and_sampler_act_at_the_default_effort(monkeypatch):
     asked.clear()
     tune(plant, structure="pid_z", dt=DT, seed=0, time_budget_s=BUDGET, sampler=optuna.samplers.RandomSampler(seed=1))
     assert asked and set(asked) == {24}
+
+
+def test_a_draw_cut_above_the_incumbent_is_a_prefix_of_its_full_refinement(monkeypatch):
+    """Issue 41 (a search fast enough to afford its evidence): a restart's draw refined with ``above`` (the incumbent's
+    value plus the tolerance) runs exactly the solves of its full refinement up to and including its first failed
+    solve above that value, then stops and says so (``cut``); one whose every failed solve lies below it is not cut.
+    The full refinement's solves are recorded here, and the cut one must be their prefix."""
+    import tuner.optimize.nlp.refine as R
+
+    problem = TuningProblem.build(plant_from_expr(ROLL), structure="pid_z", spec=Spec(), dt=DT)
+    eng = Engine(problem, seed=0, deadline=time.perf_counter() + BUDGET)
+    eng._round0()
+    inc = eng.best.score
+    # a slow start of the box: its own optimum lies far above the incumbent's value (roll: 0.37-0.48 s vs 0.113 s)
+    starts = [v for s, v, _ in sorted(eng.pool, key=lambda t: t[0]) if 3 * inc < s < 1e3]
+    assert starts
+    v0 = starts[len(starts) // 2]
+    log: list[tuple[float, bool]] = []
+    call = R._Solves.__call__
+
+    def logged(self, ts, x, *a, **k):
+        out = call(self, ts, x, *a, **k)
+        log.append((float(ts), out is not None and out[0] >= 0))
+        return out
+
+    monkeypatch.setattr(R._Solves, "__call__", logged)
+
+    def run(above):
+        log.clear()
+        res = R.refine(eng.batch, eng.space, v0, reach=4 * inc, above=above, start=eng._start(v0))
+        return res, list(log)
+
+    full, solves = run(None)
+    assert not full.cut and len(solves) >= 3
+    above = inc * 1.001
+    first = next(i for i, (ts, ok) in enumerate(solves) if not ok and ts > above and i > 0)
+    cut, cut_solves = run(above)
+    assert cut.cut and cut_solves == solves[:first + 1] and len(cut_solves) < len(solves)
+    # above every target the full refinement asked: nothing to cut
+    same, same_solves = run(10 * max(ts for ts, _ in solves))
+    assert not same.cut and same_solves == solves

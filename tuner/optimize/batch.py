@@ -87,7 +87,18 @@ def kernels(*, compile_now: bool = False) -> Any:
     mode = os.environ.get("TUNER_KERNELS", "auto").strip().lower()
     if not compile_now and mode not in ("on", "1", "yes", "true"):
         return None
-    return _import_kernels()
+    # warmed here, once (as preload_kernels does): a compile or cache load inside the search's first batch would make
+    # that batch look dear, and the search, which prices its time left by the last batch's cost per point, cut the tune
+    # in round 0 (a fresh machine's first TUNER_KERNELS=on tune: cut after 7.6 s of its 60 s cap)
+    return _warmed(_import_kernels())
+
+
+def _warmed(mod: Any) -> Any:
+    """``mod`` (the kernels, or None) with every kernel called once in this process."""
+    if mod is not None and not _KERNELS.get("warm"):
+        mod.warm()
+        _KERNELS["warm"] = True
+    return mod
 
 
 def preload_kernels() -> Any:
@@ -100,11 +111,7 @@ def preload_kernels() -> Any:
     cache load (seconds on a loaded machine) made that batch look dear, and the search, which prices what its time
     left affords by the last batch's cost per point, cut the first tune in round 0 (the service's solver processes
     and the study workers alike; bench/results/study_workers_issue41.md)."""
-    mod = _preload()
-    if mod is not None and not _KERNELS.get("warm"):
-        mod.warm()
-        _KERNELS["warm"] = True
-    return mod
+    return _warmed(_preload())
 
 
 def _preload() -> Any:

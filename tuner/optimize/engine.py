@@ -126,6 +126,7 @@ def _decimal(x: np.ndarray) -> np.ndarray:
 # process builds once. A basin that settles later than that is no rival; a start settling later is asked first to
 # settle within 0.9 of the horizon, and its refinement's end is scored by the batch as every draw's is
 OWN_REACH = 4.0
+REPRICE_POINTS = 4  # points a step's price is measured again on before the step is refused for time (Engine._repriced)
 
 
 @dataclass(frozen=True)
@@ -171,6 +172,13 @@ class Effort:
     max_restarts: int = 6
     # the reduced sample a restart's draw starts from: a random one of the best this share of its Sobol points
     draw_share: float = 0.25
+    # a draw's refinement stops at its first failed solve above the incumbent's value (plus the tolerance): from there
+    # it can no longer reach that value, and only resolving its own optimum's value is left. Such a draw is counted
+    # as an optimum of its own (never merged with another draw's, never a re-find), so the rule's estimate can only
+    # grow: with max_restarts 4 a claim needs every draw at the incumbent's value, which such a draw already rules
+    # out, so fast's and default's claims are decided as before; thorough (8 draws, where two draws in one slower
+    # optimum still allow a claim) resolves every draw
+    draw_cutoff: bool = False
 
 
 #: the stated level of the evidence rule: "converged" only where the posterior expected relative volume of the regions
@@ -181,11 +189,11 @@ UNSEEN_LEVEL = 0.2
 
 EFFORTS = {
     "fast": Effort("fast", n_starts=2, design_points=32, confirm=0, restart_points=32, restart_refines=1, verify=1,
-                   optuna=True, restart_spread=3, max_restarts=4),
+                   optuna=True, restart_spread=3, max_restarts=4, draw_cutoff=True),
     # default: two round-0 refinements and one per restart cost 30 % less than three and two, and on every fourth
     # suite case changed no ratio by more than 0.3 % (bench/QUALITY.md)
     "default": Effort("default", n_starts=2, design_points=48, confirm=1, restart_points=64,
-                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=4),
+                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=4, draw_cutoff=True),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2, refind=3, max_restarts=8),
 }
@@ -441,7 +449,8 @@ class Engine:
         # what the batch said about each pooled point (refine's start): its batch result and row, read when refined
         self._starts: dict[bytes, tuple[Any, int]] = {}
         # the evidence rule's sample: where each restart's refinements ended (restart number, score, coordinates)
-        self.restart_ends: list[tuple[int, float, np.ndarray]] = []
+        # (restart number, score, coordinates, resolved: False where Effort.draw_cutoff stopped it above the incumbent)
+        self.restart_ends: list[tuple[int, float, np.ndarray, bool]] = []
         self._step = "round 0"  # the step running (what a cut says it cut)
         self._rayed: bytes | None = None  # the incumbent the loop-gain ray last started from
         self._scanned: bytes | None = None  # the incumbent a restart's scan last searched around
@@ -597,6 +606,8 @@ class Engine:
                              build_cap=None if self.build_cap is None else self.build_cap - self.reserve_s,
                              incumbent=_sig(self.best.score, INPUT_DIGITS) if self._settling and not own else None,
                              reach=_sig(OWN_REACH * self.best.score, INPUT_DIGITS) if self._settling and own else None,
+                             above=_sig(self.best.score + self._tol(), INPUT_DIGITS)
+                             if self._settling and own and self.effort.draw_cutoff else None,
                              start=self._start(v, digits=INPUT_DIGITS),
                              fine=fine, detail=self.effort.detail)
             except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation
@@ -625,7 +636,8 @@ class Engine:
                 j = int(np.argmin(scores))
                 self.refined.append((float(scores[j]), np.asarray(res.candidates[j], float)))
                 if self._in_restart and not fine:  # (the evidence rule's sample: a restart's refinements)
-                    self.restart_ends.append((self.restarts, float(scores[j]), np.asarray(res.candidates[j], float)))
+                    self.restart_ends.append((self.restarts, float(scores[j]), np.asarray(res.candidates[j], float),
+                                              not res.cut))
             # nan: no solve ran (e.g. no time to build its NLP): no evidence either way for the convergence test
             out.append(float(np.min(scores)) if len(scores) else (math.inf if res.solves else math.nan))
         return out
@@ -686,7 +698,8 @@ class Engine:
         if not self._settling or self.best.v is None:
             return False
         # (its cost is known from the batches before it)
-        if self._time_left() < 2 * self.effort.scan_points * self._per_point:
+        if self._time_left() < 2 * self.effort.scan_points * self._per_point and \
+                self._time_left() < 2 * self.effort.scan_points * self._repriced([self.best.v]):
             self._exhaust()
             return False
         rng = np.random.default_rng(seed)
@@ -706,9 +719,22 @@ class Engine:
         if self._per_point <= 0:
             return V
         n = max(0, int(self._time_left() / self._per_point))
+        if n < len(V) and V:
+            n = max(0, int(self._time_left() / self._repriced(V)))
         if n < len(V):
             self._exhaust()  # the rest of the batch, and everything after it, is beyond the budget
         return V[:n]
+
+    def _repriced(self, V: list[np.ndarray]) -> float:
+        """The cost per point measured again, on a few of ``V`` (scored aside: nothing pooled, nothing counted), before
+        a step is refused for time: the last batch's price may hold a one-off cost (a kernel's first call, a moment the
+        process was not scheduled) that would cut the search for a step it can afford. The lower price is kept."""
+        probe = np.array([self.space.params(v) for v in V[:REPRICE_POINTS]])
+        n, t0 = self.batch.n_evals, time.perf_counter()
+        self.batch.evaluate(probe, incumbent_s=self.best.score if self._settling else None)
+        self.batch.n_evals = n
+        self._per_point = min(self._per_point, (time.perf_counter() - t0) / len(probe))
+        return self._per_point
 
     def _seeded_starts(self) -> list[np.ndarray]:
         """The contained structure's own designed starts, mapped into this structure's coordinates (a ``pid``
@@ -1013,17 +1039,19 @@ class Engine:
             return sc >= INFEASIBLE and rs >= INFEASIBLE and np.linalg.norm((v - w) / span) <= self.effort.basin
 
         inc = [] if self.best.v is None else [(self.best.score, self.best.v)]
-        reps: list[tuple[float, np.ndarray]] = []  # the optima the draws reached (each its first draw's end)
+        reps: list[tuple[float, np.ndarray, bool]] = []  # the optima the draws reached (each its first draw's end)
         counts: list[int] = []
         refound: set[int] = set()
-        for k, sc, v in self.restart_ends:
-            i = next((j for j, (rs, w) in enumerate(reps) if same(sc, v, rs, w)), None)
+        for k, sc, v, resolved in self.restart_ends:
+            # a draw cut above the incumbent's value (Effort.draw_cutoff): an optimum of its own, and no re-find
+            i = next((j for j, (rs, w, ok) in enumerate(reps) if ok and same(sc, v, rs, w)), None) \
+                if resolved else None
             if i is None:
-                reps.append((sc, v))
+                reps.append((sc, v, resolved))
                 counts.append(0)
                 i = len(reps) - 1
             counts[i] += 1
-            if inc and same(sc, v, *inc[0]):
+            if inc and resolved and same(sc, v, *inc[0]):
                 refound.add(k)
         if inc and refound and not any(same(sc, v, *inc[0]) for sc, v in self.refined[:self._round0_refined]):
             refound.discard(min(refound))  # the restart that first found the incumbent's optimum did not re-find it

@@ -117,6 +117,7 @@ class RefineResult:
     success: bool = False
     status: str = ""
     unbuilt_s: float = 0.0  # the estimated build time of an NLP the time left could not afford (status says so)
+    cut: bool = False  # the bisection stopped above ``refine(above=)``: its own optimum's value left unresolved
 
 
 @dataclass(frozen=True)
@@ -666,6 +667,8 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
         level = level / _TIGHT if spec.objective == "mks" else level * _TIGHT
         tighter = level if cur is None else (min(cur, level) if spec.objective == "mks" else max(cur, level))
         spec = spec.model_copy(update={field_: tighter})
+    if not (spec.ms_max or spec.mt_max or spec.mks_max or spec.disk_margin_min or spec.drb_min_rad_s):
+        return None  # no frequency-domain limit the dense grid could find violated (the default spec's case)
     ctrl = ev.st.tf(space.params(v), ev.dt)
     worst, w_worst = _TIGHT + 1e-6, None  # the NLP keeps the peaks at most _TIGHT times the limits
     for p in ev.problem.plants:
@@ -696,7 +699,8 @@ def _missed_peak(ev: BatchEvaluator, space: Space, v: np.ndarray, level: float |
 
 def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float | None = None,
            solver: str = "sqp", incumbent: float | None = None, start: Start | None = None, fine: bool = False,
-           detail: int = 1, build_cap: float | None = None, reach: float | None = None) -> RefineResult:
+           detail: int = 1, build_cap: float | None = None, reach: float | None = None,
+           above: float | None = None) -> RefineResult:
     """Refine coordinates ``v0`` on the exact local problem; returns candidate coordinates.
 
     ``ev`` is the batched verifier of the tune (it holds the problem); it judges the start and the
@@ -718,7 +722,11 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     build's time), only against this wall-clock cap. ``reach`` (settling time, without an ``incumbent``: a restart's
     own refinement to its start's local optimum): the NLP's grid is that of a start settling by this at the latest, so
     that refinements from starts settling later share one problem shape (the caller passes a multiple of its
-    incumbent's settling time: a basin that settles later than that is no rival)."""
+    incumbent's settling time: a basin that settles later than that is no rival). ``above`` (with ``reach``: the
+    incumbent's settling time plus the search's tolerance): the bisection stops at its first infeasible solve above
+    this (``RefineResult.cut``): the bisection never goes below a failed solve, so from there the refinement can no
+    longer reach the incumbent's value, only resolve its own optimum's, which the caller does not need (the evidence
+    rule counts such a draw as an optimum of its own, distinct from every other)."""
     res = RefineResult()
     r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
                detail=detail, build_cap=build_cap, reach=reach)
@@ -730,7 +738,7 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     if ev.spec.objective != "settling_time":
         _other_objective(ev, space, r.solve, r.xs, res, r.to_search, r.exchange, r.out_of_time, r.key.settling_max)
         return res
-    _settling_time(r)
+    _settling_time(r, above)
     return res
 
 
@@ -898,15 +906,15 @@ def _setup(ev: BatchEvaluator, space: Space, v0: np.ndarray, res: RefineResult, 
     return r
 
 
-def _settling_time(r: _Refinement) -> None:
+def _settling_time(r: _Refinement, above: float | None = None) -> None:
     """The settling-time objective: bisection on the settling time from the target (the incumbent's, or the start's),
-    then, on a polish, on at the looser overshoot limit where that limit is active."""
+    then, on a polish, on at the looser overshoot limit where that limit is active (``above``: see :func:`refine`)."""
     solve, values, grid, xs = r.solve, r.values, r.grid, r.xs
     target = _target(r.start, r.incumbent)
     near = r.incumbent is not None and target == r.incumbent and float(np.max(r.start.settle)) > r.incumbent
     # a polish starts from a refinement's end: the fine grid's optimum is within a step or two of the coarse grid's
     lo_step = POLISH_STEPS * r.coarse.step / r.coarse.N if r.fine else None
-    out = (target, xs) if r.same else r.bisect(target, xs, near=near, lo_step=lo_step)
+    out = (target, xs) if r.same else r.bisect(target, xs, near=near, lo_step=lo_step, above=above)
     if r.sharp:
         if out is None and not r.out_of_time() and (r.headed is not None or
                                                     solve.overshoot(xs) >= 0.999 * values["os"]):
@@ -950,12 +958,13 @@ def _measured_os(ev: BatchEvaluator, space: Space, v: np.ndarray, on_grid: float
 
 def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, grid: _Grid, xs: np.ndarray,
             res: RefineResult, to_search: Any, out_of_time: Any, exchange: Any, near: bool = False,
-            lo_step: float | None = None) -> tuple[float, np.ndarray] | None:
+            lo_step: float | None = None, above: float | None = None) -> tuple[float, np.ndarray] | None:
     """Bisection on Ts from ``settle`` (feasible at hi, infeasible at lo); every feasible solution is a
     candidate. ``near``: ``settle`` is an incumbent's, the optimum is probably close below it; ``lo_step``: it is
     probably within this much below (a polish: the coarse grid's resolution). Either lower end is a guess, widened
-    to 0.3 hi if the bisection reaches it untested. Returns the last feasible settling time and solution (None if
-    the first solve was not feasible)."""
+    to 0.3 hi if the bisection reaches it untested. ``above``: stop at the first infeasible solve above this (see
+    :func:`refine`). Returns the last feasible settling time and solution (None if the first solve was not
+    feasible)."""
     tgrid = grid.t
     hi = settle if math.isfinite(settle) and settle < tgrid[-1] else 0.9 * tgrid[-1]
     r = None
@@ -1018,6 +1027,9 @@ def _bisect(solve: _Solves, ev: BatchEvaluator, space: Space, settle: float, gri
             kept = kept - 1 if kept <= 0 else -1
             s_lo = float(r[0]) if r is not None and solve.last_ok and r[0] < 0 else None
             lo, proven = mid, True
+            if above is not None and mid > above:
+                res.cut = True  # (it can no longer reach the incumbent's value: see refine)
+                break
     return hi, best
 
 
