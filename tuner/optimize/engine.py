@@ -18,7 +18,9 @@ so far). The search stops when
   scrambled-Sobol set over the whole box (seeded by the user's seed and the restart: independent draws), the best
   quarter by batch score of its points that meet the spec kept (the reduced sample of multi-level multistart: the
   estimate then speaks of the basins of that level set; where none meets the spec, the best point), one point of it
-  picked at random (seeded) and refined to its own local optimum, wherever it lies. The distinct optima are counted by
+  picked at random (seeded) and refined to its own local optimum, wherever it lies (``Effort.draw_cutoff``, fast and
+  default: only until it can no longer reach the incumbent's value; such a draw is an optimum of its own, never merged
+  with another, which leaves those efforts' claims decided as before). The distinct optima are counted by
   value: two draws reached one optimum when their scores agree within the search's tolerance (half a sample of
   settling time, or 0.1 %), never when their scores differ, however close in the box (infeasible ends: within
   ``Effort.basin`` of each other). The search stops when at least
