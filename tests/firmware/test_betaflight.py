@@ -112,6 +112,19 @@ def test_what_the_model_does_not_hold_is_refused_by_name(line, name):
         vehicle_from_text(DUMP + line + "\n", axis="roll", source="quad.txt")
 
 
+def test_a_word_where_the_law_reads_a_number_is_refused_and_a_filter_beyond_its_range_said():
+    # (review of issue 40: `set p_roll = abc` was skipped silently, the earlier line's 45 used; the D-term low-passes
+    # had no upper end, so 1e30 Hz was read without a word; settings.c takes 0-LPF_MAX_HZ, 1000)
+    with pytest.raises(TunerError, match=r"quad.txt line \d+: p_roll = 'abc' is not a number"):
+        vehicle_from_text(DUMP + "set p_roll = abc\n", axis="roll", source="quad.txt")
+    v = vehicle_from_text(DUMP + "set craft_name = abc\nset gyro_to_use = FIRST\n", axis="roll", source="quad.txt")
+    assert v.gains["P"] == 45.0 and not v.warnings  # (settings the law does not read may hold words)
+    v = vehicle_from_text(DUMP + "set dterm_lpf2_static_hz = 5000\n", axis="roll", source="quad.txt")
+    assert v.fixed["dlpf2_hz"] == 5000.0
+    assert any("dterm_lpf2_static_hz = 5000 is outside its documented range [0, 1000]" in w for w in v.warnings)
+    assert not vehicle_from_text(DUMP + "set dterm_lpf2_static_hz = 1000\n", axis="roll", source="quad.txt").warnings
+
+
 def test_the_export_is_cli_set_lines_with_whole_gains(tmp_path):
     res = {"structure": "betaflight_rate", "controller": {"dt": DT}, "meets_spec": True, "axis": "pitch",
            "gains": {"P": 47.4, "I": 83.6, "D": 46.0, "FF": 125.0, "dlpf1_hz": 75.0, "dlpf2_hz": 150.0,

@@ -70,7 +70,9 @@ FEEDFORWARD_SCALE = 0.013754
 PID_MIXER_SCALING = 1000.0
 YAW_KI_FACTOR = 2.5  # pid_init.c: pidCoefficient[FD_YAW].Ki *= 2.5f
 _C = (180.0 / math.pi) / PID_MIXER_SCALING  # rad/s in, the mixer's normalised command out
-_INF = math.inf
+#: settings.c: dterm_lpf1_static_hz and dterm_lpf2_static_hz take 0-LPF_MAX_HZ (sensors/gyro.h: 1000, "so little
+#: filtering above 1000hz that if the user wants less delay, they must disable the filter")
+LPF_MAX_HZ = 1000.0
 _AX = {"roll": "roll", "pitch": "pitch", "yaw": "yaw"}
 _FILES = ("Betaflight parameters (its CLI dump: set NAME = VALUE lines, a .txt; a diff lists only what differs from "
           "the defaults, so a stock PID is missing from it: give the dump)")
@@ -78,6 +80,10 @@ _FILES = ("Betaflight parameters (its CLI dump: set NAME = VALUE lines, a .txt; 
 _LPF_TYPES = {"PT1": 0.0, "BIQUAD": 1.0, "PT2": 2.0, "PT3": 3.0}
 #: settings whose value is a word, read as 0 (OFF) or 1 (any other: on)
 _SWITCHES = ("iterm_relax",)
+#: the settings the law and its checks read as numbers (every axis)
+_LAW_SETTINGS = frozenset({f"{k}_{a}" for k in ("p", "i", "d", "f", "d_min") for a in ("roll", "pitch", "yaw")}
+                          | {"iterm_limit", "dterm_lpf1_static_hz", "dterm_lpf2_static_hz", "pid_process_denom",
+                             "yaw_lowpass_hz", "dterm_lpf1_dyn_min_hz", "dterm_lpf1_dyn_max_hz", "dterm_notch_hz"})
 
 #: the law's fixed values (roll's defaults; yaw: :data:`_YAW`): the D-term low-passes 1 and 2 (PT1, Hz; 0 = off),
 #: yaw's P-term low-pass (roll and pitch have none), the I-term limit (PID units) and the I gain's factor (yaw 2.5)
@@ -95,7 +101,8 @@ def _names(axis: str) -> dict[str, str]:
 
 def _ranges(axis: str) -> dict[str, tuple[float, float]]:
     return {"P": (0.0, 250.0), "I": (0.0, 250.0), "D": (0.0, 250.0), "FF": (0.0, 1000.0),
-            "iterm_limit": (0.0, 500.0), "dlpf1_hz": (0.0, _INF), "dlpf2_hz": (0.0, _INF),
+            "iterm_limit": (0.0, 500.0), "dlpf1_hz": (0.0, LPF_MAX_HZ),
+            "dlpf2_hz": (0.0, LPF_MAX_HZ),
             **({"yaw_lpf_hz": (0.0, 500.0)} if axis == "yaw" else {})}
 
 
@@ -218,7 +225,9 @@ def read_cli(text: str, *, source: str = "parameters", field: str = "params") ->
             try:
                 v = float(value)
             except ValueError:
-                continue
+                if name in _LAW_SETTINGS:  # (a word where the law reads a number: never skipped silently)
+                    raise TunerError(f"{source} line {i}: {name} = {value!r} is not a number", field=field) from None
+                continue  # (settings the law does not read hold words: craft_name, gyro_to_use = FIRST, ...)
             if not math.isfinite(v):
                 raise TunerError(f"{source} line {i}: {name} = {value!r} is not a finite number", field=field)
         by.setdefault(section, {})[name] = v
@@ -310,7 +319,9 @@ FIRMWARE = Firmware(
     name="betaflight", title="Betaflight", structure="betaflight_rate", coeffs=coeffs, ref_coeffs=ref_coeffs,
     fixed=FIXED, axis_defaults={"yaw": _YAW}, constants=("i_mult",), names=_names, ranges=_ranges, scale=_scale,
     integer=("P", "I", "D", "FF", "iterm_limit", "loop_hz"),
-    range_source=dict.fromkeys(("P", "I", "D", "FF", "iterm_limit", "yaw_lpf_hz"), "Betaflight's pid.h / settings.c"),
+    range_source={**dict.fromkeys(("P", "I", "D", "FF", "iterm_limit", "yaw_lpf_hz"),
+                                  "Betaflight's pid.h / settings.c"),
+                  **dict.fromkeys(("dlpf1_hz", "dlpf2_hz"), "Betaflight's settings.c, LPF_MAX_HZ in sensors/gyro.h")},
     export_format="betaflight", suffix="txt", files=_FILES, export_order=("P", "I", "D", "FF", "iterm_limit"),
     write_line=lambda name, value, ids: f"set {name} = {int(float(value)) if float(value).is_integer() else value}",
     filters_header=_filters_header, gyro_param="gyro_lpf1_static_hz", gyro_filter_modelled=False,
