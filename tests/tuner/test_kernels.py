@@ -148,3 +148,28 @@ def test_auto_uses_the_kernels_only_where_a_process_preloaded_them(monkeypatch, 
     mark.write_text("x")
     assert batch_mod.preload_kernels() is not None and asked == [1]
     assert batch_mod.kernels() is not None
+
+
+def test_the_kernels_machine_code_is_never_loaded_from_a_cache_others_can_write(tmp_path):
+    """numba's cache holds pickled indexes and machine code: like the NLP code cache, it is used only under a root
+    trusted_root accepts. A root writable by others (mode 0o777 here): the kernels compile into a private folder of
+    the process's own, write no ready mark there, and the service's preload (auto) stays on numpy without asking for
+    a background compile into it."""
+    import os
+    import subprocess
+    import sys
+
+    root = tmp_path / "shared"
+    root.mkdir()
+    os.chmod(root, 0o777)
+    code = ("import os\nfrom tuner.optimize import batch\nassert batch.preload_kernels() is None\n"
+            "assert not batch._KERNELS['spawned']\n"
+            "from tuner.optimize import kernels\nkernels.warm()\n"
+            "print(os.environ['NUMBA_CACHE_DIR'])\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**env, "TUNER_CACHE_DIR": str(root), "TUNER_KERNELS": "auto"})
+    assert out.returncode == 0, out.stderr
+    used = out.stdout.strip().splitlines()[-1]
+    assert not used.startswith(str(root)) and os.path.basename(used).startswith("tuner-numba-")
+    assert not any(root.rglob("*"))  # (nothing written into it: no numba index, no ready mark, no build lock)

@@ -122,8 +122,10 @@ def _preload() -> Any:
         return None
     if mode in ("on", "1", "yes", "true"):
         return _import_kernels()
-    from .cachedir import kernels_ready_mark
+    from .cachedir import kernels_ready_mark, trusted_root
 
+    if _KERNELS["module"] is None and trusted_root() is None:
+        return None  # (a cache root others can write: no machine code loaded from it, none compiled into it)
     if _KERNELS["module"] is None and not kernels_ready_mark().exists():
         import importlib.util
 

@@ -6,7 +6,8 @@ imports neither numba nor CasADi.
 The root is created private (mode 0o700). Compiled code and pickled jobs are loaded only from a root that
 :func:`trusted_root` accepts (owned by the current user, not writable by group or others): from any other, the NLP
 code cache behaves as if it were off (:mod:`tuner.optimize.nlp.codecache`), silently, and the tune runs
-interpreted."""
+interpreted; the batch's kernels are neither loaded from it nor compiled into it (a process that asks for them
+compiles them into a private folder of its own; the service's and study workers' preload stays on numpy)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,8 @@ sampled-data step responses with their settling, overshoot, control peak, ITAE, 
 
 Imported only through :func:`tuner.optimize.batch.kernels` (never by ``import tuner`` or ``tuner analyze``): numba
 takes about half a second to import. Compiled with ``cache=True`` into ``<cache>/numba``
-(:func:`tuner.optimize.cachedir.cache_root`), so a machine compiles them once; :func:`warm` compiles every kernel
+(:func:`tuner.optimize.cachedir.cache_root`, only where :func:`~tuner.optimize.cachedir.trusted_root` accepts it: else
+into a private folder of the process's own), so a machine compiles them once; :func:`warm` compiles every kernel
 and writes the ready mark the batch looks for (:func:`tuner.optimize.cachedir.kernels_ready_mark`).
 Each kernel computes what :mod:`tuner.optimize.batch`'s numpy path computes, row by row, in the same order of
 operations where it can (the state recursion is sequential here, by doubling there: the responses agree to
@@ -15,12 +16,21 @@ from __future__ import annotations
 import math
 import os
 
-from .cachedir import cache_root, kernels_ready_mark
+from .cachedir import kernels_ready_mark, trusted_root
 
 __all__ = ["c_and_l", "margins", "step_sampled", "warm"]
 
 
-os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_root() / "numba"))
+# numba's cache holds pickled indexes and machine code, loaded as they are: only from a root trusted_root accepts (the
+# user's own, writable by no one else), as the NLP code cache; from any other, a private folder of this process's own
+# (compiled again, never loaded from a folder someone else could write)
+_ROOT = trusted_root()
+if _ROOT is not None:
+    os.environ.setdefault("NUMBA_CACHE_DIR", str(_ROOT / "numba"))
+else:
+    import tempfile
+
+    os.environ.setdefault("NUMBA_CACHE_DIR", tempfile.mkdtemp(prefix="tuner-numba-"))
 
 import numba as nb
 import numpy as np
@@ -298,6 +308,8 @@ def warm() -> float:
     for nf in (0, 2):
         step_sampled(A, e1, e1, e0, e1, e0, e1, e0, np.ones((nf, 1)), np.ones(nf), 1, 4, 0.1, np.zeros(nf),
                      np.ones(1), 0.02, True, True, True, 0.02)
+    if _ROOT is None:  # (compiled into this process's own folder: no other process can use them)
+        return time.perf_counter() - t0
     mark = kernels_ready_mark()
     mark.parent.mkdir(parents=True, exist_ok=True)
     tmp = mark.with_name(mark.name + f".{os.getpid()}.tmp")
