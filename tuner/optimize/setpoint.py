@@ -190,11 +190,35 @@ def _merit(batch: Any, X: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndar
     return np.where(np.isfinite(merit), merit, PENALTY * 1e3), ts
 
 
-def _settle_locally(batch: Any, space: Any, v: np.ndarray, free: list[int], limit: float, fixed: dict[int, float],
-                    counter: list[int]) -> tuple[np.ndarray, float]:
+class _Merits:
+    """:func:`_merit` of candidates, each distinct row scored once in a call of :func:`raise_integral` (the batch
+    scores each row on its own: a row's figures do not depend on the others in its batch, so a row met again, a
+    pattern search's poll back to where it came from, a step clipped to the box, is looked up, not simulated again)."""
+
+    def __init__(self, batch: Any, limit: float) -> None:
+        self.batch, self.limit = batch, limit
+        self.seen: dict[bytes, float] = {}
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.ascontiguousarray(X, dtype=float)
+        keys = [x.tobytes() for x in X]
+        new: dict[bytes, int] = {}
+        for j, k in enumerate(keys):
+            if k not in self.seen and k not in new:
+                new[k] = j
+        if new:
+            m, _ = _merit(self.batch, X[list(new.values())], self.limit)
+            for k, v in zip(new, m):
+                self.seen[k] = float(v)
+        return np.array([self.seen[k] for k in keys])
+
+
+def _settle_locally(merits: _Merits, space: Any, starts: list[np.ndarray], free: list[int], fixed: dict[int, float],
+                    counter: list[int]) -> list[tuple[np.ndarray, float]]:
     """A pattern search (Hooke-Jeeves polls along each free coordinate, both ways, the step halved when none improves)
-    over the coordinates ``free`` of ``v`` for the fastest reference step, the parameters ``fixed`` (index -> value)
-    held; ``(coordinates, merit)``."""
+    over the coordinates ``free`` of each of ``starts`` for the fastest reference step, the parameters ``fixed``
+    (index -> value) held; ``(coordinates, merit)`` per start. The searches run side by side, each poll of all of
+    them one batch: each is the search it is alone (the rows are scored each on its own)."""
     lo, hi = space.lo, space.hi
 
     def params(V: np.ndarray) -> np.ndarray:
@@ -203,29 +227,38 @@ def _settle_locally(batch: Any, space: Any, v: np.ndarray, free: list[int], limi
             X[:, i] = val
         return X
 
-    v = np.clip(np.asarray(v, float), lo, hi)
-    m, _ = _merit(batch, params(v[None, :]), limit)
-    best = float(m[0])
-    counter[0] += 1
-    step = POLL_STEP
+    vs = [np.clip(np.asarray(v, float), lo, hi) for v in starts]
+    m = merits(params(np.array(vs)))
+    best = [float(x) for x in m]
+    counter[0] += len(vs)
+    step = [POLL_STEP] * len(vs)
+    live = list(range(len(vs)))
     for _ in range(POLL_ITERATIONS):
-        V = []
-        for i in free:
-            for sgn in (1.0, -1.0):
-                w = v.copy()
-                w[i] = min(max(w[i] + sgn * step, lo[i]), hi[i])
-                V.append(w)
-        V = np.array(V)
-        m, _ = _merit(batch, params(V), limit)
-        counter[0] += len(V)
-        j = int(np.argmin(m))
-        if m[j] < best - 1e-12 * max(1.0, abs(best)):
-            v, best = V[j], float(m[j])
-        else:
-            step /= 2
-            if step < POLL_MIN_STEP:
-                break
-    return v, best
+        if not live:
+            break
+        polls = []
+        for s in live:
+            V = []
+            for i in free:
+                for sgn in (1.0, -1.0):
+                    w = vs[s].copy()
+                    w[i] = min(max(w[i] + sgn * step[s], lo[i]), hi[i])
+                    V.append(w)
+            polls.append(np.array(V))
+        m = merits(params(np.concatenate(polls)))
+        at = 0
+        for s, V in zip(list(live), polls):
+            ms = m[at:at + len(V)]
+            at += len(V)
+            counter[0] += len(V)
+            j = int(np.argmin(ms))
+            if ms[j] < best[s] - 1e-12 * max(1.0, abs(best[s])):
+                vs[s], best[s] = V[j], float(ms[j])
+            else:
+                step[s] /= 2
+                if step[s] < POLL_MIN_STEP:
+                    live.remove(s)
+    return list(zip(vs, best))
 
 
 def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarray, LoadStage, Any] | None:
@@ -259,10 +292,11 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
     v0 = space.from_params(x0)
     found: dict[float, tuple[np.ndarray, float]] = {}  # integral gain -> (coordinates, worst settling)
 
+    merits = _Merits(batch, horizon / 3.0)
+
     def at(level: float, starts: list[np.ndarray]) -> None:
         best = None
-        for start in starts:
-            w, m = _settle_locally(batch, space, start, free, horizon / 3.0, {ii: level}, counter)
+        for w, m in _settle_locally(merits, space, starts, free, {ii: level}, counter):
             if m < PENALTY and (best is None or m < best[1]):
                 best = (w, m)
         if best is not None:
