@@ -291,6 +291,9 @@ class BatchEvaluator:
         #: compute the load step's recovery time too (``load_recovery_s``: as the verifier's, the last time |y| is above
         #: 2 % of its peak; inf where not back within the horizon), the load stage's measure
         self.load_recovery = False
+        #: compute the reference step's ITAE (``itae``) whatever the objective (by default only where the objective is
+        #: ``itae``: no limit reads it, and it is a quarter of a sampled row's work after its simulation; nan otherwise)
+        self.all_figures = False
         #: per plant: the phase and gain margins it must keep (the spec's; a gain-variation member's its own)
         self.margins = [(q.phase_margin_min_deg, q.gain_margin_min_db) for q in problem.specs]
         sp = self.spec
@@ -588,6 +591,7 @@ class BatchEvaluator:
         spec = self.spec
         Bn = cl.A.shape[0]
         need_load = spec.objective == "iae" or self.load_recovery
+        need_itae = spec.objective == "itae" or self.all_figures
         res = {k: np.full(Bn, np.nan) for k in ("overshoot_pct", "steady_state_error", "control_peak", "iae",
                                                    "itae", "load_recovery_s")}
         res["settling_time_s"] = np.full(Bn, np.inf)
@@ -625,11 +629,12 @@ class BatchEvaluator:
                 res["settling_time_s"][sel] = np.where(np.isfinite(yf) & (yf != 0), ts, np.inf)
                 res["overshoot_pct"][sel] = np.maximum(0.0, (np.max(yn, axis=1) - 1.0) * 100.0)
                 res["steady_state_error"][sel] = 1.0 - yf
-                res["control_peak"][sel] = np.max(np.abs(u), axis=1)
+                res["control_peak"][sel] = np.max(np.abs(u), axis=1)  # (u per sample: its rows between are alike)
                 if self.dt is None and pd.tau:  # the Tustin controller's first output is C(2/h), not the kick C(inf)
                     lead = (num_r[sel] if num_r is not None else num[sel])[:, 0] / den[sel][:, 0]
                     res["control_peak"][sel] = np.maximum(res["control_peak"][sel], np.abs(lead))
-                res["itae"][sel] = np.trapezoid(t * np.abs(1.0 - y), t, axis=1)
+                if need_itae:
+                    res["itae"][sel] = np.trapezoid(t * np.abs(1.0 - y), t, axis=1)
                 if need_load:
                     yl, _, tl, _ = sim(*args, 1)
                     res["iae"][sel] = np.trapezoid(np.abs(yl), tl, axis=1)
@@ -660,7 +665,8 @@ class BatchEvaluator:
             res["overshoot_pct"][sel] = ov
             res["steady_state_error"][sel] = 1.0 - yf
             res["control_peak"][sel] = cpk
-            res["itae"][sel] = itae
+            if self.spec.objective == "itae" or self.all_figures:
+                res["itae"][sel] = itae
             if need_load:
                 _, _, _, _, iae, rec = self.kernels.step_sampled(*args(1), np.ones(len(sel)), band, False, True,
                                                                  bool(self.load_recovery), LOAD_RECOVERY_SHARE)
@@ -676,7 +682,8 @@ class BatchEvaluator:
         return np.einsum("bz,bz->b", zf, cl.Cy) + cl.Dy[:, inp]
 
     def _simulate(self, pd: _PlantData, cl: StackedLoops, T, K, inp):
-        """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points)."""
+        """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points); ``u`` at the
+        points, or (the rows between samples) once a sample."""
         A, Bm, Cy, Dy, Cu, Du, Ca, Da, n = cl.A, cl.Bm, cl.Cy, cl.Dy, cl.Cu, cl.Du, cl.Ca, cl.Da, cl.n_plant
         Bn, nz, _ = A.shape
         if self.dt is None:  # continuous, no delay: exact discretisation at each row's own fine step
@@ -699,7 +706,6 @@ class BatchEvaluator:
                 y = (np.einsum("bkn,jn->bkj", Z[:, :, :n], pd.Cf) + ua[:, :, None] * pd.Df[None, None, :])
                 nf = pd.Cf.shape[0]
                 y = y.reshape(Bn, K * nf)
-                u = np.repeat(u, nf, axis=1)
                 t = np.broadcast_to((np.arange(K)[:, None] * self.dt + pd.offsets[None, :]).ravel(), y.shape)
             else:
                 y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
