@@ -8,6 +8,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from tuner import Spec
 from tuner.controllers import get_structure
@@ -78,3 +79,40 @@ def test_searches_side_by_side_end_where_each_alone_ends():
         assert np.array_equal(got[0], alone[0]) and got[1] == alone[1] and got[2] == alone[2]
         assert got[2] > 10  # it polled
     assert together[0][1] < 0.2  # it found the bowl
+
+
+@pytest.mark.slow  # (a tune: about 3 s)
+def test_running_levels_ahead_changes_nothing(monkeypatch):
+    """The load stage of a PX4 rate tune with its levels run ahead (batched) and each at its turn alone: the same
+    design, the same record (levels found, candidates counted, settling and balance), fewer batch calls."""
+    from tuner.plant import plant_from_expr as expr
+    from tuner.tuning import tune
+
+    seen = {}
+    real = sp.raise_integral
+
+    def keep(problem, engine, x0):
+        seen["args"] = (problem, engine, np.array(x0, float))
+        return real(problem, engine, x0)
+
+    monkeypatch.setattr(sp, "raise_integral", keep)
+    tune(expr("200/((s+2)*(0.03*s+1))"), structure="px4_rate", dt=0.0025, seed=0, effort="fast")
+    problem, engine, x0 = seen["args"]
+    calls = {"n": 0}
+    evaluate = BatchEvaluator.evaluate
+
+    def counted(self, X, **kw):
+        calls["n"] += 1
+        return evaluate(self, X, **kw)
+
+    monkeypatch.setattr(BatchEvaluator, "evaluate", counted)
+    out = {}
+    for ahead in (True, False):
+        monkeypatch.setattr(sp, "RUN_AHEAD", ahead)
+        calls["n"] = 0
+        x, rec, _ = real(problem, engine, x0)
+        out[ahead] = (x, rec, calls["n"])
+    assert np.array_equal(out[True][0], out[False][0])
+    assert out[True][1] == out[False][1]
+    assert out[True][1].levels >= 1 and out[True][1].evaluated > 100
+    assert out[True][2] < out[False][2]

@@ -58,6 +58,9 @@ POLL_STEP = 0.04  # the pattern search's first step, in search coordinates (abou
 POLL_MIN_STEP = 0.003
 POLL_ITERATIONS = 25
 PENALTY = 1e3  # the merit of a candidate that fails a constraint: above every settling time
+#: the load stage runs levels ahead of their turn beside others (see :func:`raise_integral`; False: each level at its
+#: turn alone, the same answer at more batch calls)
+RUN_AHEAD = True
 
 
 @dataclass(frozen=True)
@@ -308,6 +311,7 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
 
     def search(levels: list[float]) -> None:
         """The searches of ``levels`` from their starts now, side by side, into ``ahead``."""
+        levels = list(dict.fromkeys(levels))  # (a classical level may be a ray level too)
         jobs, owner = [], []
         for lv in levels:
             for start in nearest(lv):
@@ -358,12 +362,12 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
         if lv > top or lv > end:
             break
         more, nxt = [], lv
-        for _ in range(0 if held else RAY_MISSES - misses - 1):
+        for _ in range(0 if held or not RUN_AHEAD else RAY_MISSES - misses - 1):
             nxt *= 10.0 ** LEVEL_STEP
             if nxt > top or nxt > end:
                 break
             more.append(nxt)
-        if not held:
+        if not held and RUN_AHEAD:
             more += classical_left()
         n = len(found)
         at(lv, more)
@@ -371,7 +375,7 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
         misses = 0 if held else misses + 1
     for lv in classical:
         if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found):
-            at(lv, classical_left())
+            at(lv, classical_left() if RUN_AHEAD else [])
     if not found:
         return None
 
