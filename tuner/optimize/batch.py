@@ -699,16 +699,16 @@ class BatchEvaluator:
             t = np.arange(K)[None, :] * h[:, None]
         else:
             Z = _run(A, Bm[:, :, inp], K)
-            ys = np.einsum("bkz,bz->bk", Z, Cy) + Dy[:, inp, None]
             u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
-            if pd.Cf is not None:
+            if pd.Cf is not None:  # (the output between the samples: its rows at the samples are the output there)
                 ua = np.einsum("bkz,bz->bk", Z, Ca) + Da[:, inp, None]
                 y = (np.einsum("bkn,jn->bkj", Z[:, :, :n], pd.Cf) + ua[:, :, None] * pd.Df[None, None, :])
                 nf = pd.Cf.shape[0]
                 y = y.reshape(Bn, K * nf)
                 t = np.broadcast_to((np.arange(K)[:, None] * self.dt + pd.offsets[None, :]).ravel(), y.shape)
             else:
-                y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
+                y = np.einsum("bkz,bz->bk", Z, Cy) + Dy[:, inp, None]
+                t = np.broadcast_to(np.arange(K) * self.dt, y.shape)
         return y, u, t, self._final(cl, inp)
 
     def _simulate_fine_delay(self, pd, num, den, T, num_r, inp):
