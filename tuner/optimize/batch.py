@@ -386,11 +386,12 @@ class BatchEvaluator:
         num = np.where(ok[:, None], num, 0.0)
         den = np.where(ok[:, None], den, 1.0)
         per_plant = [self._evaluate_plant(pd, num, den, ok, num_r) for pd in self.plants]
-        if "ki" in self._needs:  # the controller's own figure (every plant alike): |Ki|
-            ki = np.abs(self.integral_gain(X))
+        # the controller's own figure (every plant alike): |Ki|, once a batch
+        ki = np.abs(self.integral_gain(X)) if "ki" in self._needs or self.spec.objective == "ie" else None
+        if "ki" in self._needs:
             for m in per_plant:
                 m["ki"] = ki
-        return self._combine(per_plant, X)
+        return self._combine(per_plant, X, ki)
 
     def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None) -> dict[str, np.ndarray]:
         """One plant's metrics; ``num_r``: the 2-DOF reference path (the frequency metrics are the feedback's)."""
@@ -727,7 +728,8 @@ class BatchEvaluator:
 
     # -- scoring --------------------------------------------------------------------------------
 
-    def _combine(self, per_plant: list[dict[str, np.ndarray]], X: np.ndarray) -> BatchResult:
+    def _combine(self, per_plant: list[dict[str, np.ndarray]], X: np.ndarray, ki: np.ndarray | None = None
+                 ) -> BatchResult:
         spec = self.spec
         Bn = X.shape[0]
         viol = np.zeros(Bn)
@@ -757,7 +759,7 @@ class BatchEvaluator:
                 v += np.where(np.isfinite(err), np.maximum(err - 0.9 * CROSSOVER_TOL, 0.0), 10.0)
             v += np.where(np.isfinite(m["settling_time_s"]), 0.0, 10.0)
             viol += v
-            obj = np.maximum(obj, self._objective(m, X))
+            obj = np.maximum(obj, self._objective(m, X, ki))
         if rules.applies(self.st, spec):  # the derivative-filter rule, on the parameters
             viol += _viol_le(rules.filter_n_batch(self.st, X), spec.filter_n_max, spec.filter_n_max)
         score = np.where(viol > 0, INFEASIBLE * (1.0 + viol), obj)
@@ -768,7 +770,7 @@ class BatchEvaluator:
                    ("settling_time_s", "overshoot_pct", "control_peak")}
         return BatchResult(score=score, feasible=feasible, violation=viol, metrics=metrics, per_plant=per_plant)
 
-    def _objective(self, m: dict[str, np.ndarray], X: np.ndarray) -> np.ndarray:
+    def _objective(self, m: dict[str, np.ndarray], X: np.ndarray, ki: np.ndarray | None = None) -> np.ndarray:
         o = self.spec.objective
         if o == "settling_time":
             return m["settling_time_s"]
@@ -777,7 +779,7 @@ class BatchEvaluator:
         if o == "itae":
             return m["itae"]
         if o == "ie":  # |1/Ki|: a stabilising Ki has the sign of the plant's static gain (negative for G(0) < 0)
-            ki = np.abs(self.integral_gain(X))
+            ki = np.abs(self.integral_gain(X)) if ki is None else ki
             return np.where(ki > 0, 1.0 / np.where(ki > 0, ki, 1.0), np.inf)
         if o == "mks":
             return m["mks"]
