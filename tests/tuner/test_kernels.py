@@ -57,6 +57,7 @@ def _pair(name: str, load_recovery: bool):
     a, b = BatchEvaluator(problem, space), BatchEvaluator(problem, space)
     a.kernels, b.kernels = None, batch_mod.kernels(compile_now=True)
     a.load_recovery = b.load_recovery = load_recovery
+    a.all_figures = b.all_figures = True  # (the ITAE too, whatever the objective)
     return a, b, space
 
 

@@ -106,7 +106,7 @@ def _contract(loops: list[tuple]) -> tuple[int, int, list[str]]:
         x[gains] *= gain
         batch = BatchEvaluator(prob, space).evaluate(x[None])
         m = {k: float(np.asarray(val)[0]) for k, val in batch.per_plant[0].items() if np.ndim(val) == 1}
-        for o in ("iae",):  # computed by the batch only when it is the objective
+        for o in ("iae", "itae"):  # computed by the batch only when it is the objective
             prob_o = TuningProblem.build([plant], structure=st, spec=spec.model_copy(update={"objective": o}), dt=dt)
             m[o] = float(BatchEvaluator(prob_o, space).evaluate(x[None]).per_plant[0][o][0])
         a = analyze_loop(build_loop(plant, prob.structure.tf(x, dt)), prob.spec)

@@ -225,13 +225,31 @@ def steady_state(loop: Loop, *, load: bool = False) -> tuple[float, float]:
 # -- simulation ----------------------------------------------------------------------------------
 
 def _run(A: np.ndarray, b: np.ndarray, K: int) -> np.ndarray:
-    """States z_0 = 0, z_{k+1} = A z_k + b for k < K (a unit step input), as a (K, n) array."""
+    """States z_0 = 0, z_{k+1} = A z_k + b for k < K (a unit step input), as a (K, n) array.
+
+    In blocks of ``M`` (about sqrt(K)) states: ``z_{k0+j} = A^j z_{k0} + s_j`` (``s_j`` the states from zero, j < M),
+    the powers ``A^j`` and ``s_j`` built once by the recursion itself, then one matrix-vector product per block
+    instead of one per state. Each state is at most ``M`` steps of the recursion from the previous block's start:
+    its rounding is that of stepping (no eigen-decomposition, no powers by squaring), and the block's start
+    ``z_{k0+M} = A^M z_{k0} + s_M`` carries the recursion on."""
     n = A.shape[0]
     Z = np.zeros((K, n))
+    if K <= 1 or n == 0:
+        return Z
+    M = max(1, min(K, math.isqrt(K - 1) + 1))
+    P = np.empty((M, n, n))  # A^j
+    S = np.zeros((M, n))  # s_j: the states from z_0 = 0
+    P[0] = np.eye(n)
+    for j in range(1, M):
+        P[j] = A @ P[j - 1]
+        S[j] = A @ S[j - 1] + b
+    AM, sM = A @ P[M - 1], A @ S[M - 1] + b
+    Q = P.reshape(M * n, n)
     z = np.zeros(n)
-    for k in range(K):
-        Z[k] = z
-        z = A @ z + b
+    for k0 in range(0, K, M):
+        m = min(M, K - k0)
+        Z[k0:k0 + m] = (Q[:m * n] @ z).reshape(m, n) + S[:m]
+        z = AM @ z + sM
     return Z
 
 

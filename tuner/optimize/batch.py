@@ -300,6 +300,9 @@ class BatchEvaluator:
         #: compute the load step's recovery time too (``load_recovery_s``: as the verifier's, the last time |y| is above
         #: 2 % of its peak; inf where not back within the horizon), the load stage's measure
         self.load_recovery = False
+        #: compute the reference step's ITAE (``itae``) whatever the objective (by default only where the objective is
+        #: ``itae``: no limit reads it, and it is a quarter of a sampled row's work after its simulation; nan otherwise)
+        self.all_figures = False
         #: per plant: the phase and gain margins it must keep (the spec's; a gain-variation member's its own)
         self.margins = [(q.phase_margin_min_deg, q.gain_margin_min_db) for q in problem.specs]
         sp = self.spec
@@ -392,11 +395,12 @@ class BatchEvaluator:
         num = np.where(ok[:, None], num, 0.0)
         den = np.where(ok[:, None], den, 1.0)
         per_plant = [self._evaluate_plant(pd, num, den, ok, num_r) for pd in self.plants]
-        if "ki" in self._needs:  # the controller's own figure (every plant alike): |Ki|
-            ki = np.abs(self.integral_gain(X))
+        # the controller's own figure (every plant alike): |Ki|, once a batch
+        ki = np.abs(self.integral_gain(X)) if "ki" in self._needs or self.spec.objective == "ie" else None
+        if "ki" in self._needs:
             for m in per_plant:
                 m["ki"] = ki
-        return self._combine(per_plant, X)
+        return self._combine(per_plant, X, ki)
 
     def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None) -> dict[str, np.ndarray]:
         """One plant's metrics; ``num_r``: the 2-DOF reference path (the frequency metrics are the feedback's)."""
@@ -597,6 +601,7 @@ class BatchEvaluator:
         spec = self.spec
         Bn = cl.A.shape[0]
         need_load = spec.objective == "iae" or self.load_recovery
+        need_itae = spec.objective == "itae" or self.all_figures
         res = {k: np.full(Bn, np.nan) for k in ("overshoot_pct", "steady_state_error", "control_peak", "iae",
                                                    "itae", "load_recovery_s")}
         res["settling_time_s"] = np.full(Bn, np.inf)
@@ -634,11 +639,12 @@ class BatchEvaluator:
                 res["settling_time_s"][sel] = np.where(np.isfinite(yf) & (yf != 0), ts, np.inf)
                 res["overshoot_pct"][sel] = np.maximum(0.0, (np.max(yn, axis=1) - 1.0) * 100.0)
                 res["steady_state_error"][sel] = 1.0 - yf
-                res["control_peak"][sel] = np.max(np.abs(u), axis=1)
+                res["control_peak"][sel] = np.max(np.abs(u), axis=1)  # (u per sample: its rows between are alike)
                 if self.dt is None and pd.tau:  # the Tustin controller's first output is C(2/h), not the kick C(inf)
                     lead = (num_r[sel] if num_r is not None else num[sel])[:, 0] / den[sel][:, 0]
                     res["control_peak"][sel] = np.maximum(res["control_peak"][sel], np.abs(lead))
-                res["itae"][sel] = np.trapezoid(t * np.abs(1.0 - y), t, axis=1)
+                if need_itae:
+                    res["itae"][sel] = np.trapezoid(t * np.abs(1.0 - y), t, axis=1)
                 if need_load:
                     yl, _, tl, _ = sim(*args, 1)
                     res["iae"][sel] = np.trapezoid(np.abs(yl), tl, axis=1)
@@ -669,7 +675,8 @@ class BatchEvaluator:
             res["overshoot_pct"][sel] = ov
             res["steady_state_error"][sel] = 1.0 - yf
             res["control_peak"][sel] = cpk
-            res["itae"][sel] = itae
+            if self.spec.objective == "itae" or self.all_figures:
+                res["itae"][sel] = itae
             if need_load:
                 _, _, _, _, iae, rec = self.kernels.step_sampled(*args(1), np.ones(len(sel)), band, False, True,
                                                                  bool(self.load_recovery), LOAD_RECOVERY_SHARE)
@@ -685,7 +692,8 @@ class BatchEvaluator:
         return np.einsum("bz,bz->b", zf, cl.Cy) + cl.Dy[:, inp]
 
     def _simulate(self, pd: _PlantData, cl: StackedLoops, T, K, inp):
-        """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points)."""
+        """Unit step responses of stacked closed loops: (y, u, t, y_final), t per row (B, points); ``u`` at the
+        points, or (the rows between samples) once a sample."""
         A, Bm, Cy, Dy, Cu, Du, Ca, Da, n = cl.A, cl.Bm, cl.Cy, cl.Dy, cl.Cu, cl.Du, cl.Ca, cl.Da, cl.n_plant
         Bn, nz, _ = A.shape
         if self.dt is None:  # continuous, no delay: exact discretisation at each row's own fine step
@@ -701,17 +709,16 @@ class BatchEvaluator:
             t = np.arange(K)[None, :] * h[:, None]
         else:
             Z = _run(A, Bm[:, :, inp], K)
-            ys = np.einsum("bkz,bz->bk", Z, Cy) + Dy[:, inp, None]
             u = np.einsum("bkz,bz->bk", Z, Cu) + Du[:, inp, None]
-            if pd.Cf is not None:
+            if pd.Cf is not None:  # (the output between the samples: its rows at the samples are the output there)
                 ua = np.einsum("bkz,bz->bk", Z, Ca) + Da[:, inp, None]
                 y = (np.einsum("bkn,jn->bkj", Z[:, :, :n], pd.Cf) + ua[:, :, None] * pd.Df[None, None, :])
                 nf = pd.Cf.shape[0]
                 y = y.reshape(Bn, K * nf)
-                u = np.repeat(u, nf, axis=1)
                 t = np.broadcast_to((np.arange(K)[:, None] * self.dt + pd.offsets[None, :]).ravel(), y.shape)
             else:
-                y, t = ys, np.broadcast_to(np.arange(K) * self.dt, ys.shape)
+                y = np.einsum("bkz,bz->bk", Z, Cy) + Dy[:, inp, None]
+                t = np.broadcast_to(np.arange(K) * self.dt, y.shape)
         return y, u, t, self._final(cl, inp)
 
     def _simulate_fine_delay(self, pd, num, den, T, num_r, inp):
@@ -730,7 +737,8 @@ class BatchEvaluator:
 
     # -- scoring --------------------------------------------------------------------------------
 
-    def _combine(self, per_plant: list[dict[str, np.ndarray]], X: np.ndarray) -> BatchResult:
+    def _combine(self, per_plant: list[dict[str, np.ndarray]], X: np.ndarray, ki: np.ndarray | None = None
+                 ) -> BatchResult:
         spec = self.spec
         Bn = X.shape[0]
         viol = np.zeros(Bn)
@@ -760,7 +768,7 @@ class BatchEvaluator:
                 v += np.where(np.isfinite(err), np.maximum(err - 0.9 * CROSSOVER_TOL, 0.0), 10.0)
             v += np.where(np.isfinite(m["settling_time_s"]), 0.0, 10.0)
             viol += v
-            obj = np.maximum(obj, self._objective(m, X))
+            obj = np.maximum(obj, self._objective(m, X, ki))
         if rules.applies(self.st, spec):  # the derivative-filter rule, on the parameters
             viol += _viol_le(rules.filter_n_batch(self.st, X), spec.filter_n_max, spec.filter_n_max)
         score = np.where(viol > 0, INFEASIBLE * (1.0 + viol), obj)
@@ -771,7 +779,7 @@ class BatchEvaluator:
                    ("settling_time_s", "overshoot_pct", "control_peak")}
         return BatchResult(score=score, feasible=feasible, violation=viol, metrics=metrics, per_plant=per_plant)
 
-    def _objective(self, m: dict[str, np.ndarray], X: np.ndarray) -> np.ndarray:
+    def _objective(self, m: dict[str, np.ndarray], X: np.ndarray, ki: np.ndarray | None = None) -> np.ndarray:
         o = self.spec.objective
         if o == "settling_time":
             return m["settling_time_s"]
@@ -780,7 +788,7 @@ class BatchEvaluator:
         if o == "itae":
             return m["itae"]
         if o == "ie":  # |1/Ki|: a stabilising Ki has the sign of the plant's static gain (negative for G(0) < 0)
-            ki = np.abs(self.integral_gain(X))
+            ki = np.abs(self.integral_gain(X)) if ki is None else ki
             return np.where(ki > 0, 1.0 / np.where(ki > 0, ki, 1.0), np.inf)
         if o == "mks":
             return m["mks"]

@@ -58,6 +58,9 @@ POLL_STEP = 0.04  # the pattern search's first step, in search coordinates (abou
 POLL_MIN_STEP = 0.003
 POLL_ITERATIONS = 25
 PENALTY = 1e3  # the merit of a candidate that fails a constraint: above every settling time
+#: the load stage runs levels ahead of their turn beside others (see :func:`raise_integral`; False: each level at its
+#: turn alone, the same answer at more batch calls)
+RUN_AHEAD = True
 
 
 @dataclass(frozen=True)
@@ -190,42 +193,75 @@ def _merit(batch: Any, X: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndar
     return np.where(np.isfinite(merit), merit, PENALTY * 1e3), ts
 
 
-def _settle_locally(batch: Any, space: Any, v: np.ndarray, free: list[int], limit: float, fixed: dict[int, float],
-                    counter: list[int]) -> tuple[np.ndarray, float]:
-    """A pattern search (Hooke-Jeeves polls along each free coordinate, both ways, the step halved when none improves)
-    over the coordinates ``free`` of ``v`` for the fastest reference step, the parameters ``fixed`` (index -> value)
-    held; ``(coordinates, merit)``."""
+class _Merits:
+    """:func:`_merit` of candidates, each distinct row scored once in a call of :func:`raise_integral` (the batch
+    scores each row on its own: a row's figures do not depend on the others in its batch, so a row met again, a
+    pattern search's poll back to where it came from, a step clipped to the box, is looked up, not simulated again)."""
+
+    def __init__(self, batch: Any, limit: float) -> None:
+        self.batch, self.limit = batch, limit
+        self.seen: dict[bytes, float] = {}
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.ascontiguousarray(X, dtype=float)
+        keys = [x.tobytes() for x in X]
+        new: dict[bytes, int] = {}
+        for j, k in enumerate(keys):
+            if k not in self.seen and k not in new:
+                new[k] = j
+        if new:
+            m, _ = _merit(self.batch, X[list(new.values())], self.limit)
+            for k, v in zip(new, m):
+                self.seen[k] = float(v)
+        return np.array([self.seen[k] for k in keys])
+
+
+def _settle_locally(merits: _Merits, space: Any, jobs: list[tuple[np.ndarray, dict[int, float]]], free: list[int]
+                    ) -> list[tuple[np.ndarray, float, int]]:
+    """Pattern searches (Hooke-Jeeves polls along each free coordinate, both ways, the step halved when none improves)
+    over the coordinates ``free`` for the fastest reference step, one per job ``(start, fixed)`` (``fixed``: index ->
+    value, the parameters held); ``(coordinates, merit, candidates scored)`` per job. The searches run side by side,
+    each poll of all of them one batch: each is the search it is alone (the batch scores each row on its own)."""
     lo, hi = space.lo, space.hi
 
-    def params(V: np.ndarray) -> np.ndarray:
+    def params(V: np.ndarray, fixed: dict[int, float]) -> np.ndarray:
         X = np.array([space.params(w) for w in V])
         for i, val in fixed.items():
             X[:, i] = val
         return X
 
-    v = np.clip(np.asarray(v, float), lo, hi)
-    m, _ = _merit(batch, params(v[None, :]), limit)
-    best = float(m[0])
-    counter[0] += 1
-    step = POLL_STEP
+    vs = [np.clip(np.asarray(v, float), lo, hi) for v, _ in jobs]
+    m = merits(np.concatenate([params(v[None, :], f) for v, (_, f) in zip(vs, jobs)]))
+    best = [float(x) for x in m]
+    count = [1] * len(jobs)
+    step = [POLL_STEP] * len(jobs)
+    live = list(range(len(jobs)))
     for _ in range(POLL_ITERATIONS):
-        V = []
-        for i in free:
-            for sgn in (1.0, -1.0):
-                w = v.copy()
-                w[i] = min(max(w[i] + sgn * step, lo[i]), hi[i])
-                V.append(w)
-        V = np.array(V)
-        m, _ = _merit(batch, params(V), limit)
-        counter[0] += len(V)
-        j = int(np.argmin(m))
-        if m[j] < best - 1e-12 * max(1.0, abs(best)):
-            v, best = V[j], float(m[j])
-        else:
-            step /= 2
-            if step < POLL_MIN_STEP:
-                break
-    return v, best
+        if not live:
+            break
+        polls = []
+        for s in live:
+            V = []
+            for i in free:
+                for sgn in (1.0, -1.0):
+                    w = vs[s].copy()
+                    w[i] = min(max(w[i] + sgn * step[s], lo[i]), hi[i])
+                    V.append(w)
+            polls.append(np.array(V))
+        m = merits(np.concatenate([params(V, jobs[s][1]) for s, V in zip(live, polls)]))
+        at = 0
+        for s, V in zip(list(live), polls):
+            ms = m[at:at + len(V)]
+            at += len(V)
+            count[s] += len(V)
+            j = int(np.argmin(ms))
+            if ms[j] < best[s] - 1e-12 * max(1.0, abs(best[s])):
+                vs[s], best[s] = V[j], float(ms[j])
+            else:
+                step[s] /= 2
+                if step[s] < POLL_MIN_STEP:
+                    live.remove(s)
+    return list(zip(vs, best, count))
 
 
 def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarray, LoadStage, Any] | None:
@@ -259,42 +295,87 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
     v0 = space.from_params(x0)
     found: dict[float, tuple[np.ndarray, float]] = {}  # integral gain -> (coordinates, worst settling)
 
-    def at(level: float, starts: list[np.ndarray]) -> None:
-        best = None
-        for start in starts:
-            w, m = _settle_locally(batch, space, start, free, horizon / 3.0, {ii: level}, counter)
-            if m < PENALTY and (best is None or m < best[1]):
-                best = (w, m)
-        if best is not None:
-            found[level] = best
+    merits = _Merits(batch, horizon / 3.0)
+    # a level's searches, run ahead of their turn beside others (one batch per poll for all of them), under the
+    # levels found when they ran: (level, its starts) -> (best, candidates scored); a level's turn takes its result
+    # only where its starts are still those (else it searches then), so the stage finds what it finds level by level
+    ahead: dict[tuple[float, bytes], tuple[tuple[np.ndarray, float] | None, int]] = {}
 
     def nearest(level: float) -> list[np.ndarray]:
         """Where a level's local search starts: the fastest design, and the found level nearest below it."""
         below = [lv for lv in found if lv < level]
         return [v0] + ([found[max(below)][0]] if below else [])
 
-    # the ray: from the fastest design's integral gain (or the box's floor) up in steps, on past levels that fail
-    # (a plant that integrates: its reference step slows as the integrator grows, then speeds up again once the
-    # integrator's own mode is fast), until RAY_MISSES fail in a row
-    i0 = float(x0[ii])
-    lv, misses = max(i0, floor), 0
-    while misses < RAY_MISSES:
-        lv *= 10.0 ** LEVEL_STEP
-        if lv > top or lv > max(i0, floor) * 10.0 ** LEVEL_DECADES:
-            break
-        n = len(found)
-        at(lv, nearest(lv))
-        misses = 0 if len(found) > n else misses + 1
+    def key(level: float) -> tuple[float, bytes]:
+        return level, b"".join(np.asarray(v, float).tobytes() for v in nearest(level))
+
+    def search(levels: list[float]) -> None:
+        """The searches of ``levels`` from their starts now, side by side, into ``ahead``."""
+        levels = list(dict.fromkeys(levels))  # (a classical level may be a ray level too)
+        jobs, owner = [], []
+        for lv in levels:
+            for start in nearest(lv):
+                jobs.append((start, {ii: lv}))
+                owner.append(lv)
+        out: dict[float, list[Any]] = {lv: [None, 0] for lv in levels}
+        for lv, (w, m, c) in zip(owner, _settle_locally(merits, space, jobs, free)):
+            o = out[lv]
+            o[1] += c
+            if m < PENALTY and (o[0] is None or m < o[0][1]):
+                o[0] = (w, m)
+        for lv in levels:
+            ahead[key(lv)] = (out[lv][0], out[lv][1])
+
+    def at(level: float, more: list[float]) -> None:
+        """The level's turn: its search's best design (meeting the spec) into ``found``; when it has not run from
+        the starts it has now, it runs with the levels ``more`` beside it."""
+        k = key(level)
+        if k not in ahead:
+            search([level] + [lv for lv in more if key(lv) not in ahead])
+        best, count = ahead.pop(k)
+        counter[0] += count
+        if best is not None:
+            found[level] = best
+
     # the classical integral times, Ti = k/wc on the fastest design's worst crossover (Astrom & Hagglund: Ti of a
     # few times 1/wc): starts the ray cannot reach from a design without integral action
     r0 = batch.evaluate(x0[None, :])
     wc = float(np.nanmin([m["wc"][0] for m in r0.per_plant])) if r0.per_plant else math.nan
     p_gain = _proportional(st, x0)
-    if math.isfinite(wc) and wc > 0 and p_gain > 0:
-        for k in TI_CROSSOVERS:
-            lv = p_gain * wc / k
-            if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found):
-                at(lv, nearest(lv))
+    classical = [p_gain * wc / k for k in TI_CROSSOVERS] if math.isfinite(wc) and wc > 0 and p_gain > 0 else []
+
+    def classical_left() -> list[float]:
+        """The classical levels the stage would try with the levels found now."""
+        return [lv for lv in classical
+                if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found)]
+
+    # the ray: from the fastest design's integral gain (or the box's floor) up in steps, on past levels that fail
+    # (a plant that integrates: its reference step slows as the integrator grows, then speeds up again once the
+    # integrator's own mode is fast), until RAY_MISSES fail in a row. Run ahead: after a level that failed, the levels
+    # up to the ray's end should they all fail (and then the classical levels too); after one that held, the next
+    i0 = float(x0[ii])
+    start = max(i0, floor)
+    end = start * 10.0 ** LEVEL_DECADES
+    lv, misses, held = start, 0, True
+    while misses < RAY_MISSES:
+        lv *= 10.0 ** LEVEL_STEP
+        if lv > top or lv > end:
+            break
+        more, nxt = [], lv
+        for _ in range(0 if held or not RUN_AHEAD else RAY_MISSES - misses - 1):
+            nxt *= 10.0 ** LEVEL_STEP
+            if nxt > top or nxt > end:
+                break
+            more.append(nxt)
+        if not held and RUN_AHEAD:
+            more += classical_left()
+        n = len(found)
+        at(lv, more)
+        held = len(found) > n
+        misses = 0 if held else misses + 1
+    for lv in classical:
+        if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found):
+            at(lv, classical_left() if RUN_AHEAD else [])
     if not found:
         return None
 
