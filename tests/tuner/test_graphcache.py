@@ -140,14 +140,16 @@ def test_a_root_that_is_not_private_is_not_used(cache, builds, monkeypatch):
         monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
         builds.clear()
         transcribe.get_problem(key, st, space)
-        assert builds == [key]  # built, the stored graph not read
-        other = path.with_name("x" + path.name)
-        assert not graphcache.save(key, space, *(lambda p: (p.nlp, p.step, p.lbg, p.ubg, p.n_v))(
-            transcribe._CACHE[key][0]))
-        assert not other.exists()
+        assert builds == [key]  # built, the stored graph not read (nor touched)
+        assert path.exists()
+        path.unlink()
+        prob = transcribe._CACHE[key][0]
+        assert not graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
+        assert not path.exists()  # (nothing written there either)
     finally:
         os.chmod(cache, 0o700)
-    assert graphcache.enabled() and graphcache.load(key, space) is not None  # (left as it was)
+    assert graphcache.enabled() and graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
+    assert graphcache.load(key, space) is not None  # (private again: used)
 
 
 def test_the_entries_are_bounded_least_recently_used_first(cache, monkeypatch):

@@ -652,10 +652,13 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
     with timed_build():
         prob = codecache.load(key, st, space, _assembler(key)) if codecache.enabled() else None
         if prob is None:
-            prob = _load_graph(key, space)  # built by an earlier process: its graph, bitwise the same problem
+            graphs = graphcache.enabled()
+            # built by an earlier process: its graph, bitwise the same problem
+            prob = _load_graph(key, space) if graphs else None
             if prob is None:
                 prob = _build(key, st, space)
-                graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
+                if graphs:
+                    graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
             codecache.schedule(key, st, space)  # compiled in the background, for the next use (any process)
     with _LOCK:
         _CACHE[key] = (prob, BYTES_PER_NODE * _estimated_nodes(key, len(st.params)))
