@@ -20,6 +20,9 @@ os.environ.setdefault("TUNER_ALLOWED_HOSTS", "127.0.0.1,localhost,::1,testserver
 # The NLPs' compiled-code cache (tuner.optimize.nlp.codecache) would start a background gcc for every problem shape
 # the suite builds: off here (tests/tuner/test_codecache.py turns it on in its own cache folder)
 os.environ.setdefault("TUNER_NLP_COMPILE", "off")
+# The NLPs' stored graphs (tuner.optimize.nlp.graphcache): off, so that every test builds what it uses, as in a fresh
+# machine (tests/tuner/test_graphcache.py turns them on in its own cache folder)
+os.environ.setdefault("TUNER_NLP_GRAPHS", "off")
 
 
 def pytest_runtest_makereport(item, call):

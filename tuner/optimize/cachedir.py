@@ -1,13 +1,15 @@
 """Where the tuner keeps what it compiles, shared by the command line, the service and the study workers:
 ``$TUNER_CACHE_DIR``, else ``$XDG_CACHE_HOME/tuner``, else ``~/.cache/tuner`` (``numba/``: the batch's kernels,
-:mod:`tuner.optimize.kernels`; ``nlp/``: the NLPs' compiled code, :mod:`tuner.optimize.nlp.codecache`). Light: it
-imports neither numba nor CasADi.
+:mod:`tuner.optimize.kernels`; ``nlp/``: the NLPs' compiled code, :mod:`tuner.optimize.nlp.codecache`;
+``nlp-graph/``: their serialized graphs, :mod:`tuner.optimize.nlp.graphcache`). Light: it imports neither numba nor
+CasADi.
 
-The root is created private (mode 0o700). Compiled code and pickled jobs are loaded only from a root that
-:func:`trusted_root` accepts (owned by the current user, not writable by group or others): from any other, the NLP
-code cache behaves as if it were off (:mod:`tuner.optimize.nlp.codecache`), silently, and the tune runs
-interpreted; the batch's kernels are neither loaded from it nor compiled into it (a process that asks for them
-compiles them into a private folder of its own; the service's and study workers' preload stays on numpy)."""
+The root is created private (mode 0o700). Compiled code, serialized graphs and pickled jobs are loaded only from a
+root that :func:`trusted_root` accepts (owned by the current user, not writable by group or others): from any other,
+the NLP code and graph caches behave as if they were off (:mod:`tuner.optimize.nlp.codecache`,
+:mod:`tuner.optimize.nlp.graphcache`), silently, and the tune builds its NLPs and runs them interpreted; the batch's
+kernels are neither loaded from it nor compiled into it (a process that asks for them compiles them into a private
+folder of its own; the service's and study workers' preload stays on numpy)."""
 
 from __future__ import annotations
 

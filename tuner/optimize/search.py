@@ -16,21 +16,33 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import optuna
 
 from .space import Space
 
 __all__ = ["SeededSearch", "default_sampler", "UNSCORABLE"]
 
 log = logging.getLogger(__name__)
-optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+
+def _optuna() -> Any:
+    """Optuna, imported on first use (its import, 0.06 s of CPU, is not paid by a tune that never asks it: the
+    default effort's), its logging at WARNING."""
+    import optuna
+
+    if not _QUIET:
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        _QUIET.append(True)
+    return optuna
+
+
+_QUIET: list[bool] = []
 
 UNSCORABLE = 1e6  # the score told for a point that could not be scored at all
 
 
-def default_sampler(seed: int, n_params: int) -> optuna.samplers.BaseSampler:
+def default_sampler(seed: int, n_params: int) -> Any:
     """The default Optuna sampler: a seeded multivariate TPE (``max(10, 4 n_params)`` start-up trials)."""
-    return optuna.samplers.TPESampler(
+    return _optuna().samplers.TPESampler(
         seed=seed, multivariate=True, group=False, n_startup_trials=max(10, 4 * n_params), constant_liar=False,
     )
 
@@ -40,6 +52,7 @@ class SeededSearch:
 
     def __init__(self, space: Space, *, seed: int, sampler: Any = None, storage: Any = None,
                  study_name: str | None = None) -> None:
+        optuna = _optuna()
         self.space = space
         self.sampler = sampler or default_sampler(seed, len(space.names))
         self.study = optuna.create_study(direction="minimize", sampler=self.sampler, storage=storage,
@@ -53,7 +66,7 @@ class SeededSearch:
 
     def tell(self, V: Sequence[np.ndarray], scores: Sequence[float]) -> None:
         """Add points scored elsewhere as completed trials (one storage call)."""
-        trials = [optuna.trial.create_trial(params=self._params(v), distributions=self.dists,
+        trials = [_optuna().trial.create_trial(params=self._params(v), distributions=self.dists,
                                             value=float(s) if math.isfinite(s) else UNSCORABLE)
                   for v, s in zip(V, scores)]
         if trials:

@@ -4,7 +4,7 @@ Structure key = (controller structure, continuous or discrete, plant sizes and d
 horizon K, points per sample N (optionally only over the first ``head`` samples, ``tail_N`` after them),
 which constraints exist, the objective, the solver). Plant data, dt, the spec's numbers, the frequency
 grid and the time grid enter as parameters, so re-solving from another start, or for another plant of
-the same sizes, does not rebuild anything (``BUILDS`` counts real builds).
+the same sizes, does not rebuild anything (``BUILDS`` counts real builds, and solvers made of a stored graph).
 
 Decision variables: the structure's coordinates ``v`` (see :mod:`tuner.optimize.space`; gains
 linear in their plant-based unit, frequencies logarithmic), the band slack, and per plant the
@@ -63,7 +63,7 @@ import numpy as np
 from ...controllers import Structure
 from ..builds import timed_build
 from ..space import Space
-from . import codecache
+from . import codecache, graphcache
 from .layout import Layout
 
 __all__ = ["ProblemKey", "Problem", "get_problem", "working_set", "estimated_build_s", "is_built", "cached_count",
@@ -171,6 +171,7 @@ class Problem:
     variables: Layout  # the decision vector x
     step: Any = None  # casadi Function (x, p) -> the reference-step outputs of every plant, stacked (key.points each)
     compiled: bool = False  # the solver and step are the cache's compiled code (codecache), not the interpreted graph
+    nlp: Any = None  # the casadi Function (x, p) -> (f, g) the interpreted solver is made of (graphcache stores it)
 
 
 # the spec's numbers and the steps, in the parameter vector (see refine for their values)
@@ -504,8 +505,9 @@ def sqp_options() -> dict[str, Any]:
             "qpsol_options": {"error_on_fail": False}}
 
 
-def _solver(key: ProblemKey, nlp: dict[str, Any] | str) -> Any:
-    """The NLP's solver: ``nlp`` the expressions, or the shared library of their compiled code (codecache)."""
+def _solver(key: ProblemKey, nlp: Any) -> Any:
+    """The NLP's solver: ``nlp`` the Function ``(x, p) -> (f, g)`` (built, or deserialized by graphcache), or the
+    shared library of its compiled code (codecache)."""
     if key.solver == "sqp":
         return cs.nlpsol(f"tune_{key.structure.partition('(')[0]}", "sqpmethod", nlp, sqp_options())
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 150,
@@ -576,10 +578,22 @@ def _build(key: ProblemKey, st: Structure, space: Space) -> Problem:
             yl, _ = _responses(key, i, ctrl, P, 0.0, 1.0)
             terms.append(cs.dot(P["tw"], cs.sqrt(yl ** 2 + P["eps"] ** 2)))
     f = _objective(key, terms, cnum, cden, P, X)
-    nlp = {"x": xvar, "p": p, "f": f, "g": cs.vertcat(*c.g)}
+    # (the Function nlpsol would make of the expressions {x, p, f, g}, made here: graphcache stores it)
+    nlp = cs.Function("nlp", [xvar, p], [f, cs.vertcat(*c.g)], ["x", "p"], ["f", "g"])
     return Problem(key=key, solver=_solver(key, nlp), n_v=nv, lbg=np.array(c.lbg, dtype=float),
                    ubg=np.array(c.ubg, dtype=float), params=play, variables=xlay,
-                   step=cs.Function("step", [xvar, p], [cs.vertcat(*outputs)]))
+                   step=cs.Function("step", [xvar, p], [cs.vertcat(*outputs)]), nlp=nlp)
+
+
+def _load_graph(key: ProblemKey, space: Space) -> Problem | None:
+    """The problem of ``key`` made of its stored graph (:mod:`~tuner.optimize.nlp.graphcache`), or None."""
+    parts = graphcache.load(key, space)
+    if parts is None:
+        return None
+    nlp, step, lbg, ubg, nv = parts
+    BUILDS["count"] += 1  # (a solver made: its plugins loaded, as a build's)
+    return Problem(key=key, solver=_solver(key, nlp), n_v=nv, lbg=lbg, ubg=ubg, params=parameter_layout(key, nv),
+                   variables=variable_layout(key, nv), step=step, nlp=nlp)
 
 
 # what a build costs, estimated before it starts, from its size alone (the same estimate on every machine and in
@@ -638,7 +652,13 @@ def get_problem(key: ProblemKey, st: Structure, space: Space) -> Problem:
     with timed_build():
         prob = codecache.load(key, st, space, _assembler(key)) if codecache.enabled() else None
         if prob is None:
-            prob = _build(key, st, space)
+            graphs = graphcache.enabled()
+            # built by an earlier process: its graph, bitwise the same problem
+            prob = _load_graph(key, space) if graphs else None
+            if prob is None:
+                prob = _build(key, st, space)
+                if graphs:
+                    graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
             codecache.schedule(key, st, space)  # compiled in the background, for the next use (any process)
     with _LOCK:
         _CACHE[key] = (prob, BYTES_PER_NODE * _estimated_nodes(key, len(st.params)))

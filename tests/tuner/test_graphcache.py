@@ -1,0 +1,165 @@
+"""The NLPs' stored graphs (tuner.optimize.nlp.graphcache): a later process makes each shape's solver of the graph
+an earlier one built, and it answers bitwise as the built one (every tune's gains and figures, every solve's
+outputs); a corrupt entry is deleted and built again, never used; a cache root that is not private is not used."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections import OrderedDict
+
+import numpy as np
+import pytest
+
+from tuner import tune
+from tuner.optimize import batch
+from tuner.optimize.nlp import graphcache, transcribe
+from tuner.plant import make_plant
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX modes")
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    root = tmp_path / "cache"
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(root))
+    monkeypatch.setenv("TUNER_NLP_GRAPHS", "on")
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "off")
+    monkeypatch.setenv("TUNER_KERNELS", "off")  # (the NLP alone: the batch on one path throughout)
+    monkeypatch.setitem(batch._KERNELS, "module", None)
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    return root
+
+
+@pytest.fixture
+def builds(monkeypatch):
+    """The shapes built (not loaded) from now on."""
+    built = []
+    real = transcribe._build
+    monkeypatch.setattr(transcribe, "_build", lambda key, st, space: built.append(key) or real(key, st, space))
+    return built
+
+
+def _tune(seed=3):
+    r = tune(make_plant([1.0], [1.0, 2.0, 1.0]), structure="pid", dt=0.1, seed=seed, diagnose=False)
+    return r.gains, r.metrics.settling_time_s, r.metrics.overshoot_pct
+
+
+def _shape_of(key):
+    from tuner.controllers import get_structure
+    from tuner.optimize.space import make_space
+    from tuner.problem import TuningProblem
+
+    plant = make_plant([1.0], [1.0, 2.0, 1.0])
+    problem = TuningProblem.build(plant, structure=get_structure("pid"), dt=0.1)
+    return problem.structure, make_space(problem.structure, plant, 0.1, scale=problem.scale)
+
+
+def test_a_stored_graph_answers_bitwise_as_the_built_one(cache, builds, monkeypatch):
+    with monkeypatch.context() as m:  # the reference: nothing stored, nothing loaded
+        m.setenv("TUNER_NLP_GRAPHS", "off")
+        ref = [_tune(seed) for seed in (3, 4)]
+    assert not (cache / "nlp-graph").exists()
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    builds.clear()
+    first = [_tune(seed) for seed in (3, 4)]  # builds, and stores each shape
+    keys = list(dict.fromkeys(builds))
+    assert keys and len(list((cache / "nlp-graph").glob("*.npz"))) == len(keys)
+    assert not list((cache / "nlp-graph").glob("*.tmp"))
+    # a fresh process's view: nothing in memory, every shape from the disk
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    builds.clear()
+    second = [_tune(seed) for seed in (3, 4)]
+    assert builds == []  # loaded, none built
+    assert first == ref and second == ref  # bitwise
+    # one solve (from a start away from the optimum), both ways, on the same inputs: every output bitwise
+    key = keys[-1]
+    st, space = _shape_of(key)
+    built, loaded = transcribe._build(key, st, space), transcribe._load_graph(key, space)
+    assert loaded is not None and loaded.nlp is not None
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        x0 = rng.standard_normal(built.variables.size) * 0.3
+        p = np.abs(rng.standard_normal(built.params.size)) + 0.5
+        args = {"x0": x0, "p": p, "lbg": built.lbg, "ubg": built.ubg}
+        rb, rl = built.solver(**args), loaded.solver(**args)
+        for k in ("x", "f", "g", "lam_g", "lam_x"):
+            assert np.array_equal(np.asarray(rb[k]), np.asarray(rl[k]), equal_nan=True), k
+        assert built.solver.stats()["iter_count"] == loaded.solver.stats()["iter_count"]
+        assert np.array_equal(np.asarray(built.step(x0, p)), np.asarray(loaded.step(x0, p)), equal_nan=True)
+    assert np.array_equal(built.lbg, loaded.lbg) and np.array_equal(built.ubg, loaded.ubg)
+
+
+def test_a_corrupt_entry_is_deleted_and_rebuilt_not_used(cache, builds, monkeypatch):
+    _tune()
+    key = builds[0]
+    st, space = _shape_of(key)
+    path = graphcache.entry_path(key, space)
+    good = path.read_bytes()
+    assert graphcache.load(key, space) is not None
+    for damage in ("flip", "truncate", "foreign"):
+        blob = bytearray(good)
+        if damage == "flip":  # a byte of the serialized graph changed: the checksum no longer matches
+            blob[len(blob) // 2] ^= 0xFF
+        elif damage == "truncate":
+            blob = blob[: len(blob) // 3]
+        else:  # a consistent checksum over something that is not this shape's NLP: the signature check
+            import hashlib
+            import io
+
+            import casadi as cs
+
+            x = cs.SX.sym("x")
+            buf = io.BytesIO()
+            np.savez(buf, fg=np.frombuffer(cs.Function("f", [x], [x]).serialize().encode(), np.uint8),
+                     step=np.frombuffer(cs.Function("s", [x], [x]).serialize().encode(), np.uint8),
+                     lbg=np.zeros(1), ubg=np.zeros(1), n_v=np.int64(1))
+            blob = bytearray(hashlib.sha256(buf.getvalue()).hexdigest().encode() + b"\n" + buf.getvalue())
+        path.write_bytes(bytes(blob))
+        assert graphcache.load(key, space) is None, damage
+        assert not path.exists(), damage  # deleted: the next use builds it again
+        # the tune's view: built (not loaded), stored again whole
+        path.write_bytes(bytes(blob))
+        monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+        builds.clear()
+        transcribe.get_problem(key, st, space)
+        assert builds == [key], damage
+        assert graphcache.load(key, space) is not None
+
+
+def test_a_root_that_is_not_private_is_not_used(cache, builds, monkeypatch):
+    _tune()
+    key = builds[0]
+    st, space = _shape_of(key)
+    path = graphcache.entry_path(key, space)
+    assert path.exists() and graphcache.load(key, space) is not None
+    os.chmod(cache, 0o777)  # writable by others: what is in it may be anyone's
+    try:
+        assert not graphcache.enabled()
+        assert graphcache.load(key, space) is None
+        monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+        builds.clear()
+        transcribe.get_problem(key, st, space)
+        assert builds == [key]  # built, the stored graph not read (nor touched)
+        assert path.exists()
+        path.unlink()
+        prob = transcribe._CACHE[key][0]
+        assert not graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
+        assert not path.exists()  # (nothing written there either)
+    finally:
+        os.chmod(cache, 0o700)
+    assert graphcache.enabled() and graphcache.save(key, space, prob.nlp, prob.step, prob.lbg, prob.ubg, prob.n_v)
+    assert graphcache.load(key, space) is not None  # (private again: used)
+
+
+def test_the_entries_are_bounded_least_recently_used_first(cache, monkeypatch):
+    root = cache / "nlp-graph"
+    root.mkdir(parents=True)
+    for i, name in enumerate(("a", "b", "c")):
+        f = root / f"{name}.npz"
+        f.write_bytes(b"0" * 2**20)
+        os.utime(f, (1000 + i, 1000 + i))
+    os.utime(root / "a.npz", (5000, 5000))  # a used last
+    monkeypatch.setenv("TUNER_NLP_GRAPH_MB", "2.5")
+    graphcache._trim(root)
+    assert sorted(p.name for p in root.glob("*.npz")) == ["a.npz", "c.npz"]

@@ -1,0 +1,165 @@
+"""The NLPs' expression graphs, on disk: what a cold process would otherwise build again (the command line's second
+``tuner tune`` of a loop, a new service or study worker), kept across processes without a compiler.
+
+A shape's build (:func:`tuner.optimize.nlp.transcribe.get_problem`) writes its entry (:func:`save`): the NLP's
+``(x, p) -> (f, g)`` and the step-response Function, each in CasADi's own serialization (``Function.serialize``),
+with the constraint bounds. A later process loads the entry (:func:`load`) and makes the solver of the deserialized
+``(f, g)`` Function (``nlpsol``: CasADi derives the solver's derivative functions again, which is faster than
+deserializing them; the whole serialized solver was measured no faster to load than to build for px4_rate's
+shapes). The loaded problem's graph is the built one's node for node, so the solver answers bitwise as the built
+one (tests/tuner/test_graphcache.py).
+
+Measured (CPU, 2-core machine): the README's roll loop's four shapes build in 0.81 s and load in 0.24 s (0.06 s of
+it deserializing); px4_rate's six in 7.6 s and 5.8 s (``nlpsol``'s derivatives of the K = 1536 shape, 2.5 s, are
+paid either way).
+
+The same rules as the compiled-code cache (:mod:`tuner.optimize.nlp.codecache`): only in a root that
+:func:`tuner.optimize.cachedir.trusted_root` accepts (a deserialized CasADi Function can name a shared library to
+load: it is code), under ``nlp-graph/``; each entry is one file, written to a temporary name and moved into place by
+one rename, whose first line is the SHA-256 of the rest; the key holds the hash of the sources that write the NLP
+(as codecache's), CasADi's version and :data:`FORMAT`; an entry whose checksum does not match, or that does not
+deserialize to the NLP's signature, is deleted and built again, never used. The entries are bounded by
+:data:`CACHE_MB` (``TUNER_NLP_GRAPH_MB``), the least recently used removed first. ``TUNER_NLP_GRAPHS=off`` turns
+it off (every shape built)."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cachedir import cache_root, trusted_root
+from .codecache import _SOURCES
+
+__all__ = ["enabled", "entry_path", "load", "save", "CACHE_MB", "FORMAT"]
+
+FORMAT = 1  # the entry's layout (a change here: bump it)
+CACHE_MB = 2048.0  # the entries' total, at most (px4_rate's shapes: 70 MB; the roll loop's: 5 MB)
+_MEMO: dict[Any, str] = {}  # the sources' hash, each shape's digest (per process)
+
+
+def enabled() -> bool:
+    """The graph cache is on (``TUNER_NLP_GRAPHS`` not ``off``) and its root is safe to load from."""
+    if os.environ.get("TUNER_NLP_GRAPHS", "on").strip().lower() in ("off", "0", "no", "false"):
+        return False
+    return trusted_root() is not None
+
+
+def _cache_mb() -> float:
+    try:
+        mb = float(os.environ.get("TUNER_NLP_GRAPH_MB", "") or CACHE_MB)
+    except ValueError:
+        return CACHE_MB
+    return mb if mb >= 0 else CACHE_MB
+
+
+def _digest(key: Any, space: Any) -> str:
+    memo = (key, space.names, space._ratio_of)
+    if memo not in _MEMO:
+        import casadi
+
+        if "src" not in _MEMO:  # the code that writes the NLP (and this file's format): a change makes new entries
+            here = Path(__file__).parent
+            _MEMO["src"] = hashlib.sha256(b"".join((here / f).resolve().read_bytes() for f in _SOURCES)).hexdigest()
+        h = hashlib.sha256((_MEMO["src"] + repr((*memo, casadi.__version__, FORMAT))).encode())
+        _MEMO[memo] = h.hexdigest()[:32]
+    return _MEMO[memo]
+
+
+def entry_path(key: Any, space: Any) -> Path:
+    """The cache file of the problem shape ``key`` (search space ``space``)."""
+    return cache_root() / "nlp-graph" / f"{_digest(key, space)}.npz"
+
+
+def load(key: Any, space: Any) -> tuple[Any, Any, np.ndarray, np.ndarray, int] | None:
+    """The stored parts of ``key``'s problem: ``(fg, step, lbg, ubg, n_v)`` (``fg``: the Function ``(x, p) -> (f,
+    g)`` to make the solver of), or None (not there, off, or corrupt: then deleted, to be built again)."""
+    if not enabled():
+        return None
+    path = entry_path(key, space)
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    try:
+        head, _, body = blob.partition(b"\n")
+        if hashlib.sha256(body).hexdigest().encode() != head:
+            raise ValueError("checksum")
+        with np.load(io.BytesIO(body), allow_pickle=False) as z:
+            fg_s, step_s = bytes(z["fg"]).decode(), bytes(z["step"]).decode()
+            lbg, ubg, nv = np.array(z["lbg"], float), np.array(z["ubg"], float), int(z["n_v"])
+        import casadi as cs
+
+        fg, step = cs.Function.deserialize(fg_s), cs.Function.deserialize(step_s)
+        if (fg.name_in(), fg.name_out()) != (["x", "p"], ["f", "g"]) or step.n_in() != 2:
+            raise ValueError("signature")
+        if fg.size1_out(1) != lbg.size or ubg.size != lbg.size:
+            raise ValueError("bounds")
+    except Exception:  # a corrupt or foreign entry: never used, built again
+        path.unlink(missing_ok=True)
+        return None
+    try:
+        os.utime(path)  # (used: the last to be removed)
+    except OSError:
+        pass
+    return fg, step, lbg, ubg, nv
+
+
+def save(key: Any, space: Any, fg: Any, step: Any, lbg: np.ndarray, ubg: np.ndarray, n_v: int) -> bool:
+    """Store the parts of ``key``'s built problem (whole: a temporary file renamed into place); then the least
+    recently used entries beyond :data:`CACHE_MB` removed. True if written."""
+    if not enabled():
+        return False
+    path = entry_path(key, space)
+    if path.exists():
+        return False
+    buf = io.BytesIO()
+    np.savez(buf, fg=np.frombuffer(fg.serialize().encode(), np.uint8),
+             step=np.frombuffer(step.serialize().encode(), np.uint8),
+             lbg=np.asarray(lbg, float), ubg=np.asarray(ubg, float), n_v=np.int64(n_v))
+    body = buf.getvalue()
+    tmp = None
+    try:
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            f.write(hashlib.sha256(body).hexdigest().encode() + b"\n")
+            f.write(body)
+        os.replace(tmp, path)  # whole or not at all
+    except OSError:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        return False
+    _trim(path.parent)
+    return True
+
+
+def _trim(root: Path) -> None:
+    """Remove the least recently used entries while they total more than :data:`CACHE_MB` (and what a killed
+    writer left: temporary files older than an hour)."""
+    import time
+
+    for p in root.glob("*.tmp"):
+        try:
+            if time.time() - p.stat().st_mtime > 3600:
+                p.unlink()
+        except OSError:
+            pass
+    entries = []
+    for p in root.glob("*.npz"):
+        try:
+            st = p.stat()
+        except OSError:
+            continue
+        entries.append((st.st_mtime, st.st_size, p))
+    total, cap = sum(e[1] for e in entries), _cache_mb() * 2**20
+    for _, size, p in sorted(entries):
+        if total <= cap:
+            break
+        p.unlink(missing_ok=True)
+        total -= size
