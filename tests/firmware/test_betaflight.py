@@ -117,6 +117,8 @@ def test_a_word_where_the_law_reads_a_number_is_refused_and_a_filter_beyond_its_
     # had no upper end, so 1e30 Hz was read without a word; settings.c takes 0-LPF_MAX_HZ, 1000)
     with pytest.raises(TunerError, match=r"quad.txt line \d+: p_roll = 'abc' is not a number"):
         vehicle_from_text(DUMP + "set p_roll = abc\n", axis="roll", source="quad.txt")
+    with pytest.raises(TunerError, match=r"dterm_lpf1_type = 'PT4' is not a D-term low-pass type"):
+        vehicle_from_text(DUMP + "set dterm_lpf1_type = PT4\n", axis="roll", source="quad.txt")
     v = vehicle_from_text(DUMP + "set craft_name = abc\nset gyro_to_use = FIRST\n", axis="roll", source="quad.txt")
     assert v.gains["P"] == 45.0 and not v.warnings  # (settings the law does not read may hold words)
     v = vehicle_from_text(DUMP + "set dterm_lpf2_static_hz = 5000\n", axis="roll", source="quad.txt")

@@ -163,3 +163,40 @@ def test_the_entries_are_bounded_least_recently_used_first(cache, monkeypatch):
     monkeypatch.setenv("TUNER_NLP_GRAPH_MB", "2.5")
     graphcache._trim(root)
     assert sorted(p.name for p in root.glob("*.npz")) == ["a.npz", "c.npz"]
+
+
+def test_only_an_entry_this_user_wrote_is_read_and_a_folder_that_cannot_be_written_is_no_crash(cache, builds,
+                                                                                                 monkeypatch):
+    """A deserialized CasADi Function can load a shared library, so the entry itself is checked on what is opened
+    (review of issue 41): a symlink in its place, or a file others may write, is not read (the shape is built); an
+    entry that is corrupt in a folder where it cannot be deleted (a read-only image) is not used, and the tune goes
+    on."""
+    reference = _tune()
+    files = sorted((cache / "nlp-graph").glob("*.npz"))
+    assert files
+    # a symlink in an entry's place (to a good entry's bytes elsewhere): not followed
+    elsewhere = cache.parent / "elsewhere.npz"
+    elsewhere.write_bytes(files[0].read_bytes())
+    files[0].unlink()
+    files[0].symlink_to(elsewhere)
+    # another entry made writable by others
+    os.chmod(files[-1], 0o666)
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    builds.clear()
+    assert _tune() == reference
+    assert len(builds) >= (2 if len(files) > 1 else 1)  # both shapes built, neither read
+    assert files[0].is_symlink() and elsewhere.exists()  # (and nothing done to what is not ours)
+    # a corrupt entry that cannot be deleted: not used, no error
+    os.chmod(files[-1], 0o600)
+    good = [f for f in files if not f.is_symlink()]
+    good[-1].write_bytes(good[-1].read_bytes()[:-50])
+    real_unlink = type(good[-1]).unlink
+
+    def refuse(self, missing_ok=False):
+        if self.parent.name == "nlp-graph":
+            raise PermissionError(13, "Read-only file system", str(self))
+        return real_unlink(self, missing_ok=missing_ok)
+
+    monkeypatch.setattr(type(good[-1]), "unlink", refuse)
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    assert _tune() == reference

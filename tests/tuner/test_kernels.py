@@ -174,3 +174,22 @@ def test_the_kernels_machine_code_is_never_loaded_from_a_cache_others_can_write(
     used = out.stdout.strip().splitlines()[-1]
     assert not used.startswith(str(root)) and os.path.basename(used).startswith("tuner-numba-")
     assert not any(root.rglob("*"))  # (nothing written into it: no numba index, no ready mark, no build lock)
+
+
+def test_a_numba_cache_dir_set_beforehand_is_held_to_the_same_rule(tmp_path):
+    """(Review of issue 41.) ``NUMBA_CACHE_DIR`` set to a folder others can write is not taken (numba would load its
+    pickled indexes and machine code from it): the kernels go to the trusted root's folder; a private one is taken."""
+    import os
+    import subprocess
+    import sys
+
+    shared, mine, root = tmp_path / "shared", tmp_path / "mine", tmp_path / "root"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    code = "import os\nfrom tuner.optimize import kernels\nprint(os.environ['NUMBA_CACHE_DIR'])\n"
+    for preset, expect in ((shared, root / "numba"), (mine, mine)):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                             env={**os.environ, "TUNER_CACHE_DIR": str(root), "NUMBA_CACHE_DIR": str(preset)})
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.strip().splitlines()[-1] == str(expect)
+    assert not any(shared.iterdir())

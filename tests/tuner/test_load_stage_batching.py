@@ -116,3 +116,20 @@ def test_running_levels_ahead_changes_nothing(monkeypatch):
     assert out[True][1] == out[False][1]
     assert out[True][1].levels >= 1 and out[True][1].evaluated > 100
     assert out[True][2] < out[False][2]
+
+
+def test_a_continuous_loop_with_a_delay_is_scored_row_by_row():
+    """(Review of issue 41.) A continuous loop with a delay is simulated at a step and over a horizon its whole batch
+    shares, so a row's figures depend on the batch it is in (PID on 1/(s+1)^2 with 0.2 s of delay: most of 24 nearby
+    rows score differently alone and together): there the load stage's merits score each row alone, as they would
+    one search at a time (the cache and the side-by-side searches would otherwise change the answer with the company
+    a row keeps)."""
+    plant = plant_from_expr("1/(s+1)^2", delay=0.2)
+    problem = TuningProblem.build(plant, structure=get_structure("pid"), dt=None, spec=Spec())
+    batch = BatchEvaluator(problem, make_space(problem.structure, plant, None, scale=problem.scale))
+    rng = np.random.default_rng(0)
+    X = np.array([1.0, 0.6, 0.3, 0.03]) * np.exp(0.3 * rng.standard_normal((24, 4)))
+    alone = np.concatenate([sp._merit(batch, X[j:j + 1], 50.0)[0] for j in range(len(X))])
+    assert np.sum(sp._merit(batch, X, 50.0)[0] != alone) > 0  # (the batch's company matters here)
+    merits = sp._Merits(batch, 50.0)
+    assert merits.alone and np.array_equal(merits(X), alone)

@@ -219,6 +219,9 @@ def read_cli(text: str, *, source: str = "parameters", field: str = "params") ->
         name, value = m.group(1), m.group(2)
         if value.upper() in _LPF_TYPES and name.endswith("_type"):
             v = _LPF_TYPES[value.upper()]
+        elif name in ("dterm_lpf1_type", "dterm_lpf2_type"):  # (a type the table does not name: never PT1 by default)
+            raise TunerError(f"{source} line {i}: {name} = {value!r} is not a D-term low-pass type Betaflight names "
+                             f"({', '.join(_LPF_TYPES)}); the tuner's model holds PT1", field=field)
         elif name in _SWITCHES and not value.replace(".", "", 1).isdigit():
             v = 0.0 if value.upper() == "OFF" else 1.0  # iterm_relax RP, RPY, ...: on
         else:

@@ -18,19 +18,42 @@ import os
 
 from .cachedir import kernels_ready_mark, trusted_root
 
+
+def _private_dir(path: str) -> bool:
+    """``path`` is a folder of this user's (created private if it is not there) that no one else can write."""
+    import stat
+
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        st = os.stat(path)
+    except OSError:
+        return False
+    return stat.S_ISDIR(st.st_mode) and not st.st_mode & 0o022 and \
+        (not hasattr(os, "getuid") or st.st_uid == os.getuid())
+
 __all__ = ["c_and_l", "margins", "step_sampled", "warm"]
 
 
 # numba's cache holds pickled indexes and machine code, loaded as they are: only from a root trusted_root accepts (the
 # user's own, writable by no one else), as the NLP code cache; from any other, a private folder of this process's own
 # (compiled again, never loaded from a folder someone else could write)
+# (a NUMBA_CACHE_DIR set beforehand is held to the same rule: taken only if it is a folder of this user's that no one
+# else can write; the private folder is removed when the process ends)
 _ROOT = trusted_root()
-if _ROOT is not None:
-    os.environ.setdefault("NUMBA_CACHE_DIR", str(_ROOT / "numba"))
+_PRESET = os.environ.get("NUMBA_CACHE_DIR", "").strip()
+if _PRESET and not _private_dir(_PRESET):
+    _PRESET = ""
+if _PRESET:
+    os.environ["NUMBA_CACHE_DIR"] = _PRESET
+elif _ROOT is not None:
+    os.environ["NUMBA_CACHE_DIR"] = str(_ROOT / "numba")
 else:
+    import atexit
+    import shutil
     import tempfile
 
-    os.environ.setdefault("NUMBA_CACHE_DIR", tempfile.mkdtemp(prefix="tuner-numba-"))
+    os.environ["NUMBA_CACHE_DIR"] = _OWN = tempfile.mkdtemp(prefix="tuner-numba-")
+    atexit.register(shutil.rmtree, _OWN, ignore_errors=True)
 
 import numba as nb  # noqa: E402 - after NUMBA_CACHE_DIR is set
 import numpy as np  # noqa: E402

@@ -53,7 +53,8 @@ def _direction_matrix(d: int) -> np.ndarray:
 
 class Sobol:
     """``Sobol(d, seed=rng)``: a scrambled Sobol' sequence in ``[0, 1)^d``; ``random_base2(m)``: its first ``2^m``
-    points (as SciPy's ``qmc.Sobol(d, scramble=True, seed=rng)`` gives them)."""
+    points (as SciPy's ``qmc.Sobol(d, scramble=True, seed=rng)`` gives them for a ``numpy.random.Generator`` ``rng``,
+    what the engine passes; an int or None seed is made a Generator here and spawned from, which SciPy does not do)."""
 
     def __init__(self, d: int, *, seed: Any) -> None:
         self.d = int(d)

@@ -49,7 +49,22 @@ COMPILE_TIMEOUT_S = 1800.0  # a compile that takes longer is abandoned (the shap
 STALE_LOCK_S = 2 * COMPILE_TIMEOUT_S
 FILES = ("nlp.so", "step.so", "meta.npz")
 _SCHEDULED: set[str] = set()  # the entries this process asked for (each once)
-_SOURCES = ("transcribe.py", "layout.py", "../space.py", "../../controllers.py")  # what writes the NLP
+# what writes the NLP: its transcription, the search space, the structures' coefficients and the firmware laws they
+# call (every module of tuner/firmware: a law's scaling or filter changed there changes the NLP; review of issue 41)
+_SOURCES = ("transcribe.py", "layout.py", "../space.py", "../../controllers.py", "../../lti.py")
+
+
+def sources_digest() -> str:
+    """The hash of the code that writes the NLPs (:data:`_SOURCES` and every module of ``tuner/firmware``), once per
+    process: the key of every compiled or stored entry, so that a change there makes new entries."""
+    if "src" not in _MEMO:
+        here = Path(__file__).parent
+        files = [(here / f).resolve() for f in _SOURCES] + sorted((here / "../../firmware").resolve().glob("*.py"))
+        h = hashlib.sha256()
+        for f in files:
+            h.update(f.name.encode() + b"\0" + f.read_bytes())
+        _MEMO["src"] = h.hexdigest()
+    return _MEMO["src"]
 FORMAT = 1  # the entry's files and how they are compiled (a change here: bump it)
 
 
@@ -74,10 +89,7 @@ def _digest(key: Any, space: Any) -> str:
     if memo not in _MEMO:
         import casadi
 
-        if "src" not in _MEMO:  # the code that writes the NLP: a change makes new entries
-            here = Path(__file__).parent
-            _MEMO["src"] = hashlib.sha256(b"".join((here / f).resolve().read_bytes() for f in _SOURCES)).hexdigest()
-        h = hashlib.sha256((_MEMO["src"] + repr((*memo, casadi.__version__, CFLAGS, FORMAT))).encode())
+        h = hashlib.sha256((sources_digest() + repr((*memo, casadi.__version__, CFLAGS, FORMAT))).encode())
         _MEMO[memo] = h.hexdigest()[:24]
     return _MEMO[memo]
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -34,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from ..cachedir import cache_root, trusted_root
-from .codecache import _SOURCES
+from .codecache import sources_digest
 
 __all__ = ["enabled", "entry_path", "load", "save", "CACHE_MB", "FORMAT"]
 
@@ -63,10 +64,8 @@ def _digest(key: Any, space: Any) -> str:
     if memo not in _MEMO:
         import casadi
 
-        if "src" not in _MEMO:  # the code that writes the NLP (and this file's format): a change makes new entries
-            here = Path(__file__).parent
-            _MEMO["src"] = hashlib.sha256(b"".join((here / f).resolve().read_bytes() for f in _SOURCES)).hexdigest()
-        h = hashlib.sha256((_MEMO["src"] + repr((*memo, casadi.__version__, FORMAT))).encode())
+        # the code that writes the NLP (and this file's format): a change makes new entries
+        h = hashlib.sha256((sources_digest() + repr((*memo, casadi.__version__, FORMAT))).encode())
         _MEMO[memo] = h.hexdigest()[:32]
     return _MEMO[memo]
 
@@ -82,9 +81,8 @@ def load(key: Any, space: Any) -> tuple[Any, Any, np.ndarray, np.ndarray, int] |
     if not enabled():
         return None
     path = entry_path(key, space)
-    try:
-        blob = path.read_bytes()
-    except OSError:
+    blob = _read_own(path)
+    if blob is None:
         return None
     try:
         head, _, body = blob.partition(b"\n")
@@ -101,13 +99,46 @@ def load(key: Any, space: Any) -> tuple[Any, Any, np.ndarray, np.ndarray, int] |
         if fg.size1_out(1) != lbg.size or ubg.size != lbg.size:
             raise ValueError("bounds")
     except Exception:  # a corrupt or foreign entry: never used, built again
-        path.unlink(missing_ok=True)
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:  # (a cache folder that cannot be written, e.g. a read-only image: the build goes on)
+            pass
         return None
     try:
         os.utime(path)  # (used: the last to be removed)
     except OSError:
         pass
     return fg, step, lbg, ubg, nv
+
+
+def _read_own(path: Path) -> bytes | None:
+    """The bytes of the entry ``path``, or None, read only if the entry and its folder are what this process wrote: a
+    deserialized CasADi Function can load a shared library, so a file someone else could have placed or changed is
+    never read (the root's own check, :func:`trusted_root`, is on the path; here the folder and the file are checked
+    on what is opened: no symlink followed, a directory / regular file owned by this user, writable by no one else)."""
+    try:
+        dfd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return None
+    try:
+        if not _own(os.fstat(dfd), stat.S_ISDIR):
+            return None
+        try:
+            fd = os.open(path.name, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0), dir_fd=dfd)
+        except OSError:
+            return None
+        with os.fdopen(fd, "rb") as f:
+            if not _own(os.fstat(f.fileno()), stat.S_ISREG):
+                return None
+            return f.read()
+    finally:
+        os.close(dfd)
+
+
+def _own(st: os.stat_result, kind: Any) -> bool:
+    """``st`` is of ``kind`` (stat.S_ISDIR / S_ISREG), owned by this user and not writable by group or others."""
+    return bool(kind(st.st_mode)) and not st.st_mode & 0o022 and \
+        (not hasattr(os, "getuid") or st.st_uid == os.getuid())
 
 
 def save(key: Any, space: Any, fg: Any, step: Any, lbg: np.ndarray, ubg: np.ndarray, n_v: int) -> bool:

@@ -724,9 +724,10 @@ def refine(ev: BatchEvaluator, space: Space, v0: np.ndarray, *, deadline: float 
     that refinements from starts settling later share one problem shape (the caller passes a multiple of its
     incumbent's settling time: a basin that settles later than that is no rival). ``above`` (with ``reach``: the
     incumbent's settling time plus the search's tolerance): the bisection stops at its first infeasible solve above
-    this (``RefineResult.cut``): the bisection never goes below a failed solve, so from there the refinement can no
-    longer reach the incumbent's value, only resolve its own optimum's, which the caller does not need (the evidence
-    rule counts such a draw as an optimum of its own, distinct from every other)."""
+    this (``RefineResult.cut``): from there the bisection goes below that value only if a later solution settles
+    earlier than asked (it then re-opens its bracket), so it mostly only resolves its own, worse optimum's value, which
+    the caller does not need (the evidence rule counts such a draw as an optimum of its own, distinct from every other:
+    more cautious, never a claim easier)."""
     res = RefineResult()
     r = _setup(ev, space, v0, res, deadline=deadline, solver=solver, incumbent=incumbent, start=start, fine=fine,
                detail=detail, build_cap=build_cap, reach=reach)
