@@ -52,14 +52,20 @@ def add_parser(sub: Any) -> None:
 
 # -- study run ------------------------------------------------------------------------------------
 
-_STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", "tuner.studies.evaluate",
-          "tuner.analysis.plots")
+# what a worker imports to tune and verify, module-level or inside its first tune: the search's engine, the
+# restarts' scrambled Sobol points (engine._restart imports scipy.stats.qmc: scipy.stats is about 0.55 s of CPU,
+# imported inside the first tune that restarts), the verifier's and the report's modules; then the figures'
+# (matplotlib, about 0.4 s), only with plots
+_STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.engine", "tuner.optimize.nlp.refine",
+          "tuner.studies.evaluate", "tuner.robust", "tuner.interop", "tuner.diagnose", "tuner.display",
+          "scipy.stats", "tuner.analysis.plots")
 
 
 def _preload_stack(plots: bool = False) -> None:
-    """Import what the workers tune with, once, before forking the workers (the plots' module, matplotlib's half
-    second of CPU, only if ``plots``: the start is serial, before any worker runs, and a worker imports it when it
-    first draws)."""
+    """Import what the workers tune (and, with ``plots``, draw) with, once, before forking the workers: a module a
+    forked worker inherits costs its CPU once for the study, one each worker imports itself costs it once per
+    worker (each worker's one-time costs are on the 2-worker run's critical path just as the parent's serial start
+    is, and twice in its CPU)."""
     import importlib
 
     for mod in _STACK:
@@ -71,11 +77,38 @@ def _load_kernels() -> None:
     """A worker's start: the batch's compiled kernels loaded and warmed (:func:`tuner.optimize.batch.preload_kernels`,
     where this machine has them), so that numba has loaded their machine code from its cache before the first tune
     (loaded lazily inside the first batch, it made that batch look dear and the search cut the worker's first loop in
-    round 0: bench/results/study_workers_issue41.md). In the worker, not before the fork: the process that runs the
-    study (a test's, a notebook's) keeps its own choice of the batch's path."""
+    round 0: bench/results/study_workers_issue41.md). A forked worker inherits them loaded and warm from
+    :func:`_prepare_fork` (this is then a no-op); a spawned one loads them here."""
     from ..optimize.batch import preload_kernels
 
     preload_kernels()
+
+
+def _prepare_fork() -> Any:
+    """The workers' shared start, once in this process before it forks them (about 0.4 s of CPU a worker paid
+    again): the batch's kernels loaded and warmed (:func:`_load_kernels`), and the objects this process holds
+    frozen out of the cyclic garbage collector (:func:`gc.freeze`), so that a worker's collections neither walk the
+    inherited objects (a quarter to a half second of CPU a worker) nor write to their pages (which copied them into
+    every worker). Returns what :func:`_after_fork` restores: the process that runs the study (a test's, a
+    notebook's) keeps its own choice of the batch's path and its own collector."""
+    import gc
+
+    from ..optimize import batch
+
+    saved = {k: batch._KERNELS[k] for k in ("module", "warm")}
+    _load_kernels()
+    gc.freeze()
+    return saved
+
+
+def _after_fork(saved: Any) -> None:
+    """This process as it was before :func:`_prepare_fork`, once its workers are forked."""
+    import gc
+
+    from ..optimize import batch
+
+    gc.unfreeze()
+    batch._KERNELS.update(saved)
 
 
 def _context() -> Any:
@@ -290,27 +323,34 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     """Run ``workers`` workers on this machine until every loop is done; returns the statuses.
 
     One path for every worker count: the workers (one included) are processes forked from this one once it has
-    imported the tuning stack (:func:`_preload_stack`; none of them does it again), and each loads the batch's
-    compiled kernels at its start (:func:`_load_kernels`), so that one worker tunes exactly as each of several does
-    (the same seed gives bitwise the same gains whatever the count: the kernels' figures agree with numpy's only to
-    rounding, and a study run in this process tuned on numpy where its forked workers tuned on the kernels). This
-    process opens the storage and starts its progress thread after the fork; the workers wake each
+    imported the tuning stack, and the plotting one with plots (:func:`_preload_stack`), and loaded and warmed the
+    batch's compiled kernels (:func:`_prepare_fork`; none of them does any of it again), so that one worker tunes
+    exactly as each of several does (the same seed gives bitwise the same gains whatever the count: the kernels'
+    figures agree with numpy's only to rounding, and a study run in this process tuned on numpy where its forked
+    workers tuned on the kernels); this process keeps its own choice of the batch's path (:func:`_after_fork`).
+    This process opens the storage and starts its progress thread after the fork; the workers wake each
     other when a loop is done, and draw the figures of the loops that are done when no loop is left for them to
-    tune (:func:`_idle_plotter`), importing matplotlib only then (a worker that never draws never pays it)."""
+    tune (:func:`_idle_plotter`)."""
     from .runner import Coordinator, Wakeup, open_storage
 
     # Optuna creates its tables on first use: once, here (workers starting together would race), with no connection
     # left open across the fork; the workers inherit what opening it imported (alembic, SQLAlchemy's dialect: about
     # half a second of CPU that each worker would pay again)
     open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
-    _preload_stack()
+    _preload_stack(plots=plots_dir is not None)
     ctx = _context()
     wakeup = Wakeup(ctx)
     pdir = str(plots_dir) if plots_dir is not None else None
     procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
                          name=f"tuner-worker-{i}") for i in range(workers)]
-    for p in procs:
-        p.start()
+    forked = ctx.get_start_method() == "fork"
+    saved = _prepare_fork() if forked else None
+    try:
+        for p in procs:
+            p.start()
+    finally:
+        if forked:
+            _after_fork(saved)
     storage = open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)
     stop = threading.Event()
     mon = None
