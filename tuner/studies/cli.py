@@ -382,6 +382,10 @@ def _evaluate_and_plot(study: Any, lp: Any, ctrls: dict[str, Any], inner_bw: flo
     return e, figs
 
 
+#: more loops to re-verify than this (none to draw) are spread over the report's processes
+POOL_MIN_LOOPS = 16
+
+
 def _evaluate_all(study: Any, ctrls: dict[str, Any], plots_dir: Path | None, jobs: int,
                   drawn: dict[str, dict[str, Path]] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Every tuned loop re-verified and plotted (unless ``drawn`` already), inner loops first (an outer
@@ -394,9 +398,13 @@ def _evaluate_all(study: Any, ctrls: dict[str, Any], plots_dir: Path | None, job
     tuned: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     todo = [lp for lp in study.order() if lp.name in ctrls]
+    # processes for loops to draw here, or for many loops: a re-verification alone takes about 10 ms (studies/
+    # process.toml's loops), and the report's processes about 0.1 s to start and be sent the study; the workers drew
+    # every figure they could (at the end of a study run, most often every one)
+    to_draw = [lp for lp in todo if plots_dir is not None and lp.name not in drawn]
     # the report's processes end with this one (like the study's workers): an idle one waits on its queue for good
     ex = ProcessPoolExecutor(min(jobs, len(todo)), mp_context=_context(), initializer=set_parent_death_signal) \
-        if jobs > 1 and len(todo) > 1 else None
+        if jobs > 1 and (len(to_draw) > 1 or len(todo) > POOL_MIN_LOOPS) else None
     try:
         while todo:
             wave = [lp for lp in todo if lp.inner is None or lp.inner in tuned]
