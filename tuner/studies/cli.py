@@ -337,13 +337,13 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     # left open across the fork; the workers inherit what opening it imported (alembic, SQLAlchemy's dialect: about
     # half a second of CPU that each worker would pay again)
     open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
-    _preload_stack(plots=plots_dir is not None)
     ctx = _context()
+    forked = ctx.get_start_method() == "fork"
+    _preload_stack(plots=plots_dir is not None and forked)  # (a spawned worker imports matplotlib when it draws)
     wakeup = Wakeup(ctx)
     pdir = str(plots_dir) if plots_dir is not None else None
     procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
                          name=f"tuner-worker-{i}") for i in range(workers)]
-    forked = ctx.get_start_method() == "fork"
     saved = _prepare_fork() if forked else None
     try:
         for p in procs:
