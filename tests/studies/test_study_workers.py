@@ -123,6 +123,7 @@ def test_the_figures_the_workers_mark_are_the_loop_plots():
     from tuner.analysis.plots import LOOP_PLOTS
 
     assert scli._FIGURES == LOOP_PLOTS
+    assert sorted(scli._DRAW_ORDER) == sorted(LOOP_PLOTS)  # (every figure, each once, the dearest first)
 
 
 def test_a_worker_draws_only_when_no_loop_is_free_and_drains_the_figures_at_the_end(tmp_path, monkeypatch):

@@ -154,6 +154,10 @@ def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
 # CPU the parent would pay at the end, serially, to read the workers' marks; tests/studies/test_study_workers.py
 # checks the two agree)
 _FIGURES = ("step", "bode", "nyquist")
+# the order idle workers draw them in, the dearest kind first (CPU a figure, studies/process.toml: Bode 0.41-0.45 s,
+# step 0.22-0.32, Nyquist 0.13-0.17; bench/study_timeline.py): the figures are the last work of a run, drawn side by
+# side, and the workers end within the last figure's cost of each other (a Nyquist's, not a Bode's)
+_DRAW_ORDER = ("bode", "step", "nyquist")
 
 
 def _marker(plots_dir: Path, name: str, kind: str) -> Path:
@@ -192,13 +196,15 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
     evals: dict[tuple[str, str], Any] = {}  # this process's evaluations (a loop's figures may fall to one process)
 
     def draw(statuses: dict[str, Any]) -> bool:
+        done = []
         for lp in study.order():
             st = statuses.get(lp.name)
             result = st.result if st is not None and st.state == "done" else None
             if lp.inner is not None or not isinstance(result, dict) or "gains" not in result:
                 continue
-            fp = _fingerprint(study, lp, result)
-            for kind in _FIGURES:
+            done.append((lp, result, _fingerprint(study, lp, result)))
+        for kind in _DRAW_ORDER:
+            for lp, result, fp in done:
                 if (lp.name, kind, fp) in tried:
                     continue
                 tried.add((lp.name, kind, fp))
