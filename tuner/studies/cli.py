@@ -52,20 +52,20 @@ def add_parser(sub: Any) -> None:
 
 # -- study run ------------------------------------------------------------------------------------
 
-# what a worker imports to tune and verify, module-level or inside its first tune: the search's engine, the
-# restarts' scrambled Sobol points (engine._restart imports scipy.stats.qmc: scipy.stats is about 0.55 s of CPU,
-# imported inside the first tune that restarts), the verifier's and the report's modules; then the figures'
-# (matplotlib, about 0.4 s), only with plots
+# what every worker imports to tune and verify, module-level or inside its first tune: the search's engine, the
+# verifier's and the report's modules. Not here: scipy.stats (about 0.55 s of CPU; engine._restart's Sobol points, only
+# in a tune that restarts) and matplotlib (about 0.4 s; only in a worker that draws): paid before the fork they are on
+# the critical path of every run, while a worker that pays them itself often does so while the other worker is still
+# tuning its last loop (on process.toml at a load of 1.3-1.7, importing both before the fork made the 2-worker run
+# about 1.4 s slower in wall, median of 6 pairs, for 1 s less CPU: bench/results/study_workers_issue41_prefork.md)
 _STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.engine", "tuner.optimize.nlp.refine",
           "tuner.studies.evaluate", "tuner.robust", "tuner.interop", "tuner.diagnose", "tuner.display",
-          "scipy.stats", "tuner.analysis.plots")
+          "tuner.analysis.plots")
 
 
 def _preload_stack(plots: bool = False) -> None:
-    """Import what the workers tune (and, with ``plots``, draw) with, once, before forking the workers: a module a
-    forked worker inherits costs its CPU once for the study, one each worker imports itself costs it once per
-    worker (each worker's one-time costs are on the 2-worker run's critical path just as the parent's serial start
-    is, and twice in its CPU)."""
+    """Import what every worker tunes with, once, before forking the workers (a module a forked worker inherits costs
+    its CPU once for the study); the plots' module only if ``plots`` (see :data:`_STACK`)."""
     import importlib
 
     for mod in _STACK:
@@ -329,7 +329,7 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     """Run ``workers`` workers on this machine until every loop is done; returns the statuses.
 
     One path for every worker count: the workers (one included) are processes forked from this one once it has
-    imported the tuning stack, and the plotting one with plots (:func:`_preload_stack`), and loaded and warmed the
+    imported the tuning stack (:func:`_preload_stack`), and loaded and warmed the
     batch's compiled kernels (:func:`_prepare_fork`; none of them does any of it again), so that one worker tunes
     exactly as each of several does (the same seed gives bitwise the same gains whatever the count: the kernels'
     figures agree with numpy's only to rounding, and a study run in this process tuned on numpy where its forked
@@ -345,7 +345,7 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
     ctx = _context()
     forked = ctx.get_start_method() == "fork"
-    _preload_stack(plots=plots_dir is not None and forked)  # (a spawned worker imports matplotlib when it draws)
+    _preload_stack()  # (matplotlib: a worker imports it when it first draws)
     wakeup = Wakeup(ctx)
     pdir = str(plots_dir) if plots_dir is not None else None
     procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
