@@ -217,6 +217,48 @@ def model(one: dict, two: dict) -> dict:
             "critical_1_cpu_s": crit1, "critical_2_cpu_s": crit2, "ratio": crit1 / crit2}
 
 
+def ideal(one: dict, workers: int = 2) -> dict:
+    """The best a ``workers``-worker run could do with the 1-worker run ``one``'s work, in its CPU: the serial part
+    (the parent's CPU, the worker's own start: everything that is not a loop's tune or a figure, each paid once per
+    worker where a worker pays it) plus the parallel part split as evenly as the loops allow (the best partition of
+    the loops over the workers, found by trying every one, with the figures then filling the lighter workers as
+    water, which they can only approach: a figure is drawn after its loop is tuned). A lower bound of the makespan
+    on ``workers`` free cores, where each unit costs what it cost alone; its ratio to the 1-worker run's critical
+    path is the speed-up no schedule can beat on this work."""
+    import itertools
+
+    a1 = one["analysis"]
+    w1 = next(iter(a1["workers"].values()))
+    loops = {n: v["cpu_s"] for n, v in a1["loops"].items()}
+    figs = sum(v["cpu_s"] for v in a1["figures"].values())
+    start = w1["cpu_s"] - sum(loops.values()) - figs  # a worker's own CPU beyond its loops and figures
+    parent = a1["parent"]["total_cpu_s"]
+    names = list(loops)
+    best = None
+    for assign in itertools.product(range(workers), repeat=len(names)):
+        load = [0.0] * workers
+        for n, k in zip(names, assign):
+            load[k] += loops[n]
+        # the figures fill the lighter workers first (water-filling; divisible, as a lower bound)
+        left, level = figs, sorted(load)
+        for i in range(workers):
+            nxt = level[i + 1] if i + 1 < workers else float("inf")
+            room = (nxt - level[i]) * (i + 1)
+            if left <= room:
+                top = level[i] + left / (i + 1)
+                break
+            left -= room
+        span = max(max(load), top)
+        if best is None or span < best[0]:
+            best = (span, {names[j]: k for j, k in enumerate(assign)}, load)
+    crit1 = parent + w1["cpu_s"]
+    crit2 = parent + start + best[0]
+    return {"parent_cpu_s": parent, "worker_start_cpu_s": start, "loops_cpu_s": loops, "figures_cpu_s": figs,
+            "best_split": best[1], "best_loads_cpu_s": best[2], "parallel_span_cpu_s": best[0],
+            "critical_1_cpu_s": crit1, f"ideal_{workers}_cpu_s": crit2, "ratio": crit1 / crit2,
+            "serial_share": (parent + start) / crit1}
+
+
 def _table(runs: list[dict]) -> None:
     """The medians per tree and worker count: CPU critical path and the ratio it allows."""
     print("\n| tree | workers | runs | wall [s] | CPU [s] | loops CPU [s] | busiest tuner CPU [s] | serial CPU [s] "
@@ -301,6 +343,18 @@ def main(argv: list[str] | None = None) -> int:
                   f"{m['parent_cpu_s']:.2f} + busiest worker {max(m['per_worker_cpu_s']):.2f} (workers "
                   f"{', '.join(f'{x:.2f}' for x in m['per_worker_cpu_s'])}) = {m['critical_2_cpu_s']:.2f} s CPU "
                   f"against {m['critical_1_cpu_s']:.2f} at 1 worker: {m['ratio']:.2f}x")
+    for tree in a.tree:
+        for i, r1 in enumerate(r for r in runs if r["tree"] == tree and r["workers"] == 1):
+            if not r1["analysis"]["workers"]:
+                continue
+            b = r1["ideal"] = ideal(r1)
+            per_loop = ", ".join(f"{n} {v:.2f}" for n, v in b["loops_cpu_s"].items())
+            print(f"{tree} 1-worker run {i + 1}, the ideal 2-worker run of its work: serial {b['parent_cpu_s']:.2f} "
+                  f"(parent) + {b['worker_start_cpu_s']:.2f} (a worker's start) + parallel span "
+                  f"{b['parallel_span_cpu_s']:.2f} (loops {per_loop}; best split "
+                  f"{', '.join(f'{x:.2f}' for x in b['best_loads_cpu_s'])}; figures {b['figures_cpu_s']:.2f}) = "
+                  f"{b['ideal_2_cpu_s']:.2f} s CPU against {b['critical_1_cpu_s']:.2f}: at most {b['ratio']:.2f}x "
+                  f"(serial share {100 * b['serial_share']:.0f} %)")
     ref = runs[0]["gains"]
     for tree, w in ((t, w) for t in a.tree for w in a.workers):
         rs = [r for r in runs if r["workers"] == w and r["tree"] == tree]

@@ -1,6 +1,6 @@
 """``tuner study run STUDY --workers 1`` against ``--workers 2``, interleaved, repeated.
 
-    .venv/bin/python bench/study_workers.py [--study studies/process.toml] [--repeat 3]
+    .venv/bin/python bench/study_workers.py [--study studies/process.toml] [--repeat 3] [--tree DIR ...]
 
 Each run is a fresh output directory (a fresh SQLite storage: nothing reused). Reported per
 worker count: the median wall time and the median CPU time of the run (the command and its
@@ -23,15 +23,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_once(study: str, workers: int, plots: bool, env: dict[str, str] | None = None) -> tuple[float, float]:
-    """(wall s, CPU s of the command and its children)."""
+def run_once(study: str, workers: int, plots: bool, env: dict[str, str] | None = None,
+             root: Path | None = None) -> tuple[float, float]:
+    """(wall s, CPU s of the command and its children); ``root``: the source tree whose ``tuner`` runs (this one)."""
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "tuner.cli", "study", "run", study, "--workers", str(workers), "--out", out]
         if not plots:
             cmd.append("--no-plots")
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        proc = subprocess.run(cmd, cwd=root or ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                               env={**os.environ, **env} if env else None)
         wall = time.perf_counter() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -77,7 +78,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--study", default="studies/process.toml")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--tree", nargs="+", default=None,
+                    help="source trees to compare, alternating within each repeat (e.g. a worktree of main and this "
+                         "one): the medians and ratio per tree")
     a = ap.parse_args(argv)
+    if a.tree:
+        return _trees(a)
     print(f"{a.study}, {a.repeat} x (workers 1, workers 2), interleaved; {os.cpu_count()} CPUs")
     r = compare(a.study, a.repeat, plots=not a.no_plots, log=lambda m: print(m, flush=True))
     print()
@@ -88,6 +94,31 @@ def main(argv: list[str] | None = None) -> int:
               + ", ".join(f"{x:.2f}" for x in r["wall_s"][w]) + " |")
     print(f"\nspeed-up of 2 workers (ratio of the medians): {r['speedup']:.2f}x; per interleaved pair: "
           + ", ".join(f"{p:.2f}" for p in r["pairs"]))
+    return 0
+
+
+def _trees(a: argparse.Namespace) -> int:
+    """``--tree``: each repeat runs (workers 1, workers 2) in every tree in turn (the trees see the same load)."""
+    trees = [Path(t).resolve() for t in a.tree]
+    study = str(Path(a.study).resolve())
+    res = {t: {1: [], 2: []} for t in trees}
+    print(f"{a.study}, {a.repeat} x (workers 1, workers 2) per tree, alternating; {os.cpu_count()} CPUs")
+    for i in range(a.repeat):
+        for t in trees:
+            for w in (1, 2):
+                load0 = os.getloadavg()[0]
+                wall, cpu = run_once(study, w, not a.no_plots, root=t)
+                res[t][w].append((wall, cpu))
+                print(f"  run {i + 1} {t} workers {w}: {wall:6.2f} s wall, {cpu:6.2f} s CPU (load average "
+                      f"{load0:.2f} before, {os.getloadavg()[0]:.2f} after)", flush=True)
+    print("\n| tree | median wall 1 worker [s] | 2 workers [s] | ratio | median CPU 1 worker [s] | 2 workers [s] | "
+          "ratio per pair |")
+    print("|---|---|---|---|---|---|---|")
+    for t in trees:
+        mw = {w: statistics.median(x[0] for x in res[t][w]) for w in (1, 2)}
+        mc = {w: statistics.median(x[1] for x in res[t][w]) for w in (1, 2)}
+        pairs = ", ".join(f"{x[0] / y[0]:.2f}" for x, y in zip(res[t][1], res[t][2]))
+        print(f"| {t} | {mw[1]:.2f} | {mw[2]:.2f} | {mw[1] / mw[2]:.2f} | {mc[1]:.2f} | {mc[2]:.2f} | {pairs} |")
     return 0
 
 

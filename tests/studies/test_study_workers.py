@@ -123,6 +123,7 @@ def test_the_figures_the_workers_mark_are_the_loop_plots():
     from tuner.analysis.plots import LOOP_PLOTS
 
     assert scli._FIGURES == LOOP_PLOTS
+    assert sorted(scli._DRAW_ORDER) == sorted(LOOP_PLOTS)  # (every figure, each once, the dearest first)
 
 
 def test_a_worker_draws_only_when_no_loop_is_free_and_drains_the_figures_at_the_end(tmp_path, monkeypatch):
@@ -187,3 +188,45 @@ def test_a_figure_lock_a_killed_worker_left_is_cleared_when_stale(tmp_path):
     os.utime(old, (past, past))
     _clear_stale_locks(tmp_path)
     assert not old.exists() and new.exists()
+
+
+@pytest.mark.skipif(scli._context().get_start_method() != "fork", reason="only forked workers inherit the start")
+def test_forked_workers_inherit_the_start_and_the_parent_keeps_its_own(tmp_path, monkeypatch):
+    """The workers' one-time start (the kernels loaded and warmed) is paid once, in the parent before the fork: a
+    worker starts with it loaded and with the parent's objects frozen out of the collector; the parent then has its
+    own batch path and collector back."""
+    import gc
+    import sys
+
+    from tuner.optimize import batch
+
+    f = tmp_path / "s.toml"
+    f.write_text(STUDY.format(n="start"))
+    study = load_study(str(f))
+    loads: list[int] = []
+    monkeypatch.setitem(batch._KERNELS, "module", None)
+    monkeypatch.setitem(batch._KERNELS, "warm", False)
+    sentinel = object()
+
+    def load() -> None:  # (counted in this process; a forked worker inherits the count)
+        loads.append(1)
+        batch._KERNELS.update(module=sentinel, warm=True)
+
+    seen = tmp_path / "seen.json"
+
+    def entry(*a, **k) -> None:  # a worker that reports what it started with, and stops
+        seen.write_text(json.dumps({"loads": len(loads), "warm": batch._KERNELS["module"] is sentinel,
+                                    "frozen": gc.get_freeze_count(), "engine": "tuner.optimize.engine" in sys.modules}))
+
+    monkeypatch.setattr(scli, "_load_kernels", load)
+    monkeypatch.setattr(scli, "_worker_entry", entry)
+    assert gc.get_freeze_count() == 0
+    statuses = scli.run_study(study, str(f), f"sqlite:///{tmp_path / 'study.db'}", workers=1, progress=False,
+                              plots_dir=tmp_path / "plots")
+    assert all(s.state == "free" for s in statuses.values())  # (the stub tuned nothing)
+    got = json.loads(seen.read_text())
+    assert got["loads"] == 1 and got["warm"] and got["frozen"] > 1000
+    assert got["engine"]
+    assert loads == [1]  # once for the study, in this process
+    assert batch._KERNELS["module"] is None and batch._KERNELS["warm"] is False  # this process's own path again
+    assert gc.get_freeze_count() == 0

@@ -52,14 +52,20 @@ def add_parser(sub: Any) -> None:
 
 # -- study run ------------------------------------------------------------------------------------
 
-_STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.nlp.refine", "tuner.studies.evaluate",
+# what every worker imports to tune and verify, module-level or inside its first tune: the search's engine, the
+# verifier's and the report's modules. Not here: scipy.stats (about 0.55 s of CPU; engine._restart's Sobol points, only
+# in a tune that restarts) and matplotlib (about 0.4 s; only in a worker that draws): paid before the fork they are on
+# the critical path of every run, while a worker that pays them itself often does so while the other worker is still
+# tuning its last loop (on process.toml at a load of 1.3-1.7, importing both before the fork made the 2-worker run
+# about 1.4 s slower in wall, median of 6 pairs, for 1 s less CPU: bench/results/study_workers_issue41_prefork.md)
+_STACK = ("tuner.tuning", "tuner.optimize.search", "tuner.optimize.engine", "tuner.optimize.nlp.refine",
+          "tuner.studies.evaluate", "tuner.robust", "tuner.interop", "tuner.diagnose", "tuner.display",
           "tuner.analysis.plots")
 
 
 def _preload_stack(plots: bool = False) -> None:
-    """Import what the workers tune with, once, before forking the workers (the plots' module, matplotlib's half
-    second of CPU, only if ``plots``: the start is serial, before any worker runs, and a worker imports it when it
-    first draws)."""
+    """Import what every worker tunes with, once, before forking the workers (a module a forked worker inherits costs
+    its CPU once for the study); the plots' module only if ``plots`` (see :data:`_STACK`)."""
     import importlib
 
     for mod in _STACK:
@@ -71,11 +77,38 @@ def _load_kernels() -> None:
     """A worker's start: the batch's compiled kernels loaded and warmed (:func:`tuner.optimize.batch.preload_kernels`,
     where this machine has them), so that numba has loaded their machine code from its cache before the first tune
     (loaded lazily inside the first batch, it made that batch look dear and the search cut the worker's first loop in
-    round 0: bench/results/study_workers_issue41.md). In the worker, not before the fork: the process that runs the
-    study (a test's, a notebook's) keeps its own choice of the batch's path."""
+    round 0: bench/results/study_workers_issue41.md). A forked worker inherits them loaded and warm from
+    :func:`_prepare_fork` (this is then a no-op); a spawned one loads them here."""
     from ..optimize.batch import preload_kernels
 
     preload_kernels()
+
+
+def _prepare_fork() -> Any:
+    """The workers' shared start, once in this process before it forks them (about 0.4 s of CPU a worker paid
+    again): the batch's kernels loaded and warmed (:func:`_load_kernels`), and the objects this process holds
+    frozen out of the cyclic garbage collector (:func:`gc.freeze`), so that a worker's collections neither walk the
+    inherited objects (a quarter to a half second of CPU a worker) nor write to their pages (which copied them into
+    every worker). Returns what :func:`_after_fork` restores: the process that runs the study (a test's, a
+    notebook's) keeps its own choice of the batch's path and its own collector."""
+    import gc
+
+    from ..optimize import batch
+
+    saved = {k: batch._KERNELS[k] for k in ("module", "warm")}
+    _load_kernels()
+    gc.freeze()
+    return saved
+
+
+def _after_fork(saved: Any) -> None:
+    """This process as it was before :func:`_prepare_fork`, once its workers are forked."""
+    import gc
+
+    from ..optimize import batch
+
+    gc.unfreeze()
+    batch._KERNELS.update(saved)
 
 
 def _context() -> Any:
@@ -121,6 +154,10 @@ def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
 # CPU the parent would pay at the end, serially, to read the workers' marks; tests/studies/test_study_workers.py
 # checks the two agree)
 _FIGURES = ("step", "bode", "nyquist")
+# the order idle workers draw them in, the dearest kind first (CPU a figure, studies/process.toml: Bode 0.41-0.45 s,
+# step 0.22-0.32, Nyquist 0.13-0.17; bench/study_timeline.py): the figures are the last work of a run, drawn side by
+# side, and the workers end within the last figure's cost of each other (a Nyquist's, not a Bode's)
+_DRAW_ORDER = ("bode", "step", "nyquist")
 
 
 def _marker(plots_dir: Path, name: str, kind: str) -> Path:
@@ -159,13 +196,15 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
     evals: dict[tuple[str, str], Any] = {}  # this process's evaluations (a loop's figures may fall to one process)
 
     def draw(statuses: dict[str, Any]) -> bool:
+        done = []
         for lp in study.order():
             st = statuses.get(lp.name)
             result = st.result if st is not None and st.state == "done" else None
             if lp.inner is not None or not isinstance(result, dict) or "gains" not in result:
                 continue
-            fp = _fingerprint(study, lp, result)
-            for kind in _FIGURES:
+            done.append((lp, result, _fingerprint(study, lp, result)))
+        for kind in _DRAW_ORDER:
+            for lp, result, fp in done:
                 if (lp.name, kind, fp) in tried:
                     continue
                 tried.add((lp.name, kind, fp))
@@ -290,27 +329,34 @@ def run_study(study: Any, path: str, url: str, *, workers: int = 1, heartbeat_s:
     """Run ``workers`` workers on this machine until every loop is done; returns the statuses.
 
     One path for every worker count: the workers (one included) are processes forked from this one once it has
-    imported the tuning stack (:func:`_preload_stack`; none of them does it again), and each loads the batch's
-    compiled kernels at its start (:func:`_load_kernels`), so that one worker tunes exactly as each of several does
-    (the same seed gives bitwise the same gains whatever the count: the kernels' figures agree with numpy's only to
-    rounding, and a study run in this process tuned on numpy where its forked workers tuned on the kernels). This
-    process opens the storage and starts its progress thread after the fork; the workers wake each
+    imported the tuning stack (:func:`_preload_stack`), and loaded and warmed the
+    batch's compiled kernels (:func:`_prepare_fork`; none of them does any of it again), so that one worker tunes
+    exactly as each of several does (the same seed gives bitwise the same gains whatever the count: the kernels'
+    figures agree with numpy's only to rounding, and a study run in this process tuned on numpy where its forked
+    workers tuned on the kernels); this process keeps its own choice of the batch's path (:func:`_after_fork`).
+    This process opens the storage and starts its progress thread after the fork; the workers wake each
     other when a loop is done, and draw the figures of the loops that are done when no loop is left for them to
-    tune (:func:`_idle_plotter`), importing matplotlib only then (a worker that never draws never pays it)."""
+    tune (:func:`_idle_plotter`)."""
     from .runner import Coordinator, Wakeup, open_storage
 
     # Optuna creates its tables on first use: once, here (workers starting together would race), with no connection
     # left open across the fork; the workers inherit what opening it imported (alembic, SQLAlchemy's dialect: about
     # half a second of CPU that each worker would pay again)
     open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s).engine.dispose()
-    _preload_stack()
     ctx = _context()
+    forked = ctx.get_start_method() == "fork"
+    _preload_stack()  # (matplotlib: a worker imports it when it first draws)
     wakeup = Wakeup(ctx)
     pdir = str(plots_dir) if plots_dir is not None else None
     procs = [ctx.Process(target=_worker_entry, args=(path, url, heartbeat_s, grace_s, os.getpid(), wakeup, pdir),
                          name=f"tuner-worker-{i}") for i in range(workers)]
-    for p in procs:
-        p.start()
+    saved = _prepare_fork() if forked else None
+    try:
+        for p in procs:
+            p.start()
+    finally:
+        if forked:
+            _after_fork(saved)
     storage = open_storage(url, heartbeat_s=heartbeat_s, grace_s=grace_s)
     stop = threading.Event()
     mon = None
@@ -342,6 +388,10 @@ def _evaluate_and_plot(study: Any, lp: Any, ctrls: dict[str, Any], inner_bw: flo
     return e, figs
 
 
+#: more loops to re-verify than this (none to draw) are spread over the report's processes
+POOL_MIN_LOOPS = 16
+
+
 def _evaluate_all(study: Any, ctrls: dict[str, Any], plots_dir: Path | None, jobs: int,
                   drawn: dict[str, dict[str, Path]] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Every tuned loop re-verified and plotted (unless ``drawn`` already), inner loops first (an outer
@@ -354,9 +404,13 @@ def _evaluate_all(study: Any, ctrls: dict[str, Any], plots_dir: Path | None, job
     tuned: dict[str, Any] = {}
     figs: dict[str, Any] = {}
     todo = [lp for lp in study.order() if lp.name in ctrls]
+    # processes for loops to draw here, or for many loops: a re-verification alone takes about 10 ms (studies/
+    # process.toml's loops), and the report's processes about 0.1 s to start and be sent the study; the workers drew
+    # every figure they could (at the end of a study run, most often every one)
+    to_draw = [lp for lp in todo if plots_dir is not None and lp.name not in drawn]
     # the report's processes end with this one (like the study's workers): an idle one waits on its queue for good
     ex = ProcessPoolExecutor(min(jobs, len(todo)), mp_context=_context(), initializer=set_parent_death_signal) \
-        if jobs > 1 and len(todo) > 1 else None
+        if jobs > 1 and (len(to_draw) > 1 or len(todo) > POOL_MIN_LOOPS) else None
     try:
         while todo:
             wave = [lp for lp in todo if lp.inner is None or lp.inner in tuned]
