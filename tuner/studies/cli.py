@@ -87,7 +87,7 @@ def _load_kernels() -> None:
 def _prepare_fork() -> Any:
     """The workers' shared start, once in this process before it forks them (about 0.4 s of CPU a worker paid
     again): the batch's kernels loaded and warmed (:func:`_load_kernels`), and the objects this process holds
-    frozen out of the cyclic garbage collector (:func:`gc.freeze`), so that a worker's collections neither walk the
+    frozen out of the cyclic garbage collector (``gc.freeze()``), so that a worker's collections neither walk the
     inherited objects (a quarter to a half second of CPU a worker) nor write to their pages (which copied them into
     every worker). Returns what :func:`_after_fork` restores: the process that runs the study (a test's, a
     notebook's) keeps its own choice of the batch's path and its own collector."""
