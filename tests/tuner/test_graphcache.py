@@ -55,6 +55,7 @@ def _shape_of(key):
     return problem.structure, make_space(problem.structure, plant, 0.1, scale=problem.scale)
 
 
+@pytest.mark.slow  # (over 2 s: the whole suite runs it)
 def test_a_stored_graph_answers_bitwise_as_the_built_one(cache, builds, monkeypatch):
     with monkeypatch.context() as m:  # the reference: nothing stored, nothing loaded
         m.setenv("TUNER_NLP_GRAPHS", "off")
@@ -90,6 +91,7 @@ def test_a_stored_graph_answers_bitwise_as_the_built_one(cache, builds, monkeypa
     assert np.array_equal(built.lbg, loaded.lbg) and np.array_equal(built.ubg, loaded.ubg)
 
 
+@pytest.mark.slow  # (over 2 s: the whole suite runs it)
 def test_a_corrupt_entry_is_deleted_and_rebuilt_not_used(cache, builds, monkeypatch):
     _tune()
     key = builds[0]
@@ -165,6 +167,7 @@ def test_the_entries_are_bounded_least_recently_used_first(cache, monkeypatch):
     assert sorted(p.name for p in root.glob("*.npz")) == ["a.npz", "c.npz"]
 
 
+@pytest.mark.slow  # (over 2 s: the whole suite runs it)
 def test_only_an_entry_this_user_wrote_is_read_and_a_folder_that_cannot_be_written_is_no_crash(cache, builds,
                                                                                                  monkeypatch):
     """A deserialized CasADi Function can load a shared library, so the entry itself is checked on what is opened

@@ -151,6 +151,7 @@ def test_auto_uses_the_kernels_only_where_a_process_preloaded_them(monkeypatch, 
     assert batch_mod.kernels() is not None
 
 
+@pytest.mark.slow  # (over 2 s: the whole suite runs it)
 def test_the_kernels_machine_code_is_never_loaded_from_a_cache_others_can_write(tmp_path):
     """numba's cache holds pickled indexes and machine code: like the NLP code cache, it is used only under a root
     trusted_root accepts. A root writable by others (mode 0o777 here): the kernels compile into a private folder of

@@ -35,6 +35,7 @@ def test_the_callers_generator_is_left_as_scipy_leaves_it():
         s.random_base2(2)
 
 
+@pytest.mark.slow  # (over 2 s: the whole suite runs it)
 def test_a_tune_does_not_import_scipy_stats():
     code = ("import sys; from tuner import tune; from tuner.plant import make_plant; "
             "tune(make_plant([1.0], [1.0, 2.0, 1.0]), structure='pi', dt=0.1, diagnose=False); "
