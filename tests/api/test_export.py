@@ -100,6 +100,7 @@ def test_unknown_id_is_404(client):
     assert r.status_code == 404
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_export_of_a_real_tune(client):
     r = client.post("/tune", json={"plant": {"expr": ROLL}, "dt": DT, "structure": "pid_z",
                                    "options": {"seed": 0, "time_budget_s": 1.0}})

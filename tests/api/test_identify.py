@@ -58,6 +58,7 @@ def test_identify_answers_the_model_and_stores_it(client, stored, body):
     assert data["input"] == body["input"] and data["time"] == body["time"] and data["rate_hz"] is None
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_plots_of_a_stored_identification(client, stored):
     png = client.get(f"/identifications/{stored['id']}/plot.png")
     assert png.status_code == 200 and png.headers["content-type"] == "image/png" and png.content[:4] == b"\x89PNG"

@@ -72,6 +72,7 @@ def alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_runaway_solve_is_stopped_and_answered_504(app, client, inject, tmp_path):
     started = tmp_path / "started"
     inject(_with_marker(started))
@@ -100,6 +101,7 @@ def test_a_job_inside_its_limit_is_not_cut(client, inject):
     assert r.json()["slept_s"] == 0.2
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_service_answers_again_after_a_504(client, inject):
     from tuner.analysis.verify import analyze
     from tuner.controllers import ControllerTF

@@ -146,6 +146,7 @@ PLOT_SIZE = {"all": (1900, 620), "step": (750, 540), "bode": (750, 560), "nyquis
 
 
 @pytest.mark.parametrize("kind", [None, "all", "step", "bode", "nyquist"])
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_plot_png_of_each_kind(client, roll, kind):
     r = client.get(f"/tunes/{roll['id']}/plot.png", params={} if kind is None else {"kind": kind})
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
@@ -163,6 +164,7 @@ def _svg_text(svg: str) -> str:
     return " ".join("".join(el.itertext()) for el in root.iter() if el.tag.endswith("text"))
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_plot_svg_of_each_kind_shows_what_it_should(client, roll):
     m = roll["metrics"]
     pm = f"PM {m['phase_margin_deg']:.1f}° at {m['crossover_rad_s']:.3g} rad/s"
@@ -191,6 +193,7 @@ def test_bad_plot_kind_is_422_with_loc(client, roll):
     assert item["loc"] == ["query", "kind"] and "step" in item["msg"]
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_plot_of_a_robust_tune_labels_every_plant(client):
     lighter, heavier = (f"0.2655*{k}*14.8528^2/(s^2+14.195*s+14.8528^2)" for k in (0.8, 1.2))
     r = client.post("/tune", json={**ROLL_BODY, "plants": [{"expr": lighter}, {"expr": heavier}]})
@@ -426,6 +429,7 @@ def test_response_numbers_are_finite_or_the_documented_strings(roll):
     walk(roll)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_tune_accepts_pid2_and_the_deprecated_pidf2(client):
     r = client.post("/tune", json={"plant": {"expr": "4.674/(s^2+3.523*s+12.38)"}, "dt": 0.04, "structure": "pid2",
                                    "options": {"time_budget_s": 2}})

@@ -119,6 +119,7 @@ def test_plots_are_drawn_apart_from_the_solvers_and_once_per_result(app, client,
     assert app.state.plot_pool.stats()["crashes"] == 0
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_plot_cache_headers_and_etag(client, roll):
     r = client.get(f"/tunes/{roll['id']}/plot.svg")
     assert r.status_code == 200
@@ -130,6 +131,7 @@ def test_plot_cache_headers_and_etag(client, roll):
     assert other.status_code == 200 and other.headers["ETag"] != r.headers["ETag"]  # another kind, another tag
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_plot_cache_keeps_each_kind_apart(app, client, roll):
     """Each kind is drawn once and cached under its own key: a second request for a kind is a hit and
     answers that kind's image, not another kind's."""

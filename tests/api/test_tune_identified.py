@@ -39,6 +39,7 @@ def _body(ident, **kw):
             "options": {"seed": 0, "time_budget_s": 2}, **kw}
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_tune_a_stored_identification(client, ident):
     tau = ident["model"]["delay"]
     assert 0 < tau % DT < 0.999 * DT  # a fraction of dt: tuned as it is

@@ -67,6 +67,7 @@ def test_rate_instead_of_time_and_a_plot(tmp_path, log, capsys):
     assert f"wrote {png}" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_check_exits_1_on_a_poor_fit(tmp_path, capsys):
     third = fly(*THIRD_ORDER, seed=4)
     path = _write(tmp_path / "third.csv", ([f"{t:.6g}", f"{u:.6g}", f"{y:.6g}"]
@@ -123,6 +124,7 @@ def test_argument_errors_exit_2(csv_file, capsys):
     assert "a CSV log needs --time COL (a time column) or --rate HZ" in err
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_unwritable_plot_is_a_clean_error(csv_file, tmp_path, capsys):
     err = _err(capsys, ["identify", csv_file, *ARGS, "--plot", str(tmp_path / "no" / "dir" / "fit.png")])
     assert "--plot" in err and "cannot write" in err

@@ -156,6 +156,7 @@ def test_the_hold_is_counted_once():
     assert twice.model.delay_s == pytest.approx(0.03 + dt / 2, abs=1e-3)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_the_hold_defaults_by_the_log(sweep, tmp_path, capsys):
     """A ULog's input is held onto its grid (hold zoh); a CSV's is taken as sampled (none) unless --hold says."""
     d = _identify_json(sweep, "--reference", "vehicle_rates_setpoint.roll", "--poles", "2", capsys=capsys)

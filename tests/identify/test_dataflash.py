@@ -59,6 +59,7 @@ def test_the_rate_message_on_the_grid_is_what_was_written_over_the_flight(sweep,
     assert any("exogenous: flown in a rate (ACRO) mode" in n for n in rec.flight["notes"])
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_identify_and_tune_params_from_a_dataflash_log(sweep, tmp_path, capsys):
     path, _ = _log(tmp_path / "acro.bin", sweep)
     code = main(["identify", str(path), "--input", "RATE.ROut", "--output", "RATE.R", "--reference", "RATE.RDes",

@@ -130,6 +130,7 @@ def test_delay_step_picks_the_best_whole_multiple():
     assert exact.model.delay_s == pytest.approx(0.08) and exact.cost < 1e-10
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_fit_is_deterministic():
     m = _model(*CASES["lead-lag"][:3], delay=0.06)
     p = _problem(m, noise=0.05)

@@ -99,6 +99,7 @@ def test_a_free_delay_comes_close_to_the_true_one(cases):
     assert res.model.delay_s == pytest.approx(0.04, abs=3 * res.uncertainty["delay_s"].cr_bound + 0.002)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_second_order_fit_to_a_third_order_plant_reports_a_worse_j_and_says_so():
     log = fly(*THIRD_ORDER, delay_s=0.04, seed=4)
     second = identify(log.u, log.y, time=log.t, poles=2, delay_step=DT_LOOP)

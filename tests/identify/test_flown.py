@@ -72,6 +72,7 @@ def test_only_the_armed_airborne_stretch_is_identified(sweep, tmp_path):
 
 
 @pytest.mark.parametrize("attitude, biased", [(1, True), (0, False)])
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_rate_setpoint_is_exogenous_only_in_a_rate_mode(sweep, tmp_path, attitude, biased, capsys):
     path = write(sweep, tmp_path / "f.ulg", _states(lambda t: True, lambda t: False, attitude=attitude,
                                                     nav=0 if attitude else 10))

@@ -24,6 +24,7 @@ def _errors(log, res, n: int = 300) -> tuple[float, float]:
     return float(np.max(np.abs(20 * np.log10(np.abs(ratio))))), float(np.max(np.abs(np.degrees(np.angle(ratio)))))
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_a_sweep_only_log_as_a_new_user_makes_it_is_not_poor():
     """A 100 Hz log that is one sweep to its end (no doublets): the last 20 % is the top of the sweep.
     Holding it out used to cut the band to ~13 rad/s; now it is fitted, and checked on the record."""
@@ -106,6 +107,7 @@ def test_pooled_spectra_are_the_segment_weighted_average():
     assert pooled([sa]) is sa
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_verification_record_and_several_records():
     """Two sweeps fitted together (spectra pooled) and a third flight as the verification record."""
     flights = [fly(*GUSTY, delay_s=0.02, seed=s, duration_s=60.0, sweep_fraction=1.0) for s in (11, 12)]
@@ -146,6 +148,7 @@ def test_repr_is_a_few_lines():
     assert str(res) == text
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_check_on_several_fitted_records_plots_and_round_trips():
     import json
 

@@ -77,6 +77,7 @@ def test_the_same_log_as_ulog_and_as_csv_gives_the_same_model(tmp_path, flight, 
     assert from_ulog.band_rad_s == pytest.approx(from_csv.band_rad_s, rel=1e-6)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_asynchronous_topics_resampled_give_the_csv_model(tmp_path, capsys):
     """The command at 50 Hz, the rate gyro at 250 Hz 3 ms out of step (a second instance beside it):
     the output interpolated onto the command's instants gives the model of the CSV sampled there.
@@ -101,6 +102,7 @@ def test_asynchronous_topics_resampled_give_the_csv_model(tmp_path, capsys):
     assert neg.model.gain == pytest.approx(-from_ulog.model.gain, rel=0.02)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_gaps_split_the_log_into_records_fitted_together(tmp_path):
     """A 1.5 s hole in the gyro topic and a logged dropout: three pieces, fitted as one (120 s, so that
     each piece still resolves the plant's low band)."""
@@ -159,6 +161,7 @@ def test_signal_names():
             parse_signal(bad, "input")
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_several_files_and_a_verification_log_on_the_command_line(tmp_path, capsys):
     """Two sweeps (ULog and CSV at the same rate) fitted together, a ULog of doublets to verify."""
     logs = [fly(*AXES["pitch"], seed=s, duration_s=45.0, sweep_fraction=1.0) for s in (41, 42)]

@@ -22,6 +22,7 @@ def _noisy(rng: np.random.Generator, sigma_db: float, sigma_deg: float) -> np.nd
     return 10 ** (mag / 20) * np.exp(1j * np.radians(ph))
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_bounds_match_the_monte_carlo_spread():
     rng = np.random.default_rng(7)
     coh = np.full(W.size, 0.9)

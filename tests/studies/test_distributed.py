@@ -213,6 +213,7 @@ def test_claims_are_exclusive_and_a_stale_claim_is_taken_over(tmp_path):
     assert _retries(b, yaw) == [0]
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_claim_study_left_empty_is_claimed_again_in_the_next_epoch(tmp_path):
     """A worker that died between creating a loop's claim study and adding its trial: after the
     grace period the loop is claimed under the next epoch's name, once."""
@@ -275,6 +276,7 @@ def test_plots_drawn_early_are_used_only_for_the_result_they_show(tmp_path):
     assert _drawn_early(study, yaw, result, plots) is None  # a figure was not marked (its drawing did not end)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_a_done_loop_is_not_read_again(tmp_path):
     """statuses() before every claim must not re-read the loops already done (a study of n loops would
     cost O(n^2) reads): once a loop is seen done, later calls read only the loops that are not, and the
@@ -453,6 +455,7 @@ def test_a_worker_stuck_inside_a_transaction_does_not_block_the_others(pg_url, m
         storage.engine.dispose()
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_wakeup_is_seen_across_processes_and_waits_out_its_timeout_without_one():
     """Workers of one machine wake each other through a count in shared memory that waiters only read (no lock a
     killed worker could leave held is ever waited on without a timeout)."""

@@ -33,6 +33,7 @@ def _study(tmp_path: Path, output: str = OUT) -> Path:
     return p
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_ulog_data_loop_with_a_verification_log(tmp_path):
     study = load_study(_study(tmp_path))
     (lp,) = study.loop

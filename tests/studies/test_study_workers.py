@@ -73,6 +73,7 @@ def _done(study, gains: dict[str, dict[str, float]]) -> dict[str, LoopStatus]:
     return {lp.name: LoopStatus("done", 0, result={"loop": lp.name, "gains": gains[lp.name]}) for lp in study.loop}
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_idle_workers_draw_each_figure_once_and_the_report_uses_them(tmp_path, monkeypatch):
     """Two workers' idle plotters over one plots folder: every figure of every done loop is drawn once (the lock
     file decides who draws it), a figure whose lock another process holds is left to it, and the report takes the

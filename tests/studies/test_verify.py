@@ -56,6 +56,7 @@ def test_pitch_gain_times_three_fails_and_is_named(tmp_path, gains, capsys):
     assert "FAIL" in cap.out
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_outer_loop_alone_broken(tmp_path, gains, capsys):
     gains["y"]["gains"]["K"] *= 10
     assert main(["verify", str(QUAD), "--gains", _write(tmp_path, gains)]) == 1

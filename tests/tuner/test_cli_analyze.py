@@ -256,6 +256,7 @@ def test_nan_in_json_is_never_a_bare_token(capsys):
 
 # -- --plot --------------------------------------------------------------------------------
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_plot_writes_the_kind_asked_for(tmp_path, capsys):
     out_svg, out_png = tmp_path / "roll_bode.svg", tmp_path / "roll.png"
     assert main([*ROLL_X1, "--json", "--plot", str(out_svg), "--plot-kind", "bode"]) == 0

@@ -90,6 +90,7 @@ def test_tune_spec_not_met_is_1_with_json_on_stdout(capsys):
     assert d["meets_spec"] is False and "steady_state_error" in d["failing"]
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_tune_ok_0(capsys):
     code, out, err = run(capsys, "tune", "--plant", "1/(s+1)", "--structure", "pi", "--budget", "3", "--json")
     assert code == EXIT_OK, err

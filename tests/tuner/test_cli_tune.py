@@ -138,6 +138,7 @@ def test_tune_table_output(single, capsys):
     assert "solver: optuna+casadi-sqp" in out and "seed 0" in out
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_tune_infeasible_json_exits_1_and_names_the_failing_constraint(capsys):
     # --control-peak 1 with zero steady-state error on roll is infeasible: u(inf) = 1/G(0) = 3.77 > 1
     d = tune_json(capsys, "--plant", ROLL, "--dt", str(DT), "--structure", "pid_z", "--control-peak", "1", expect=1)
@@ -208,6 +209,7 @@ def test_the_printed_controller_round_trips(capsys):
 
 
 @pytest.mark.parametrize("dt, meant", [(4.0, "4 ms"), (250.0, "a rate of 250 Hz")])
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_a_unit_slip_in_dt_is_named(capsys, dt, meant):
     """Issue 30: a sample time far above a fifth of the plant's fastest time constant (the roll model's 0.067 s) says
     which slip it likely is and what it would give; a plausible one says nothing."""

@@ -118,6 +118,7 @@ def test_settling_limit_and_mks_objective():
     assert any(c.name == "settling_time_s" and c.op == "<=" and c.required == 0.5 for c in res.analyses[0].checks)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_target_crossover():
     res = tune(plant_from_expr(ROLL), structure="pid", dt=DT, spec=Spec(crossover_rad_s=12.0), time_budget_s=20)
     assert res.meets_spec
@@ -154,6 +155,7 @@ def test_tradeoff_roll_pid():
         assert m == pytest.approx(_mks_ref(num, den, rn, rd, DT), rel=2e-3)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_tradeoff_cli_json(capsys):
     code = main(["tradeoff", "--plant", ROLL, "--dt", str(DT), "--structure", "pid", "--points", "3", "--json"])
     out = json.loads(capsys.readouterr().out)
@@ -173,6 +175,7 @@ def test_export_warns_when_the_clamp_is_below_the_control_peak():
         export_controller(res, format="c", name="pitch", u_min=-2 * peak, u_max=2 * peak)  # room: no warning
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_decidable_limit_answers_at_once_with_exact_suggestion(capsys):
     """control peak 0.5 on a plant with 1/G(0) = 1 and zero steady-state error: impossible by definition."""
     res = tune(plant_from_expr("1/(s+1)"), structure="pi", spec=Spec(control_peak_max=0.5), time_budget_s=10)

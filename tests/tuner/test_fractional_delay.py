@@ -153,6 +153,7 @@ def test_fixed_controller_against_fine_step(plant, delay):
     assert np.max(np.abs(a.response.y[ok] - y[idx[ok]])) < 1e-9
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_tuned_pid_z_reports_the_true_sampled_loop():
     """tune() on the issue's first plant with its 20 ms delay at dt 0.04 (half a sample): what it reports is
     what the fine simulation of that loop gives."""
@@ -353,6 +354,7 @@ def _exact_step(num, den, tau, dt, cnum, cden, samples, n_per=40):
     return np.array(T), np.array(Y)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_the_peak_at_the_delayed_inputs_switch_is_found():
     """Issue 20's quality suite (fracdelay-30): 0.364/(19.8 s + 1) with 27.094 s of dead time at dt 1.282 (21
     samples and phi = 0.1725 s), under a thesis-form digital PID. The output has a corner where the delayed input

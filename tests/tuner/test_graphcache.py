@@ -129,6 +129,7 @@ def test_a_corrupt_entry_is_deleted_and_rebuilt_not_used(cache, builds, monkeypa
         assert graphcache.load(key, space) is not None
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_root_that_is_not_private_is_not_used(cache, builds, monkeypatch):
     _tune()
     key = builds[0]

@@ -32,6 +32,7 @@ def test_ki_min_is_met_by_the_tune_and_checked_by_the_verifier():
     assert any(c.name == "integral_gain" and c.ok for c in r.analyses[0].checks)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_ki_min_on_the_command_line(capsys):
     code = main(["tune", "--plant", RATE, "--delay", "0.008", "--dt", "0.004", "--structure", "pid",
                  "--control-peak", "3", "--ki-min", "1", "--json"])
@@ -45,6 +46,7 @@ def test_ki_min_without_an_integrator_is_refused(capsys):
     assert "demands integral action, and pd has none" in err and "ki" in err
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_vanishing_derivative_gain_is_said_with_its_consequence():
     """Issue 30, item 4 (Kd): a PID whose optimum drops the D term (a first-order lag needs no phase lead) says so,
     names the consequence and the fix; a PID that uses D (the thesis roll model, lightly damped) says nothing."""

@@ -115,6 +115,7 @@ def test_mimo_and_foreign_objects_are_refused():
 
 # -- out --------------------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_to_control_is_the_controller_at_every_frequency():
     res = tune(G, structure="pid", dt=0.05, time_budget_s=120)
     c = res.controller

@@ -160,6 +160,7 @@ def test_no_import_of_a_higher_layer():
     assert not bad, "imports of a higher layer:\n" + "\n".join(bad)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_allow_list_is_current_and_only_conveniences():
     g = graph()
     for (m, n), why in ALLOWED.items():
@@ -208,6 +209,7 @@ def _cycles(g: dict[str, set[str]]) -> list[frozenset[str]]:
     return out
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_no_import_cycles_but_the_documented_ones():
     # every import counts, the display and plotting conveniences included (issue 29: the display circle went through
     # them, and the plant/interop/controllers one through a function-level import): neither can come back

@@ -600,6 +600,7 @@ def test_the_default_budget_does_not_count_the_nlp_builds(monkeypatch):
     assert auto.objective <= given.objective
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_restart_refinements_share_one_shape(monkeypatch):
     """A restart's own refinement (``refine(reach=)``) runs on the horizon of ``reach``, whatever its start's settling
     time: starts that settle 3x apart get one horizon K (ceil(3 reach / dt), bucketed) and, with the same points a

@@ -92,6 +92,7 @@ def _dense_margins(L: np.ndarray, w: np.ndarray) -> dict[str, float]:
 
 
 @pytest.mark.parametrize("dt", [None, 0.2])
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_order_ten_margins_against_a_brute_force_grid(dt):
     """1/(s+1)^10 with a PID: the margins against a dense grid over the hand-built realisation
     (continuous: the factored form; sampled: C (zI - Phi)^-1 Gam of the chain's ZOH, one solve per point)."""

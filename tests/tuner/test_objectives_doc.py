@@ -55,6 +55,7 @@ def _fine(T: float) -> np.ndarray:
     return np.linspace(0.0, T, 400_001)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_settling_time_is_the_last_exit_from_the_band(pi):
     t = _fine(pi.response.t[-1])
     _, y = signal.step(T_REF, T=t)
@@ -62,6 +63,7 @@ def test_settling_time_is_the_last_exit_from_the_band(pi):
     assert abs(pi.metrics.settling_time_s - t[out[-1]]) < 1e-3
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_itae_is_t_abs_error_of_the_reference_step_on_the_horizon(pi):
     from tuner.optimize.scoring import objective_value
 

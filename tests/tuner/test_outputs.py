@@ -68,6 +68,7 @@ def _small_files(limit: int):
 
 
 @pytest.mark.parametrize("cmd", ["analyze --plot", "export --out"])
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_write_that_fails_midway_is_exit_2_and_leaves_no_partial_file(cmd, tmp_path):
     args, opt = WRITERS[cmd]
     out = tmp_path / "out.png"

@@ -214,6 +214,7 @@ def test_deprecated_pidf2_alias():
     assert any(issubclass(x.category, DeprecationWarning) and "pid_mf2" in str(x.message) for x in w)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_deprecated_name_is_noted_in_the_tune_result():
     r = tune(make_plant([1.0], [1.0, 1.0]), structure="pidf2", seed=0, time_budget_s=3)
     assert r.structure == "pid_mf2"

@@ -43,6 +43,7 @@ def line(ax, label: str):
 
 @pytest.mark.parametrize("kind", plots.KINDS)
 @pytest.mark.parametrize("fmt", plots.FORMATS)
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_each_kind_renders_a_valid_image(roll, kind, fmt):
     data = plots.render(roll, kind, fmt)
     w_in, h_in = plots._SIZES[kind]
@@ -140,6 +141,7 @@ def test_bad_kind_or_format_names_the_field(roll):
         plots.figure("not a result")
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_importing_and_drawing_leave_pyplot_and_the_backend_alone():
     """In a fresh interpreter: no pyplot import and no backend chosen by the module, even after drawing."""
     code = (

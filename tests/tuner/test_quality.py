@@ -82,6 +82,7 @@ def test_constrained_iae_is_not_missed():
     assert a.metrics.overshoot_pct <= 10 and a.metrics.ms <= 1.4 and a.metrics.mks <= 20
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_optimality_is_reported_in_the_result_and_json():
     res = tune(plant_from_expr("1/(s+1)^2"), structure="pi", dt=0.1, seed=0, diagnose=False)
     o = res.solver["optimality"]
@@ -95,6 +96,7 @@ def test_optimality_is_reported_in_the_result_and_json():
         assert o["gap"] >= -1e-9  # the alternative is never better than the answer (it is the best elsewhere)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_fast_effort_needs_no_restart_and_is_never_better_than_default():
     p = plant_from_expr("1/(s+1)^3")
     fast = tune(p, structure="pid", dt=0.1, seed=0, effort="fast", diagnose=False)
@@ -284,6 +286,7 @@ def test_pi_on_a_lightly_damped_plant_stays_in_its_basin():
     assert ind["settling"] == pytest.approx(res.objective, abs=0.01009 / 10)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_the_convergence_claim_rests_on_restart_evidence():
     """Issue 41: "converged" on a principle, not a suite: multistart's Bayesian stopping rule (Boender and Rinnooy Kan
     1987). After n restart draws reached w distinct optima, the posterior expected relative volume of the regions of

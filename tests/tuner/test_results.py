@@ -88,6 +88,7 @@ def test_html_has_gains_checks_and_png_thumbnails(res):
     assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in imgs)
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_robust_html_has_a_column_per_plant(robust):
     h = robust._repr_html_()
     assert "<th>nominal</th>" in h and "<th>plant 6</th>" in h
@@ -111,6 +112,7 @@ def test_plot_returns_a_figure(res, kind):
     assert isinstance(fig2, Figure) and fig2.get_axes()
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_no_pyplot_and_no_backend_chosen():
     """Results are drawn without pyplot and without choosing a backend (a notebook's stays its own)."""
     code = """
@@ -150,6 +152,7 @@ def test_numpydoc_lists_every_parameter(fn):
 
 # -- the README's "From Python" ---------------------------------------------------------------------------------
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_readme_from_python_block_runs():
     text = (ROOT / "README.md").read_text()
     section = text.split("## From Python", 1)[1].split("\n## ", 1)[0]

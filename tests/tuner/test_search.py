@@ -278,6 +278,7 @@ def test_same_seed_same_answer_in_one_process_and_across_processes():
     assert json.loads(out.stdout.strip().splitlines()[-1]) == runs[0].gains
 
 
+@pytest.mark.slow  # (over about 1.5 s on this machine: the whole suite runs it)
 def test_n_trials_and_sampler_act_at_the_default_effort(monkeypatch):
     """Issue 29: the default effort's restarts do not ask Optuna; n_trials (or a sampler) makes them ask it, that
     many points each."""

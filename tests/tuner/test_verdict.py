@@ -134,6 +134,7 @@ def test_the_hold_is_counted_once_at_the_loop_rate():
     assert any("loop's hold in place of the log's" in n for n in a.measured.notes)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_tune_and_its_json_and_exit_code_carry_the_airframe(tmp_path, capsys):
     """The end to end: a tune on a model that misses 60 samples of delay meets its spec on the model, not on the
     measured response (its phase margin less w_c * 0.6 s): meets_spec false, the verdict says where, the CLI exits 1

@@ -42,6 +42,7 @@ def _slow(monkeypatch, step: float) -> None:
     monkeypatch.setattr(time, "perf_counter", slow)
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_slow_machine_gives_the_same_gains_under_the_default_budget(monkeypatch):
     with monkeypatch.context() as m:
         calls = _counting(m)
@@ -122,6 +123,7 @@ def test_the_kernels_and_the_numpy_path_give_bitwise_the_same_gains(expr, struct
     assert kernel_res.solver["global_evaluations"] == numpy_res.solver["global_evaluations"]  # the same search
 
 
+@pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_one_off_stall_in_a_batch_does_not_cut_the_search(monkeypatch):
     """A step is priced by the last batch's cost per point; one batch that paid a one-off cost (a kernel's first call,
     a moment the process was not scheduled: here 30 s of the clock added to the search's first batch, 5 points, so
