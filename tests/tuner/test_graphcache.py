@@ -204,3 +204,47 @@ def test_only_an_entry_this_user_wrote_is_read_and_a_folder_that_cannot_be_writt
     monkeypatch.setattr(type(good[-1]), "unlink", refuse)
     monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
     assert _tune() == reference
+
+
+@pytest.mark.slow  # (over 2 s: the whole suite runs it)
+def test_a_graph_that_cannot_be_stored_or_made_a_solver_of_is_built_and_the_tune_goes_on(cache, builds, monkeypatch):
+    """(Final read of issue 41.) The graph cache is on by default: a serialization that fails (a graph CasADi cannot
+    serialize, no memory) or a stored graph CasADi will not make a solver of must never fail the tune."""
+    reference = _tune()
+    files = sorted((cache / "nlp-graph").glob("*.npz"))
+    for f in files:
+        f.unlink()
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+
+    class Unserializable:
+        def __init__(self, fn):
+            self.fn = fn
+
+        def serialize(self):
+            raise RuntimeError("not serializable")
+
+    real_save = graphcache.save
+    monkeypatch.setattr(graphcache, "save", lambda key, space, fg, *a: real_save(key, space, Unserializable(fg), *a))
+    assert _tune() == reference and not any((cache / "nlp-graph").glob("*.npz"))
+    monkeypatch.setattr(graphcache, "save", real_save)
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    assert _tune() == reference and any((cache / "nlp-graph").glob("*.npz"))  # stored again
+    real_solver, real_load, loading = transcribe._solver, transcribe._load_graph, []
+
+    def refuse(key, nlp):
+        if loading:  # (a stored graph's solver: refused; a build's: made)
+            raise RuntimeError("no solver of this graph")
+        return real_solver(key, nlp)
+
+    def load(key, space):
+        loading.append(1)
+        try:
+            return real_load(key, space)
+        finally:
+            loading.pop()
+
+    monkeypatch.setattr(transcribe, "_solver", refuse)
+    monkeypatch.setattr(transcribe, "_load_graph", load)
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    builds.clear()
+    assert _tune() == reference and builds  # built instead

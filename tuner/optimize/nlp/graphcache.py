@@ -150,9 +150,12 @@ def save(key: Any, space: Any, fg: Any, step: Any, lbg: np.ndarray, ubg: np.ndar
     if path.exists():
         return False
     buf = io.BytesIO()
-    np.savez(buf, fg=np.frombuffer(fg.serialize().encode(), np.uint8),
-             step=np.frombuffer(step.serialize().encode(), np.uint8),
-             lbg=np.asarray(lbg, float), ubg=np.asarray(ubg, float), n_v=np.int64(n_v))
+    try:
+        np.savez(buf, fg=np.frombuffer(fg.serialize().encode(), np.uint8),
+                 step=np.frombuffer(step.serialize().encode(), np.uint8),
+                 lbg=np.asarray(lbg, float), ubg=np.asarray(ubg, float), n_v=np.int64(n_v))
+    except Exception:  # (a graph CasADi cannot serialize, or no memory for it: the tune goes on, nothing stored)
+        return False
     body = buf.getvalue()
     tmp = None
     try:
@@ -192,5 +195,8 @@ def _trim(root: Path) -> None:
     for _, size, p in sorted(entries):
         if total <= cap:
             break
-        p.unlink(missing_ok=True)
+        try:
+            p.unlink(missing_ok=True)
+        except OSError:
+            continue
         total -= size

@@ -591,8 +591,12 @@ def _load_graph(key: ProblemKey, space: Space) -> Problem | None:
     if parts is None:
         return None
     nlp, step, lbg, ubg, nv = parts
+    try:
+        solver = _solver(key, nlp)
+    except Exception:  # (a stored graph CasADi will not make a solver of: built instead, as if it were not there)
+        return None
     BUILDS["count"] += 1  # (a solver made: its plugins loaded, as a build's)
-    return Problem(key=key, solver=_solver(key, nlp), n_v=nv, lbg=lbg, ubg=ubg, params=parameter_layout(key, nv),
+    return Problem(key=key, solver=solver, n_v=nv, lbg=lbg, ubg=ubg, params=parameter_layout(key, nv),
                    variables=variable_layout(key, nv), step=step, nlp=nlp)
 
 
