@@ -80,10 +80,7 @@ _FILES = ("Betaflight parameters (its CLI dump: set NAME = VALUE lines, a .txt; 
 _LPF_TYPES = {"PT1": 0.0, "BIQUAD": 1.0, "PT2": 2.0, "PT3": 3.0}
 #: settings whose value is a word, read as 0 (OFF) or 1 (any other: on)
 _SWITCHES = ("iterm_relax",)
-#: the settings the law and its checks read as numbers (every axis)
-_LAW_SETTINGS = frozenset({f"{k}_{a}" for k in ("p", "i", "d", "f", "d_min") for a in ("roll", "pitch", "yaw")}
-                          | {"iterm_limit", "dterm_lpf1_static_hz", "dterm_lpf2_static_hz", "pid_process_denom",
-                             "yaw_lowpass_hz", "dterm_lpf1_dyn_min_hz", "dterm_lpf1_dyn_max_hz", "dterm_notch_hz"})
+
 
 #: the law's fixed values (roll's defaults; yaw: :data:`_YAW`): the D-term low-passes 1 and 2 (PT1, Hz; 0 = off),
 #: yaw's P-term low-pass (roll and pitch have none), the I-term limit (PID units) and the I gain's factor (yaw 2.5)
@@ -97,6 +94,11 @@ def _names(axis: str) -> dict[str, str]:
     return {"P": f"p_{a}", "I": f"i_{a}", "D": f"d_{a}", "FF": f"f_{a}", "iterm_limit": "iterm_limit",
             "dlpf1_hz": "dterm_lpf1_static_hz", "dlpf2_hz": "dterm_lpf2_static_hz", "loop_hz": "pid_process_denom",
             **({"yaw_lpf_hz": "yaw_lowpass_hz"} if axis == "yaw" else {})}
+
+
+#: the settings the law and its checks read as numbers (every axis): a word there is refused, never skipped
+_LAW_SETTINGS = frozenset(v for a in _AX for v in _names(a).values()) | {f"d_min_{a}" for a in _AX} | {
+    "dterm_lpf1_dyn_min_hz", "dterm_lpf1_dyn_max_hz", "dterm_notch_hz"}
 
 
 def _ranges(axis: str) -> dict[str, tuple[float, float]]:

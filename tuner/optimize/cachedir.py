@@ -17,7 +17,7 @@ import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["cache_root", "trusted_root", "kernels_ready_mark"]
+__all__ = ["cache_root", "trusted_root", "private", "kernels_ready_mark"]
 
 
 def cache_root() -> Path:
@@ -39,13 +39,17 @@ def trusted_root() -> Path | None:
         st = root.stat()
     except OSError:
         return None
+    return root if private(st) else None
+
+
+def private(st: os.stat_result, *, regular: bool = False) -> bool:
+    """``st`` (a directory's, or ``regular``: a regular file's) is owned by the current user and not writable by group
+    or others: safe to load code from."""
     import stat
 
-    if not stat.S_ISDIR(st.st_mode) or st.st_mode & 0o022:
-        return None
-    if hasattr(os, "getuid") and st.st_uid != os.getuid():
-        return None
-    return root
+    kind = stat.S_ISREG if regular else stat.S_ISDIR
+    return bool(kind(st.st_mode)) and not st.st_mode & 0o022 and \
+        (not hasattr(os, "getuid") or st.st_uid == os.getuid())
 
 
 def kernels_ready_mark() -> Path:

@@ -16,20 +16,16 @@ from __future__ import annotations
 import math
 import os
 
-from .cachedir import kernels_ready_mark, trusted_root
+from .cachedir import kernels_ready_mark, private, trusted_root
 
 
 def _private_dir(path: str) -> bool:
     """``path`` is a folder of this user's (created private if it is not there) that no one else can write."""
-    import stat
-
     try:
         os.makedirs(path, mode=0o700, exist_ok=True)
-        st = os.stat(path)
+        return private(os.stat(path))
     except OSError:
         return False
-    return stat.S_ISDIR(st.st_mode) and not st.st_mode & 0o022 and \
-        (not hasattr(os, "getuid") or st.st_uid == os.getuid())
 
 __all__ = ["c_and_l", "margins", "step_sampled", "warm"]
 

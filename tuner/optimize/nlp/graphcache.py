@@ -27,14 +27,13 @@ from __future__ import annotations
 import hashlib
 import io
 import os
-import stat
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..cachedir import cache_root, trusted_root
+from ..cachedir import cache_root, private, trusted_root
 from .codecache import sources_digest
 
 __all__ = ["enabled", "entry_path", "load", "save", "CACHE_MB", "FORMAT"]
@@ -121,24 +120,18 @@ def _read_own(path: Path) -> bytes | None:
     except OSError:
         return None
     try:
-        if not _own(os.fstat(dfd), stat.S_ISDIR):
+        if not private(os.fstat(dfd)):
             return None
         try:
             fd = os.open(path.name, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0), dir_fd=dfd)
         except OSError:
             return None
         with os.fdopen(fd, "rb") as f:
-            if not _own(os.fstat(f.fileno()), stat.S_ISREG):
+            if not private(os.fstat(f.fileno()), regular=True):
                 return None
             return f.read()
     finally:
         os.close(dfd)
-
-
-def _own(st: os.stat_result, kind: Any) -> bool:
-    """``st`` is of ``kind`` (stat.S_ISDIR / S_ISREG), owned by this user and not writable by group or others."""
-    return bool(kind(st.st_mode)) and not st.st_mode & 0o022 and \
-        (not hasattr(os, "getuid") or st.st_uid == os.getuid())
 
 
 def save(key: Any, space: Any, fg: Any, step: Any, lbg: np.ndarray, ubg: np.ndarray, n_v: int) -> bool:
