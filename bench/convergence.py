@@ -59,6 +59,12 @@ LAGDELAY_N = 40
 ISSUE41_SEED = 20261205
 ISSUE41_N = 20  # per class
 ISSUE41_CLASSES = ("nmpneg", "nmpfast", "unstslow", "intdelay4")
+#: a fresh held-out part (stop 46): the same generator, its own seed drawn before any of its cases was tuned, and
+#: only the classes whose references are feasible (``unstslow``'s long searches met the spec in none of its cases);
+#: nothing in the engine was designed on it
+FRESH_SEED = 20261206
+FRESH_N = 10  # per class
+FRESH_CLASSES = ("nmpneg", "nmpfast", "intdelay4")
 REFERENCE_SEEDS = (0, 1)
 REFERENCE_BUDGET_S = 60.0
 #: the references' search: far longer than thorough (which refines 5 starts, confirms over 3 restarts of 128 points)
@@ -84,10 +90,11 @@ def suite() -> list[dict[str, Any]]:
         cases.append({"id": f"lagdelay-{i:02d}", "class": "lagdelay", "structure": structure, "num": [K],
                       "den": quality._poly(*[[t, 1.0] for t in taus]), "delay_s": float(f"{samples * dt:.10g}"),
                       "dt": dt, "tau_dom": T, "order": n})
-    return cases + issue41_cases()
+    return cases + issue41_cases() + issue41_cases(FRESH_SEED, FRESH_N, FRESH_CLASSES, fresh=True)
 
 
-def issue41_cases() -> list[dict[str, Any]]:
+def issue41_cases(seed: int = ISSUE41_SEED, n: int = ISSUE41_N, classes: tuple[str, ...] = ISSUE41_CLASSES,
+                  fresh: bool = False) -> list[dict[str, Any]]:
     """Issue 41's classes (20 each, seeded by ``ISSUE41_SEED``), PI, PID and ``pid_z`` round-robin:
 
     * ``nmpneg``: a non-minimum-phase plant with a negative DC gain, -K (1 - b s) / ((T s + 1)(T2 s + 1)), its
@@ -97,11 +104,13 @@ def issue41_cases() -> list[dict[str, Any]]:
       per unstable time constant T (the quality suite's unstable class has 5-50);
     * ``intdelay4``: an integrator with lag, K / (s (T s + 1)), and a dead time of exactly 4 samples.
 
-    Elsewhere as the quality suite: K = 10^U(-0.5, 0.7), T = 10^U(-1, 1.3) s, dt = T / U(5, 50) (log-uniform)."""
-    rng = np.random.default_rng(ISSUE41_SEED)
+    Elsewhere as the quality suite: K = 10^U(-0.5, 0.7), T = 10^U(-1, 1.3) s, dt = T / U(5, 50) (log-uniform).
+
+    With ``fresh``: the fresh held-out part's cases (ids ``<class>-f<i>``, part ``fresh``) from ``seed``."""
+    rng = np.random.default_rng(seed)
     cases = []
-    for cls in ISSUE41_CLASSES:
-        for i in range(ISSUE41_N):
+    for cls in classes:
+        for i in range(n):
             K = float(10 ** rng.uniform(-0.5, 0.7))
             T = float(10 ** rng.uniform(-1, 1.3))
             k = float(10 ** rng.uniform(math.log10(5), math.log10(50)))
@@ -120,9 +129,10 @@ def issue41_cases() -> list[dict[str, Any]]:
             dt = float(f"{T / k:.4g}")
             if cls == "intdelay4":
                 delay = float(f"{4 * dt:.10g}")
-            cases.append({"id": f"{cls}-{i:02d}", "class": cls, "structure": ("pi", "pid", "pid_z")[i % 3],
+            cases.append({"id": f"{cls}-{'f' if fresh else ''}{i:02d}", "class": cls,
+                          "structure": ("pi", "pid", "pid_z")[i % 3],
                           "num": num, "den": den, "delay_s": delay, "dt": dt, "tau_dom": T, "order": len(den) - 1,
-                          "part": "heldout" if i % 2 else "design"})
+                          "part": "fresh" if fresh else "heldout" if i % 2 else "design"})
     return cases
 
 
@@ -132,7 +142,9 @@ def part_of(c: dict[str, Any]) -> str:
     (fe869d3, 7a72fa4, a303295), and the Bayesian multistart rule's diagnosis (issue 41, item 1) looked at its
     nmpfast-19, nmpfast-07 and intdelay4-17 by name. That rule's constants were not fitted to it: the estimate and
     its 0.2 level are the literature's and the previous rule's, the draw's reduced sample (a quarter) was set before
-    any run, and its design runs were on issue 41's even-numbered cases (``--part design``) alone."""
+    any run, and its design runs were on issue 41's even-numbered cases (``--part design``) alone. ``fresh``: the
+    fresh held-out part (``FRESH_SEED``), generated at stop 46 after the engine's last change to its search and claims
+    and measured once, as it stood (its references, then default and thorough)."""
     return c.get("part", "design")
 
 
@@ -295,7 +307,7 @@ def cmd_report(a: argparse.Namespace) -> None:
                 r["ratio"] = r["objective"] / ref if r["meets"] else math.inf
         parts += [f"## {f.name}", "", f"`{d.get('command')}`" + (f" at {d['commit']}" if d.get("commit") else ""),
                   "", "```", summary(d["rows"], d["effort"]), "```", ""]
-        if any(r.get("part") == "heldout" for r in d["rows"]):
+        if any(r.get("part") in ("heldout", "fresh") for r in d["rows"]):
             rows = [dict(r, ratio=(r["objective"] / best[r["id"]] if r["meets"] else math.inf))
                     for r in d["rows"] if r["id"] in best]
             parts += ["Against the best known (the reference, or a better verified result of any run stored here):",
@@ -310,7 +322,7 @@ def main() -> None:
     r = sub.add_parser("reference", help="the long-search references (resumable)")
     r.add_argument("--only", default="")
     r.add_argument("--classes", default="", help="comma-separated classes (e.g. nmpneg,nmpfast,unstslow,intdelay4)")
-    r.add_argument("--part", default="", choices=("", "design", "heldout"))
+    r.add_argument("--part", default="", choices=("", "design", "heldout", "fresh"))
     r.add_argument("--cap-s", type=float, default=0.0)
     r.add_argument("--shard", default="", help="k/n: every n-th case from the k-th (several processes)")
     u = sub.add_parser("run", help="tune every case at an effort and compare with the references")
@@ -319,7 +331,7 @@ def main() -> None:
     u.add_argument("--budget", type=float, default=None, help="seconds (default: the library's default budget)")
     u.add_argument("--only", default="")
     u.add_argument("--classes", default="")
-    u.add_argument("--part", default="", choices=("", "design", "heldout"))
+    u.add_argument("--part", default="", choices=("", "design", "heldout", "fresh"))
     u.add_argument("--out", default="")
     u.add_argument("--n-starts", type=int, default=0, help="tune(n_starts=) (0: the effort's)")
     u.add_argument("--cap-s", type=float, default=0.0, help="the default budget's wall-clock cap (0: the library's)")

@@ -5,12 +5,17 @@
 Each run is a fresh output directory (a fresh SQLite storage: nothing reused). Reported per
 worker count: the median wall time and the median CPU time of the run (the command and its
 children), and the ratio of the medians; the load average before and after each run is printed,
-since the machine may be shared. Nothing here asserts a timing.
+since the machine may be shared. With ``--tree``, each one-worker run's loops (their own tune walls)
+and the most two workers could gain on them if a loop runs on one worker and nothing else cost
+anything (:func:`loop_bound`): a study of a few unequal loops cannot reach 2x. Nothing here asserts a timing.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import math
 import os
 import resource
 import statistics
@@ -23,9 +28,37 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+LAST_LOOPS: dict[str, float] = {}  # the last run's loops' own tune walls (results.json's wall_time_s), s
+
+
+def loop_bound(walls: list[float], workers: int = 2) -> float:
+    """The most ``workers`` workers can gain over one on loops taking ``walls`` seconds each, when a loop runs on one
+    worker and everything else is free: sum / the smallest makespan over every assignment (brute force; a study has
+    a few loops). 5 loops of 0.84, 0.90, 2.54, 1.61, 1.81 s: {2.54, 1.61} against {0.84, 0.90, 1.81}, 7.70 / 4.15 =
+    1.86.
+
+    >>> round(loop_bound([0.84, 0.90, 2.54, 1.61, 1.81]), 2)
+    1.86
+    >>> loop_bound([1.0, 1.0])
+    2.0
+    """
+    import itertools
+
+    if not walls:
+        return float("nan")
+    best = math.inf
+    for assign in itertools.product(range(workers), repeat=len(walls) - 1):  # (the first loop on worker 0)
+        load = [0.0] * workers
+        for w, t in zip((0, *assign), walls):
+            load[w] += t
+        best = min(best, max(load))
+    return sum(walls) / best
+
+
 def run_once(study: str, workers: int, plots: bool, env: dict[str, str] | None = None,
              root: Path | None = None) -> tuple[float, float]:
-    """(wall s, CPU s of the command and its children); ``root``: the source tree whose ``tuner`` runs (this one)."""
+    """(wall s, CPU s of the command and its children); ``root``: the source tree whose ``tuner`` runs (this one).
+    The loops' own walls are left in :data:`LAST_LOOPS`."""
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "tuner.cli", "study", "run", study, "--workers", str(workers), "--out", out]
         if not plots:
@@ -38,6 +71,10 @@ def run_once(study: str, workers: int, plots: bool, env: dict[str, str] | None =
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         if proc.returncode not in (0, 1):  # 1: a loop misses its spec (still a full run)
             raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+        LAST_LOOPS.clear()
+        with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+            loops = json.loads((Path(out) / "results.json").read_text())["loops"]
+            LAST_LOOPS.update({k: float(v["wall_time_s"]) for k, v in loops.items()})
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return wall, cpu
 
@@ -102,6 +139,7 @@ def _trees(a: argparse.Namespace) -> int:
     trees = [Path(t).resolve() for t in a.tree]
     study = str(Path(a.study).resolve())
     res = {t: {1: [], 2: []} for t in trees}
+    bounds: dict[Path, list[float]] = {t: [] for t in trees}
     print(f"{a.study}, {a.repeat} x (workers 1, workers 2) per tree, alternating; {os.cpu_count()} CPUs")
     for i in range(a.repeat):
         for t in trees:
@@ -109,16 +147,24 @@ def _trees(a: argparse.Namespace) -> int:
                 load0 = os.getloadavg()[0]
                 wall, cpu = run_once(study, w, not a.no_plots, root=t)
                 res[t][w].append((wall, cpu))
+                loops = dict(LAST_LOOPS)
+                if w == 1:
+                    bounds[t].append(loop_bound(list(loops.values())))
                 print(f"  run {i + 1} {t} workers {w}: {wall:6.2f} s wall, {cpu:6.2f} s CPU (load average "
-                      f"{load0:.2f} before, {os.getloadavg()[0]:.2f} after)", flush=True)
+                      f"{load0:.2f} before, {os.getloadavg()[0]:.2f} after); loops "
+                      + ", ".join(f"{k} {v:.2f}" for k, v in loops.items())
+                      + (f" s (their sum {sum(loops.values()):.2f} s, loop-level bound on 2 workers "
+                         f"{bounds[t][-1]:.2f}x)" if w == 1 and loops else " s"), flush=True)
     print("\n| tree | median wall 1 worker [s] | 2 workers [s] | ratio | median CPU 1 worker [s] | 2 workers [s] | "
-          "ratio per pair |")
-    print("|---|---|---|---|---|---|---|")
+          "ratio per pair | loop-level bound (median) |")
+    print("|---|---|---|---|---|---|---|---|")
     for t in trees:
         mw = {w: statistics.median(x[0] for x in res[t][w]) for w in (1, 2)}
         mc = {w: statistics.median(x[1] for x in res[t][w]) for w in (1, 2)}
         pairs = ", ".join(f"{x[0] / y[0]:.2f}" for x, y in zip(res[t][1], res[t][2]))
-        print(f"| {t} | {mw[1]:.2f} | {mw[2]:.2f} | {mw[1] / mw[2]:.2f} | {mc[1]:.2f} | {mc[2]:.2f} | {pairs} |")
+        bound = statistics.median(bounds[t]) if bounds[t] else float("nan")
+        print(f"| {t} | {mw[1]:.2f} | {mw[2]:.2f} | {mw[1] / mw[2]:.2f} | {mc[1]:.2f} | {mc[2]:.2f} | {pairs} | "
+              f"{bound:.2f}x |")
     return 0
 
 
