@@ -503,10 +503,11 @@ def sqp_options() -> dict[str, Any]:
     # x and p evaluated once after each solve to recompute f, g and the multipliers lam_x, lam_p at the answer. Its
     # reverse sweep is the largest of the solver's derivative graphs (the roll loop's K = 64 shape: 59 200
     # instructions, against 45 700 for the Jacobian the iterations use), and deriving it was half of each nlpsol (a
-    # cold process making its solvers of stored graphs, tuner/optimize/nlp/graphcache.py: the roll loop's four shapes
-    # 0.10 s -> 0.05 s; nor is its C generated for a compiled entry). The SQP answers only x and f: x is the iterate either way, and f the one the last iteration evaluated
-    # at it, the same expression nodes evaluated in the same order (bitwise the same, every solve's x, f, g and every
-    # tune's gains: tests/tuner/test_cold_cli.py); the multipliers are used only by the ipopt solver's warm starts
+    # cold process making its solvers of stored graphs, tuner/optimize/nlp/graphcache.py: the roll loop's four
+    # shapes 0.10 s -> 0.05 s; nor is its C generated for a compiled entry). The SQP answers only x and f: x is the
+    # iterate either way, and f the one the last iteration evaluated at it, the same expression nodes evaluated in
+    # the same order (bitwise the same, every solve's x, f, g and every tune's gains: tests/tuner/test_cold_cli.py);
+    # the multipliers are used only by the ipopt solver's warm starts
     return {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
             "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False,
             "print_iteration": False, "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
