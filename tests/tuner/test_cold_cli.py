@@ -4,6 +4,9 @@ multipliers), and answers bitwise as the solver with it: every solve's x, f and 
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from collections import OrderedDict
 
 import casadi as cs
@@ -87,3 +90,16 @@ def test_a_tune_finds_bitwise_the_gains_it_found_with_nlp_grad(fresh, monkeypatc
     now = run()
     monkeypatch.setattr(transcribe, "sqp_options", _with_nlp_grad)
     assert run() == now
+
+
+def test_a_cold_command_line_tune_imports_only_what_it_uses(tmp_path):
+    """A cold ``tuner tune`` of a model (no identification, no plot, one process) imports none of: the robust
+    plant sets (tuner.robust), the batch's compiled kernels and numba, scipy.stats, Optuna, matplotlib."""
+    heavy = ("tuner.robust", "tuner.optimize.kernels", "numba", "scipy.stats", "optuna", "matplotlib")
+    code = ("import sys\nfrom tuner.cli import main\n"
+            "rc = main(['tune', '--plant', '1/(s+1)^2', '--dt', '0.1', '--structure', 'pi', '--effort', 'fast'])\n"
+            f"print(rc, [m for m in {heavy!r} if m in sys.modules])")
+    env = {**os.environ, "TUNER_CACHE_DIR": str(tmp_path), "TUNER_NLP_COMPILE": "off"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "0 []"
