@@ -501,7 +501,7 @@ def sqp_options() -> dict[str, Any]:
     # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
     # no_nlp_grad (with the calc_* it needs off): nlpsol makes no "nlp_grad" Function, the Lagrangian's gradient in
     # x and p evaluated once after each solve to recompute f, g and the multipliers lam_x, lam_p at the answer. Its
-    # reverse sweep is the largest of the solver's derivative graphs (the roll loop's K = 64 shape: 59 200
+    # reverse sweep is the largest of the solver's derivative graphs (the roll loop's K = 48, N = 32 shape: 59 200
     # instructions, against 45 700 for the Jacobian the iterations use), and deriving it was half of each nlpsol (a
     # cold process making its solvers of stored graphs, tuner/optimize/nlp/graphcache.py: the roll loop's four
     # shapes 0.10 s -> 0.05 s; nor is its C generated for a compiled entry). The SQP answers only x and f: x is the
