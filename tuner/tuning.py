@@ -528,10 +528,13 @@ def check_budget(time_budget_s: Any) -> None:
 def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo: int | None, dt: float | None,
                          delay: Any) -> tuple[Any, Any, Any, int]:
     """An identification's plant set (its nominal model, or the ``robust``-sigma set), the identification, the robust
-    design record and the Monte Carlo draws; other inputs as they are."""
-    from .robust import MC_SIGMA, check_draws, check_spread, is_identification, plant_set
+    design record and the Monte Carlo draws; other inputs as they are (:mod:`tuner.robust` not imported for them: a
+    cold ``tuner tune`` of a model never needs it)."""
+    from ._lazy import is_instance_of
 
-    if is_identification(plant_or_plants):
+    if is_instance_of(plant_or_plants, "tuner.identify.result", "IdentifyResult"):  # (tuner.robust.is_identification)
+        from .robust import MC_SIGMA, check_draws, check_spread, plant_set
+
         if delay is not None:
             raise TunerError("an identification carries its fitted delay: leave delay out", field="delay")
         ident = plant_or_plants

@@ -4,14 +4,15 @@
 A shape's build (:func:`tuner.optimize.nlp.transcribe.get_problem`) writes its entry (:func:`save`): the NLP's
 ``(x, p) -> (f, g)`` and the step-response Function, each in CasADi's own serialization (``Function.serialize``),
 with the constraint bounds. A later process loads the entry (:func:`load`) and makes the solver of the deserialized
-``(f, g)`` Function (``nlpsol``: CasADi derives the solver's derivative functions again, which is faster than
-deserializing them; the whole serialized solver was measured no faster to load than to build for px4_rate's
-shapes). The loaded problem's graph is the built one's node for node, so the solver answers bitwise as the built
-one (tests/tuner/test_graphcache.py).
+``(f, g)`` Function (``nlpsol``: CasADi derives the solver's derivative Function, the Jacobian, again, which is
+faster than deserializing it: px4_rate's K = 1536 shape's whole serialized solver, 146 MB, deserializes in 1.47 s,
+its ``(f, g)`` in 0.26 s and ``nlpsol`` of it takes 0.55 s). The loaded problem's graph is the built one's node for
+node, so the solver answers bitwise as the built one (tests/tuner/test_graphcache.py).
 
-Measured (CPU, 2-core machine): the README's roll loop's four shapes build in 0.81 s and load in 0.24 s (0.06 s of
-it deserializing); px4_rate's six in 7.6 s and 5.8 s (``nlpsol``'s derivatives of the K = 1536 shape, 2.5 s, are
-paid either way).
+Measured (the solver's ``build_s``, one process each, 2-core machine): the README's roll loop's four shapes load in
+0.10 s (0.04 s of it deserializing); px4_rate's six build in 3.6 s and load in 1.6 s (0.6 s deserializing, 0.85 s
+``nlpsol``), where they took 5.3 s and 2.8 s while the SQP also made CasADi's ``nlp_grad``
+(:func:`tuner.optimize.nlp.transcribe.sqp_options`).
 
 The same rules as the compiled-code cache (:mod:`tuner.optimize.nlp.codecache`): only in a root that
 :func:`tuner.optimize.cachedir.trusted_root` accepts (a deserialized CasADi Function can name a shared library to

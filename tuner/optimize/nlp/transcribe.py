@@ -499,9 +499,19 @@ def sqp_options() -> dict[str, Any]:
     # nearly free the solve ends elsewhere and the search follows: with 1e-6, PI on 1/(20s+1)^2 at dt 0.1 ends at
     # 64.9 s against 53.6 s (tests/tuner/test_effort_limits.py), with 1e-4 bench/quality.py's nmp-19 (default)
     # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
+    # no_nlp_grad (with the calc_* it needs off): nlpsol makes no "nlp_grad" Function, the Lagrangian's gradient in
+    # x and p evaluated once after each solve to recompute f, g and the multipliers lam_x, lam_p at the answer. Its
+    # reverse sweep is the largest of the solver's derivative graphs (the roll loop's K = 48, N = 32 shape: 59 200
+    # instructions, against 45 700 for the Jacobian the iterations use), and deriving it was half of each nlpsol (a
+    # cold process making its solvers of stored graphs, tuner/optimize/nlp/graphcache.py: the roll loop's four
+    # shapes 0.10 s -> 0.05 s; nor is its C generated for a compiled entry). The SQP answers only x and f: x is the
+    # iterate either way, and f the one the last iteration evaluated at it, the same expression nodes evaluated in
+    # the same order (bitwise the same, every solve's x, f, g and every tune's gains: tests/tuner/test_cold_cli.py);
+    # the multipliers are used only by the ipopt solver's warm starts
     return {"qpsol": "daqp", "hessian_approximation": "limited-memory", "max_iter": MAX_SQP_ITER,
             "tol_du": SQP_TOL_DU, "min_step_size": 1e-16, "print_time": False, "print_header": False,
             "print_iteration": False, "print_status": False, "error_on_fail": False, "show_eval_warnings": False,
+            "no_nlp_grad": True, "calc_f": False, "calc_g": False, "calc_lam_x": False, "calc_lam_p": False,
             "qpsol_options": {"error_on_fail": False}}
 
 
