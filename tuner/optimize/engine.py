@@ -146,6 +146,14 @@ class Effort:
     # the NLP grid's detail (refine's ``detail``): thorough resolves the polish to ~0.25 %, not 1 %, and from 2 on the
     # polish is sharp (its settling time between the grid's points, its overshoot margin measured)
     detail: int = 1
+    # the fine polish's own detail (0: ``detail``). default polishes at 2 (sharp, at twice the grid detail) while its
+    # other refinements stay at 1: at 1 the polish resolves the settling time to about 1 %, the very tolerance
+    # "within 1 % of the optimum" is judged by, so an answer in the optimum's basin fell 1.0-1.8 % short by
+    # resolution alone (bench/convergence.py's intdelay4-02, -10, -16 at default, design part). Measured on the
+    # convergence suite's design part (332 cases with a reference, the same run): within 1 % 328 -> 331, better by
+    # more than 0.1 % on 235 cases, worse on 2 (underdamped-30 +0.15 %, nmp-28 +0.5 %); warm CPU on the README's
+    # loops +7-22 % (bench/results/warm_speed_issue41_stop46.md)
+    polish_detail: int = 0
     # -- the search's other constants, the same at every effort today (one place: here) --------------------------
     patience: int = 1  # rounds in a row without improvement that end an Optuna-only search (no local stage)
     extra_verify: int = 12  # finalists verified beyond ``verify`` when none of those is feasible
@@ -196,7 +204,8 @@ EFFORTS = {
     # default: two round-0 refinements and one per restart cost 30 % less than three and two, and on every fourth
     # suite case changed no ratio by more than 0.3 % (bench/QUALITY.md)
     "default": Effort("default", n_starts=2, design_points=48, confirm=1, restart_points=64,
-                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=4, draw_cutoff=True),
+                      restart_refines=1, verify=2, optuna=False, restart_spread=3, max_restarts=4, draw_cutoff=True,
+                      polish_detail=2),
     "thorough": Effort("thorough", n_starts=5, design_points=128, confirm=3, restart_points=128, restart_refines=3,
                        verify=5, optuna=True, detail=2, refind=3, max_restarts=8),
 }
@@ -580,7 +589,8 @@ class Engine:
 
     def _polish(self) -> None:
         """The incumbent refined once more on the fine NLP grid (``refine(fine=True)``: the settling time
-        resolved to about 1 %, the horizon as far as the slowest pole reaches), if it has not been already:
+        resolved to about 1 %, or about 0.25 % and sharp at ``Effort.polish_detail`` 2 (default and thorough), the
+        horizon as far as the slowest pole reaches), if it has not been already:
         the coarse grid's bisection stops up to a grid step (a quarter sample) above the optimum, and a
         horizon of three settling times misses a slow tail that leaves the band later (PID on an integrating
         plant at dt = tau/30: 6.6 % above the optimum)."""
@@ -612,7 +622,8 @@ class Engine:
                              above=_sig(self.best.score + self._tol(), INPUT_DIGITS)
                              if self._settling and own and self.effort.draw_cutoff else None,
                              start=self._start(v, digits=INPUT_DIGITS),
-                             fine=fine, detail=self.effort.detail)
+                             fine=fine, detail=(self.effort.polish_detail or self.effort.detail) if fine
+                             else self.effort.detail)
             except TunerError as e:  # the NLP's own model of this loop cannot be built (its internal simulation
                 # step of a stiff plant below the smallest sample time, a loop gain beyond double precision for
                 # the NLP's scaled candidate): the search goes on without the local stage, and says so; the user's
