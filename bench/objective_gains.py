@@ -1,7 +1,7 @@
-"""Whether a change keeps every objective's tuned gains bitwise the same (the SQP's answer f is what the objectives
-other than the settling time are ranked by): the gains (float.hex), objective and verdict of pid on 1/(s+1)^3 at dt
-0.1, pid_z on the README's roll loop at dt 0.04 and pi on 1/(s(0.5s+1)) (continuous), for each objective and seeds
-0 and 1, in one process.
+"""Whether a change keeps every objective's tuned gains bitwise the same (for the objectives other than the settling
+time a refinement's answer is its solve's x, kept where the SQP's f is finite, and ranked by the batch): the gains
+(float.hex), objective and verdict of pid on 1/(s+1)^3 at dt 0.1, pid_z on the README's roll loop at dt 0.04 and pi
+on 1/(s(0.5s+1)) (continuous), for each objective and seeds 0 and 1, in one process.
 
     .venv/bin/python bench/objective_gains.py OUT.json                       # this tree
     PYTHONPATH=/other/tree .venv/bin/python bench/objective_gains.py B.json  # another tree

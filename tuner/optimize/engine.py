@@ -150,9 +150,10 @@ class Effort:
     # other refinements stay at 1: at 1 the polish resolves the settling time to about 1 %, the very tolerance
     # "within 1 % of the optimum" is judged by, so an answer in the optimum's basin fell 1.0-1.8 % short by
     # resolution alone (bench/convergence.py's intdelay4-02, -10, -16 at default, design part). Measured on the
-    # convergence suite's design part (332 cases with a reference, the same run): within 1 % 328 -> 331, better by
-    # more than 0.1 % on 235 cases, worse on 2 (underdamped-30 +0.15 %, nmp-28 +0.5 %); warm CPU on the README's
-    # loops +7-22 % (bench/results/warm_speed_issue41_stop46.md)
+    # convergence suite's design part (332 cases with a reference, the same run, bench/polish_detail_ab.py,
+    # bench/results/polish_detail_ab_design_stop46.txt): within 1 % 328 -> 331, better by more than 0.1 % on 235
+    # cases, worse on 2 (underdamped-30 +0.15 %, nmp-28 +0.5 %); warm CPU on the README's loops -1 to +23 %
+    # (bench/results/warm_speed_issue41_stop46.md). thorough is sharp throughout (``detail`` 2)
     polish_detail: int = 0
     # -- the search's other constants, the same at every effort today (one place: here) --------------------------
     patience: int = 1  # rounds in a row without improvement that end an Optuna-only search (no local stage)
@@ -589,7 +590,8 @@ class Engine:
 
     def _polish(self) -> None:
         """The incumbent refined once more on the fine NLP grid (``refine(fine=True)``: the settling time
-        resolved to about 1 %, or about 0.25 % and sharp at ``Effort.polish_detail`` 2 (default and thorough), the
+        resolved to about 1 %, or about 0.25 % and sharp at detail 2: default's ``Effort.polish_detail``, thorough's
+        ``Effort.detail``), the
         horizon as far as the slowest pole reaches), if it has not been already:
         the coarse grid's bisection stops up to a grid step (a quarter sample) above the optimum, and a
         horizon of three settling times misses a slow tail that leaves the band later (PID on an integrating

@@ -9,7 +9,8 @@ faster than deserializing it: px4_rate's K = 1536 shape's whole serialized solve
 its ``(f, g)`` in 0.26 s and ``nlpsol`` of it takes 0.55 s). The loaded problem's graph is the built one's node for
 node, so the solver answers bitwise as the built one (tests/tuner/test_graphcache.py).
 
-Measured (the solver's ``build_s``, one process each, 2-core machine): the README's roll loop's four shapes load in
+Measured (the solver's ``build_s``, one process each, 2-core machine; before f39d2ed made default's polish sharp, a
+larger shape for some loops): the README's roll loop's four shapes load in
 0.10 s (0.04 s of it deserializing); px4_rate's six build in 3.6 s and load in 1.6 s (0.6 s deserializing, 0.85 s
 ``nlpsol``), where they took 5.3 s and 2.8 s while the SQP also made CasADi's ``nlp_grad``
 (:func:`tuner.optimize.nlp.transcribe.sqp_options`).

@@ -501,10 +501,11 @@ def sqp_options() -> dict[str, Any]:
     # 5.5 % and delay-22 (fast) 14 % worse; neither is the better tolerance everywhere
     # no_nlp_grad (with the calc_* it needs off): nlpsol makes no "nlp_grad" Function, the Lagrangian's gradient in
     # x and p evaluated once after each solve to recompute f, g and the multipliers lam_x, lam_p at the answer. Its
-    # reverse sweep is the largest of the solver's derivative graphs (the roll loop's K = 48, N = 32 shape: 59 200
-    # instructions, against 45 700 for the Jacobian the iterations use), and deriving it was half of each nlpsol (a
-    # cold process making its solvers of stored graphs, tuner/optimize/nlp/graphcache.py: the roll loop's four
-    # shapes 0.10 s -> 0.05 s; nor is its C generated for a compiled entry). The SQP answers only x and f: x is the
+    # reverse sweep is the largest of the solver's derivative graphs (measured before f39d2ed made default's polish
+    # sharp: the roll loop's K = 48, N = 32 shape: 59 200 instructions, against 45 700 for the Jacobian the iterations
+    # use; its sharp polish shape now 66 869 against 53 730), and deriving it was half of each nlpsol (a cold process
+    # making its solvers of stored graphs, tuner/optimize/nlp/graphcache.py: the roll loop's four shapes 0.10 s ->
+    # 0.05 s; nor is its C generated for a compiled entry). The SQP answers only x and f: x is the
     # iterate either way, and f the one the last iteration evaluated at it, the same expression nodes evaluated in
     # the same order (bitwise the same, every solve's x, f, g and every tune's gains: tests/tuner/test_cold_cli.py);
     # the multipliers are used only by the ipopt solver's warm starts
