@@ -48,18 +48,22 @@ def test_ki_min_without_an_integrator_is_refused(capsys):
 
 @pytest.mark.slow  # (over about 2 s on this machine: the whole suite runs it)
 def test_a_vanishing_derivative_gain_is_said_with_its_consequence():
-    """Issue 30, item 4 (Kd): a PID whose optimum drops the D term (a first-order lag needs no phase lead) says so,
-    names the consequence and the fix; a PID that uses D (the thesis roll model, lightly damped) says nothing."""
+    """Issue 30, item 4 (Kd): a design whose D term vanishes says so, names the consequence and the fix; a PID that
+    uses D (the thesis roll model, lightly damped) says nothing. The case: PD on an integrator, 1/s at dt 0.1, at
+    effort fast, whose answer is Kp 10 with Kd below the threshold (the closed loop of P alone is first order and
+    needs no phase lead: the sharper searches add a Kd of 0.002-0.004 for 0.15 % of settling time). (PID on
+    1/(s + 1) was the case until default's polish became sharp: its optimum keeps a small D with a slow filter, Kd
+    0.17, Tf 0.18 s, 0.46 % faster than the D-free design the plain polish ended at.)"""
     from tuner.problem import TuningProblem
 
-    plant = plant_from_expr("1/(s+1)")
-    r = tune(plant, structure="pid", dt=0.1, seed=0)
-    k0, w0 = TuningProblem.build(plant, structure="pid", spec=Spec(), dt=0.1).scale
+    plant = plant_from_expr("1/s")
+    r = tune(plant, structure="pd", dt=0.1, seed=0, effort="fast")
+    k0, w0 = TuningProblem.build(plant, structure="pd", spec=Spec(), dt=0.1).scale
     kd = abs(r.gains["Kd"])
     notes = [n for n in r.solver.get("notes", []) if n.startswith("no derivative action")]
     assert kd < 1e-3 * k0 / w0 and len(notes) == 1  # the threshold: 1e-3 of the loop's scale K0/w0
     # no limit on the control effort is at work here (the noise budget is far): the plant needs no lead
-    assert "Kd = " in notes[0] and "the design is pi" in notes[0] and "needs no phase lead" in notes[0]
+    assert "Kd = " in notes[0] and "the design is p," in notes[0] and "needs no phase lead" in notes[0]
     assert r.analyses[0].metrics.mks < 0.98 * r.spec.mks_max
     roll = tune(plant_from_expr("0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)"), structure="pid", dt=0.04, seed=0)
     assert abs(roll.gains["Kd"]) > 1e-3
