@@ -56,8 +56,8 @@ its gap, the restarts and whether one improved. The final choice is made by the 
 the search: the best verified of ``Effort.verify`` finalists.
 
 ``effort`` (:data:`EFFORTS`) trades time for confidence: ``fast`` is round 0 alone (its own agreement
-ends it), ``default`` adds 4 restarts (the rule cannot hold before the fourth draw), ``thorough`` 4-8 with more
-starts, points and refinements.
+ends it), ``default`` adds 4 restarts (the rule cannot hold before the fourth draw) and polishes sharp (at twice
+the grid detail), ``thorough`` 4-8 with more starts, points and refinements.
 """
 
 from __future__ import annotations
@@ -591,8 +591,7 @@ class Engine:
     def _polish(self) -> None:
         """The incumbent refined once more on the fine NLP grid (``refine(fine=True)``: the settling time
         resolved to about 1 %, or about 0.25 % and sharp at detail 2: default's ``Effort.polish_detail``, thorough's
-        ``Effort.detail``), the
-        horizon as far as the slowest pole reaches), if it has not been already:
+        ``Effort.detail``; the horizon as far as the slowest pole reaches), if it has not been already:
         the coarse grid's bisection stops up to a grid step (a quarter sample) above the optimum, and a
         horizon of three settling times misses a slow tail that leaves the band later (PID on an integrating
         plant at dt = tau/30: 6.6 % above the optimum)."""
