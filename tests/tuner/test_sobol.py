@@ -43,3 +43,18 @@ def test_a_tune_does_not_import_scipy_stats():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_without_scipys_data_file_the_points_are_scipys_own(monkeypatch):
+    """Where the direction numbers cannot be read here (SciPy's data file moved), ``scrambled`` is SciPy's own class:
+    the same points (at the cost of importing scipy.stats)."""
+    from tuner.optimize import sobol
+
+    def missing(d):
+        raise OSError("no such file")
+
+    monkeypatch.setattr(sobol, "_directions", missing)
+    got = sobol.scrambled(4, seed=np.random.default_rng(7))
+    assert isinstance(got, qmc.Sobol)
+    want = qmc.Sobol(4, scramble=True, seed=np.random.default_rng(7)).random_base2(5)
+    assert np.array_equal(got.random_base2(5), want)

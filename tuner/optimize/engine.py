@@ -822,17 +822,12 @@ class Engine:
         so far), scored in one batch; the best candidates outside every basin refined so far (round 0's
         included; ``Effort.restart_spread``: those of them farthest from every refined point) are refined; then a
         scan around the incumbent and the loop-gain ray."""
-        from .sobol import Sobol  # (scipy.stats.qmc.Sobol's points, without scipy.stats' import)
+        from .sobol import scrambled  # (scipy.stats.qmc.Sobol's points, without scipy.stats' import)
 
         self.restarts += 1
         self._step = f"restart {self.restarts}"
         lo, hi = self.space.lo, self.space.hi
-        try:
-            sob = Sobol(lo.size, seed=np.random.default_rng([self.seed, self.restarts, 20]))
-        except (OSError, KeyError, ValueError):  # (SciPy's direction-number file not where sobol.py reads it)
-            from scipy.stats import qmc
-
-            sob = qmc.Sobol(lo.size, scramble=True, seed=np.random.default_rng([self.seed, self.restarts, 20]))
+        sob = scrambled(lo.size, seed=np.random.default_rng([self.seed, self.restarts, 20]))
         m = max(1, int(round(math.log2(max(1, self.effort.restart_points)))))
         fresh = lo + sob.random_base2(m) * (hi - lo)
         # (TPE's ask costs tens of ms a point with hundreds of trials told; a search without the local stage,

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Sobol"]
+__all__ = ["Sobol", "scrambled"]
 
 BITS = 30
 _DIRECTIONS: dict[str, np.ndarray] = {}
@@ -58,10 +58,10 @@ class Sobol:
 
     def __init__(self, d: int, *, seed: Any) -> None:
         self.d = int(d)
+        v = _direction_matrix(self.d)  # (first: where it cannot be read, the caller's generator has spawned nothing)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         bg = rng.bit_generator
         rng = np.random.Generator(type(bg)(bg.seed_seq.spawn(1)[0]))  # (a child: the caller's stream untouched)
-        v = _direction_matrix(self.d)
         self.shift = np.dot(rng.integers(2, size=(self.d, BITS), dtype=np.uint32),
                             2 ** np.arange(BITS, dtype=np.uint32))
         ltm = np.tril(rng.integers(2, size=(self.d, BITS, BITS), dtype=np.uint32)).astype(np.int64)
@@ -88,3 +88,15 @@ class Sobol:
             out[i + 1] = quasi * (1.0 / 2 ** BITS)
         self.generated = n
         return out
+
+
+def scrambled(d: int, *, seed: Any) -> Any:
+    """A scrambled Sobol' sequence in ``[0, 1)^d`` (``random_base2(m)``): :class:`Sobol`, or SciPy's own
+    ``qmc.Sobol(d, scramble=True, seed=seed)`` (the same points, at the cost of importing :mod:`scipy.stats`) where
+    the direction numbers cannot be read here (SciPy's data file moved or changed)."""
+    try:
+        return Sobol(d, seed=seed)
+    except (OSError, KeyError, ValueError):
+        from scipy.stats import qmc
+
+        return qmc.Sobol(d, scramble=True, seed=seed)
