@@ -7,7 +7,7 @@ import sys
 from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["lazy_getattr", "is_instance_of"]
+__all__ = ["lazy_getattr", "is_instance_of", "is_identification"]
 
 
 def lazy_getattr(package: str, where: Mapping[str, str]) -> Callable[[str], Any]:
@@ -31,3 +31,8 @@ def is_instance_of(obj: Any, module: str, name: str) -> bool:
     mod = sys.modules.get(module)
     cls = getattr(mod, name, None) if mod is not None else None
     return isinstance(cls, type) and isinstance(obj, cls)
+
+
+def is_identification(obj: Any) -> bool:
+    """``obj`` is an :class:`~tuner.identify.IdentifyResult` (checked without importing the package)."""
+    return is_instance_of(obj, "tuner.identify.result", "IdentifyResult")

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ._lazy import is_instance_of
+from ._lazy import is_identification
 from .errors import TunerError
 
 __all__ = ["CORNERS", "MONTE_CARLO_DRAWS", "MAX_SPREAD", "MC_SIGMA", "MonteCarlo", "RobustDesign",
@@ -63,11 +63,6 @@ MAX_SPREAD = math.log(10.0)
 #: the reach of the Monte Carlo draws checked against MAX_SPREAD, in standard deviations
 MC_SIGMA = 1.0
 _EXP_MAX = 709.0  # exp() of more overflows a double
-
-
-def is_identification(obj: Any) -> bool:
-    """``obj`` is an :class:`~tuner.identify.IdentifyResult` (checked without importing the package)."""
-    return is_instance_of(obj, "tuner.identify.result", "IdentifyResult")
 
 
 def check_robust(k: Any) -> float:

@@ -530,9 +530,9 @@ def _from_identification(plant_or_plants: Any, robust: float | None, monte_carlo
     """An identification's plant set (its nominal model, or the ``robust``-sigma set), the identification, the robust
     design record and the Monte Carlo draws; other inputs as they are (:mod:`tuner.robust` not imported for them: a
     cold ``tuner tune`` of a model never needs it)."""
-    from ._lazy import is_instance_of
+    from ._lazy import is_identification
 
-    if is_instance_of(plant_or_plants, "tuner.identify.result", "IdentifyResult"):  # (tuner.robust.is_identification)
+    if is_identification(plant_or_plants):
         from .robust import MC_SIGMA, check_draws, check_spread, plant_set
 
         if delay is not None:
