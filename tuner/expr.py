@@ -21,6 +21,7 @@ import numpy as np
 
 from .errors import InvalidExpressionError
 from .lti import roots_of
+from .lti import trim_or_zero as _trim  # (a factor: its leading zeros dropped, all-zero as [0.])
 
 __all__ = ["ParsedTF", "parse_tf_expr", "MAX_EXPR_LENGTH", "MAX_DEPTH", "MAX_EXPONENT"]
 
@@ -82,11 +83,6 @@ def _tokenise(text: str) -> list[_Tok]:
         pos = m.end()
     toks.append(_Tok("end", "", n))
     return toks
-
-
-def _trim(p: np.ndarray) -> np.ndarray:
-    nz = np.flatnonzero(p)
-    return p[nz[0]:] if nz.size else np.zeros(1)
 
 
 def _prod(factors: tuple[np.ndarray, ...]) -> np.ndarray:

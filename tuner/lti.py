@@ -99,8 +99,13 @@ def polymul(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) ->
     """``np.polymul(a, b)`` of two 1-D real coefficient arrays, bitwise (``poly1d``'s leading zeros trimmed, an all-zero
     operand taken as ``[0.]``, then the same ``np.convolve``), without building ``poly1d`` objects."""
     a, b = (np.atleast_1d(np.asarray(c)) for c in (a, b))
-    a, b = (t if t.size else np.zeros(1) for t in (trim_leading(a), trim_leading(b)))
-    return np.convolve(a, b)
+    return np.convolve(trim_or_zero(a), trim_or_zero(b))
+
+
+def trim_or_zero(p: np.ndarray) -> np.ndarray:
+    """:func:`trim_leading`, an all-zero (or empty) ``p`` taken as the zero polynomial ``[0.]``."""
+    t = trim_leading(p)
+    return t if t.size else np.zeros(1)
 
 
 def conjugate_pairs(roots: np.ndarray) -> tuple[list[complex], list[float]]:

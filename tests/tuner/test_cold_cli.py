@@ -26,9 +26,7 @@ _SQP_OPTIONS = transcribe.sqp_options
 def _with_nlp_grad() -> dict:
     """The solver's options as CasADi's defaults have them for nlp_grad: made, and f, g, lam_x, lam_p recomputed
     with it after each solve."""
-    opts = {k: v for k, v in _SQP_OPTIONS().items() if k not in _NO_GRAD}
-    assert "no_nlp_grad" not in opts
-    return opts
+    return {k: v for k, v in _SQP_OPTIONS().items() if k not in _NO_GRAD}
 
 
 class _Recording:

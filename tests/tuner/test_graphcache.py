@@ -177,7 +177,7 @@ def test_only_an_entry_this_user_wrote_is_read_and_a_folder_that_cannot_be_writt
     on."""
     reference = _tune()
     files = sorted((cache / "nlp-graph").glob("*.npz"))
-    assert files
+    assert len(files) >= 2  # (this tune's shapes: one made a symlink, another writable by others)
     # a symlink in an entry's place (to a good entry's bytes elsewhere): not followed
     elsewhere = cache.parent / "elsewhere.npz"
     elsewhere.write_bytes(files[0].read_bytes())
@@ -188,7 +188,7 @@ def test_only_an_entry_this_user_wrote_is_read_and_a_folder_that_cannot_be_writt
     monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
     builds.clear()
     assert _tune() == reference
-    assert len(builds) >= (2 if len(files) > 1 else 1)  # both shapes built, neither read
+    assert len(builds) == 2  # those two shapes built, neither read; every other entry read
     assert files[0].is_symlink() and elsewhere.exists()  # (and nothing done to what is not ours)
     # a corrupt entry that cannot be deleted: not used, no error
     os.chmod(files[-1], 0o600)
@@ -196,14 +196,19 @@ def test_only_an_entry_this_user_wrote_is_read_and_a_folder_that_cannot_be_writt
     good[-1].write_bytes(good[-1].read_bytes()[:-50])
     real_unlink = type(good[-1]).unlink
 
+    refused = []
+
     def refuse(self, missing_ok=False):
         if self.parent.name == "nlp-graph":
+            refused.append(self)
             raise PermissionError(13, "Read-only file system", str(self))
         return real_unlink(self, missing_ok=missing_ok)
 
     monkeypatch.setattr(type(good[-1]), "unlink", refuse)
     monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    builds.clear()
     assert _tune() == reference
+    assert good[-1] in refused and builds  # (its deletion was tried and refused; its shape built instead)
 
 
 @pytest.mark.slow  # (over 2 s: the whole suite runs it)
@@ -248,3 +253,32 @@ def test_a_graph_that_cannot_be_stored_or_made_a_solver_of_is_built_and_the_tune
     monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
     builds.clear()
     assert _tune() == reference and builds  # built instead
+
+
+def test_an_entry_that_is_a_fifo_or_larger_than_the_cache_is_not_read(tmp_path, monkeypatch):
+    """The entry reader neither blocks on a FIFO placed at an entry's path (the open is non-blocking, the file-type
+    check refuses it) nor reads an entry larger than the whole cache may hold (a sparse 64 MiB file under a 1 MiB
+    cache): None, promptly, for both; a private regular entry within the limit is read whole."""
+    import threading
+
+    from tuner.optimize.nlp import graphcache
+
+    folder = tmp_path / "nlp-graph"
+    folder.mkdir(mode=0o700)
+    fifo = folder / "fifo.npz"
+    os.mkfifo(fifo, 0o600)
+    got = []
+    t = threading.Thread(target=lambda: got.append(graphcache._read_own(fifo)), daemon=True)
+    t.start()
+    t.join(10)
+    assert not t.is_alive() and got == [None]
+    monkeypatch.setenv("TUNER_NLP_GRAPH_MB", "1")
+    big = folder / "big.npz"
+    with open(big, "wb") as f:
+        f.truncate(64 * 2 ** 20)
+    os.chmod(big, 0o600)
+    assert graphcache._read_own(big) is None
+    small = folder / "small.npz"
+    small.write_bytes(b"x" * 1000)
+    os.chmod(small, 0o600)
+    assert graphcache._read_own(small) == b"x" * 1000

@@ -96,7 +96,9 @@ def _names(axis: str) -> dict[str, str]:
             **({"yaw_lpf_hz": "yaw_lowpass_hz"} if axis == "yaw" else {})}
 
 
-#: the settings the law and its checks read as numbers (every axis): a word there is refused, never skipped
+#: the settings the law reads as numbers, and the checks' D-min and dynamic-filter settings (every axis): a word
+#: there is refused, never skipped (the settings behind the checks' notes alone, anti_gravity_gain, tpa_rate and
+#: feedforward_boost, are not: a word there is skipped like any setting the law does not read)
 _LAW_SETTINGS = frozenset(v for a in _AX for v in _names(a).values()) | {f"d_min_{a}" for a in _AX} | {
     "dterm_lpf1_dyn_min_hz", "dterm_lpf1_dyn_max_hz", "dterm_notch_hz"}
 

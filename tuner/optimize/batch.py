@@ -596,6 +596,13 @@ class BatchEvaluator:
         Kc = np.minimum(Kc, MAX_SAMPLES)
         return [(int(k), np.flatnonzero(Kc == k)) for k in np.unique(Kc)]
 
+    @property
+    def rows_independent(self) -> bool:
+        """Whether a row's figures depend only on that row: not for a continuous loop with a delay, simulated at a
+        step and over a horizon its whole batch shares (the batch's shortest settling class, its longest horizon:
+        :meth:`_time_metrics`)."""
+        return self.dt is not None or not any(pd.tau for pd in self.plants)
+
     def _time_metrics(self, pd: _PlantData, cl: StackedLoops, stable, smin, num, den, num_r=None
                       ) -> dict[str, np.ndarray]:
         spec = self.spec

@@ -17,7 +17,7 @@ import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["cache_root", "trusted_root", "private", "kernels_ready_mark"]
+__all__ = ["cache_root", "trusted_root", "trusted_dir", "private", "kernels_ready_mark"]
 
 
 def cache_root() -> Path:
@@ -33,13 +33,19 @@ def trusted_root() -> Path | None:
     """:func:`cache_root`, created with mode 0o700 if it is not there, if it is safe to load code from: a directory
     owned by the current user and not writable by group or others. None otherwise (or if it cannot be created):
     then nothing compiled or pickled is loaded from it."""
-    root = cache_root()
+    return trusted_dir(cache_root())
+
+
+def trusted_dir(path: Path | str) -> Path | None:
+    """``path`` (created with mode 0o700 if it is not there) if it is a directory of this user's that no one else can
+    write (:func:`private`), else None (also where it cannot be created)."""
+    path = Path(path)
     try:
-        root.mkdir(mode=0o700, parents=True, exist_ok=True)
-        st = root.stat()
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = path.stat()
     except OSError:
         return None
-    return root if private(st) else None
+    return path if private(st) else None
 
 
 def private(st: os.stat_result, *, regular: bool = False) -> bool:

@@ -16,16 +16,7 @@ from __future__ import annotations
 import math
 import os
 
-from .cachedir import kernels_ready_mark, private, trusted_root
-
-
-def _private_dir(path: str) -> bool:
-    """``path`` is a folder of this user's (created private if it is not there) that no one else can write."""
-    try:
-        os.makedirs(path, mode=0o700, exist_ok=True)
-        return private(os.stat(path))
-    except OSError:
-        return False
+from .cachedir import kernels_ready_mark, trusted_dir, trusted_root
 
 __all__ = ["c_and_l", "margins", "step_sampled", "warm"]
 
@@ -37,7 +28,7 @@ __all__ = ["c_and_l", "margins", "step_sampled", "warm"]
 # else can write; the private folder is removed when the process ends)
 _ROOT = trusted_root()
 _PRESET = os.environ.get("NUMBA_CACHE_DIR", "").strip()
-if _PRESET and not _private_dir(_PRESET):
+if _PRESET and trusted_dir(_PRESET) is None:
     _PRESET = ""
 if _PRESET:
     os.environ["NUMBA_CACHE_DIR"] = _PRESET

@@ -201,12 +201,10 @@ class _Merits:
     def __init__(self, batch: Any, limit: float) -> None:
         self.batch, self.limit = batch, limit
         self.seen: dict[bytes, float] = {}
-        # a continuous loop with a delay is simulated at a step and over a horizon the whole batch shares (the batch's
-        # shortest delay, its longest time constant): there a row's figures depend on its batch, so each row is scored
-        # alone (review of issue 41; no such loop reaches this stage today: it serves the firmware rate laws)
-        problem = getattr(batch, "problem", None)
-        self.alone = problem is not None and getattr(batch, "dt", None) is None and \
-            any(getattr(p, "delay_s", 0.0) for p in problem.plants)
+        # where a row's figures depend on its batch (BatchEvaluator.rows_independent: a continuous loop with a delay),
+        # each row is scored alone (review of issue 41; no such loop reaches this stage today: it serves the firmware
+        # rate laws)
+        self.alone = not getattr(batch, "rows_independent", True)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.ascontiguousarray(X, dtype=float)
@@ -352,10 +350,13 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
     p_gain = _proportional(st, x0)
     classical = [p_gain * wc / k for k in TI_CROSSOVERS] if math.isfinite(wc) and wc > 0 and p_gain > 0 else []
 
+    def untried(lv: float) -> bool:
+        """Level ``lv`` lies in the box and no level found so far is within half a step of it."""
+        return floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found)
+
     def classical_left() -> list[float]:
         """The classical levels the stage would try with the levels found now."""
-        return [lv for lv in classical
-                if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found)]
+        return [lv for lv in classical if untried(lv)]
 
     # the ray: from the fastest design's integral gain (or the box's floor) up in steps, on past levels that fail
     # (a plant that integrates: its reference step slows as the integrator grows, then speeds up again once the
@@ -382,7 +383,7 @@ def raise_integral(problem: Any, engine: Any, x0: np.ndarray) -> tuple[np.ndarra
         held = len(found) > n
         misses = 0 if held else misses + 1
     for lv in classical:
-        if floor <= lv <= top and not any(abs(math.log10(lv / f)) < LEVEL_STEP / 2 for f in found):
+        if untried(lv):
             at(lv, classical_left() if RUN_AHEAD else [])
     if not found:
         return None

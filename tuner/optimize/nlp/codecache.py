@@ -84,14 +84,21 @@ def enabled() -> bool:
     return _MEMO[("cc", cc)]
 
 
-def _digest(key: Any, space: Any) -> str:
+def shape_digest(key: Any, space: Any, extra: tuple[Any, ...], n: int) -> str:
+    """A problem shape's cache name (``n`` hex digits): the hash of :func:`sources_digest`, the shape ``key``, the
+    search space's coordinates, CasADi's version and the cache's own ``extra`` fields (its format, its compiler
+    flags), once per process."""
     memo = (key, space.names, space._ratio_of)
-    if memo not in _MEMO:
+    if (memo, extra, n) not in _MEMO:
         import casadi
 
-        h = hashlib.sha256((sources_digest() + repr((*memo, casadi.__version__, CFLAGS, FORMAT))).encode())
-        _MEMO[memo] = h.hexdigest()[:24]
-    return _MEMO[memo]
+        h = hashlib.sha256((sources_digest() + repr((*memo, casadi.__version__, *extra))).encode())
+        _MEMO[(memo, extra, n)] = h.hexdigest()[:n]
+    return _MEMO[(memo, extra, n)]
+
+
+def _digest(key: Any, space: Any) -> str:
+    return shape_digest(key, space, (CFLAGS, FORMAT), 24)
 
 
 def entry_dir(key: Any, st: Any, space: Any) -> Path:

@@ -36,13 +36,12 @@ from typing import Any
 import numpy as np
 
 from ..cachedir import cache_root, private, trusted_root
-from .codecache import sources_digest
+from .codecache import shape_digest
 
 __all__ = ["enabled", "entry_path", "load", "save", "CACHE_MB", "FORMAT"]
 
 FORMAT = 1  # the entry's layout (a change here: bump it)
 CACHE_MB = 2048.0  # the entries' total, at most (px4_rate's shapes: 70 MB; the roll loop's: 5 MB)
-_MEMO: dict[Any, str] = {}  # the sources' hash, each shape's digest (per process)
 
 
 def enabled() -> bool:
@@ -61,14 +60,8 @@ def _cache_mb() -> float:
 
 
 def _digest(key: Any, space: Any) -> str:
-    memo = (key, space.names, space._ratio_of)
-    if memo not in _MEMO:
-        import casadi
-
-        # the code that writes the NLP (and this file's format): a change makes new entries
-        h = hashlib.sha256((sources_digest() + repr((*memo, casadi.__version__, FORMAT))).encode())
-        _MEMO[memo] = h.hexdigest()[:32]
-    return _MEMO[memo]
+    # the code that writes the NLP (and this file's format): a change makes new entries
+    return shape_digest(key, space, (FORMAT,), 32)
 
 
 def entry_path(key: Any, space: Any) -> Path:
@@ -125,13 +118,15 @@ def _read_own(path: Path) -> bytes | None:
         if not private(os.fstat(dfd)):
             return None
         try:
-            fd = os.open(path.name, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0), dir_fd=dfd)
+            # (non-blocking: a FIFO placed there must not hold the open before the check below refuses it)
+            fd = os.open(path.name, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0), dir_fd=dfd)
         except OSError:
             return None
         with os.fdopen(fd, "rb") as f:
-            if not private(os.fstat(f.fileno()), regular=True):
-                return None
-            return f.read()
+            st = os.fstat(f.fileno())
+            if not private(st, regular=True) or st.st_size > _cache_mb() * 2 ** 20:
+                return None  # (an entry larger than the whole cache may hold is none this process wrote)
+            return f.read(st.st_size + 1)
     finally:
         os.close(dfd)
 
