@@ -166,6 +166,37 @@ def test_seeded_search_is_deterministic_and_stays_in_the_box():
     assert a.n_trials() == 20
 
 
+def test_batch_tpe_asks_exactly_what_optunas_tpe_asks():
+    """The default sampler builds TPE's density estimates once per batch of asks (nothing told between them): its
+    points must be bitwise those of Optuna's own TPESampler, seeded alike, over several batches with tells between
+    (the estimates rebuilt on the new trials), past the start-up trials, and with a non-finite score told."""
+    from tuner.optimize import search
+
+    cls = search._batch_tpe()
+    assert cls is not None, "this Optuna's TPE lacks the internals the batch sampler relies on"
+    space = make_space(get_structure("pid"), PLANTS["roll"], None)
+    kw = dict(multivariate=True, group=False, n_startup_trials=16, constant_liar=False)
+    ours = SeededSearch(space, seed=7, sampler=search.default_sampler(7, len(space.names)))
+    theirs = SeededSearch(space, seed=7, sampler=optuna.samplers.TPESampler(seed=7, **kw))
+    assert type(ours.sampler) is cls and type(theirs.sampler) is optuna.samplers.TPESampler
+    rng = np.random.default_rng(1)
+    told = [space.lo + rng.random(space.lo.size) * (space.hi - space.lo) for _ in range(30)]
+    scores = [float(np.sum(np.sin(3 * v))) for v in told]
+    scores[4] = math.inf
+    for s in (ours, theirs):
+        s.tell(told, scores)
+    builds = []
+    build = ours.sampler._build_parzen_estimator
+    ours.sampler._build_parzen_estimator = lambda *a, **k: builds.append(1) or build(*a, **k)
+    for _ in range(4):
+        (ta, Va), (tb, Vb) = ours.ask(12), theirs.ask(12)
+        np.testing.assert_array_equal(Va, Vb)
+        assert len({tuple(v) for v in Va}) == len(Va)  # each ask draws anew: not one point repeated
+        sc = [float(np.sum(np.cos(2 * v))) for v in Va]
+        ours.told(ta, sc), theirs.told(tb, sc)
+    assert len(builds) == 2 * 4  # two estimates a batch, not two an ask
+
+
 def test_told_points_are_what_the_sampler_models():
     """Points scored elsewhere (designed starts, NLP solutions) told in bulk are completed trials with their
     values; a non-finite score is told as UNSCORABLE, never as NaN (TPE would drop it)."""
