@@ -197,6 +197,17 @@ def test_batch_tpe_asks_exactly_what_optunas_tpe_asks():
     assert len(builds) == 2 * 4  # two estimates a batch, not two an ask
 
 
+def test_batch_tpe_falls_back_to_optunas_class_where_its_internals_differ(monkeypatch):
+    from optuna.samplers._tpe import sampler as tpe_mod
+
+    from tuner.optimize import search
+
+    monkeypatch.setattr(search, "_BATCH_TPE", [])
+    monkeypatch.setattr(tpe_mod, "_split_trials", lambda study, trials, n_below, constraints_enabled: None)
+    assert search._batch_tpe() is None
+    assert type(search.default_sampler(0, 3)) is optuna.samplers.TPESampler
+
+
 def test_told_points_are_what_the_sampler_models():
     """Points scored elsewhere (designed starts, NLP solutions) told in bulk are completed trials with their
     values; a non-finite score is told as UNSCORABLE, never as NaN (TPE would drop it)."""

@@ -69,9 +69,12 @@ def _batch_tpe() -> Any:
     from optuna.samplers._tpe import sampler as tpe_mod
 
     base = optuna.samplers.TPESampler
-    need = ("_sample", "_build_parzen_estimator", "_compute_acquisition_func", "_compare")
+    methods = ("_sample", "_build_parzen_estimator", "_compute_acquisition_func", "_compare")
+    attrs = ("_constant_liar", "_constraints_func", "_gamma", "_rng", "_n_ei_candidates")
     try:
-        ok = all(callable(getattr(base, n, None)) for n in need) and \
+        probe = base(seed=0)
+        ok = all(callable(getattr(base, n, None)) for n in methods) and all(hasattr(probe, n) for n in attrs) and \
+            all(callable(getattr(tpe_mod, n, None)) for n in ("default_gamma", "default_gamma_multiobjective")) and \
             list(inspect.signature(tpe_mod._split_trials).parameters) == ["study", "trials", "n_below"] and \
             list(inspect.signature(base._sample).parameters) == ["self", "study", "trial", "search_space"]
     except (AttributeError, TypeError, ValueError):
