@@ -197,6 +197,53 @@ def test_batch_tpe_asks_exactly_what_optunas_tpe_asks():
     assert len(builds) == 2 * 4  # two estimates a batch, not two an ask
 
 
+def test_batch_tpe_independent_path_and_failed_pruned_trials_ask_what_optunas_tpe_asks():
+    """A parameter outside the relative search space is sampled alone (``sample_independent`` -> ``_sample`` with a
+    one-parameter space: the memo must not hand it the full space's estimates), beside FAIL, PRUNED and RUNNING
+    trials: still bitwise Optuna's points."""
+    from optuna.trial import TrialState
+
+    from tuner.optimize import search
+
+    pts = []
+    for sampler in (search.default_sampler(3, 2), optuna.samplers.TPESampler(
+            seed=3, multivariate=True, group=False, n_startup_trials=10, constant_liar=False)):
+        study = optuna.create_study(sampler=sampler)
+        rng, got = np.random.default_rng(0), []
+        for i in range(40):
+            t = study.ask()
+            got += [t.suggest_float("a", -1, 2), t.suggest_float("b", -1, 2)]
+            if i % 2:
+                got.append(t.suggest_float("extra", 0, 1))  # never in every trial: sampled independently
+            r = rng.random()
+            if r < 0.1:
+                study.tell(t, state=TrialState.FAIL)
+            elif r < 0.2:
+                t.report(float(rng.normal()), 1)
+                study.tell(t, state=TrialState.PRUNED)
+            elif r < 0.25:
+                pass  # left RUNNING
+            else:
+                study.tell(t, float(rng.normal()))
+        pts.append(got)
+    assert pts[0] == pts[1]
+
+
+def test_batch_tpe_pickles():
+    import pickle
+
+    from tuner.optimize import search
+
+    space = make_space(get_structure("pid"), PLANTS["roll"], None)
+    a = SeededSearch(space, seed=5)
+    rng = np.random.default_rng(2)
+    a.tell([space.lo + rng.random(space.lo.size) * (space.hi - space.lo) for _ in range(30)], list(rng.random(30)))
+    a.ask(3)
+    s = pickle.loads(pickle.dumps(a.sampler))
+    assert type(s) is search._batch_tpe() and s._memo is None
+    assert pickle.loads(pickle.dumps(search.default_sampler(0, 3))).__class__ is type(a.sampler)
+
+
 def test_batch_tpe_falls_back_to_optunas_class_where_its_internals_differ(monkeypatch):
     from optuna.samplers._tpe import sampler as tpe_mod
 

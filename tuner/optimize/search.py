@@ -95,22 +95,37 @@ def _batch_tpe() -> Any:
             # completed trials are never changed or removed: their count identifies the set (the study is held in
             # the memo, so its id is not reused while the memo lives)
             key = (id(study), study._study_id, len(trials), tuple(search_space.items()))
-            if self._memo is None or self._memo[0] != key:
+            memo = self._memo  # (read once: another thread may replace it between a check and a second read)
+            if memo is None or memo[0] != key:
                 if self._gamma is None:  # (as Optuna's _sample)
                     self._gamma = tpe_mod.default_gamma if len(study.directions) <= 1 else \
                         tpe_mod.default_gamma_multiobjective
                 below, above = tpe_mod._split_trials(study, trials, self._gamma(len(trials)))
-                self._memo = (key, study, self._build_parzen_estimator(study, search_space, below, handle_below=True),
-                              self._build_parzen_estimator(study, search_space, above, handle_below=False))
-            _, _, mpe_below, mpe_above = self._memo
+                memo = (key, study, self._build_parzen_estimator(study, search_space, below, handle_below=True),
+                        self._build_parzen_estimator(study, search_space, above, handle_below=False))
+                self._memo = memo
+            _, _, mpe_below, mpe_above = memo
             samples_below = mpe_below.sample(self._rng.rng, self._n_ei_candidates)
             ret = base._compare(samples_below, self._compute_acquisition_func(samples_below, mpe_below, mpe_above))
             for name, dist in search_space.items():
                 ret[name] = dist.to_external_repr(ret[name])
             return ret
 
+        def __reduce__(self) -> tuple[Any, ...]:
+            # a class made in a function is not importable by name: pickled as Optuna's TPE is, rebuilt through
+            # _unpickle_batch_tpe; the memo (which holds the study) is not pickled
+            state = {k: v for k, v in self.__dict__.items() if k != "_memo"}
+            return _unpickle_batch_tpe, (), state
+
     _BATCH_TPE.append(BatchTPESampler)
     return BatchTPESampler
+
+
+def _unpickle_batch_tpe() -> Any:
+    """A bare :func:`_batch_tpe` sampler, its state set by pickle (``__reduce__``); Optuna's own class where this
+    Optuna lacks the internals the subclass relies on."""
+    cls = _batch_tpe() or _optuna().samplers.TPESampler
+    return cls.__new__(cls)
 
 
 class SeededSearch:
