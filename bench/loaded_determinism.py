@@ -31,12 +31,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--busy", type=int, default=2)
-    ap.add_argument("--out", default=str(HERE / "results" / "loaded_determinism"))
+    ap.add_argument("--out", default="", help="results path without suffix (default: bench/results/"
+                    "loaded_determinism, with --study loaded_determinism_study)")
     ap.add_argument("--study", default="", help="a study file: run the study instead of the tune")
     ap.add_argument("--workers", type=int, default=2, help="with --study: its worker processes")
     ap.add_argument("--budget", type=float, default=None,
                     help="the command's --budget (a hard wall limit in place of the default 60 s cap; default: none)")
     a = ap.parse_args()
+    if a.study and a.budget is not None:
+        ap.error("--budget applies to the tune, not to --study (a study's budgets are its file's)")
+    a.out = a.out or str(HERE / "results" / ("loaded_determinism_study" if a.study else "loaded_determinism"))
+    if a.study:
+        a.study = str(Path(a.study).resolve())  # (the study runs with the tree's root as its working directory)
     command = COMMAND + ([] if a.budget is None else ["--budget", f"{a.budget:g}"])
     tuner = str(Path(sys.executable).parent / "tuner")
     if a.study:
@@ -123,7 +129,8 @@ def study_runs(a: argparse.Namespace, tuner: str) -> None:
           "| run | wall s | load (1 min) | loops: stop (cut), own wall s |", "|---|---|---|---|"]
     for r in runs:
         cells = "; ".join(f"{n} {v['stop']}" + (f" (cut {v['cut']})" if v["cut"] else "")
-                          + f" {v['wall_s']:.1f}" for n, v in r.get("loops", {}).items())
+                          + (f" {v['wall_s']:.1f}" if v.get("wall_s") is not None else "")
+                          for n, v in r.get("loops", {}).items())
         md.append(f"| {r['run']} | {r['wall_s']:.1f} | {r.get('load', [float('nan')])[0]:.1f} | "
                   f"{cells or r.get('error')} |")
     Path(a.out + ".md").write_text("\n".join(md) + "\n")
