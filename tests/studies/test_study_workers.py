@@ -106,17 +106,44 @@ def test_idle_workers_draw_each_figure_once_and_the_report_uses_them(tmp_path, m
         turns.append((ta, tb))
         if not (ta or tb):
             break
-    want = [("roll", k) for k in ("step", "bode", "nyquist")] + [("yaw", "step"), ("yaw", "bode")]
+    want = [(n, k) for n in ("roll", "y") for k in ("step", "bode", "nyquist")] + [("yaw", "step"), ("yaw", "bode")]
     assert sorted(drawn) == sorted(want)
     assert len(set(drawn)) == len(drawn)  # each once
     assert turns[0] == (True, True)  # they share the work
     assert not [p for p in plots.glob("*.lock") if p != held]  # every lock taken was released
-    # the report: roll's three figures as drawn; yaw's nyquist is missing, so yaw is drawn whole; y is an outer loop
+    # the report: roll's three figures as drawn; yaw's nyquist is missing, so yaw is drawn whole; y, the outer loop
+    # around roll, drawn for its gains and roll's (roll re-tuned: y's figures are not the ones drawn)
     assert scli._drawn_early(study, study.get("roll"), statuses["roll"].result, plots) == {
         k: plots / f"roll_{k}.png" for k in ("step", "bode", "nyquist")}
+    results = {n: st.result for n, st in statuses.items()}
+    assert scli._drawn_early(study, study.get("y"), results["y"], plots, results) == {
+        k: plots / f"y_{k}.png" for k in ("step", "bode", "nyquist")}
+    retuned = {**results, "roll": {"gains": {**gains["roll"], "K": 3.9}}}
+    assert scli._drawn_early(study, study.get("y"), results["y"], plots, retuned) is None
     assert scli._drawn_early(study, study.get("yaw"), statuses["yaw"].result, plots) is None
     assert scli._drawn_early(study, study.get("yaw"), {"gains": {**gains["yaw"], "K": 1.1}}, plots) is None
     assert a(statuses) is False  # nothing left for this process (it does not try a figure twice)
+
+
+def test_an_outer_loops_early_evaluation_is_the_reports(tmp_path):
+    """An idle worker evaluates an outer loop (for its figures) as the report does (:func:`_evaluate_all`: around
+    its inner loop's controller, with that loop's bandwidth), and only once the loop it wraps is done."""
+    f = tmp_path / "s.toml"
+    f.write_text(f'name = "o"\nseed = 0\n[[loop]]\nname = "roll"\nplant = "{ROLL}"\ndt = 0.04\nstructure = "pid_z"\n'
+                 '[[loop]]\nname = "y"\ninner = "roll"\nplant = "9.81/s^2"\ndt = 0.04\nstructure = "lead"\n')
+    study = load_study(str(f))
+    gains = {"roll": {"K": 3.868, "a1": -1.305, "a2": 0.5668}, "y": {"K": 0.1, "wz": 0.5, "wp": 5.0}}
+    statuses = _done(study, gains)
+    results = {n: st.result for n, st in statuses.items()}
+    from tuner.studies.schema import controller_of
+
+    ctrls = {lp.name: controller_of(lp, gains[lp.name]) for lp in study.loop}
+    report, _ = scli._evaluate_all(study, ctrls, None, 1)
+    early = scli._evaluate_chain(study, study.get("y"), results)
+    assert early.to_dict() == report["y"].to_dict()
+    assert early.cascade is not None and early.inner_bandwidth_rad_s > 0  # (the simulation ran; roll's bandwidth)
+    assert scli._chain_results(study, study.get("y"), {"y": statuses["y"]}) is None  # roll not done: not yet
+    assert scli._chain_results(study, study.get("y"), statuses) == results
 
 
 def test_the_figures_the_workers_mark_are_the_loop_plots():

@@ -140,14 +140,29 @@ def _worker_entry(path: str, url: str, heartbeat_s: int, grace_s: int, parent_pi
              idle=_idle_plotter(study, plots_dir))
 
 
-def _fingerprint(study: Any, lp: Any, result: dict[str, Any]) -> str:
-    """What a loop's plots depend on: its definition (the loop key) and its gains."""
+def _fingerprint(study: Any, lp: Any, result: dict[str, Any], results: dict[str, Any] | None = None) -> str:
+    """What a loop's plots depend on: its definition (the loop key) and its gains; an outer loop's also the gains of
+    the loops it wraps (``results``: every loop's result by name; a missing one counts as no gains)."""
     import hashlib
 
     from .schema import loop_key
 
-    doc = json.dumps({"key": loop_key(study, lp.name), "gains": result.get("gains")}, sort_keys=True)
-    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+    doc: dict[str, Any] = {"key": loop_key(study, lp.name), "gains": result.get("gains")}
+    if lp.inner is not None:
+        doc["inner"] = [((results or {}).get(i.name) or {}).get("gains") for i in study.chain(lp.name)[:-1]]
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _chain_results(study: Any, lp: Any, statuses: dict[str, Any]) -> dict[str, Any] | None:
+    """The results of ``lp`` and of every loop it wraps, by name, if each is done with gains (else None)."""
+    out = {}
+    for x in study.chain(lp.name):
+        st = statuses.get(x.name)
+        r = st.result if st is not None and st.state == "done" else None
+        if not isinstance(r, dict) or "gains" not in r:
+            return None
+        out[x.name] = r
+    return out
 
 
 # the figures of a loop, tuner.analysis.plots.LOOP_PLOTS, named here without importing matplotlib (half a second of
@@ -187,8 +202,8 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
     figure is taken by creating its lock file (``O_EXCL``: one process draws it); a ``<name>_<kind>.plotted`` file
     names the figure and the result it shows (:func:`_fingerprint`), and :func:`write_outputs` uses the figure for
     that result only, drawing whatever is missing (a worker killed while drawing leaves its lock and no mark).
-    Loops without an inner loop only: an outer one's plots need its inner loop's evaluation, which
-    :func:`write_outputs` draws."""
+    An outer loop's figures once every loop it wraps is done too (its evaluation needs theirs, see
+    :func:`_evaluate_chain`; its fingerprint holds their gains)."""
     if plots_dir is None:
         return None
     pdir = Path(plots_dir)
@@ -198,13 +213,12 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
     def draw(statuses: dict[str, Any]) -> bool:
         done = []
         for lp in study.order():
-            st = statuses.get(lp.name)
-            result = st.result if st is not None and st.state == "done" else None
-            if lp.inner is not None or not isinstance(result, dict) or "gains" not in result:
+            results = _chain_results(study, lp, statuses)
+            if results is None:
                 continue
-            done.append((lp, result, _fingerprint(study, lp, result)))
+            done.append((lp, results, _fingerprint(study, lp, results[lp.name], results)))
         for kind in _DRAW_ORDER:
-            for lp, result, fp in done:
+            for lp, results, fp in done:
                 if (lp.name, kind, fp) in tried:
                     continue
                 tried.add((lp.name, kind, fp))
@@ -218,7 +232,7 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
                     continue
                 try:
                     if _drawn(pdir, lp.name, kind, fp) is None:  # (not drawn between the check and the lock)
-                        _draw_figure(study, lp, result, kind, fp, pdir, evals)
+                        _draw_figure(study, lp, results, kind, fp, pdir, evals)
                     return True
                 except Exception:  # the parent draws what is missing
                     import logging
@@ -232,22 +246,33 @@ def _idle_plotter(study: Any, plots_dir: str | None) -> Any:
     return draw
 
 
-def _draw_figure(study: Any, lp: Any, result: dict[str, Any], kind: str, fp: str, pdir: Path,
+def _draw_figure(study: Any, lp: Any, results: dict[str, Any], kind: str, fp: str, pdir: Path,
                  evals: dict[tuple[str, str], Any]) -> None:
-    """One figure of a loop drawn early, and its mark (:func:`_idle_plotter`)."""
+    """One figure of a loop drawn early, and its mark (:func:`_idle_plotter`); ``results``: the loop's and those of the
+    loops it wraps, by name."""
     from ..analysis.plots import loop_plots
-    from .evaluate import evaluate_loop
-    from .schema import controller_of
 
     e = evals.get((lp.name, fp))
     if e is None:
-        ctrl = controller_of(lp, result["gains"])
-        e = evals[(lp.name, fp)] = evaluate_loop(study, lp, ctrl, {lp.name: ctrl})
+        e = evals[(lp.name, fp)] = _evaluate_chain(study, lp, results)
     path = loop_plots(e, pdir, lp.name, kinds=(kind,))[kind]
     marker = _marker(pdir, lp.name, kind)
     tmp = marker.with_suffix(f".tmp{os.getpid()}")
     tmp.write_text(json.dumps({"fingerprint": fp, "figure": path.name}))
     tmp.replace(marker)
+
+
+def _evaluate_chain(study: Any, lp: Any, results: dict[str, Any]) -> Any:
+    """``lp``'s evaluation as :func:`_evaluate_all` makes it: around the loops it wraps, with the bandwidth of the
+    loop it wraps directly (that loop evaluated the same way)."""
+    from .evaluate import evaluate_loop
+    from .schema import controller_of
+
+    ctrls = {x.name: controller_of(x, results[x.name]["gains"]) for x in study.chain(lp.name)}
+    bw = None
+    if lp.inner is not None:
+        bw = _evaluate_chain(study, study.get(lp.inner), results).nominal.metrics.bandwidth_rad_s
+    return evaluate_loop(study, lp, ctrls[lp.name], ctrls, inner_bandwidth_rad_s=bw)
 
 
 #: a figure's lock (:func:`_idle_plotter`) older than this was left by a worker killed while drawing: a figure takes
@@ -269,9 +294,11 @@ def _clear_stale_locks(plots_dir: Path) -> None:
             continue
 
 
-def _drawn_early(study: Any, lp: Any, result: dict[str, Any], plots_dir: Path) -> dict[str, Path] | None:
-    """The plots workers drew for this very result, if every one of them was (see :func:`_idle_plotter`)."""
-    fp = _fingerprint(study, lp, result)
+def _drawn_early(study: Any, lp: Any, result: dict[str, Any], plots_dir: Path,
+                 results: dict[str, Any] | None = None) -> dict[str, Path] | None:
+    """The plots workers drew for this very result (and, for an outer loop, those of the loops it wraps: ``results``),
+    if every one of them was (see :func:`_idle_plotter`)."""
+    fp = _fingerprint(study, lp, result, results)
     figs = {kind: _drawn(plots_dir, lp.name, kind, fp) for kind in _FIGURES}
     return figs if all(p is not None for p in figs.values()) else None  # type: ignore[misc]
 
@@ -452,7 +479,7 @@ def write_outputs(study: Any, statuses: dict[str, Any], out_dir: Path, *, storag
         _clear_stale_locks(plots_dir)
     drawn = {} if plots_dir is None else {
         lp.name: f for lp in study.order() if lp.name in ctrls
-        and (f := _drawn_early(study, lp, results[lp.name], plots_dir)) is not None}
+        and (f := _drawn_early(study, lp, results[lp.name], plots_dir, results)) is not None}
     tuned, figs = _evaluate_all(study, ctrls, plots_dir, jobs, drawn)
     ctrls = {n: c for n, c in ctrls.items() if n in tuned}
     thesis = evaluate_thesis(study, ctrls)
