@@ -200,20 +200,27 @@ def simulate_cascade(
     _, Bro, _, Dro = _mats(outer_ctrl.ref_ss())
     _, Bri, _, Dri = _mats(inner_ctrl.ref_ss())
     K = int(math.ceil(horizon_s / dt)) + 1
-    # At sample k, with x the plants' state and xo, xi the controllers': position p = Cx x, angle th = Cth x (strictly
-    # proper plants: no feedthrough at the sample); the outer controller's output, the inner loop's reference,
-    # ref = Cco xo + Dro r - Dco p; u = Cci xi + Dri ref - Dci th (2-DOF: Dr, Br the reference path; 1-DOF: D, B);
-    # r = 1.
-    # All of it is linear in z = [x; xo; xi]: ref = Rz z + Dro, u = Uz z + u0, z+ = F z + g, iterated once a sample
-    # (a matrix-vector product each; the per-sample loop of separate products took 0.8 s on the quadrotor's x loop)
+    # At sample k, with x the plants' state and xo, xi the controllers': position p = Cx x + Dx u, angle
+    # th = Cth x + Dth u (a biproper plant feeds the held input through at the sample: the loop is algebraic there, as
+    # outer_plant closes it); the outer controller's output, the inner loop's reference, ref = Cco xo + Dro r - Dco p;
+    # u = Cci xi + Dri ref - Dci th (2-DOF: Dr, Br the reference path; 1-DOF: D, B); r = 1.
+    # All of it is linear in z = [x; xo; xi]: u = (Uz z + u0) / den with den = 1 + Dri Dco Dx + Dci Dth (1 for
+    # strictly proper plants), ref = Rz z + r0, z+ = F z + g, iterated once a sample (a matrix-vector product each;
+    # the per-sample loop of separate products took 0.8 s on the quadrotor's x loop)
     nco, nci = Aco.shape[0], Aci.shape[0]
     zo, zi = slice(n, n + nco), slice(n + nco, n + nco + nci)
+    dx, dth = float(Dx[0, 0]), float(Dth[0, 0])
     Rz = np.zeros((1, n + nco + nci))
     Rz[:, :n], Rz[:, zo] = -Dco @ Cx, Cco
     Uz = Dri @ Rz
     Uz[:, :n] -= Dci @ Cth
     Uz[:, zi] += Cci
     u0 = float((Dri @ Dro)[0, 0])
+    r0 = float(Dro[0, 0])
+    if dx or dth:
+        den = 1.0 + float((Dri @ Dco)[0, 0]) * dx + float(Dci[0, 0]) * dth
+        Uz, u0 = Uz / den, u0 / den
+        Rz, r0 = Rz - float(Dco[0, 0]) * dx * Uz, r0 - float(Dco[0, 0]) * dx * u0
     F = np.zeros((n + nco + nci, n + nco + nci))
     F[:n] = Bd @ Uz
     F[:n, :n] += Ad
@@ -222,16 +229,21 @@ def simulate_cascade(
     F[zi, :n] -= Bci @ Cth
     F[zi, zi] += Aci
     g = np.zeros(n + nco + nci)
-    g[:n], g[zo], g[zi] = (Bd * u0)[:, 0], Bro[:, 0], (Bri @ Dro)[:, 0]
+    g[:n], g[zo], g[zi] = (Bd * u0)[:, 0], Bro[:, 0], (Bri * r0)[:, 0]
+    if dx or dth:  # the feedthrough of u into the fed-back p and th
+        F[zo] -= (Bco * dx) @ Uz
+        F[zi] -= (Bci * dth) @ Uz
+        g[zo] -= Bco[:, 0] * dx * u0
+        g[zi] -= Bci[:, 0] * dth * u0
     Z = np.empty((K, n + nco + nci))
     z = np.zeros(n + nco + nci)
     for k in range(K):
         Z[k] = z
         z = F @ z + g
     X = Z[:, :n]
-    ys = X @ Cx[0]
-    ref = Z @ Rz[0] + float(Dro[0, 0])
+    ref = Z @ Rz[0] + r0
     u = Z @ Uz[0] + u0
+    ys = X @ Cx[0] + dx * u if dx else X @ Cx[0]
     # within sample k, u_k held: x_j = Phi_j x_k + Gam_j u_k (j = 0..N-1), so p_j = (Cx Phi_j) x_k + (Cx Gam_j) u_k
     y_fine = (X @ (Cx[0] @ Phi).T + np.outer(u, (Cx[0] @ Gam)[:, 0] + Dx[0, 0])).ravel()
     th_fine = (X @ (Cth[0] @ Phi).T + np.outer(u, (Cth[0] @ Gam)[:, 0] + Dth[0, 0])).ravel()
