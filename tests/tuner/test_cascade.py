@@ -98,7 +98,8 @@ def test_order_limit_and_continuous_inner_controller():
 def _brute_cascade(gi, ci, go, co, horizon_s, n_fine):
     """The cascade stepped one fine step at a time: the two plants in series (scipy's tf2ss, ZOH at dt / n_fine by
     scipy's cont2discrete), the controllers as their transfer functions' difference equations in z, the outer
-    reference a unit step. Returns the position at every fine step and at the samples."""
+    reference a unit step. Returns the position at every fine step and at the samples, the outer controller's output
+    (the inner loop's reference, held) and the angle at every fine step."""
     dt = ci.dt
     Ai, Bi, Ci, Di = signal.tf2ss(gi.num, gi.den)
     Ao, Bo, Co, Do = signal.tf2ss(go.num, go.den)
@@ -121,15 +122,16 @@ def _brute_cascade(gi, ci, go, co, horizon_s, n_fine):
 
     outer_law, inner_law = law(co), law(ci)
     x = np.zeros((A.shape[0], 1))
-    fine, samples = [], []
+    fine, samples, refs, angles = [], [], [], []
     for _ in range(int(np.ceil(horizon_s / dt)) + 1):
         p, th = (Cx @ x).item(), (Cth @ x).item()
         samples.append(p)
-        u = inner_law(outer_law(1.0 - p) - th)
+        ref = outer_law(1.0 - p)
+        u = inner_law(ref - th)
         for _ in range(n_fine):
-            fine.append((Cx @ x).item())
+            fine.append((Cx @ x).item()), angles.append((Cth @ x).item()), refs.append(ref)
             x = Ad @ x + Bd * u
-    return np.array(fine), np.array(samples)
+    return np.array(fine), np.array(samples), np.array(refs), np.array(angles)
 
 
 @pytest.mark.parametrize("inner_c, outer_c, horizon_s", [
@@ -140,16 +142,19 @@ def _brute_cascade(gi, ci, go, co, horizon_s, n_fine):
 def test_cascade_simulation_matches_a_fine_step_by_step_simulation(inner_c, outer_c, horizon_s):
     """The simulation (the cascade's state composed into one linear recursion a sample, the output between samples
     from the held input) agrees with the cascade stepped fine step by fine step, its controllers run as difference
-    equations of their transfer functions: the position at every fine point and at the samples."""
+    equations of their transfer functions: the position at every fine point and at the samples, the outer
+    controller's output (the response's u) and the inner plant's output."""
     gi, go = plant_from_expr(PITCH), plant_from_expr(G)
     ci, co = controller_tf(*inner_c, dt=DT), controller_tf(*outer_c, dt=DT)
     sim = simulate_cascade(gi, ci, go, co, horizon_s=horizon_s)
-    fine, samples = _brute_cascade(gi, ci, go, co, horizon_s, 20)
+    fine, samples, refs, angles = _brute_cascade(gi, ci, go, co, horizon_s, 20)
     assert sim.response.y.size == fine.size
     scale = np.max(np.abs(fine))
     assert 0.5 < scale < 10  # (a loop that moves: not a trivially matching zero response)
     assert_allclose(sim.response.y, fine, atol=1e-9 * scale)
     assert_allclose(sim.response.y_samples, samples, atol=1e-9 * scale)
+    assert_allclose(sim.response.u, refs, atol=1e-9 * np.max(np.abs(refs)))
+    assert_allclose(sim.inner_output, angles, atol=1e-9 * np.max(np.abs(angles)))
 
 
 @pytest.mark.parametrize("gi_e, go_e", [("(s+3)/(s+1)", G), ("(0.5*s+1)/(0.1*s+1)", G), ("(s+3)/(s+1)", "(s+2)/(s+1)")])
