@@ -217,10 +217,9 @@ def simulate_cascade(
     Uz[:, zi] += Cci
     u0 = float((Dri @ Dro)[0, 0])
     r0 = float(Dro[0, 0])
-    if dx or dth:
-        den = 1.0 + float((Dri @ Dco)[0, 0]) * dx + float(Dci[0, 0]) * dth
-        Uz, u0 = Uz / den, u0 / den
-        Rz, r0 = Rz - float(Dco[0, 0]) * dx * Uz, r0 - float(Dco[0, 0]) * dx * u0
+    den = 1.0 + float((Dri @ Dco)[0, 0]) * dx + float(Dci[0, 0]) * dth  # (1 exactly for strictly proper plants)
+    Uz, u0 = Uz / den, u0 / den
+    Rz, r0 = Rz - float(Dco[0, 0]) * dx * Uz, r0 - float(Dco[0, 0]) * dx * u0
     F = np.zeros((n + nco + nci, n + nco + nci))
     F[:n] = Bd @ Uz
     F[:n, :n] += Ad
@@ -230,11 +229,11 @@ def simulate_cascade(
     F[zi, zi] += Aci
     g = np.zeros(n + nco + nci)
     g[:n], g[zo], g[zi] = (Bd * u0)[:, 0], Bro[:, 0], (Bri * r0)[:, 0]
-    if dx or dth:  # the feedthrough of u into the fed-back p and th
-        F[zo] -= (Bco * dx) @ Uz
-        F[zi] -= (Bci * dth) @ Uz
-        g[zo] -= Bco[:, 0] * dx * u0
-        g[zi] -= Bci[:, 0] * dth * u0
+    # the feedthrough of u into the fed-back p and th (none for strictly proper plants)
+    F[zo] -= (Bco * dx) @ Uz
+    F[zi] -= (Bci * dth) @ Uz
+    g[zo] -= Bco[:, 0] * dx * u0
+    g[zi] -= Bci[:, 0] * dth * u0
     Z = np.empty((K, n + nco + nci))
     z = np.zeros(n + nco + nci)
     for k in range(K):
@@ -243,7 +242,7 @@ def simulate_cascade(
     X = Z[:, :n]
     ref = Z @ Rz[0] + r0
     u = Z @ Uz[0] + u0
-    ys = X @ Cx[0] + dx * u if dx else X @ Cx[0]
+    ys = X @ Cx[0] + dx * u
     # within sample k, u_k held: x_j = Phi_j x_k + Gam_j u_k (j = 0..N-1), so p_j = (Cx Phi_j) x_k + (Cx Gam_j) u_k
     y_fine = (X @ (Cx[0] @ Phi).T + np.outer(u, (Cx[0] @ Gam)[:, 0] + Dx[0, 0])).ravel()
     th_fine = (X @ (Cth[0] @ Phi).T + np.outer(u, (Cth[0] @ Gam)[:, 0] + Dth[0, 0])).ravel()

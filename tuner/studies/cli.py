@@ -265,14 +265,12 @@ def _draw_figure(study: Any, lp: Any, results: dict[str, Any], kind: str, fp: st
 def _evaluate_chain(study: Any, lp: Any, results: dict[str, Any]) -> Any:
     """``lp``'s evaluation as :func:`_evaluate_all` makes it: around the loops it wraps, with the bandwidth of the
     loop it wraps directly (that loop evaluated the same way)."""
-    from .evaluate import evaluate_loop
+    from .evaluate import evaluate_gains
     from .schema import controller_of
 
-    ctrls = {x.name: controller_of(x, results[x.name]["gains"]) for x in study.chain(lp.name)}
-    bw = None
-    if lp.inner is not None:
-        bw = _evaluate_chain(study, study.get(lp.inner), results).nominal.metrics.bandwidth_rad_s
-    return evaluate_loop(study, lp, ctrls[lp.name], ctrls, inner_bandwidth_rad_s=bw)
+    chain = study.chain(lp.name)
+    ctrls = {x.name: controller_of(x, results[x.name]["gains"]) for x in chain}
+    return evaluate_gains(study, ctrls, loops=chain)[lp.name]
 
 
 #: a figure's lock (:func:`_idle_plotter`) older than this was left by a worker killed while drawing: a figure takes

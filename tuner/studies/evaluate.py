@@ -8,7 +8,7 @@ also gets an exact sampled-data simulation of the whole cascade
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -216,10 +216,12 @@ def check_gains_file(study: StudyDef, data: Any, *, source: str = "gains") -> di
     return out
 
 
-def evaluate_gains(study: StudyDef, controllers: Mapping[str, ControllerTF]) -> dict[str, LoopEval]:
-    """Verify every loop of the study with the given controllers (inner loops first)."""
+def evaluate_gains(study: StudyDef, controllers: Mapping[str, ControllerTF],
+                   loops: Sequence[LoopDef] | None = None) -> dict[str, LoopEval]:
+    """Verify every loop of the study (``loops``: these, e.g. a :meth:`~StudyDef.chain`) with the given controllers,
+    inner loops first, each outer one with the bandwidth of the loop it wraps."""
     evals: dict[str, LoopEval] = {}
-    for lp in study.order():
+    for lp in study.order() if loops is None else loops:
         evals[lp.name] = evaluate_loop(study, lp, controllers[lp.name], controllers,
                                        inner_bandwidth_rad_s=_inner_bw(evals, lp))
     return evals
