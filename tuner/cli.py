@@ -276,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
                 epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress; print the traceback of an "
                    "internal error")
-    p.add_argument("--version", action="version", version=f"tuner {_version()}",
+    p.add_argument("--version", action=_VersionAction,
                    help="print the installed version (package metadata) and exit")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
     sub.add_parser = _with_exit_codes(sub.add_parser)
@@ -353,6 +353,20 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _EXTRA_COMMANDS:
         __import__(f"tuner.{mod}", fromlist=["add_parser"]).add_parser(sub)
     return p
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: prints ``tuner VERSION`` and exits 0, as argparse's own version action does, the version read
+    from the package metadata only when asked (reading it costs ~3 ms, on every run when the parser is built)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS,
+                 default: Any = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"tuner {_version()}")
+        parser.exit()
 
 
 def _version() -> str:

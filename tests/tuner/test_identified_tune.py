@@ -48,6 +48,12 @@ def ident():
     return identify(log.u, log.y, rate_hz=log.rate_hz, poles=2, zeros=0, delay="auto")
 
 
+@pytest.fixture(scope="module")
+def tuned(ident):
+    """The pid_z tune of ``ident`` at dt 0.04 (3 s budget), which two tests read (one tune, not two)."""
+    return tune(ident, structure="pid_z", dt=DT, time_budget_s=3)
+
+
 def test_covariance_in_parameter_order(ident):
     names = list(ident.uncertainty)
     assert names == ["gain", "pole_wn_1_rad_s", "pole_zeta_1", "delay_s"]
@@ -63,9 +69,9 @@ def test_covariance_in_parameter_order(ident):
     assert np.allclose(back.covariance, C, rtol=1e-15, atol=0)
 
 
-def test_tune_an_identification_with_the_delay_as_fitted(ident):
+def test_tune_an_identification_with_the_delay_as_fitted(ident, tuned):
     assert 0 < ident.delay_s % DT < DT * 0.999  # not whole samples: the case that used to be refused
-    r = tune(ident, structure="pid_z", dt=DT, time_budget_s=3)
+    r = tuned
     lp = r.analyses[0].loop
     assert lp.plant.delay_s == ident.delay_s
     assert lp.plant_d.zoh_fraction == pytest.approx(ident.delay_s - DT * math.floor(ident.delay_s / DT))
@@ -111,10 +117,10 @@ def test_draws_follow_the_reported_covariance(ident):
 
 
 @pytest.mark.slow
-def test_monte_carlo_counts_what_the_verifier_says(ident):
+def test_monte_carlo_counts_what_the_verifier_says(ident, tuned):
     """The fractions are the verifier's verdicts on the draws, recomputed here with tuner.analyze (its default
     grid) one draw at a time; an aggressive controller fails on some draws."""
-    r = tune(ident, structure="pid_z", dt=DT, time_budget_s=3)
+    r = tuned
     from tuner.controllers import ControllerTF
 
     c = r.controller

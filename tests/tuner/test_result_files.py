@@ -9,7 +9,9 @@ list) replaced by each of a set of hostile values, then values drawn by hypothes
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -30,34 +32,60 @@ SETTINGS = dict(deadline=None, derandomize=True, database=None, suppress_health_
                 phases=[Phase.explicit, Phase.generate])
 
 
-def _tuner_json(*args: str, cwd: Path) -> dict[str, Any]:
-    p = subprocess.run([sys.executable, "-m", "tuner.cli", *args, "--json"], capture_output=True, text=True,
-                       timeout=300, cwd=cwd)
-    assert p.returncode in (0, 1), p.stderr
-    return json.loads(p.stdout)
+def _tuner_json(*args: str, cwd: Path) -> subprocess.Popen:
+    """``tuner ARGS --json`` started in ``cwd`` (:func:`_json` waits for it and reads its output)."""
+    return subprocess.Popen([sys.executable, "-m", "tuner.cli", *args, "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=cwd)
 
 
-@pytest.fixture(scope="module")
-def saved(tmp_path_factory) -> dict[str, dict[str, Any]]:
-    """Results as the command line saves them: a px4_rate tune with its vehicle, a pid_z, a 2-DOF pid2, and an
-    identification."""
-    d = tmp_path_factory.mktemp("saved")
+def _json(p: subprocess.Popen) -> dict[str, Any]:
+    out, err = p.communicate(timeout=300)
+    assert p.returncode in (0, 1), err
+    return json.loads(out)
+
+
+def _saved(d: Path) -> dict[str, dict[str, Any]]:
+    """Results as the command line saves them (written in ``d``): a px4_rate tune with its vehicle, a pid_z, a 2-DOF
+    pid2, and an identification, and a tune of the identified model (the runs side by side: after the
+    identification, the tune it needs)."""
     (d / "quad.params").write_text(PARAMS)
     fast = ["--budget", "3", "--effort", "fast"]
-    ident = _tuner_json("identify", str(ROOT / "studies/data/pitch_sweep.csv"), "--time", "t", "--input",
-                        "pitch_cmd", "--output", "pitch", "--poles", "2", "--holdout", "0", cwd=d)
-    (d / "ident.json").write_text(json.dumps(ident))
-    return {
+    runs = {
+        "identified": _tuner_json("identify", str(ROOT / "studies/data/pitch_sweep.csv"), "--time", "t", "--input",
+                                  "pitch_cmd", "--output", "pitch", "--poles", "2", "--holdout", "0", cwd=d),
         "px4": _tuner_json("tune", "--plant", "200/(s*(0.02*s+1))", "--structure", "px4_rate", "--params",
                            "quad.params", *fast, cwd=d),
         "pid_z": _tuner_json("tune", "--plant", "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)", "--dt", "0.04",
                              "--structure", "pid_z", *fast, cwd=d),
         "pid2": _tuner_json("tune", "--plant", "1/(s+1)^3", "--structure", "pid2", *fast, cwd=d),
-        "identified": ident,
-        # a tune of an identified model: its checks include the measured response's and the identification's rating
-        "px4 identified": _tuner_json("tune", "--identified", "ident.json", "--structure", "px4_rate", "--dt",
-                                      "0.0025", *fast, cwd=d),
     }
+    try:
+        ident = _json(runs["identified"])
+        (d / "ident.json").write_text(json.dumps(ident))
+        # a tune of an identified model: its checks include the measured response's and the identification's rating
+        runs["px4 identified"] = _tuner_json("tune", "--identified", "ident.json", "--structure", "px4_rate",
+                                             "--dt", "0.0025", *fast, cwd=d)
+        return {"identified": ident, **{k: _json(p) for k, p in runs.items() if k != "identified"}}
+    finally:
+        for p in runs.values():  # (one failed: the others are not left running)
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> dict[str, dict[str, Any]]:
+    """:func:`_saved`'s results, made once per run (five command-line runs, ~16 s of CPU): under xdist the first
+    worker to need them makes them, under a lock in the run's temporary folder that every worker shares, and the
+    others read them from there (as JSON: what they were made of)."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return _saved(tmp_path_factory.mktemp("saved"))
+    shared = tmp_path_factory.getbasetemp().parent / "test_result_files.saved.json"
+    with open(f"{shared}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not shared.exists():
+            shared.write_text(json.dumps(_saved(tmp_path_factory.mktemp("saved"))))
+        return json.loads(shared.read_text())
 
 
 @pytest.mark.slow
@@ -108,6 +136,24 @@ def _run(capsys, tmp_path: Path, cmd: str, doc: Any) -> tuple[int, str]:
     return rc, capsys.readouterr().err
 
 
+@pytest.fixture(scope="module")
+def _parser():
+    import tuner.cli
+
+    return tuner.cli.build_parser()
+
+
+@pytest.fixture
+def one_parser(_parser, monkeypatch):
+    """A sweep's cases share one command-line parser: ``main`` builds the same one (``build_parser``, a function of
+    nothing) on every call, which was most of an export's time (~60 % of export px4's). Each case still goes through
+    ``main``: its argument parsing, the command, and the mapping of errors to exit codes and messages.
+    (``test_the_issues_cases_name_the_field`` and the other command-line tests build it per call.)"""
+    import tuner.cli
+
+    monkeypatch.setattr(tuner.cli, "build_parser", lambda: _parser)
+
+
 def _bad_input_or_done(rc: int, err: str, what: str) -> None:
     assert rc in (0, 1, 2), (what, rc, err)
     assert "internal error" not in err and "Traceback" not in err, (what, err)
@@ -118,7 +164,7 @@ def _bad_input_or_done(rc: int, err: str, what: str) -> None:
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 @pytest.mark.parametrize("cmd", list(COMMANDS))
-def test_every_field_of_a_saved_result_replaced_by_a_hostile_value(cmd, saved, tmp_path, capsys):
+def test_every_field_of_a_saved_result_replaced_by_a_hostile_value(cmd, saved, one_parser, tmp_path, capsys):
     base = saved[COMMANDS[cmd][0]]
     paths = _paths(base, depth=4 if cmd.startswith("export") else 3)
     assert len(paths) > 40
@@ -137,7 +183,7 @@ json_values = st.recursive(st.none() | st.booleans() | st.integers(-10**20, 10**
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 @pytest.mark.parametrize("cmd", ["export px4", "export c (pid_z)", "analyze --identified"])
 @pytest.mark.slow  # (over ~2 s: the fast lane stays under 3 min)
-def test_values_drawn_into_a_field_are_bad_input_or_read(cmd, saved, tmp_path_factory, capsys):
+def test_values_drawn_into_a_field_are_bad_input_or_read(cmd, saved, one_parser, tmp_path_factory, capsys):
     base = saved[COMMANDS[cmd][0]]
     paths = _paths(base, depth=3)
     tmp = tmp_path_factory.mktemp("drawn")

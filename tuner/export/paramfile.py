@@ -34,6 +34,7 @@ warning) is sanitised: no control character (a newline, a tab) reaches a line of
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import math
 import unicodedata
 from collections.abc import Iterator, Mapping
@@ -84,6 +85,7 @@ class ParamFile:
     warnings: tuple[str, ...] = ()
 
 
+@functools.cache  # (the installed package's: read once per process, not per file written)
 def _version() -> str:
     try:
         from importlib.metadata import version
