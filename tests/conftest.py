@@ -17,6 +17,11 @@ sys.path.insert(0, os.path.dirname(__file__))
 # FastAPI's TestClient sends ``Host: testserver``: serve it too (the service's default is loopback only,
 # api.guard). Servers started as processes (tests/uvicorn_server.py) drop TUNER_* and keep the default.
 os.environ.setdefault("TUNER_ALLOWED_HOSTS", "127.0.0.1,localhost,::1,testserver")
+# One OpenBLAS thread per process, as tune() already runs its solve (tuner.tuning._one_thread): the suite's matrices
+# are small, and with -n 2 each worker's pool of 2 threads spins on the 2 cores the other worker needs (the fast lane
+# at -n 2: 111 -> 84 s of wall, 182 -> 132 s of CPU; the analyze --identified sweep alone 1.6-1.9x). Subprocesses
+# inherit it; a value set beforehand is kept
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # The NLPs' compiled-code cache (tuner.optimize.nlp.codecache) would start a background gcc for every problem shape
 # the suite builds: off here (tests/tuner/test_codecache.py turns it on in its own cache folder)
 os.environ.setdefault("TUNER_NLP_COMPILE", "off")
