@@ -365,17 +365,10 @@ class _VersionAction(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any,
                  option_string: str | None = None) -> None:
-        print(f"tuner {_version()}")
+        from . import __version__
+
+        print(f"tuner {__version__}")
         parser.exit()
-
-
-def _version() -> str:
-    from importlib import metadata
-
-    try:
-        return metadata.version("tuner")
-    except metadata.PackageNotFoundError:  # pragma: no cover - a source tree without metadata
-        return "0+unknown"
 
 
 def _objectives_help() -> str:
