@@ -67,6 +67,9 @@ ISSUE41_CLASSES = ("nmpneg", "nmpfast", "unstslow", "intdelay4")
 FRESH_SEED = 20261206
 FRESH_N = 10  # per class
 FRESH_CLASSES = ("nmpneg", "nmpfast", "intdelay4")
+#: a second fresh held-out part (stop 49): its seed set before any of its cases was generated or tuned, its references
+#: computed before the stop's change to the search was measured on it; ids ``<class>-g<i>``, part ``fresh2``
+FRESH2_SEED = 20261207
 REFERENCE_SEEDS = (0, 1)
 REFERENCE_BUDGET_S = 60.0
 #: the references' search: far longer than thorough (which refines 5 starts, confirms over 3 restarts of 128 points)
@@ -92,11 +95,12 @@ def suite() -> list[dict[str, Any]]:
         cases.append({"id": f"lagdelay-{i:02d}", "class": "lagdelay", "structure": structure, "num": [K],
                       "den": quality._poly(*[[t, 1.0] for t in taus]), "delay_s": float(f"{samples * dt:.10g}"),
                       "dt": dt, "tau_dom": T, "order": n})
-    return cases + issue41_cases() + issue41_cases(FRESH_SEED, FRESH_N, FRESH_CLASSES, fresh=True)
+    return (cases + issue41_cases() + issue41_cases(FRESH_SEED, FRESH_N, FRESH_CLASSES, fresh="f")
+            + issue41_cases(FRESH2_SEED, FRESH_N, FRESH_CLASSES, fresh="g"))
 
 
 def issue41_cases(seed: int = ISSUE41_SEED, n: int = ISSUE41_N, classes: tuple[str, ...] = ISSUE41_CLASSES,
-                  fresh: bool = False) -> list[dict[str, Any]]:
+                  fresh: str = "") -> list[dict[str, Any]]:
     """Issue 41's classes (20 each, seeded by ``ISSUE41_SEED``), PI, PID and ``pid_z`` round-robin:
 
     * ``nmpneg``: a non-minimum-phase plant with a negative DC gain, -K (1 - b s) / ((T s + 1)(T2 s + 1)), its
@@ -108,7 +112,8 @@ def issue41_cases(seed: int = ISSUE41_SEED, n: int = ISSUE41_N, classes: tuple[s
 
     Elsewhere as the quality suite: K = 10^U(-0.5, 0.7), T = 10^U(-1, 1.3) s, dt = T / U(5, 50) (log-uniform).
 
-    With ``fresh``: the fresh held-out part's cases (ids ``<class>-f<i>``, part ``fresh``) from ``seed``."""
+    With ``fresh`` (a letter): a fresh held-out part's cases from ``seed``, ids ``<class>-<fresh><i>``: part
+    ``fresh`` for ``"f"``, ``fresh2`` for ``"g"``."""
     rng = np.random.default_rng(seed)
     cases = []
     for cls in classes:
@@ -131,10 +136,10 @@ def issue41_cases(seed: int = ISSUE41_SEED, n: int = ISSUE41_N, classes: tuple[s
             dt = float(f"{T / k:.4g}")
             if cls == "intdelay4":
                 delay = float(f"{4 * dt:.10g}")
-            cases.append({"id": f"{cls}-{'f' if fresh else ''}{i:02d}", "class": cls,
+            cases.append({"id": f"{cls}-{fresh}{i:02d}", "class": cls,
                           "structure": ("pi", "pid", "pid_z")[i % 3],
                           "num": num, "den": den, "delay_s": delay, "dt": dt, "tau_dom": T, "order": len(den) - 1,
-                          "part": "fresh" if fresh else "heldout" if i % 2 else "design"})
+                          "part": {"f": "fresh", "g": "fresh2"}[fresh] if fresh else "heldout" if i % 2 else "design"})
     return cases
 
 
@@ -147,7 +152,9 @@ def part_of(c: dict[str, Any]) -> str:
     any run, and its design runs were on issue 41's even-numbered cases (``--part design``) alone. ``fresh``: the
     held-out part of stop 46 (``FRESH_SEED``), generated after the engine's last change to its search and claims and
     measured once as it stood (its references, then default and thorough at 67b11b7); no longer fresh for default
-    (see ``FRESH_SEED``)."""
+    (see ``FRESH_SEED``). ``fresh2``: stop 49's held-out part (``FRESH2_SEED``), its references computed before the
+    stop's one change to the search (``engine.FILTER_N``, chosen on the design part) was committed, then measured
+    with it (default and thorough)."""
     return c.get("part", "design")
 
 
@@ -310,7 +317,7 @@ def cmd_report(a: argparse.Namespace) -> None:
                 r["ratio"] = r["objective"] / ref if r["meets"] else math.inf
         parts += [f"## {f.name}", "", f"`{d.get('command')}`" + (f" at {d['commit']}" if d.get("commit") else ""),
                   "", "```", summary(d["rows"], d["effort"]), "```", ""]
-        if any(r.get("part") in ("heldout", "fresh") for r in d["rows"]):
+        if any(r.get("part") in ("heldout", "fresh", "fresh2") for r in d["rows"]):
             rows = [dict(r, ratio=(r["objective"] / best[r["id"]] if r["meets"] else math.inf))
                     for r in d["rows"] if r["id"] in best]
             parts += ["Against the best known (the reference, or a better verified result of any run stored here):",
@@ -325,7 +332,7 @@ def main() -> None:
     r = sub.add_parser("reference", help="the long-search references (resumable)")
     r.add_argument("--only", default="")
     r.add_argument("--classes", default="", help="comma-separated classes (e.g. nmpneg,nmpfast,unstslow,intdelay4)")
-    r.add_argument("--part", default="", choices=("", "design", "heldout", "fresh"))
+    r.add_argument("--part", default="", choices=("", "design", "heldout", "fresh", "fresh2"))
     r.add_argument("--cap-s", type=float, default=0.0)
     r.add_argument("--shard", default="", help="k/n: every n-th case from the k-th (several processes)")
     u = sub.add_parser("run", help="tune every case at an effort and compare with the references")
@@ -334,7 +341,7 @@ def main() -> None:
     u.add_argument("--budget", type=float, default=None, help="seconds (default: the library's default budget)")
     u.add_argument("--only", default="")
     u.add_argument("--classes", default="")
-    u.add_argument("--part", default="", choices=("", "design", "heldout", "fresh"))
+    u.add_argument("--part", default="", choices=("", "design", "heldout", "fresh", "fresh2"))
     u.add_argument("--out", default="")
     u.add_argument("--n-starts", type=int, default=0, help="tune(n_starts=) (0: the effort's)")
     u.add_argument("--cap-s", type=float, default=0.0, help="the default budget's wall-clock cap (0: the library's)")

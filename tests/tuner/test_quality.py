@@ -411,8 +411,8 @@ def test_a_restart_refines_the_candidate_farthest_from_what_was_refined():
     assert np.array_equal(eng._distinct(1, spread=0)[0], near)
 
 
-def _long_search_reference(cid: str, structure: str, dt: float, num, den, delay_samples: int = 0
-                           ) -> tuple[float, dict[str, float]]:
+def _long_search_reference(cid: str, structure: str, dt: float, num, den, delay_samples: int = 0,
+                           horizon_s: float = 40.0) -> tuple[float, dict[str, float]]:
     """The long search's design for a convergence-suite case (bench/convergence_reference.json: the engine at an
     effort far beyond thorough, two seeds, 60 s each): its controller's transfer function (the structure's, from
     tuner), then the loop checked here without tuner: its margins on a dense Nyquist grid and its step simulated
@@ -425,7 +425,8 @@ def _long_search_reference(cid: str, structure: str, dt: float, num, den, delay_
     gains = refs[cid]["runs"][refs[cid]["source"]]["gains"]
     spec = Spec.thesis()
     ctrl = get_structure(structure).tf(gains, dt)
-    ind = _independent(num, den, SimpleNamespace(controller=ctrl), spec, horizon_s=40.0, delay_samples=delay_samples)
+    ind = _independent(num, den, SimpleNamespace(controller=ctrl), spec, horizon_s=horizon_s,
+                       delay_samples=delay_samples)
     assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["gml"] <= -6 + 0.02, ind
     assert ind["overshoot"] <= 10 + 0.02, ind
     return ind["settling"], gains
@@ -466,6 +467,27 @@ def test_pid_on_a_non_minimum_phase_plant_finds_the_lag_filter_basin():
     assert res.meets_spec and res.gains["Tf"] > res.gains["Kd"] / res.gains["Kp"]
     assert res.objective <= 1.01 * ref_s, (res.objective, res.gains, ref_s)
     ind = _independent(num, den, res, Spec.thesis())
+    assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["overshoot"] <= 10 + 0.02, ind
+    assert ind["settling"] == pytest.approx(res.objective, abs=dt / 10)
+
+
+@pytest.mark.slow
+def test_pid_on_a_slow_non_minimum_phase_plant_finds_the_filter_slower_than_its_derivative_time():
+    """bench/convergence.py's nmpfast-19 (issue 41's held-out part, no longer held out: this case named the change):
+    PID on 1.034 (1 - 17.62 s)/(239.3 s^2 + 30.98 s + 1) at dt 0.6466, thesis spec, its right-half-plane zero
+    (0.057 rad/s) near its poles (0.061 and 0.068 rad/s). The optimum's derivative filter is twice its derivative
+    time (the long search: Kd 11.0, Kp 0.408, Td 27 s, Tf 56 s; 66.33 s), a lead-lag the filtered starts
+    (Tf = Td / N, N = 10, 3, 1) did not refine into: the default effort ended at 69.04 s (4.1 % short, "not
+    confirmed") with Tf at its floor. The starts' filters on a half-decade grid down to N = 0.3 (Tf = 3.3 Td,
+    engine.FILTER_N) reach it. The default tune must be within 1 % of the long search's design, checked without
+    tuner as its own loop is."""
+    num, den, dt = [-18.227571466264397, 1.034412596976189], [239.3483880055146, 30.980318893774754, 1.0], 0.6466
+    ref_s, ref_g = _long_search_reference("nmpfast-19", "pid", dt, num, den, horizon_s=400.0)
+    assert ref_g["Tf"] > ref_g["Kd"] / ref_g["Kp"] and ref_s < 67.0, (ref_s, ref_g)
+    res = tune(Plant(np.array(num), np.array(den)), structure="pid", dt=dt, spec=Spec.thesis(), seed=0, diagnose=False)
+    assert res.meets_spec and res.gains["Tf"] > res.gains["Kd"] / res.gains["Kp"], res.gains
+    assert res.objective <= 1.01 * ref_s, (res.objective, res.gains, ref_s)
+    ind = _independent(num, den, res, Spec.thesis(), horizon_s=400.0)
     assert ind["pm"] >= 60 - 0.05 and ind["gm"] >= 6 - 0.02 and ind["overshoot"] <= 10 + 0.02, ind
     assert ind["settling"] == pytest.approx(res.objective, abs=dt / 10)
 

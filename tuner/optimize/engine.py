@@ -247,11 +247,15 @@ def designed_starts(space: Space, plant, dt: float | None, *, variants: bool = F
     return starts
 
 
-# derivative filters of the filtered starts: Tf = Td / N (Td = Kd / Kp). N = 1 is the lag form (Tf = Td: above 1/Tf
-# the controller's gain is Kp + Kd / Tf, a lead-lag rather than a derivative): a PID on a non-minimum-phase plant,
-# zero at +13.9 rad/s, poles at -6.3 and -27 rad/s, dt 0.02 (bench/convergence.py's nmp-19), settles in 0.268 s with
-# Tf = 0.107 s = 2.7 Td, against 0.284 s in the basin every textbook filter (N = 3 ... 10) refines into
-FILTER_N = (10.0, 3.0, 1.0)
+# derivative filters of the filtered starts: Tf = Td / N (Td = Kd / Kp), on a half-decade grid from the textbook's
+# N = 10 to N = 0.3. N <= 1 is the lag form (Tf >= Td: above 1/Tf the controller's gain is Kp + Kd / Tf, a lead-lag
+# rather than a derivative): a PID on a non-minimum-phase plant, zero at +13.9 rad/s, poles at -6.3 and -27 rad/s, dt
+# 0.02 (bench/convergence.py's nmp-19), settles in 0.268 s with Tf = 0.107 s = 2.7 Td, against 0.284 s in the basin
+# every textbook filter (N = 3 ... 10) refines into; with its zero at +0.057 rad/s just below its poles at -0.061
+# and -0.068 rad/s (nmpfast-19, dt 0.6466), in 66.33 s with Tf = 2.1 Td, which no start down to N = 1 refined into
+# (69.04 s, Tf at its floor). The grid's N = 0.3 (stop 49) measured on the convergence suite's design part and on a
+# fresh held-out part drawn for it (bench/filter_n_ab.py, bench/results/filter_n_ab_*_stop49.txt)
+FILTER_N = (10.0, 3.0, 1.0, 0.3)
 FILTER_DECADES = (0.0, -0.5)
 NEGATIVE_P = 0.3  # the PI's negative-proportional starts: Kp = -NEGATIVE_P times the designed start's (see below)
 
