@@ -68,7 +68,8 @@ FRESH_SEED = 20261206
 FRESH_N = 10  # per class
 FRESH_CLASSES = ("nmpneg", "nmpfast", "intdelay4")
 #: a second fresh held-out part (stop 49): its seed set before any of its cases was generated or tuned, its references
-#: computed before the stop's change to the search was measured on it; ids ``<class>-g<i>``, part ``fresh2``
+#: computed in a separate tree at 9823da7 (the engine before the stop's one change to the search, FILTER_N = (10, 3,
+#: 1)) before that change was measured on it; ids ``<class>-g<i>``, part ``fresh2``
 FRESH2_SEED = 20261207
 REFERENCE_SEEDS = (0, 1)
 REFERENCE_BUDGET_S = 60.0
