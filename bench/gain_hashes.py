@@ -53,7 +53,9 @@ def compare(base: str, new: str) -> None:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["--compare"]:
+    if not sys.argv[1:] or sys.argv[1] in ("-h", "--help"):  # (not an output file named --help)
+        print(__doc__)
+    elif sys.argv[1:2] == ["--compare"]:
         compare(sys.argv[2], sys.argv[3])
     else:
         run(sys.argv[1])

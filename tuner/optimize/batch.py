@@ -386,6 +386,24 @@ class BatchEvaluator:
         self._incumbent = incumbent_s
         X = np.atleast_2d(np.asarray(X, dtype=float))
         self.n_evals += X.shape[0]
+        num, den, ok, num_r = self.usable_controllers(X)
+        # what every plant's loop shares (the plants share the frequency grid): the controllers' responses on it
+        # (numpy path) and their state-space realisations, each made once a batch, not once a plant (bitwise the same)
+        x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
+        C = self._c_at(num, den, x) if self.kernels is None else None
+        realized = _realize(num, den, num_r)
+        per_plant = [self._evaluate_plant(pd, num, den, ok, num_r, C=C, realized=realized) for pd in self.plants]
+        # the controller's own figure (every plant alike): |Ki|, once a batch
+        ki = np.abs(self.integral_gain(X)) if "ki" in self._needs or self.spec.objective == "ie" else None
+        if "ki" in self._needs:
+            for m in per_plant:
+                m["ki"] = ki
+        return self._combine(per_plant, X, ki)
+
+    def usable_controllers(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """``(num, den, ok, num_r)`` of the rows of ``X``: the controllers' coefficients (:meth:`controllers`,
+        :meth:`controllers_r`), ``ok`` where they are finite with a leading denominator coefficient, the other rows
+        replaced by the controller 0/1 (scored as not usable by what follows)."""
         num, den = self.controllers(X)
         ok = np.all(np.isfinite(num), axis=1) & np.all(np.isfinite(den), axis=1) & (np.abs(den[:, 0]) > 0)
         num_r = self.controllers_r(X, den.shape[1])
@@ -394,27 +412,26 @@ class BatchEvaluator:
             num_r = np.where(ok[:, None], num_r, 0.0)
         num = np.where(ok[:, None], num, 0.0)
         den = np.where(ok[:, None], den, 1.0)
-        per_plant = [self._evaluate_plant(pd, num, den, ok, num_r) for pd in self.plants]
-        # the controller's own figure (every plant alike): |Ki|, once a batch
-        ki = np.abs(self.integral_gain(X)) if "ki" in self._needs or self.spec.objective == "ie" else None
-        if "ki" in self._needs:
-            for m in per_plant:
-                m["ki"] = ki
-        return self._combine(per_plant, X, ki)
+        return num, den, ok, num_r
 
-    def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None) -> dict[str, np.ndarray]:
-        """One plant's metrics; ``num_r``: the 2-DOF reference path (the frequency metrics are the feedback's)."""
-        x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
+    def _evaluate_plant(self, pd: _PlantData, num, den, ok, num_r=None, *, C: np.ndarray | None = None,
+                        realized: tuple[np.ndarray, ...] | None = None) -> dict[str, np.ndarray]:
+        """One plant's metrics; ``num_r``: the 2-DOF reference path (the frequency metrics are the feedback's).
+        ``C``: the controllers' responses on the grid (numpy path), ``realized``: :func:`_realize` of the
+        controllers, where the caller has them (the same for every plant); else computed here."""
         m: dict[str, np.ndarray] = {}
         if self.kernels is not None:
+            x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
             with np.errstate(all="ignore"):
                 C, L = self.kernels.c_and_l(num, den, x, pd.G)
             m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs, kernels=self.kernels))
         else:
-            C = self._c_at(num, den, x)
+            if C is None:
+                x = 1j * self.w if self.dt is None else np.exp(1j * self.w * self.dt)
+                C = self._c_at(num, den, x)
             L = C * pd.G[None, :]
             m.update(_frequency_metrics(L, C, self.w, pd, num, den, self.dt, self._needs))
-        cl = self._closed_loop(pd, num, den, num_r)
+        cl = self._closed_loop(pd, num, den, num_r, realized=realized)
         if self.dt is None and pd.tau:
             A_eig = self._fine_delay_dense(pd, num, den, num_r=num_r)[0]
         else:
@@ -476,10 +493,12 @@ class BatchEvaluator:
 
     # -- closed loops ---------------------------------------------------------------------------
 
-    def _closed_loop(self, pd: _PlantData, num, den, num_r=None) -> StackedLoops:
+    def _closed_loop(self, pd: _PlantData, num, den, num_r=None, *, realized: tuple[np.ndarray, ...] | None = None
+                     ) -> StackedLoops:
         """The stacked closed loops (B, nz, nz) with inputs [r, w] and the maps to y, u and the plant input
-        (``num_r``: a 2-DOF controller's reference path, ``u = C_r r - C y`` on shared states)."""
-        Ac, Bc, Cc, Dc, Br, Dr = _realize(num, den, num_r)
+        (``num_r``: a 2-DOF controller's reference path, ``u = C_r r - C y`` on shared states; ``realized``:
+        :func:`_realize` of the controllers, where the caller has it: read here, never written)."""
+        Ac, Bc, Cc, Dc, Br, Dr = _realize(num, den, num_r) if realized is None else realized
         Bn, m = Bc.shape
         n = pd.Phi.shape[0]
         d = pd.d if self.dt is not None else 0
@@ -1010,8 +1029,11 @@ def _margins(L: np.ndarray, lw: np.ndarray, pd: _PlantData, num, den, dt) -> tup
         # from its lowest frequency (the principal angle there, less 360 above +90: a loop's phase at low frequency
         # is 0, -90 or -180 deg, not its alias just below +180), where it is within +-180 (else the distance)
         if r.size:
-            ph = np.unwrap(np.angle(L[np.unique(r)]), axis=1)
-            row = np.searchsorted(np.unique(r), r)
+            # (unwrapped only as far as the last crossing: unwrap's correction is a running sum along the grid,
+            # np.cumsum adding in order, so the points up to there are bitwise those of the whole grid's)
+            ur = np.unique(r)
+            ph = np.unwrap(np.angle(L[ur, :int(c.max()) + 2]), axis=1)
+            row = np.searchsorted(ur, r)
             a0 = ph[:, :1]
             ph = ph - np.where(a0 > np.pi / 2 + 1e-9, 2 * np.pi, 0.0)
             pc = ph[row, c] + f * (ph[row, c + 1] - ph[row, c])
