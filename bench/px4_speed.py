@@ -172,18 +172,17 @@ def _h2h() -> None:
 
     from tuner.optimize import setpoint
 
-    plain = setpoint._settle_locally
     for name, af in AIRFRAMES.items():
         for law in ("px4_rate", "ardupilot_rate"):
             out = {}
             ours(af, law)  # (warm: this shape's NLPs built)
             for variant in ("none", "giveup", "none", "giveup"):
-                setpoint._settle_locally = plain
+                setpoint.GIVE_UP_POLLS = None
                 if variant == "giveup":
                     _giveup(setpoint)
                 r = ours(af, law)
                 out.setdefault(variant, []).append(r)
-            setpoint._settle_locally = plain
+            setpoint.GIVE_UP_POLLS = None
             same = all(r["gains"] == out["none"][0]["gains"] for rs in out.values() for r in rs)
             walls = {v: [round(r["wall_s"], 3) for r in rs] for v, rs in out.items()}
             print(f"{name} {law}: gains {'same' if same else 'DIFFERENT'}, wall s {walls}, settling "
@@ -195,56 +194,9 @@ def _h2h() -> None:
 
 
 def _giveup(setpoint) -> None:
-    """The ``giveup`` variant: :func:`tuner.optimize.setpoint._settle_locally` with a start dropped once
-    ``GIVEUP_POLLS`` polls have left its best merit a penalty (a copy of the function with that one test added)."""
-    import numpy as np
-
-    def settle(merits, space, jobs, free):
-        lo, hi = space.lo, space.hi
-
-        def params(V, fixed):
-            X = np.array([space.params(w) for w in V])
-            for i, val in fixed.items():
-                X[:, i] = val
-            return X
-
-        vs = [np.clip(np.asarray(v, float), lo, hi) for v, _ in jobs]
-        m = merits(np.concatenate([params(v[None, :], f) for v, (_, f) in zip(vs, jobs)]))
-        best = [float(x) for x in m]
-        count = [1] * len(jobs)
-        step = [setpoint.POLL_STEP] * len(jobs)
-        live = list(range(len(jobs)))
-        for it in range(setpoint.POLL_ITERATIONS):
-            if not live:
-                break
-            polls = []
-            for s in live:
-                V = []
-                for i in free:
-                    for sgn in (1.0, -1.0):
-                        w = vs[s].copy()
-                        w[i] = min(max(w[i] + sgn * step[s], lo[i]), hi[i])
-                        V.append(w)
-                polls.append(np.array(V))
-            m = merits(np.concatenate([params(V, jobs[s][1]) for s, V in zip(live, polls)]))
-            at = 0
-            for s, V in zip(list(live), polls):
-                ms = m[at:at + len(V)]
-                at += len(V)
-                count[s] += len(V)
-                j = int(np.argmin(ms))
-                if ms[j] < best[s] - 1e-12 * max(1.0, abs(best[s])):
-                    vs[s], best[s] = V[j], float(ms[j])
-                else:
-                    step[s] /= 2
-                    if step[s] < setpoint.POLL_MIN_STEP:
-                        live.remove(s)
-                        continue
-                if it + 1 >= GIVEUP_POLLS and best[s] >= setpoint.PENALTY:
-                    live.remove(s)
-        return list(zip(vs, best, count))
-
-    setpoint._settle_locally = settle
+    """The ``giveup`` variant: the load design's pattern search (:func:`tuner.optimize.setpoint._settle_locally`)
+    drops a start once ``GIVEUP_POLLS`` polls have left its best merit a penalty (``setpoint.GIVE_UP_POLLS``)."""
+    setpoint.GIVE_UP_POLLS = GIVEUP_POLLS
 
 
 if __name__ == "__main__":

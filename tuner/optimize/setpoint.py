@@ -58,6 +58,9 @@ POLL_STEP = 0.04  # the pattern search's first step, in search coordinates (abou
 POLL_MIN_STEP = 0.003
 POLL_ITERATIONS = 25
 PENALTY = 1e3  # the merit of a candidate that fails a constraint: above every settling time
+# a pattern search whose best merit is still PENALTY after this many polls is dropped (None: never, as the product
+# runs; bench/px4_speed.py's ``giveup`` variant sets it to measure what it would save and cost)
+GIVE_UP_POLLS: int | None = None
 #: the load stage runs levels ahead of their turn beside others (see :func:`raise_integral`; False: each level at its
 #: turn alone, the same answer at more batch calls)
 RUN_AHEAD = True
@@ -242,7 +245,7 @@ def _settle_locally(merits: _Merits, space: Any, jobs: list[tuple[np.ndarray, di
     count = [1] * len(jobs)
     step = [POLL_STEP] * len(jobs)
     live = list(range(len(jobs)))
-    for _ in range(POLL_ITERATIONS):
+    for it in range(POLL_ITERATIONS):
         if not live:
             break
         polls = []
@@ -267,6 +270,8 @@ def _settle_locally(merits: _Merits, space: Any, jobs: list[tuple[np.ndarray, di
                 step[s] /= 2
                 if step[s] < POLL_MIN_STEP:
                     live.remove(s)
+            if GIVE_UP_POLLS is not None and it + 1 >= GIVE_UP_POLLS and best[s] >= PENALTY and s in live:
+                live.remove(s)
     return list(zip(vs, best, count))
 
 
