@@ -20,8 +20,8 @@ COPY api ./api
 RUN apt-get update && apt-get install -y --no-install-recommends gcc libc6-dev && rm -rf /var/lib/apt/lists/*
 RUN pip install --no-cache-dir .
 # the compiled core's caches, built at build time: the batch's kernels (numba) and the NLP shapes of the README's
-# roll loop (px4_rate's 20 MB of generated C did not compile within the 30 min cap on a loaded 2-core machine: its
-# shapes stay interpreted until a solver's background compile gets them); writable by the service's user
+# roll loop (px4_rate's shapes are compiled in the background at run time where their C is at most 4 MB, the two
+# smallest of six; the others stay interpreted: codecache.MAX_SOURCE_BYTES); writable by the service's user
 ENV TUNER_CACHE_DIR=/opt/tuner-cache
 RUN python -m tuner.optimize.kernels \
     && (TUNER_NLP_COMPILE=auto tuner tune --plant "0.2655*14.8528^2/(s^2+14.195*s+14.8528^2)" --dt 0.04 --structure pid_z || true) \

@@ -7,8 +7,11 @@
 # --skip-px4: the roll loop alone (px4_rate's tunes left out: 5-10 s each; the default runs them).
 # The caches: $TUNER_CACHE_DIR if set (as it is: a first run there may find them filled), else a new empty folder
 # (removed at the end). Another tree's code: PYTHONPATH=/other/tree bash bench/cold_cli.sh (this tree's venv).
+# TUNER_NLP_COMPILE: as set, else load (the compiled NLP entries the cache holds, and no background compile that
+# would run beside the timed runs; the product's default, auto, compiles new shapes in the background)
 set -u
 cd "$(dirname "$0")/.."
+export TUNER_NLP_COMPILE=${TUNER_NLP_COMPILE:-load}
 T=.venv/bin/tuner
 PX4=1
 if [ "${1:-}" = "--skip-px4" ]; then PX4=0; shift; fi

@@ -629,6 +629,18 @@ def _weights_note(gains: dict[str, float]) -> str:
     return f"; b = {b:.4g} (feed-forward Kp (b - 1) = {kp * (b - 1):.4g}), c = {c:.4g}: {d}"
 
 
+def _note_compiles() -> None:
+    """Say on stderr how many NLP shapes this run left compiling in the background (tuner.optimize.nlp.codecache)."""
+    codecache = sys.modules.get("tuner.optimize.nlp.codecache")  # (imported only where the tune built an NLP)
+    n = codecache.started() if codecache is not None else 0
+    if n:
+        print(f"note: compiling the NLP code of {n} new problem shape{'s' if n > 1 else ''} in the background, once "
+              "per machine, at low priority (a shape of more than "
+              f"{codecache.MAX_SOURCE_BYTES / 1e6:.0f} MB of C stays interpreted); later tunes load it and run "
+              "faster. `python -m tuner.optimize.nlp.codecache` lists the compiled shapes; TUNER_NLP_COMPILE=load "
+              "starts no compile", file=sys.stderr)
+
+
 def _cmd_tune(a: argparse.Namespace) -> int:
     from .display import optimality_line
     from .plant import check_dt, plant_from_expr
@@ -668,6 +680,7 @@ def _cmd_tune(a: argparse.Namespace) -> int:
         extra["actuator"] = act
     res = tune(plants, structure=a.structure, spec=spec, dt=a.dt, seed=a.seed, time_budget_s=a.budget,
                effort=a.effort, **extra)
+    _note_compiles()
     out = res.to_json()
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:

@@ -1,6 +1,7 @@
 """The NLP code cache's safety (tuner.optimize.nlp.codecache, tuner.optimize.cachedir), quick, without a compile: a
 timed-out compile leaves no process of its group running; a lock whose builder is gone is stale at once; a cache root
-that is not private is not used (the cache is off, silently)."""
+that is not private is not used (the cache is off, silently); the background work is bounded before it starts (a
+shape with too much C is not compiled, at most MAX_PENDING builds wait) and ``tuner tune`` says what it started."""
 
 from __future__ import annotations
 
@@ -112,3 +113,105 @@ def test_the_cache_root_is_private_and_a_shared_one_is_not_used(tmp_path, monkey
     codecache.run_job(job, lambda *a: pytest.fail("built from a shared root"))
     root.chmod(0o700)
     assert cachedir.trusted_root() == root
+
+
+class _FakePopen:
+    started: list = []
+
+    def __init__(self, cmd, **kw):
+        _FakePopen.started.append(cmd)
+        self.pid = os.getpid()
+
+
+def _scheduling(tmp_path, monkeypatch):
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    monkeypatch.setattr(codecache, "_SCHEDULED", set())
+    monkeypatch.setattr(codecache, "_STARTED", [])
+    monkeypatch.setattr(_FakePopen, "started", [])
+    monkeypatch.setattr(codecache.subprocess, "Popen", _FakePopen)
+    monkeypatch.setattr(codecache, "entry_dir", lambda key, *a: tmp_path / "nlp" / str(key))
+
+
+def test_unset_compiles_in_the_background_and_load_and_off_do_not(tmp_path, monkeypatch):
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.delenv("TUNER_NLP_COMPILE", raising=False)
+    assert codecache.mode() == "auto" and codecache.schedule("a", None, None) is True
+    assert codecache.started() == 1 and len(_FakePopen.started) == 1
+    assert codecache.schedule("a", None, None) is False  # (once per process)
+    for value, mode in (("load", "load"), ("off", "off"), ("on", "auto"), ("0", "off")):
+        monkeypatch.setenv("TUNER_NLP_COMPILE", value)
+        assert codecache.mode() == mode
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "load")
+    assert codecache.schedule("b", None, None) is False and codecache.started() == 1
+
+
+def test_at_most_max_pending_builds_wait_on_the_machine(tmp_path, monkeypatch):
+    dead = _dead_pid()  # (before Popen is replaced)
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    root = tmp_path / "nlp"
+    root.mkdir()
+    for i in range(codecache.MAX_PENDING):
+        (root / f"other{i}.lock").write_text(str(os.getpid()))  # live builders (this process stands in)
+    assert codecache.schedule("a", None, None) is False and not _FakePopen.started
+    (root / "other0.lock").write_text(str(dead))  # one of them gone: room for one more
+    monkeypatch.setattr(codecache, "_SCHEDULED", set())
+    assert codecache.schedule("a", None, None) is True and len(_FakePopen.started) == 1
+
+
+def test_a_shape_with_more_c_than_the_bound_is_marked_not_compiled(tmp_path, monkeypatch):
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    d = tmp_path / "nlp" / "shape"
+    monkeypatch.setattr(codecache, "entry_dir", lambda *a: d)
+    marker = tmp_path / "compiler-ran"
+    cc = tmp_path / "cc.sh"
+    cc.write_text(f"#!/bin/sh\ntouch {marker}\nexit 1\n")
+    cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(cc))
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1000)
+
+    class Gen:
+        def __init__(self, n):
+            self.n = n
+
+        def generate_dependencies(self, name):
+            Path(name).write_text("x" * self.n)
+
+        generate = generate_dependencies
+
+    class Prob:
+        solver, step = Gen(900), Gen(200)  # 1100 bytes of C in all: above the bound
+
+    times = codecache.build_entry("k", None, None, lambda *a: Prob())
+    assert times["skipped_bytes"] == 1100
+    assert not marker.exists() and not d.exists()
+    assert "MB of C" in d.with_name("shape.failed").read_text()
+    assert not list(d.parent.glob("*.tmp"))
+
+
+def test_tune_says_on_stderr_how_many_compiles_it_started(tmp_path, monkeypatch, capsys):
+    from collections import OrderedDict
+
+    from tuner.cli import main
+    from tuner.optimize.nlp import transcribe
+
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setattr(codecache, "entry_dir", lambda key, st, space: tmp_path / "nlp" / str(abs(hash(key))))
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())  # (every shape built here)
+    args = ["tune", "--plant", "1/(s+1)", "--structure", "pi", "--dt", "0.2", "--json"]
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "load")
+    assert main(args) == 0
+    out_load, err = capsys.readouterr()
+    assert "compiling" not in err and not _FakePopen.started
+    monkeypatch.setattr(transcribe, "_CACHE", OrderedDict())
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    assert main(args) == 0
+    out_auto, err = capsys.readouterr()
+    n = len(_FakePopen.started)
+    assert n >= 1 and codecache.started() == n
+    assert f"note: compiling the NLP code of {n} new problem shape" in err
+    import json
+
+    a, b = json.loads(out_load), json.loads(out_auto)  # (stdout, the JSON: the same answer as without)
+    assert a["gains"] == b["gains"] and a["objective"] == b["objective"]
