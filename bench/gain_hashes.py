@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sys
 import time
+
+os.environ.setdefault("TUNER_NLP_COMPILE", "load")  # (no background compile beside timed runs: README, compiled code)
 
 PX4 = "200/((s+2)*(0.03*s+1))"
 CASES = ([(PX4, "px4_rate", 0.0025, s, e) for e in ("default", "fast") for s in range(5)]

@@ -34,6 +34,8 @@ import statistics
 import sys
 import time
 
+os.environ.setdefault("TUNER_NLP_COMPILE", "load")  # (no background compile beside timed runs: README, compiled code)
+
 PX4 = "200/((s+2)*(0.03*s+1))"
 GIVEUP_POLLS = 4
 

@@ -28,6 +28,8 @@ import sys
 import time
 import traceback
 
+os.environ.setdefault("TUNER_NLP_COMPILE", "load")  # (no background compile beside timed runs: README, compiled code)
+
 
 def _api():
     try:

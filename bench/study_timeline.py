@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+os.environ.setdefault("TUNER_NLP_COMPILE", "load")  # (no background compile beside timed runs: README, compiled code)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+os.environ.setdefault("TUNER_NLP_COMPILE", "load")  # (no background compile beside timed runs: README, compiled code)
+
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 

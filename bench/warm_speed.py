@@ -24,6 +24,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+os.environ.setdefault("TUNER_NLP_COMPILE", "load")  # (no background compile beside timed runs: README, compiled code)
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))

@@ -15,7 +15,8 @@ import pytest
 sys.path.insert(0, os.path.dirname(__file__))
 
 # FastAPI's TestClient sends ``Host: testserver``: serve it too (the service's default is loopback only,
-# api.guard). Servers started as processes (tests/uvicorn_server.py) drop TUNER_* and keep the default.
+# api.guard). Servers started as processes (tests/uvicorn_server.py) drop TUNER_* and keep the default, but for
+# TUNER_NLP_COMPILE (no background gcc from a test's server).
 os.environ.setdefault("TUNER_ALLOWED_HOSTS", "127.0.0.1,localhost,::1,testserver")
 # One OpenBLAS thread per process, as tune() already runs its solve (tuner.tuning._one_thread): the suite's matrices
 # are small, and with -n 2 each worker's pool of 2 threads spins on the 2 cores the other worker needs (the fast lane

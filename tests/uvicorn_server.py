@@ -39,6 +39,8 @@ class Server:
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = tmp / f"server-{self.port}.log"
         full_env = {k: v for k, v in os.environ.items() if not k.startswith("TUNER_")}
+        # (but the suite's NLP compile mode: no background gcc from a test's server, conftest.py)
+        full_env["TUNER_NLP_COMPILE"] = os.environ.get("TUNER_NLP_COMPILE", "off")
         full_env.update(env)
         self.log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(

@@ -630,15 +630,16 @@ def _weights_note(gains: dict[str, float]) -> str:
 
 
 def _note_compiles() -> None:
-    """Say on stderr how many NLP shapes this run left compiling in the background (tuner.optimize.nlp.codecache)."""
+    """Say on stderr how many NLP shapes this run asked to be compiled in the background
+    (tuner.optimize.nlp.codecache)."""
     codecache = sys.modules.get("tuner.optimize.nlp.codecache")  # (imported only where the tune built an NLP)
     n = codecache.started() if codecache is not None else 0
     if n:
-        print(f"note: compiling the NLP code of {n} new problem shape{'s' if n > 1 else ''} in the background, once "
-              "per machine, at low priority (a shape of more than "
-              f"{codecache.MAX_SOURCE_BYTES / 1e6:.0f} MB of C stays interpreted); later tunes load it and run "
-              "faster. `python -m tuner.optimize.nlp.codecache` lists the compiled shapes; TUNER_NLP_COMPILE=load "
-              "starts no compile", file=sys.stderr)
+        print(f"note: asked for the compiled NLP code of {n} new problem shape{'s' if n > 1 else ''}: built in the "
+              "background, once per cache, at low priority (a shape of more than "
+              f"{codecache.MAX_SOURCE_BYTES / 1e6:.0f} MB of C stays interpreted); later tunes load "
+              f"{'them' if n > 1 else 'it'} and run faster. `python -m tuner.optimize.nlp.codecache` lists the "
+              "compiled shapes; TUNER_NLP_COMPILE=load starts no compile", file=sys.stderr)
 
 
 def _cmd_tune(a: argparse.Namespace) -> int:
@@ -775,6 +776,7 @@ def _cmd_tradeoff(a: argparse.Namespace) -> int:
         raise TunerError("--objective: the trade-off's speed axis is the settling time; leave --objective out")
     res = tradeoff(plants, structure=a.structure, spec=spec, dt=a.dt, x=a.x, y=a.y, points=a.points, seed=a.seed,
                    time_budget_s=a.budget)
+    _note_compiles()
     code = EXIT_OK if res.meets_spec else EXIT_SPEC_NOT_MET
     if a.json:
         print(json.dumps(res.to_json(), indent=2))

@@ -113,6 +113,7 @@ def test_install_and_start_as_the_image_would(tmp_path):
     cmd[cmd.index("--port") + 1] = str(port)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("TUNER_", "PYTHON"))}
     env.update(env_vars())
+    env["TUNER_NLP_COMPILE"] = os.environ.get("TUNER_NLP_COMPILE", "off")  # (no background gcc from a test)
     env.update(TUNER_DATABASE_URL=f"sqlite:///{data / 'tuner.db'}", TUNER_WORKERS="1",
                PATH=f"{bindir}{os.pathsep}{env.get('PATH', '')}")
     log = open(tmp_path / "server.log", "wb")
@@ -159,6 +160,7 @@ def test_the_image_does_not_start_without_a_key_or_the_opt_in(tmp_path):
     assert cmd[cmd.index("--host") + 1] == "0.0.0.0"
     env = {k: v for k, v in os.environ.items() if not k.startswith(("TUNER_", "PYTHON"))}
     env.update(env_vars())
+    env["TUNER_NLP_COMPILE"] = os.environ.get("TUNER_NLP_COMPILE", "off")  # (no background gcc from a test)
     env["TUNER_DATABASE_URL"] = f"sqlite:///{tmp_path / 'tuner.db'}"
     p = subprocess.run([sys.executable, *cmd[1:]], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "TUNER_API_KEY is not set" in p.stderr, (p.returncode, p.stderr)

@@ -102,7 +102,8 @@ def _shape_of(key):
 
 
 def test_a_failed_compile_is_marked_and_not_asked_for_again(cache, monkeypatch):
-    """A compile that fails (or runs out of time) leaves a mark: no later run starts it again; and with
+    """A compile that fails leaves a mark: no later run starts it again (one that runs out of time does not: a busy
+    machine's, asked for again later); and with
     ``TUNER_NLP_COMPILE=load`` no run starts a compile at all (unset, the default, is ``auto``)."""
     monkeypatch.setattr(codecache, "schedule", lambda *a: False)
     _tune()

@@ -210,7 +210,7 @@ def test_tune_says_on_stderr_how_many_compiles_it_started(tmp_path, monkeypatch,
     out_auto, err = capsys.readouterr()
     n = len(_FakePopen.started)
     assert n >= 1 and codecache.started() == n
-    assert f"note: compiling the NLP code of {n} new problem shape" in err
+    assert f"note: asked for the compiled NLP code of {n} new problem shape" in err
     import json
 
     a, b = json.loads(out_load), json.loads(out_auto)  # (stdout, the JSON: the same answer as without)
