@@ -231,9 +231,11 @@ def _write_pid(lock: Path, pid: int) -> None:
 
 def _compile(cmd: list[str], timeout_s: float) -> None:
     """Run the compiler ``cmd`` in its own process group; on time out kill the whole group (the driver and its
-    ``cc1``), so no compile outlives its call. Raises TimeoutExpired or CalledProcessError."""
+    ``cc1``), so no compile outlives its call. Raises TimeoutExpired or CalledProcessError. (A process group in the
+    caller's session, not a session of its own: where the kernel groups processes by session (autogroup), gcc then
+    shares the builder's lowered group rather than a new one at nice 0.)"""
     p = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True)
+                         process_group=0)
     try:
         p.communicate(timeout=timeout_s)
     except BaseException:  # the time out (or an interrupt): no part of the compile is left running
