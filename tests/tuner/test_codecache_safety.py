@@ -215,3 +215,18 @@ def test_tune_says_on_stderr_how_many_compiles_it_started(tmp_path, monkeypatch,
 
     a, b = json.loads(out_load), json.loads(out_auto)  # (stdout, the JSON: the same answer as without)
     assert a["gains"] == b["gains"] and a["objective"] == b["objective"]
+
+
+def test_pending_counts_the_live_builds_of_the_cache(tmp_path, monkeypatch):
+    dead = _dead_pid()
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    assert codecache.pending() == 0  # (no nlp folder yet)
+    root = tmp_path / "nlp"
+    root.mkdir()
+    (root / "a.lock").write_text(str(os.getpid()))
+    (root / "b.lock").write_text(str(dead))  # a killed build: not pending
+    (root / "compile.flock").write_text("")
+    assert codecache.pending() == 1
+    monkeypatch.setattr(codecache, "enabled", lambda: False)
+    assert codecache.pending() == 0

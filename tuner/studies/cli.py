@@ -534,6 +534,13 @@ def _cmd_study_run(a: argparse.Namespace) -> int:
         doc = write_outputs(study, statuses, out, storage=redact(url), source=a.file, plots=not a.no_plots,
                             jobs=a.workers)
     _print_summary(doc, time.perf_counter() - t0, out)
+    codecache = sys.modules.get("tuner.optimize.nlp.codecache")  # (the workers' NLP shapes, compiled in the background)
+    n = codecache.pending() if codecache is not None else 0
+    if n:
+        print(f"note: the compiled NLP code of {n} problem shape{'s' if n > 1 else ''} the workers asked for is being "
+              "built in the background, once per cache, at low priority; later runs load it. `python -m "
+              "tuner.optimize.nlp.codecache --wait` waits for it, TUNER_NLP_COMPILE=load starts no compile",
+              file=sys.stderr)
     return 0 if doc["meets_spec"] else 1
 
 

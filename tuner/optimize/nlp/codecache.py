@@ -45,8 +45,8 @@ import numpy as np
 
 from ..cachedir import cache_root, trusted_root
 
-__all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "mode", "started", "COMPILE_TIMEOUT_S", "CFLAGS",
-           "MAX_SOURCE_BYTES"]
+__all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "mode", "started", "pending", "COMPILE_TIMEOUT_S",
+           "CFLAGS", "MAX_SOURCE_BYTES"]
 
 CFLAGS = ("-O1", "-fPIC", "-shared")  # -O1: 1.85-2.2x the interpreted evaluation; -O2 compiles far longer
 COMPILE_TIMEOUT_S = 1800.0  # a compile that takes longer is abandoned (the shape stays interpreted)
@@ -217,6 +217,14 @@ def mode() -> str:
 def started() -> int:
     """How many background builds this process started (:func:`schedule`)."""
     return len(_STARTED)
+
+
+def pending() -> int:
+    """How many background builds wait or run in this cache now (any process's: a study's workers', say)."""
+    if not enabled():
+        return 0
+    root = cache_root() / "nlp"
+    return sum(not _lock_stale(f) for f in root.glob("*.lock")) if root.exists() else 0
 
 
 def _write_pid(lock: Path, pid: int) -> None:
