@@ -535,7 +535,7 @@ def _cmd_study_run(a: argparse.Namespace) -> int:
                             jobs=a.workers)
     _print_summary(doc, time.perf_counter() - t0, out)
     codecache = sys.modules.get("tuner.optimize.nlp.codecache")  # (the workers' NLP shapes, compiled in the background)
-    n = codecache.pending() if codecache is not None else 0
+    n = codecache.pending() if codecache is not None and codecache.mode() == "auto" else 0
     if n:
         print(f"note: the compiled NLP code of {n} problem shape{'s' if n > 1 else ''} the workers asked for is being "
               "built in the background, once per cache, at low priority; later runs load it. `python -m "

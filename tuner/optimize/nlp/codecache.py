@@ -11,13 +11,14 @@ load the entry (:func:`load`) instead of building: the solver from the shared li
 the entry's ``meta.npz``. An entry whose files do not match the checksums written with it, or that CasADi cannot
 load, is deleted and built again, never used. The compiled solver gives bitwise the interpreted solver's answers
 (tests/tuner/test_codecache.py). ``TUNER_NLP_COMPILE``: ``auto`` (the default; ``on`` too) compiles in the
-background as above, once per machine, bounded before it starts (a shape of more than :data:`MAX_SOURCE_BYTES` of C is
+background as above, once per cache, bounded before gcc runs (a shape of more than :data:`MAX_SOURCE_BYTES` of C is
 not compiled; at most :data:`MAX_PENDING` builds wait at once; the builder runs at the lowest priority) and reported
-(``tuner tune`` says on stderr how many it started: :func:`started`); ``load`` uses the entries there are and starts
-no compile; ``off`` keeps every NLP interpreted (the test suite's default). A shape whose compile failed, ran out of
-time or was too large is marked (``<entry>.failed``) and not tried again until the NLP's sources change (a px4_rate
-shape's 60 MB of C did not compile within the cap on a loaded 2-core machine); one whose compile ran out of time is
-not marked (a later use asks again). A compile that
+(``tuner tune`` and ``tuner tradeoff`` say on stderr how many they asked for, :func:`started`; ``tuner study run`` how
+many are still being built when it ends, :func:`pending`); ``load`` uses the entries there are and starts no
+compile; ``off`` keeps every NLP interpreted (the test suite's default). A shape whose compile failed or that was too
+large is marked (``<entry>.failed``) and not tried again until the NLP's sources change (a px4_rate shape's 60 MB of
+C did not compile within the cap on a loaded 2-core machine); one whose compile ran out of time is not marked (a
+busy machine's: a later use asks again). A compile that
 runs out of time is killed with its whole process group (gcc's ``cc1`` too), so the next compile never starts beside
 it. A build's ``<entry>.lock`` holds the builder's pid: a lock whose process is gone (a killed build) is stale at
 once, not after :data:`STALE_LOCK_S`. The cache is used only in a root owned by the current user and not writable by
@@ -55,7 +56,7 @@ COMPILE_TIMEOUT_S = 1800.0  # a compile that takes longer is abandoned (the shap
 # px4_rate's six shapes are 2.8-60 MB (nlp.c and step.c), the largest did not compile within COMPILE_TIMEOUT_S
 # (bench/results/nlp_code_sizes_stop49.txt)
 MAX_SOURCE_BYTES = 4_000_000
-# background builds waiting or running on this machine at most (each one a process: its own Python and CasADi)
+# background builds waiting or running in one cache at most (each one a process: its own Python and CasADi)
 MAX_PENDING = 8
 STALE_LOCK_S = 2 * COMPILE_TIMEOUT_S
 FILES = ("nlp.so", "step.so", "meta.npz")
