@@ -157,9 +157,6 @@ async def _connect(store: Store, max_pause_s: float) -> None:
 
 
 def _version() -> str:
-    from importlib import metadata
+    from tuner._lazy import installed_version
 
-    try:
-        return metadata.version("tuner")
-    except metadata.PackageNotFoundError:  # pragma: no cover
-        return "0"
+    return installed_version("0")

@@ -85,20 +85,13 @@ __all__ = [
 
 
 
-def _version() -> str:
-    from importlib import metadata
-
-    try:
-        return metadata.version("tuner")
-    except metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
-        return "0+unknown"
-
-
 def __getattr__(name: str) -> Any:
     mod = _WHERE.get(name)
     if mod is None:
         if name == "__version__":
-            value: Any = _version()
+            from ._lazy import installed_version
+
+            value: Any = installed_version("0+unknown")
             globals()[name] = value
             return value
         raise AttributeError(f"module 'tuner' has no attribute {name!r}")

@@ -1,13 +1,15 @@
-"""A package's public names loaded on first use (PEP 562): ``__getattr__ = lazy_getattr(__name__, WHERE)``."""
+"""A package's public names loaded on first use (PEP 562): ``__getattr__ = lazy_getattr(__name__, WHERE)``; and the
+installed version, read from the package metadata on first use (:func:`installed_version`)."""
 
 from __future__ import annotations
 
+import functools
 import importlib
 import sys
 from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["lazy_getattr", "is_instance_of", "is_identification"]
+__all__ = ["lazy_getattr", "is_instance_of", "is_identification", "installed_version"]
 
 
 def lazy_getattr(package: str, where: Mapping[str, str]) -> Callable[[str], Any]:
@@ -36,3 +38,15 @@ def is_instance_of(obj: Any, module: str, name: str) -> bool:
 def is_identification(obj: Any) -> bool:
     """``obj`` is an :class:`~tuner.identify.IdentifyResult` (checked without importing the package)."""
     return is_instance_of(obj, "tuner.identify.result", "IdentifyResult")
+
+
+@functools.cache  # (read once per process: ~3 ms each time)
+def installed_version(fallback: str) -> str:
+    """The installed ``tuner`` package's version (its metadata), or ``fallback`` where there is none (a source tree
+    without metadata): ``tuner.__version__``, the exported files' headers."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("tuner")
+    except metadata.PackageNotFoundError:  # pragma: no cover - a source tree without metadata
+        return fallback

@@ -34,7 +34,6 @@ warning) is sanitised: no control character (a newline, a tab) reaches a line of
 from __future__ import annotations
 
 import datetime as _dt
-import functools
 import math
 import unicodedata
 from collections.abc import Iterator, Mapping
@@ -43,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from .._lazy import installed_version
 from ..errors import TunerError
 from ..firmware.laws import LATER_FIXED
 from ..firmware.names import AXES, law_names, range_problem, stored_value
@@ -83,16 +83,6 @@ class ParamFile:
     text: str
     name: str
     warnings: tuple[str, ...] = ()
-
-
-@functools.cache  # (the installed package's: read once per process, not per file written)
-def _version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("tuner")
-    except Exception:  # not installed (a source tree): say so rather than fail the export
-        return "(source tree)"
 
 
 def clean(text: Any, limit: int = _MAX_TEXT) -> str:
@@ -333,7 +323,8 @@ def make_param_file(result: Mapping[str, Any], format: str, *, axis: str | None 
         dt = _num(result.get("dt"))
     loop_hz = 1.0 / dt if math.isfinite(dt) and dt > 0 else None
     when = (date or _dt.date.today()).isoformat()
-    head = [f"tuner {clean(_version(), 40)}, {when}: the {law} law ({fw}, {ax} axis), as the firmware computes it",
+    version = clean(installed_version("(source tree)"), 40)
+    head = [f"tuner {version}, {when}: the {law} law ({fw}, {ax} axis), as the firmware computes it",
             f"loop rate {loop_hz:g} Hz (dt {dt:g} s)" if loop_hz else "loop rate: not recorded"]
     head.append(firmware.filters_header(values, _gyro_words(result, vehicle, firmware.gyro_param)))
     warnings: list[str] = []

@@ -177,7 +177,7 @@ def schedule(key: Any, st: Any, space: Any) -> bool:
         return False
     _SCHEDULED.add(d.name)
     # (a bound, not a strict one: two processes may count at once, and a lock older than STALE_LOCK_S counts as stale)
-    if d.parent.exists() and sum(not _lock_stale(f) for f in d.parent.glob("*.lock")) >= MAX_PENDING:
+    if _live_builds(d.parent) >= MAX_PENDING:
         return False  # enough builds wait already: a later use in another process asks again
     lock = d.with_name(d.name + ".lock")
     try:
@@ -224,7 +224,11 @@ def pending() -> int:
     """How many background builds wait or run in this cache now (any process's: a study's workers', say)."""
     if not enabled():
         return 0
-    root = cache_root() / "nlp"
+    return _live_builds(cache_root() / "nlp")
+
+
+def _live_builds(root: Path) -> int:
+    """The builds waiting or running in the cache folder ``root``: its locks that are not stale."""
     return sum(not _lock_stale(f) for f in root.glob("*.lock")) if root.exists() else 0
 
 
