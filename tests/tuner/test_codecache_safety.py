@@ -5,6 +5,7 @@ shape with too much C is not compiled, at most MAX_PENDING builds wait) and ``tu
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -160,6 +161,35 @@ def test_at_most_max_pending_builds_wait_on_the_machine(tmp_path, monkeypatch):
     assert codecache.schedule("a", None, None) is True and len(_FakePopen.started) == 1
 
 
+class _Gen:
+    """A problem's solver or step whose generated C is ``n`` bytes."""
+
+    def __init__(self, n):
+        self.n = n
+
+    def generate_dependencies(self, name):
+        Path(name).write_text("x" * self.n)
+
+    generate = generate_dependencies
+
+
+def _problem(nlp_bytes, step_bytes):
+    """A build (``build(key, st, space)``) whose problem's solver and step generate so many bytes of C."""
+    class Prob:
+        solver, step = _Gen(nlp_bytes), _Gen(step_bytes)
+        lbg, ubg, n_v = [0.0], [1.0], 1
+
+    return lambda *a: Prob()
+
+
+def _compiler(path: Path, exit_code: int) -> str:
+    """A stand-in for gcc: writes its ``-o`` file (and exits 0), or fails (``exit_code`` != 0)."""
+    path.write_text("#!/bin/sh\n" + (f"exit {exit_code}\n" if exit_code else
+                                     'while [ $# -gt 0 ]; do [ "$1" = -o ] && echo so > "$2"; shift; done\n'))
+    path.chmod(0o755)
+    return str(path)
+
+
 def test_a_shape_with_more_c_than_the_bound_is_marked_not_compiled(tmp_path, monkeypatch):
     monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
     d = tmp_path / "nlp" / "shape"
@@ -170,23 +200,11 @@ def test_a_shape_with_more_c_than_the_bound_is_marked_not_compiled(tmp_path, mon
     cc.chmod(0o755)
     monkeypatch.setenv("CC", str(cc))
     monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1000)
-
-    class Gen:
-        def __init__(self, n):
-            self.n = n
-
-        def generate_dependencies(self, name):
-            Path(name).write_text("x" * self.n)
-
-        generate = generate_dependencies
-
-    class Prob:
-        solver, step = Gen(900), Gen(200)  # 1100 bytes of C in all: above the bound
-
-    times = codecache.build_entry("k", None, None, lambda *a: Prob())
+    times = codecache.build_entry("k", None, None, _problem(900, 200))  # 1100 bytes of C in all: above the bound
     assert times["skipped_bytes"] == 1100
     assert not marker.exists() and not d.exists()
-    assert "MB of C" in d.with_name("shape.failed").read_text()
+    assert json.loads(d.with_name("shape.failed").read_text()) == {"reason": "too_large", "bytes": 1100,
+                                                                     "bound": 1000}
     assert not list(d.parent.glob("*.tmp"))
 
 
@@ -230,3 +248,136 @@ def test_pending_counts_the_live_builds_of_the_cache(tmp_path, monkeypatch):
     assert codecache.pending() == 1
     monkeypatch.setattr(codecache, "enabled", lambda: False)
     assert codecache.pending() == 0
+
+
+_POPEN = subprocess.Popen  # (the real one: _scheduling replaces it, for schedule's background process)
+
+
+def _build(key, build) -> None:
+    """build_entry of ``key`` as the background process runs it (its compiler a real process: a script)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(codecache.subprocess, "Popen", _POPEN)
+        codecache.build_entry(key, None, None, build)
+
+
+def _asked_again(key) -> bool:
+    """schedule() starts a build of ``key`` (this process not having asked for it yet); the build's lock and job are
+    removed after it (as its builder does when it ends: the next call is not refused as a build under way)."""
+    codecache._SCHEDULED.discard(key)
+    started = codecache.schedule(key, None, None)
+    for f in ("lock", "job"):
+        codecache.entry_dir(key).with_name(f"{key}.{f}").unlink(missing_ok=True)
+    return started
+
+
+def test_a_too_large_marker_holds_until_the_bound_is_raised_above_the_size(tmp_path, monkeypatch):
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    monkeypatch.setenv("CC", _compiler(tmp_path / "cc.sh", 1))
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1000)
+    _build("shape", _problem(900, 200))  # 1100 bytes: marked
+    assert not _asked_again("shape") and not _FakePopen.started
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1099)  # raised, but still below its size
+    assert not _asked_again("shape")
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 500)  # a lower bound: still marked
+    assert not _asked_again("shape")
+    # raised to its size (build_entry compiles a shape of as many bytes as the bound): asked for again
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1100)
+    assert _asked_again("shape") and len(_FakePopen.started) == 1
+
+
+def test_a_failed_compile_marker_holds_for_the_same_compiler_and_flags_only(tmp_path, monkeypatch):
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    cc = _compiler(tmp_path / "cc.sh", 1)
+    monkeypatch.setenv("CC", cc)
+    with pytest.raises(subprocess.CalledProcessError):
+        _build("shape", _problem(100, 100))
+    info = codecache.marker(tmp_path / "nlp" / "shape")
+    assert info["reason"] == "compile_failed" and info["cflags"] == list(codecache.CFLAGS)
+    assert info["compiler"]["path"] == str(Path(cc).resolve()) and "CalledProcessError" in info["error"]
+    assert not _asked_again("shape") and not _FakePopen.started
+    # another compiler (CC, or a new default gcc), the same one upgraded (its file replaced) or other flags: again
+    monkeypatch.setenv("CC", _compiler(tmp_path / "cc2.sh", 1))
+    assert _asked_again("shape")
+    monkeypatch.setenv("CC", cc)
+    assert not _asked_again("shape")
+    st = os.stat(cc)
+    os.utime(cc, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert _asked_again("shape")
+    os.utime(cc, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert not _asked_again("shape")
+    monkeypatch.setattr(codecache, "CFLAGS", ("-O0", *codecache.CFLAGS[1:]))  # (the entry's name kept: entry_dir)
+    assert _asked_again("shape") and len(_FakePopen.started) == 3
+
+
+def test_a_marker_of_the_first_format_holds_and_a_compiled_shape_drops_a_stale_one(tmp_path, monkeypatch):
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    root = tmp_path / "nlp"
+    root.mkdir()
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 10**12)
+    # plain text (it does not say under which bound or compiler it was written), or unreadable as JSON: never
+    # retried blindly
+    for text in ("not compiled: 60.0 MB of C, above the 4 MB bound\n", "CalledProcessError: ...\n", "{", "[1]"):
+        (root / "old.failed").write_text(text)
+        assert codecache.marker(root / "old") == {"reason": "failed", "detail": text.strip()}
+        assert not _asked_again("old")
+    assert not _FakePopen.started
+    # a marker that no longer holds: the shape compiles, and its marker goes
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1000)
+    codecache._mark(root / "shape", {"reason": "too_large", "bytes": 900, "bound": 500})
+    monkeypatch.setenv("CC", _compiler(tmp_path / "cc.sh", 0))
+    _build("shape", _problem(400, 400))
+    assert (root / "shape" / "sums.json").exists() and not (root / "shape.failed").exists()
+    assert not list(root.glob("*.tmp"))
+
+
+def _cache_with_every_state(tmp_path, monkeypatch):
+    """A cache folder of: one compiled entry, one live build and a dead one's lock, a too-large marker that holds
+    and one that does not, a failed compile's marker and one of the first format."""
+    dead = _dead_pid()
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 4_000_000)
+    monkeypatch.setenv("CC", _compiler(tmp_path / "cc.sh", 1))
+    root = tmp_path / "nlp"
+    (root / "done").mkdir(parents=True)
+    (root / "done" / "sums.json").write_text("{}")
+    (root / "done" / "build.json").write_text(json.dumps({"key": "K1", "build_s": 1.0, "generate_s": 2.0,
+                                                          "compile_s": 3.0}))
+    (root / "live.lock").write_text(str(os.getpid()))
+    (root / "killed.lock").write_text(str(dead))
+    codecache._mark(root / "big", {"reason": "too_large", "bytes": 60_000_000, "bound": 4_000_000})
+    codecache._mark(root / "was_big", {"reason": "too_large", "bytes": 3_000_000, "bound": 2_000_000})
+    codecache._mark(root / "broke", {"reason": "compile_failed", "cflags": list(codecache.CFLAGS),
+                                     "compiler": codecache._compiler_id(), "error": "CalledProcessError: status 1"})
+    (root / "legacy.failed").write_text("not compiled: 5.0 MB of C, above the 4 MB bound\n")
+    return root
+
+
+def test_the_listing_shows_the_marked_shapes_with_why(tmp_path, monkeypatch, capsys):
+    root = _cache_with_every_state(tmp_path, monkeypatch)
+    assert codecache._main([]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    by_name = {ln.split()[0]: ln for ln in lines}
+    assert "compile 3.0 s  K1" in by_name["done"]
+    assert "60.0 MB of C, above the 4.0 MB bound then" in by_name["big"] and by_name["big"].endswith("marked")
+    assert "3.0 MB of C" in by_name["was_big"] and "no longer holds" in by_name["was_big"]
+    assert "the compile failed (CalledProcessError: status 1)" in by_name["broke"] and "-O1" in by_name["broke"]
+    assert "5.0 MB of C" in by_name["legacy"] and "first format" in by_name["legacy"]
+    assert by_name["legacy"].endswith("marked")
+    assert lines[-1] == f"1 compiled NLP shapes in {root}; 1 being compiled; 3 marked not to compile"
+
+
+def test_status_counts_compiled_pending_and_marked_shapes(tmp_path, monkeypatch):
+    _cache_with_every_state(tmp_path, monkeypatch)
+    assert codecache.status() == {"mode": "auto", "pending": 1, "compiled": 1, "marked": 3}
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "load")
+    assert codecache.status() == {"mode": "load", "pending": 1, "compiled": 1, "marked": 3}
+    monkeypatch.setattr(codecache, "enabled", lambda: False)  # (no compiler, or a root that is not private)
+    assert codecache.status() == {"mode": "off", "pending": 0, "compiled": 0, "marked": 0}
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "off")
+    assert codecache.status() == {"mode": "off", "pending": 0, "compiled": 0, "marked": 0}

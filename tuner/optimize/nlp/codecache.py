@@ -16,16 +16,19 @@ not compiled; at most :data:`MAX_PENDING` builds wait at once; the builder runs 
 (``tuner tune`` and ``tuner tradeoff`` say on stderr how many they asked for, :func:`started`; ``tuner study run`` how
 many are still being built when it ends, :func:`pending`); ``load`` uses the entries there are and starts no
 compile; ``off`` keeps every NLP interpreted (the test suite's default). A shape whose compile failed or that was too
-large is marked (``<entry>.failed``) and not tried again until the NLP's sources change (a px4_rate shape's 60 MB of
-C did not compile within the cap on a loaded 2-core machine); one whose compile ran out of time is not marked (a
+large is marked (``<entry>.failed``, JSON: why, and under which bound or compiler) and not tried again while the
+marker holds (:func:`marker_holds`): a too-large shape until :data:`MAX_SOURCE_BYTES` is raised above its size, a
+failed compile until the compiler or its flags change (or the NLP's sources: a new entry). A px4_rate shape's 60 MB
+of C did not compile within the cap on a loaded 2-core machine. One whose compile ran out of time is not marked (a
 busy machine's: a later use asks again). A compile that
 runs out of time is killed with its whole process group (gcc's ``cc1`` too), so the next compile never starts beside
 it. A build's ``<entry>.lock`` holds the builder's pid: a lock whose process is gone (a killed build) is stale at
 once, not after :data:`STALE_LOCK_S`. The cache is used only in a root owned by the current user and not writable by
 group or others (:func:`tuner.optimize.cachedir.trusted_root`); in any other it is off.
 
-``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times; ``--wait`` returns when no
-compile is under way (the Docker image's build tunes its loops, then waits for their code).
+``python -m tuner.optimize.nlp.codecache`` lists the entries with their compile times and the marked shapes with
+why; ``--wait`` returns when no compile is under way (the Docker image's build tunes its loops, then waits for their
+code). :func:`status` is the same in numbers, for the service's ``/health``.
 """
 
 from __future__ import annotations
@@ -46,8 +49,8 @@ import numpy as np
 
 from ..cachedir import cache_root, trusted_root
 
-__all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "mode", "started", "pending", "COMPILE_TIMEOUT_S",
-           "CFLAGS", "MAX_SOURCE_BYTES"]
+__all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "mode", "started", "pending", "status",
+           "marker", "marker_holds", "COMPILE_TIMEOUT_S", "CFLAGS", "MAX_SOURCE_BYTES"]
 
 CFLAGS = ("-O1", "-fPIC", "-shared")  # -O1: 1.85-2.2x the interpreted evaluation; -O2 compiles far longer
 COMPILE_TIMEOUT_S = 1800.0  # a compile that takes longer is abandoned (the shape stays interpreted)
@@ -169,11 +172,15 @@ def _lock_stale(lock: Path) -> bool:
 
 def schedule(key: Any, st: Any, space: Any) -> bool:
     """Ask for the compiled code of ``key`` in the background (a detached process; nothing if it is in the cache,
-    being built, or asked for already by this process). True if a build was started."""
+    being built, marked by a marker that holds (:func:`marker_holds`), or asked for already by this process). True if
+    a build was started."""
     if not enabled() or mode() != "auto":
         return False
     d = entry_dir(key, st, space)
-    if d.name in _SCHEDULED or (d / "sums.json").exists() or d.with_name(d.name + ".failed").exists():
+    if d.name in _SCHEDULED or (d / "sums.json").exists():
+        return False
+    info = marker(d)
+    if info is not None and marker_holds(info):
         return False
     _SCHEDULED.add(d.name)
     # (a bound, not a strict one: two processes may count at once, and a lock older than STALE_LOCK_S counts as stale)
@@ -225,6 +232,87 @@ def pending() -> int:
     if not enabled():
         return 0
     return _live_builds(cache_root() / "nlp")
+
+
+def status() -> dict[str, Any]:
+    """The cache's state in numbers (the service's ``/health``): ``mode`` (:func:`mode`; ``off`` too where the cache
+    is off: no compiler, or a root that is not private), ``pending`` (:func:`pending`), ``compiled`` (the entries
+    there are) and ``marked`` (the shapes a marker that holds keeps interpreted). Directory globs and small reads;
+    with the cache off, nothing is read."""
+    m = mode()
+    if m == "off" or not enabled():
+        return {"mode": "off", "pending": 0, "compiled": 0, "marked": 0}
+    root = cache_root() / "nlp"
+    if not root.exists():
+        return {"mode": m, "pending": 0, "compiled": 0, "marked": 0}
+    marks = [marker(f.with_suffix("")) for f in root.glob("*.failed")]
+    return {"mode": m, "pending": _live_builds(root), "compiled": sum(1 for _ in root.glob("*/sums.json")),
+            "marked": sum(1 for i in marks if i is not None and marker_holds(i))}
+
+
+def marker(d: Path) -> dict[str, Any] | None:
+    """What the marker of the entry ``d`` (``<entry>.failed``) says, or None (no marker): ``reason`` ``too_large``
+    (with the C's ``bytes`` and the ``bound`` then), ``compile_failed`` (with the ``cflags``, the ``compiler``
+    (:func:`_compiler_id`) and the ``error``), or ``failed`` (with its text as ``detail``): a marker of the first
+    format, plain text that does not say under which bound or compiler it was written, or one that cannot be read."""
+    try:
+        text = d.with_name(d.name + ".failed").read_text()
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError):
+        text = ""
+    try:
+        info = json.loads(text)
+    except ValueError:
+        info = None
+    if not isinstance(info, dict) or not isinstance(info.get("reason"), str):
+        return {"reason": "failed", "detail": text.strip()}
+    return info
+
+
+def marker_holds(info: dict[str, Any]) -> bool:
+    """The marker ``info`` (:func:`marker`) still keeps its shape from being compiled: a ``too_large`` one while the
+    shape's C is above :data:`MAX_SOURCE_BYTES` (raise the bound, and the shape is asked for again), a
+    ``compile_failed`` one while the flags and the compiler are those it failed with (a new gcc, or another ``CC``,
+    tries again). Any other holds: a plain-text marker of the first format does not say why it was written, and
+    retrying it blindly could start again the compile that ran 30 min and failed; delete it to try again."""
+    try:
+        if info["reason"] == "too_large":
+            return int(info["bytes"]) > MAX_SOURCE_BYTES
+        if info["reason"] == "compile_failed":
+            return info["cflags"] == list(CFLAGS) and info["compiler"] == _compiler_id()
+    except (KeyError, TypeError, ValueError):
+        pass
+    return True
+
+
+def _compiler_id() -> dict[str, Any]:
+    """The compiler a compile runs now (``CC``, else gcc): its resolved path, size and modification time, recorded in
+    a failed compile's marker, so that another compiler (``CC``, a new default gcc) or the same one upgraded (its
+    file replaced) tries the shape again. A stat, not ``gcc --version``: :func:`schedule` runs in the tune's
+    foreground."""
+    cc = os.environ.get("CC", "gcc")
+    path = shutil.which(cc)
+    if path is None:
+        return {"path": cc}
+    real = Path(path).resolve()
+    try:
+        st = real.stat()
+    except OSError:
+        return {"path": str(real)}
+    return {"path": str(real), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def _mark(d: Path, info: dict[str, Any]) -> None:
+    """Mark the shape of the entry ``d`` not to be compiled while ``info`` holds (:func:`marker_holds`): JSON, written
+    whole (a temporary file renamed over it)."""
+    m = d.with_name(d.name + ".failed")
+    tmp = m.with_name(f"{m.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps(info) + "\n")
+        os.replace(tmp, m)
+    except OSError:
+        tmp.unlink(missing_ok=True)
 
 
 def _live_builds(root: Path) -> int:
@@ -290,9 +378,8 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
                 os.chdir(cwd)
             t2 = time.perf_counter()
             size = sum((tmp / f).stat().st_size for f in ("nlp.c", "step.c"))
-            if size > MAX_SOURCE_BYTES:  # never asked for again (schedule skips it)
-                d.with_name(d.name + ".failed").write_text(
-                    f"not compiled: {size / 1e6:.1f} MB of C, above the {MAX_SOURCE_BYTES / 1e6:.0f} MB bound\n")
+            if size > MAX_SOURCE_BYTES:  # not asked for again while the bound is below its size (schedule)
+                _mark(d, {"reason": "too_large", "bytes": size, "bound": MAX_SOURCE_BYTES})
                 return {"build_s": t1 - t0, "generate_s": t2 - t1, "skipped_bytes": float(size)}
             cc = os.environ.get("CC", "gcc")
             deadline = t2 + timeout_s
@@ -302,8 +389,9 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
                              max(1.0, deadline - time.perf_counter()))
             except subprocess.TimeoutExpired:
                 raise  # (not marked: a machine too busy to give the compile its CPU; a later use asks again)
-            except (subprocess.SubprocessError, OSError) as e:  # never asked for again (schedule skips it)
-                d.with_name(d.name + ".failed").write_text(f"{type(e).__name__}: {e}\n")
+            except (subprocess.SubprocessError, OSError) as e:  # not asked for again with this compiler (schedule)
+                _mark(d, {"reason": "compile_failed", "cflags": list(CFLAGS), "compiler": _compiler_id(),
+                          "error": f"{type(e).__name__}: {e}"[:500]})
                 raise
             t3 = time.perf_counter()
             np.savez(tmp / "meta.npz", lbg=prob.lbg, ubg=prob.ubg, n_v=prob.n_v)
@@ -314,6 +402,7 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
             (tmp / "sums.json").write_text(json.dumps({f: _sha(tmp / f) for f in FILES}))
             os.chmod(tmp, 0o755)
             os.rename(tmp, d)  # whole or not at all
+            d.with_name(d.name + ".failed").unlink(missing_ok=True)  # (a marker that no longer held)
             return times
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -358,9 +447,36 @@ def _main(argv: list[str]) -> int:
         info = json.loads(b.read_text())
         print(f"{b.parent.name}  build {info['build_s']:.1f} s  generate {info['generate_s']:.1f} s  "
               f"compile {info['compile_s']:.1f} s  {info['key']}")
-    pending = sorted(root.glob("*.lock")) if root.exists() else []
-    print(f"{len(entries)} compiled NLP shapes in {root}; {len(pending)} being compiled")
+    marks = sorted(root.glob("*.failed")) if root.exists() else []
+    held = 0
+    for f in marks:
+        info = marker(f.with_suffix(""))
+        if info is None:
+            continue  # (removed meanwhile)
+        holds = marker_holds(info)
+        held += holds
+        print(f"{f.stem}  not compiled: {_why(info)}; "
+              f"{'marked' if holds else 'no longer holds: asked for again at its next use'}")
+    pending = _live_builds(root) if root.exists() else 0
+    print(f"{len(entries)} compiled NLP shapes in {root}; {pending} being compiled; {held} marked not to compile")
     return 0
+
+
+def _why(info: dict[str, Any]) -> str:
+    """A marker's reason, for the listing (whatever the file holds: never a traceback)."""
+    try:
+        if info["reason"] == "too_large":
+            return f"{info['bytes'] / 1e6:.1f} MB of C, above the {info['bound'] / 1e6:.1f} MB bound then " \
+                   f"({MAX_SOURCE_BYTES / 1e6:.1f} MB now)"
+        if info["reason"] == "compile_failed":
+            return f"the compile failed ({info['error']}) with {' '.join(info['cflags'])} and " \
+                   f"{info['compiler']['path']}"
+    except (KeyError, TypeError, ValueError):
+        pass
+    if info["reason"] == "failed":
+        return f"\"{info.get('detail') or '?'}\" (a marker of the first format: it does not say under which bound or " \
+               "compiler; delete it to retry)"
+    return f"{json.dumps(info)[:300]} (a marker this version cannot read: delete it to retry)"
 
 
 if __name__ == "__main__":
