@@ -22,7 +22,7 @@ from tuner.spec import Spec
 
 __all__ = [
     "PlantIn", "ControllerIn", "TuneOptions", "TuneRequest", "AnalyzeRequest", "TuneResponse", "TuneRecordOut",
-    "TuneList", "TuneSummaryOut", "AnalyzeResponse", "HealthOut", "ErrorOut", "ValidationErrorOut",
+    "TuneList", "TuneSummaryOut", "AnalyzeResponse", "HealthOut", "NlpCodeOut", "ErrorOut", "ValidationErrorOut",
     "TradeoffRequest", "TradeoffResponse", "AtBoundOut", "LimitOut",
     "ROLL_EXAMPLE", "ROLL_ANALYZE_EXAMPLE", "MAX_EXPR_CHARS", "MAX_COEFF", "VehicleIn", "MAX_PARAMS_CHARS",
     "ActuatorIn",
@@ -371,11 +371,22 @@ class TuneList(_Out):
     offset: int
 
 
+class NlpCodeOut(_Out):
+    """The NLPs' compiled code (tuner.optimize.nlp.codecache.status): the mode (``off`` also where the cache is off:
+    no compiler, or a cache root that is not private), the background compiles waiting or running, the shapes
+    compiled, and those marked not to compile (too large, or their compile failed: they stay interpreted)."""
+    mode: Literal["auto", "load", "off"]
+    pending: int
+    compiled: int
+    marked: int
+
+
 class HealthOut(_Out):
     status: Literal["ok", "degraded"]
     database: Literal["ok", "unreachable"]
     workers: dict[str, int]
     plots: dict[str, int]
+    nlp_code: NlpCodeOut
     versions: dict[str, str]
 
 

@@ -1,4 +1,5 @@
-"""``GET /health``: liveness, database, solver pool, library versions (no API key needed)."""
+"""``GET /health``: liveness, database, solver pool, the NLPs' compiled code (background compiles pending),
+library versions (no API key needed)."""
 
 from __future__ import annotations
 
@@ -35,6 +36,16 @@ def versions() -> dict[str, str]:
     return out
 
 
+def nlp_code() -> dict[str, object]:
+    """The solvers' NLP code cache (:func:`tuner.optimize.nlp.codecache.status`): the service's solver processes
+    compile new problem shapes in the background without saying so; this says how many are pending. Information
+    only: it never changes the status code. A few globs of the cache folder (codecache itself is light: no CasADi,
+    and numpy is loaded already); in a thread, off the event loop, as the database's ping."""
+    from tuner.optimize.nlp import codecache
+
+    return codecache.status()
+
+
 @router.get("/health", response_model=HealthOut, summary="Service status and library versions",
             responses={503: {"model": HealthOut, "description": "the database is unreachable"}})
 async def health(store: Store = Depends(get_store), pool: WorkerPool = Depends(get_pool),
@@ -44,5 +55,5 @@ async def health(store: Store = Depends(get_store), pool: WorkerPool = Depends(g
     body = {"status": "ok" if db_ok else "degraded", "database": "ok" if db_ok else "unreachable",
             "workers": pool.stats(), "plots": {**plot_pool.stats(), **{f"cache_{k}": v for k, v in
                                                                        plot_cache.stats().items()}},
-            "versions": versions()}
+            "nlp_code": await run_in_threadpool(nlp_code), "versions": versions()}
     return JSONResponse(body, status_code=200 if db_ok else 503)

@@ -51,6 +51,34 @@ def test_health_reports_status_database_workers_and_versions(client):
     assert body["workers"]["size"] == 2
     for pkg in ("python", "tuner", "numpy", "scipy", "control", "casadi", "optuna", "fastapi", "sqlalchemy"):
         assert re.match(r"\d+\.\d+", body["versions"][pkg]), (pkg, body["versions"][pkg])
+    # (the suite runs with TUNER_NLP_COMPILE=off: no compiled code, and the cache folder not read)
+    assert body["nlp_code"] == {"mode": "off", "pending": 0, "compiled": 0, "marked": 0}
+
+
+def test_health_says_how_many_nlp_compiles_are_pending(client, tmp_path, monkeypatch):
+    """The solvers compile new NLP shapes in the background without saying so: /health counts them (and the
+    compiled and marked shapes) from the cache folder; information only, the status stays 200."""
+    import os
+
+    from tuner.optimize.nlp import codecache
+
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    monkeypatch.setattr(codecache, "enabled", lambda: True)  # (whether or not this machine has gcc)
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 4_000_000)
+    root = tmp_path / "nlp"
+    (root / "done").mkdir(parents=True)
+    (root / "done" / "sums.json").write_text("{}")
+    for name in ("a", "b"):  # two builds under way (this process stands in for their builders)
+        (root / f"{name}.lock").write_text(str(os.getpid()))
+    (root / "big.failed").write_text(json.dumps({"reason": "too_large", "bytes": 60_000_000, "bound": 4_000_000}))
+    (root / "was_big.failed").write_text(json.dumps({"reason": "too_large", "bytes": 3_000_000, "bound": 2_000_000}))
+    r = client.get("/health")
+    assert r.status_code == 200 and r.json()["status"] == "ok"
+    assert r.json()["nlp_code"] == {"mode": "auto", "pending": 2, "compiled": 1, "marked": 1}
+    (root / "a.lock").unlink()  # (a build done)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "load")
+    assert client.get("/health").json()["nlp_code"] == {"mode": "load", "pending": 1, "compiled": 1, "marked": 1}
 
 
 def test_openapi_lists_every_route_with_the_roll_model_as_example(client):

@@ -182,6 +182,7 @@ def test_storage_outage_is_503_and_health_says_so(tmp_path):
         with TestClient(app) as c:
             h = c.get("/health")
             assert h.status_code == 503 and h.json()["status"] == "degraded" and h.json()["database"] == "unreachable"
+            assert h.json()["nlp_code"]["mode"] == "off"  # (the rest of the body as ever)
             r = c.get("/tunes")
             assert r.status_code == 503 and "storage unavailable" in r.json()["detail"]
             assert r.headers["Retry-After"] == "5" and "Traceback" not in r.text
