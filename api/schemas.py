@@ -374,11 +374,13 @@ class TuneList(_Out):
 class NlpCodeOut(_Out):
     """The NLPs' compiled code (tuner.optimize.nlp.codecache.status): the mode (``off`` also where the cache is off:
     no compiler, or a cache root that is not private), the background compiles waiting or running, the shapes
-    compiled, and those marked not to compile (too large, or their compile failed: they stay interpreted)."""
+    compiled, and those marked not to compile (too large, or their compile failed: they stay interpreted); where the
+    cache folder cannot be read, the counts are null and ``error`` says so (the status code never depends on it)."""
     mode: Literal["auto", "load", "off"]
-    pending: int
-    compiled: int
-    marked: int
+    pending: int | None
+    compiled: int | None
+    marked: int | None
+    error: str | None = None
 
 
 class HealthOut(_Out):

@@ -3,6 +3,7 @@ library versions (no API key needed)."""
 
 from __future__ import annotations
 
+import logging
 import platform
 from functools import lru_cache
 from importlib import metadata
@@ -19,6 +20,7 @@ from ..store import Store
 
 __all__ = ["router", "versions"]
 
+log = logging.getLogger("api.health")
 router = APIRouter(tags=["service"])
 
 _PACKAGES = ("tuner", "numpy", "scipy", "control", "casadi", "optuna", "fastapi", "pydantic", "sqlalchemy",
@@ -43,7 +45,12 @@ def nlp_code() -> dict[str, object]:
     and numpy is loaded already); in a thread, off the event loop, as the database's ping."""
     from tuner.optimize.nlp import codecache
 
-    return codecache.status()
+    try:
+        return codecache.status()
+    except Exception as e:  # (a cache folder it cannot read: said, never a 500)
+        log.warning("/health: the NLP code cache could not be read: %s", e)
+        return {"mode": codecache.mode(), "pending": None, "compiled": None, "marked": None,
+                "error": f"the NLP code cache could not be read: {type(e).__name__}"}
 
 
 @router.get("/health", response_model=HealthOut, summary="Service status and library versions",

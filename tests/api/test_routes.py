@@ -81,6 +81,32 @@ def test_health_says_how_many_nlp_compiles_are_pending(client, tmp_path, monkeyp
     assert client.get("/health").json()["nlp_code"] == {"mode": "load", "pending": 1, "compiled": 1, "marked": 1}
 
 
+def test_health_stays_200_whatever_the_nlp_code_cache_holds(client, tmp_path, monkeypatch):
+    """A cache folder of hostile markers and locks (a reviewer's: Infinity bytes, deep JSON, a FIFO, a lock holding
+    a superscript digit) once made /health answer 500; and whatever the cache's reader raises is said in the
+    answer, never the status code."""
+    from tests.tuner.test_codecache_safety import HOSTILE_LOCKS, HOSTILE_MARKERS, _hostile_cache
+    from tuner.optimize.nlp import codecache
+
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    _hostile_cache(tmp_path / "nlp")
+    r = client.get("/health")
+    assert r.status_code == 200 and r.json()["status"] == "ok"
+    assert r.json()["nlp_code"] == {"mode": "auto", "pending": len(HOSTILE_LOCKS) + 1, "compiled": 0,
+                                    "marked": len(HOSTILE_MARKERS) + 2}
+
+    def unreadable():
+        raise PermissionError("[Errno 13] Permission denied: 'nlp'")
+
+    monkeypatch.setattr(codecache, "status", unreadable)
+    r = client.get("/health")
+    assert r.status_code == 200 and r.json()["status"] == "ok"
+    assert r.json()["nlp_code"] == {"mode": "auto", "pending": None, "compiled": None, "marked": None,
+                                    "error": "the NLP code cache could not be read: PermissionError"}
+
+
 def test_openapi_lists_every_route_with_the_roll_model_as_example(client):
     schema = client.get("/openapi.json").json()
     paths = set(schema["paths"])

@@ -295,11 +295,22 @@ def test_a_failed_compile_marker_holds_for_the_same_compiler_and_flags_only(tmp_
         _build("shape", _problem(100, 100))
     info = codecache.marker(tmp_path / "nlp" / "shape")
     assert info["reason"] == "compile_failed" and info["cflags"] == list(codecache.CFLAGS)
-    assert info["compiler"]["path"] == str(Path(cc).resolve()) and "CalledProcessError" in info["error"]
+    assert [c["path"] for c in info["compilers"]] == [str(Path(cc).resolve())] and "CalledProcessError" in info["error"]
     assert not _asked_again("shape") and not _FakePopen.started
     # another compiler (CC, or a new default gcc), the same one upgraded (its file replaced) or other flags: again
-    monkeypatch.setenv("CC", _compiler(tmp_path / "cc2.sh", 1))
+    cc2 = _compiler(tmp_path / "cc2.sh", 1)
+    monkeypatch.setenv("CC", cc2)
     assert _asked_again("shape")
+    monkeypatch.setenv("CC", cc)
+    assert not _asked_again("shape")
+    # the other compiler fails too: the marker keeps both, so two environments sharing the cache (CC set in one, not
+    # in the other) do not take turns retrying it
+    monkeypatch.setenv("CC", cc2)
+    with pytest.raises(subprocess.CalledProcessError):
+        _build("shape", _problem(100, 100))
+    assert [c["path"] for c in codecache.marker(tmp_path / "nlp" / "shape")["compilers"]] == \
+        [str(Path(cc).resolve()), str(Path(cc2).resolve())]
+    assert not _asked_again("shape")
     monkeypatch.setenv("CC", cc)
     assert not _asked_again("shape")
     st = os.stat(cc)
@@ -319,11 +330,23 @@ def test_a_marker_of_the_first_format_holds_and_a_compiled_shape_drops_a_stale_o
     monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 10**12)
     # plain text (it does not say under which bound or compiler it was written), or unreadable as JSON: never
     # retried blindly
-    for text in ("not compiled: 60.0 MB of C, above the 4 MB bound\n", "CalledProcessError: ...\n", "{", "[1]"):
+    for text in ("CalledProcessError: ...\n", "{", "[1]", "not compiled: lots of C\n"):
         (root / "old.failed").write_text(text)
         assert codecache.marker(root / "old") == {"reason": "failed", "detail": text.strip()}
         assert not _asked_again("old")
     assert not _FakePopen.started
+    # the first format's too-large text says the size (to 0.1 MB): it holds while the bound is below the least size
+    # that rounds to it, 59.95 MB, and not once the bound is raised to that
+    (root / "old.failed").write_text("not compiled: 60.0 MB of C, above the 4 MB bound\n")
+    info = codecache.marker(root / "old")
+    assert info["reason"] == "too_large" and info["bytes"] == 59_950_000 and info["legacy"].startswith("not comp")
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 4_000_000)
+    assert not _asked_again("old")
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 59_949_999)
+    assert not _asked_again("old") and not _FakePopen.started
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 59_950_000)
+    assert _asked_again("old") and len(_FakePopen.started) == 1
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 10**12)
     # a marker that no longer holds: the shape compiles, and its marker goes
     monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 1000)
     codecache._mark(root / "shape", {"reason": "too_large", "bytes": 900, "bound": 500})
@@ -352,7 +375,7 @@ def _cache_with_every_state(tmp_path, monkeypatch):
     codecache._mark(root / "big", {"reason": "too_large", "bytes": 60_000_000, "bound": 4_000_000})
     codecache._mark(root / "was_big", {"reason": "too_large", "bytes": 3_000_000, "bound": 2_000_000})
     codecache._mark(root / "broke", {"reason": "compile_failed", "cflags": list(codecache.CFLAGS),
-                                     "compiler": codecache._compiler_id(), "error": "CalledProcessError: status 1"})
+                                     "compilers": [codecache._compiler_id()], "error": "CalledProcessError: status 1"})
     (root / "legacy.failed").write_text("not compiled: 5.0 MB of C, above the 4 MB bound\n")
     return root
 
@@ -381,3 +404,49 @@ def test_status_counts_compiled_pending_and_marked_shapes(tmp_path, monkeypatch)
     monkeypatch.setattr(codecache, "enabled", lambda: True)
     monkeypatch.setenv("TUNER_NLP_COMPILE", "off")
     assert codecache.status() == {"mode": "off", "pending": 0, "compiled": 0, "marked": 0}
+
+
+# what a reviewer put in a cache folder (stop 50): each once gave a traceback in status() (so /health answered 500),
+# in schedule() (so every tune of that shape raised) or in the listing, or held the reader for good (a FIFO)
+HOSTILE_MARKERS = {"inf": '{"reason": "too_large", "bytes": Infinity, "bound": 1}',
+                   "huge": '{"reason": "too_large", "bytes": 1e400, "bound": 1}',
+                   "nan": '{"reason": "too_large", "bytes": NaN, "bound": 1}',
+                   "deep": "[" * 100_000, "empty": "", "binary": "\udcff",
+                   "badflags": '{"reason": "compile_failed", "cflags": "-O1", "compilers": [], "error": 1}',
+                   "nocompilers": '{"reason": "compile_failed", "cflags": ["-O1"], "compilers": "gcc"}',
+                   "oddreason": '{"reason": "later", "bytes": 1}'}
+HOSTILE_LOCKS = {"superscript": "\u00b2", "nines": "9" * 30, "negative": "-1"}
+
+
+def _hostile_cache(root: Path) -> None:
+    root.mkdir(parents=True, exist_ok=True)
+    for name, text in HOSTILE_MARKERS.items():
+        (root / f"{name}.failed").write_bytes(text.encode("utf-8", "surrogateescape"))
+    (root / "adir.failed").mkdir()
+    os.mkfifo(root / "fifo.failed")
+    for name, text in HOSTILE_LOCKS.items():
+        (root / f"{name}.lock").write_text(text)
+    os.mkfifo(root / "pipe.lock")
+
+
+def test_hostile_markers_and_locks_are_failed_markers_and_foreign_locks_never_a_traceback_or_a_hang(
+        tmp_path, monkeypatch, capsys):
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "auto")
+    monkeypatch.setattr(codecache, "MAX_SOURCE_BYTES", 4_000_000)
+    root = tmp_path / "nlp"
+    _hostile_cache(root)
+    # every marker reads as one that holds: nothing is retried on its account, nothing raises, nothing blocks
+    for name in [*HOSTILE_MARKERS, "adir", "fifo"]:
+        info = codecache.marker(root / name)
+        assert isinstance(info, dict) and codecache.marker_holds(info), name
+        assert not _asked_again(name), name
+    assert not _FakePopen.started
+    # a lock that does not hold a pid this system can have is not stale (its age decides) and counts as a build
+    assert codecache.status() == {"mode": "auto", "pending": len(HOSTILE_LOCKS) + 1, "compiled": 0,
+                                  "marked": len(HOSTILE_MARKERS) + 2}
+    assert codecache._main([]) == 0
+    out = capsys.readouterr().out
+    assert "delete it to retry" in out and out.splitlines()[-1].endswith(
+        f"0 compiled NLP shapes in {root}; {len(HOSTILE_LOCKS) + 1} being compiled; "
+        f"{len(HOSTILE_MARKERS) + 2} marked not to compile")

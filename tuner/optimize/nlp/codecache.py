@@ -17,7 +17,7 @@ not compiled; at most :data:`MAX_PENDING` builds wait at once; the builder runs 
 many are still being built when it ends, :func:`pending`); ``load`` uses the entries there are and starts no
 compile; ``off`` keeps every NLP interpreted (the test suite's default). A shape whose compile failed or that was too
 large is marked (``<entry>.failed``, JSON: why, and under which bound or compiler) and not tried again while the
-marker holds (:func:`marker_holds`): a too-large shape until :data:`MAX_SOURCE_BYTES` is raised above its size, a
+marker holds (:func:`marker_holds`): a too-large shape until :data:`MAX_SOURCE_BYTES` is raised to its size, a
 failed compile until the compiler or its flags change (or the NLP's sources: a new entry). A px4_rate shape's 60 MB
 of C did not compile within the cap on a loaded 2-core machine. One whose compile ran out of time is not marked (a
 busy machine's: a later use asks again). A compile that
@@ -35,8 +35,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import pickle
+import re
 import shutil
 import signal
 import subprocess
@@ -156,18 +158,33 @@ def _lock_stale(lock: Path) -> bool:
     try:
         if time.time() - lock.stat().st_mtime > STALE_LOCK_S:
             return True
-        text = lock.read_text().strip()
-    except OSError:
-        return False  # gone (or unreadable): not ours to remove
-    if not text.isdigit():
-        return False  # (being written, or written before locks held a pid: the age decides)
+        text = _read_small(lock, 64).strip()
+    except (OSError, UnicodeDecodeError):
+        return False  # gone (or unreadable, or not a file): not ours to remove
+    if not (text.isascii() and text.isdigit()) or len(text) > 10:
+        return False  # (being written, or written before locks held a pid, or not a pid: the age decides)
     try:
         os.kill(int(text), 0)
     except ProcessLookupError:
         return True
-    except OSError:
-        return False  # alive, another user's
+    except (OSError, OverflowError, ValueError):
+        return False  # alive, another user's (or no pid the system knows: the age decides)
     return False
+
+
+def _read_small(path: Path, limit: int) -> str:
+    """The first ``limit`` bytes of the regular file ``path`` as text: opened without blocking and checked to be a
+    regular file first, so that a FIFO or a device put where a marker or a lock belongs cannot hold the reader (the
+    service's ``/health`` reads them). OSError if it is not a regular file or cannot be read."""
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(f"{path} is not a regular file")
+        return os.read(fd, limit).decode()
+    finally:
+        os.close(fd)
 
 
 def schedule(key: Any, st: Any, space: Any) -> bool:
@@ -252,38 +269,64 @@ def status() -> dict[str, Any]:
 
 def marker(d: Path) -> dict[str, Any] | None:
     """What the marker of the entry ``d`` (``<entry>.failed``) says, or None (no marker): ``reason`` ``too_large``
-    (with the C's ``bytes`` and the ``bound`` then), ``compile_failed`` (with the ``cflags``, the ``compiler``
-    (:func:`_compiler_id`) and the ``error``), or ``failed`` (with its text as ``detail``): a marker of the first
-    format, plain text that does not say under which bound or compiler it was written, or one that cannot be read."""
+    (with the C's ``bytes`` and the ``bound`` then), ``compile_failed`` (with the ``cflags``, the ``compilers`` it
+    failed with (each :func:`_compiler_id`) and the ``error``), or ``failed`` (with its text as ``detail``): a marker
+    that cannot be read, or plain text of the first format that does not say under which bound or compiler it was
+    written. The first format's too-large text ("not compiled: 60.4 MB of C, above the 4 MB bound") does say the size:
+    it reads as ``too_large`` with the least size that rounds to it (``legacy``: its text). Never raises: whatever is
+    there (garbage, a directory, a FIFO, deep JSON) is a ``failed`` marker."""
     try:
-        text = d.with_name(d.name + ".failed").read_text()
+        text = _read_small(d.with_name(d.name + ".failed"), MARKER_MAX_BYTES)
     except FileNotFoundError:
         return None
     except (OSError, UnicodeDecodeError):
         text = ""
     try:
         info = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):
         info = None
-    if not isinstance(info, dict) or not isinstance(info.get("reason"), str):
-        return {"reason": "failed", "detail": text.strip()}
-    return info
+    if isinstance(info, dict) and isinstance(info.get("reason"), str):
+        return info
+    m = _LEGACY_TOO_LARGE.match(text.strip())
+    if m:
+        return {"reason": "too_large", "bytes": max(0, math.floor((float(m.group(1)) - 0.05) * 1e6)),
+                "bound": None, "legacy": text.strip()}
+    return {"reason": "failed", "detail": text.strip()}
+
+
+MARKER_MAX_BYTES = 4096  # a marker is a line of JSON; more is not read
+# the first format's too-large marker (stop 49): its size rounded to 0.1 MB
+_LEGACY_TOO_LARGE = re.compile(r"not compiled: ([0-9]{1,6}\.[0-9]) MB of C, above the [0-9.]+ MB bound\Z")
 
 
 def marker_holds(info: dict[str, Any]) -> bool:
     """The marker ``info`` (:func:`marker`) still keeps its shape from being compiled: a ``too_large`` one while the
-    shape's C is above :data:`MAX_SOURCE_BYTES` (raise the bound, and the shape is asked for again), a
-    ``compile_failed`` one while the flags and the compiler are those it failed with (a new gcc, or another ``CC``,
-    tries again). Any other holds: a plain-text marker of the first format does not say why it was written, and
-    retrying it blindly could start again the compile that ran 30 min and failed; delete it to try again."""
+    shape's C is above :data:`MAX_SOURCE_BYTES` (raise the bound to its size, and the shape is asked for again), a
+    ``compile_failed`` one while the flags are those it failed with and the compiler is one it failed with (a new
+    gcc, or another ``CC``, tries again; each compiler that failed is kept, so that two environments sharing a cache
+    do not take turns retrying). Any other holds, as does one whose fields cannot be read: a plain-text marker of the
+    first format does not say why it was written, and retrying it blindly could start again the compile that ran
+    30 min and failed; delete it to try again."""
     try:
         if info["reason"] == "too_large":
-            return int(info["bytes"]) > MAX_SOURCE_BYTES
+            return not float(info["bytes"]) <= MAX_SOURCE_BYTES  # (NaN holds)
         if info["reason"] == "compile_failed":
-            return info["cflags"] == list(CFLAGS) and info["compiler"] == _compiler_id()
-    except (KeyError, TypeError, ValueError):
+            cflags, ids = info["cflags"], _failed_compilers(info)
+            if not isinstance(cflags, list) or not ids:
+                return True
+            return cflags == list(CFLAGS) and _compiler_id() in ids
+    except (KeyError, TypeError, ValueError, ArithmeticError):
         pass
     return True
+
+
+def _failed_compilers(info: dict[str, Any] | None) -> list[Any]:
+    """The compilers a ``compile_failed`` marker ``info`` failed with (``compilers``; ``compiler``: one, as the
+    marker's first JSON form wrote it)."""
+    if not isinstance(info, dict) or info.get("reason") != "compile_failed":
+        return []
+    ids = info.get("compilers", [info["compiler"]] if "compiler" in info else [])
+    return [c for c in ids if isinstance(c, dict)] if isinstance(ids, list) else []
 
 
 def _compiler_id() -> dict[str, Any]:
@@ -390,7 +433,10 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
             except subprocess.TimeoutExpired:
                 raise  # (not marked: a machine too busy to give the compile its CPU; a later use asks again)
             except (subprocess.SubprocessError, OSError) as e:  # not asked for again with this compiler (schedule)
-                _mark(d, {"reason": "compile_failed", "cflags": list(CFLAGS), "compiler": _compiler_id(),
+                prev = marker(d)  # (the compilers that failed before with these flags: kept)
+                ids = _failed_compilers(prev) if isinstance(prev, dict) and prev.get("cflags") == list(CFLAGS) else []
+                _mark(d, {"reason": "compile_failed", "cflags": list(CFLAGS),
+                          "compilers": [*[c for c in ids if c != _compiler_id()], _compiler_id()][-8:],
                           "error": f"{type(e).__name__}: {e}"[:500]})
                 raise
             t3 = time.perf_counter()
@@ -465,18 +511,21 @@ def _main(argv: list[str]) -> int:
 def _why(info: dict[str, Any]) -> str:
     """A marker's reason, for the listing (whatever the file holds: never a traceback)."""
     try:
+        if info["reason"] == "too_large" and "legacy" in info:
+            return f"\"{info['legacy']}\" (a marker of the first format)"
         if info["reason"] == "too_large":
-            return f"{info['bytes'] / 1e6:.1f} MB of C, above the {info['bound'] / 1e6:.1f} MB bound then " \
-                   f"({MAX_SOURCE_BYTES / 1e6:.1f} MB now)"
+            return f"{float(info['bytes']) / 1e6:.1f} MB of C, above the {float(info['bound']) / 1e6:.1f} MB bound " \
+                   f"then ({MAX_SOURCE_BYTES / 1e6:.1f} MB now)"
         if info["reason"] == "compile_failed":
-            return f"the compile failed ({info['error']}) with {' '.join(info['cflags'])} and " \
-                   f"{info['compiler']['path']}"
-    except (KeyError, TypeError, ValueError):
+            paths = ", ".join(str(c.get("path")) for c in _failed_compilers(info)) or "?"
+            return f"the compile failed ({str(info['error'])[:300]}) with {' '.join(map(str, info['cflags']))} and " \
+                   f"{paths}; delete the marker to retry"
+    except (KeyError, TypeError, ValueError, ArithmeticError):
         pass
-    if info["reason"] == "failed":
-        return f"\"{info.get('detail') or '?'}\" (a marker of the first format: it does not say under which bound or " \
-               "compiler; delete it to retry)"
-    return f"{json.dumps(info)[:300]} (a marker this version cannot read: delete it to retry)"
+    if info.get("reason") == "failed":
+        return f"\"{str(info.get('detail') or '')[:300]}\" (unreadable, or a marker of the first format: it does " \
+               "not say under which bound or compiler; delete it to retry)"
+    return f"{json.dumps(info, default=str)[:300]} (a marker this version cannot read: delete it to retry)"
 
 
 if __name__ == "__main__":
