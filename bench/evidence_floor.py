@@ -50,20 +50,23 @@ DRAWS_FOR_A_CLAIM = 4  # engine.py: w (w + 1) / (n (n - 1)) <= UNSEEN_LEVEL = 0.
 
 class Phases:
     """Engine._refine wrapped: each call's wall time and the NLP build seconds inside it (none in a timed run once
-    every seed was tuned untimed), labelled round0 / draw / explore / polish / scan (a scan's own refinement)."""
+    every seed was tuned untimed), labelled round0 / draw / explore / polish / scan (a scan's own refinement) /
+    nested (an engine inside the tune's own)."""
 
     def __init__(self) -> None:
         from tuner.optimize import engine
         from tuner.optimize.builds import build_seconds
 
-        self.orig, self.orig_scan = engine.Engine._refine, engine.Engine._scan
+        self.orig, self.orig_scan, self.orig_run = engine.Engine._refine, engine.Engine._scan, engine.Engine.run
         self.calls: list[tuple[str, float, float]] = []
         self.in_scan = False
+        self.top: Any = None  # the tune's own engine (a contained structure's or a robustness objective's nested
+        # engine refines too: "nested", not this tune's round 0 or draws)
         phases = self
 
         def timed(eng, starts, *, fine=False, own=False):
-            label = "scan" if phases.in_scan else "polish" if fine else "draw" if own else \
-                "explore" if str(getattr(eng, "_step", "")).startswith("restart") else "round0"
+            label = "nested" if eng is not phases.top else "scan" if phases.in_scan else "polish" if fine else \
+                "draw" if own else "explore" if str(getattr(eng, "_step", "")).startswith("restart") else "round0"
             t0, b0 = time.perf_counter(), build_seconds()
             try:
                 return phases.orig(eng, starts, fine=fine, own=own)
@@ -77,7 +80,17 @@ class Phases:
             finally:
                 phases.in_scan = False
 
-        engine.Engine._refine, engine.Engine._scan = timed, scan
+        def run(eng, *a, **kw):
+            outer = phases.top is None
+            if outer:
+                phases.top = eng
+            try:
+                return phases.orig_run(eng, *a, **kw)
+            finally:
+                if outer:
+                    phases.top = None
+
+        engine.Engine._refine, engine.Engine._scan, engine.Engine.run = timed, scan, run
 
     def take(self) -> list[tuple[str, float, float]]:
         out, self.calls = self.calls, []
@@ -87,10 +100,8 @@ class Phases:
 def _compiled_shapes() -> dict[str, int]:
     from tuner.optimize.nlp import codecache
 
-    if not codecache.enabled():
-        return {"compiled": 0, "marked": 0}
-    root = codecache.cache_root() / "nlp"
-    return {"compiled": sum(1 for d in root.glob("*/sums.json")), "marked": sum(1 for _ in root.glob("*.failed"))}
+    st = codecache.status()  # (the marked: those a marker that holds keeps interpreted; all 0 with the cache off)
+    return {"compiled": st["compiled"], "marked": st["marked"]}
 
 
 def measure(seeds: int, old: str, loops: tuple[str, ...], effort: str = "default") -> dict[str, Any]:
@@ -138,7 +149,7 @@ def measure(seeds: int, old: str, loops: tuple[str, ...], effort: str = "default
                              "build_s": sum(b for _, _, b in calls), "claim": opt.get("claim"),
                              "nlp_solves": opt.get("nlp_solves")})
             old_med = statistics.median(row["old_wall_s"] for row in rows) if has_old else float("nan")
-            phases_ = ("round0", "draw", "explore", "polish", "scan")
+            phases_ = ("round0", "draw", "explore", "polish", "scan", "nested")
             sums = {lab: statistics.median(sum(row["refines"].get(lab, [])) for row in rows) for lab in phases_}
             counts = {lab: statistics.median(len(row["refines"].get(lab, [])) for row in rows) for lab in phases_}
             # the floor, per tune: its draws' own refinements (at least DRAWS_FOR_A_CLAIM of them before a claim),
@@ -166,13 +177,14 @@ def report(res: dict[str, Any]) -> str:
              f"TUNER_NLP_COMPILE={res['nlp_compile']}; cache {res['cache']}; "
              f"load {res['load_before']} -> {res['load_after']}", "",
              "Per tune, medians over the seeds (ms). Refinements by phase: round 0 / the restarts' draws / their "
-             "explorations / polishes / scans. Draws: the draws' refinements in one tune (the evidence rule needs "
+             "explorations / polishes / scans / nested engines'. Draws: the draws' refinements in one tune (the "
+             "evidence rule needs "
              f"{DRAWS_FOR_A_CLAIM} before a claim); with round 0: those and round 0's. NLP builds in timed runs: "
              "seconds, summed over the seeds (0: every shape built in the untimed warm-up).", "",
              "| loop | old engine | this tree | ratio | refines | ms in them | all refines / old | draws | draws / old "
              "| draws + round 0 / old | builds timed s | claims |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    keys = ("round0", "draw", "explore", "polish", "scan")
+    keys = ("round0", "draw", "explore", "polish", "scan", "nested")
     for name, L in res["loops"].items():
         c, s = L["refines_by_phase"], L["refine_s_by_phase"]
         lines.append(

@@ -21,6 +21,7 @@ from ..store import Store
 __all__ = ["router", "versions"]
 
 log = logging.getLogger("api.health")
+_WARNED: list[bool] = []  # (the cache's read failure logged as a warning once per process)
 router = APIRouter(tags=["service"])
 
 _PACKAGES = ("tuner", "numpy", "scipy", "control", "casadi", "optuna", "fastapi", "pydantic", "sqlalchemy",
@@ -47,8 +48,9 @@ def nlp_code() -> dict[str, object]:
 
     try:
         return codecache.status()
-    except Exception as e:  # (a cache folder it cannot read: said, never a 500)
-        log.warning("/health: the NLP code cache could not be read: %s", e)
+    except Exception as e:  # (a cache folder it cannot read: said, never a 500; logged once, not at every probe)
+        (log.debug if _WARNED else log.warning)("/health: the NLP code cache could not be read: %s", e)
+        _WARNED.append(True)
         return {"mode": codecache.mode(), "pending": None, "compiled": None, "marked": None,
                 "error": f"the NLP code cache could not be read: {type(e).__name__}"}
 

@@ -450,3 +450,63 @@ def test_hostile_markers_and_locks_are_failed_markers_and_foreign_locks_never_a_
     assert "delete it to retry" in out and out.splitlines()[-1].endswith(
         f"0 compiled NLP shapes in {root}; {len(HOSTILE_LOCKS) + 1} being compiled; "
         f"{len(HOSTILE_MARKERS) + 2} marked not to compile")
+
+
+def test_an_entry_whose_files_are_pipes_is_corrupt_not_a_hang_and_the_listing_reads_any_build_record(
+        tmp_path, monkeypatch, capsys):
+    """(second review, stop 50) A FIFO as an entry's sums.json held every tune of that shape in load(), and one as
+    its build.json held the listing (and the Docker build's --wait); garbage there was a traceback."""
+    _scheduling(tmp_path, monkeypatch)
+    monkeypatch.setenv("TUNER_NLP_COMPILE", "load")
+    root = tmp_path / "nlp"
+    for name in ("piped", "piped_so"):
+        (root / name).mkdir(parents=True)
+        for f in codecache.FILES:
+            (root / name / f).write_bytes(b"x")
+    os.mkfifo(root / "piped" / "sums.json")
+    (root / "piped_so" / "sums.json").write_text(json.dumps(dict.fromkeys(codecache.FILES, "0")))
+    (root / "piped_so" / "nlp.so").unlink()
+    os.mkfifo(root / "piped_so" / "nlp.so")
+    for name in ("piped", "piped_so"):  # corrupt: deleted, to be built again; never assembled
+        assert codecache.load(name, None, None, lambda *a: pytest.fail("assembled")) is None
+        assert not (root / name).exists()
+    for name, write in (("fifo", lambda p: os.mkfifo(p)), ("garbage", lambda p: p.write_text("{")),
+                        ("wrong", lambda p: p.write_text('{"build_s": "x", "generate_s": 1, "compile_s": 1}')),
+                        ("deep", lambda p: p.write_text("[" * 100_000))):
+        (root / name).mkdir()
+        write(root / name / "build.json")
+    (root / "good").mkdir()
+    (root / "good" / "build.json").write_text(json.dumps({"key": "K", "build_s": 1, "generate_s": 2,
+                                                          "compile_s": 3}))
+    assert codecache._main([]) == 0
+    by_name = {ln.split()[0]: ln for ln in capsys.readouterr().out.splitlines()}
+    for name in ("fifo", "garbage", "wrong", "deep"):
+        assert "its build.json cannot be read" in by_name[name], by_name[name]
+    assert "compile 3.0 s  K" in by_name["good"]
+
+
+def test_a_marker_is_never_longer_than_what_marker_reads_whole(tmp_path, monkeypatch, capsys):
+    """(second review, stop 50) An error of 500 characters and 8 compilers of long non-ASCII paths, JSON-escaped,
+    could pass MARKER_MAX_BYTES: the marker then read as one that cannot be read (held for good, its compilers lost).
+    The writer cuts the error, then drops the oldest compilers; the listing prints a lone surrogate escaped."""
+    root = tmp_path / "nlp"
+    root.mkdir()
+    compilers = [{"path": "/nix/store/" + "\u7f16\u8bd1" * 60 + f"-gcc-{i}/bin/gcc", "size": i, "mtime_ns": i}
+                 for i in range(8)]
+    info = {"reason": "compile_failed", "cflags": list(codecache.CFLAGS), "compilers": compilers,
+            "error": "CalledProcessError: " + "\u9519" * 480}
+    assert len((json.dumps(info) + "\n").encode()) > codecache.MARKER_MAX_BYTES  # (what the writer used to write)
+    codecache._mark(root / "long", info)
+    assert len((root / "long.failed").read_bytes()) <= codecache.MARKER_MAX_BYTES
+    back = codecache.marker(root / "long")
+    assert back["reason"] == "compile_failed" and back["compilers"] == compilers[-len(back["compilers"]):]
+    assert back["compilers"][-1] == compilers[-1] and back["error"].startswith("CalledProcessError")
+    # a path that is not UTF-8 comes back from an OSError as a lone surrogate: the listing escapes it
+    monkeypatch.setenv("TUNER_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(codecache, "enabled", lambda: True)
+    codecache._mark(root / "odd", {"reason": "compile_failed", "cflags": list(codecache.CFLAGS),
+                                   "compilers": [{"path": "/opt/\udcffcc"}], "error": "OSError: /opt/\udcffcc"})
+    assert codecache._main([]) == 0
+    out = capsys.readouterr().out
+    assert "\\udcff" in out
+    out.encode("utf-8")  # (strict: no lone surrogate left)

@@ -125,7 +125,28 @@ def entry_dir(key: Any, st: Any, space: Any) -> Path:
 
 
 def _sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(_read_regular(path)).hexdigest()
+
+
+def _open_regular(path: Path) -> int:
+    """A descriptor of ``path`` opened without blocking, if it is a regular file (else OSError): a FIFO or a device
+    put where an entry's file, a marker or a lock belongs must not hold the reader (a tune, the listing, /health)."""
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(f"{path} is not a regular file")
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _read_regular(path: Path) -> bytes:
+    """The whole of the regular file ``path`` (:func:`_open_regular`)."""
+    with os.fdopen(_open_regular(path), "rb") as f:
+        return f.read()
 
 
 def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
@@ -141,8 +162,8 @@ def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
     try:
         import casadi as cs
 
-        sums = json.loads((d / "sums.json").read_text())
-        if any(_sha(d / f) != sums[f] for f in FILES):
+        sums = json.loads(_read_regular(d / "sums.json"))
+        if any(_sha(d / f) != sums[f] for f in FILES):  # (regular files only: a FIFO there would hold the tune)
             raise ValueError("checksum")
         meta = np.load(d / "meta.npz")
         return assemble(str(d / "nlp.so"), cs.external("step", str(d / "step.so")), np.array(meta["lbg"], float),
@@ -176,12 +197,8 @@ def _read_small(path: Path, limit: int) -> str:
     """The first ``limit`` bytes of the regular file ``path`` as text: opened without blocking and checked to be a
     regular file first, so that a FIFO or a device put where a marker or a lock belongs cannot hold the reader (the
     service's ``/health`` reads them). OSError if it is not a regular file or cannot be read."""
-    import stat
-
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    fd = _open_regular(path)
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise OSError(f"{path} is not a regular file")
         return os.read(fd, limit).decode()
     finally:
         os.close(fd)
@@ -303,10 +320,10 @@ def marker_holds(info: dict[str, Any]) -> bool:
     """The marker ``info`` (:func:`marker`) still keeps its shape from being compiled: a ``too_large`` one while the
     shape's C is above :data:`MAX_SOURCE_BYTES` (raise the bound to its size, and the shape is asked for again), a
     ``compile_failed`` one while the flags are those it failed with and the compiler is one it failed with (a new
-    gcc, or another ``CC``, tries again; each compiler that failed is kept, so that two environments sharing a cache
-    do not take turns retrying). Any other holds, as does one whose fields cannot be read: a plain-text marker of the
-    first format does not say why it was written, and retrying it blindly could start again the compile that ran
-    30 min and failed; delete it to try again."""
+    gcc, or another ``CC``, tries again; the last 8 compilers that failed are kept, so that two environments sharing
+    a cache do not take turns retrying). Any other holds, as does one whose fields cannot be read: a plain-text
+    marker of the first format does not say why it was written, and retrying it blindly could start again the
+    compile that ran 30 min and failed; delete it to try again."""
     try:
         if info["reason"] == "too_large":
             return not float(info["bytes"]) <= MAX_SOURCE_BYTES  # (NaN holds)
@@ -351,8 +368,18 @@ def _mark(d: Path, info: dict[str, Any]) -> None:
     whole (a temporary file renamed over it)."""
     m = d.with_name(d.name + ".failed")
     tmp = m.with_name(f"{m.name}.{os.getpid()}.tmp")
+    # what marker() reads whole (MARKER_MAX_BYTES): the error cut, then the oldest compilers dropped (a marker still
+    # longer, a compiler path of kilobytes, reads as one that cannot be read: it holds, the safe side)
+    text = json.dumps(info) + "\n"
+    if len(text.encode()) > MARKER_MAX_BYTES and "error" in info:
+        info = {**info, "error": str(info["error"])[:80]}
+        text = json.dumps(info) + "\n"
+    while len(text.encode()) > MARKER_MAX_BYTES and isinstance(info.get("compilers"), list) and \
+            len(info["compilers"]) > 1:
+        info = {**info, "compilers": info["compilers"][1:]}
+        text = json.dumps(info) + "\n"
     try:
-        tmp.write_text(json.dumps(info) + "\n")
+        tmp.write_text(text)
         os.replace(tmp, m)
     except OSError:
         tmp.unlink(missing_ok=True)
@@ -490,9 +517,13 @@ def _main(argv: list[str]) -> int:
     root = cache_root() / "nlp"
     entries = sorted(root.glob("*/build.json")) if root.exists() else []
     for b in entries:
-        info = json.loads(b.read_text())
-        print(f"{b.parent.name}  build {info['build_s']:.1f} s  generate {info['generate_s']:.1f} s  "
-              f"compile {info['compile_s']:.1f} s  {info['key']}")
+        try:
+            info = json.loads(_read_small(b, 1 << 16))
+            line = f"build {float(info['build_s']):.1f} s  generate {float(info['generate_s']):.1f} s  " \
+                   f"compile {float(info['compile_s']):.1f} s  {info['key']}"
+        except (OSError, ValueError, RecursionError, KeyError, TypeError, ArithmeticError) as e:
+            line = f"its build.json cannot be read ({type(e).__name__})"
+        _print(f"{b.parent.name}  {line}")
     marks = sorted(root.glob("*.failed")) if root.exists() else []
     held = 0
     for f in marks:
@@ -501,11 +532,17 @@ def _main(argv: list[str]) -> int:
             continue  # (removed meanwhile)
         holds = marker_holds(info)
         held += holds
-        print(f"{f.stem}  not compiled: {_why(info)}; "
+        _print(f"{f.stem}  not compiled: {_why(info)}; "
               f"{'marked' if holds else 'no longer holds: asked for again at its next use'}")
     pending = _live_builds(root) if root.exists() else 0
     print(f"{len(entries)} compiled NLP shapes in {root}; {pending} being compiled; {held} marked not to compile")
     return 0
+
+
+def _print(line: str) -> None:
+    """A line of the listing, whatever a marker's text holds (a lone surrogate from a path that is not UTF-8 would
+    make a strict stdout raise)."""
+    print(line.encode("utf-8", "backslashreplace").decode("utf-8"))
 
 
 def _why(info: dict[str, Any]) -> str:
@@ -518,7 +555,8 @@ def _why(info: dict[str, Any]) -> str:
                    f"then ({MAX_SOURCE_BYTES / 1e6:.1f} MB now)"
         if info["reason"] == "compile_failed":
             paths = ", ".join(str(c.get("path")) for c in _failed_compilers(info)) or "?"
-            return f"the compile failed ({str(info['error'])[:300]}) with {' '.join(map(str, info['cflags']))} and " \
+            flags = " ".join(map(str, info["cflags"])) if isinstance(info["cflags"], list) else str(info["cflags"])
+            return f"the compile failed ({str(info['error'])[:300]}) with {flags} and " \
                    f"{paths}; delete the marker to retry"
     except (KeyError, TypeError, ValueError, ArithmeticError):
         pass
