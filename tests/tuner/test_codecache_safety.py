@@ -467,7 +467,14 @@ def test_an_entry_whose_files_are_pipes_is_corrupt_not_a_hang_and_the_listing_re
     (root / "piped_so" / "sums.json").write_text(json.dumps(dict.fromkeys(codecache.FILES, "0")))
     (root / "piped_so" / "nlp.so").unlink()
     os.mkfifo(root / "piped_so" / "nlp.so")
-    for name in ("piped", "piped_so"):  # corrupt: deleted, to be built again; never assembled
+    (root / "sparse").mkdir()  # a 2 GB sparse library: refused by its size, not read
+    for f in codecache.FILES:
+        (root / "sparse" / f).write_bytes(b"x")
+    os.truncate(root / "sparse" / "nlp.so", 2 << 30)
+    (root / "sparse" / "sums.json").write_text(json.dumps(dict.fromkeys(codecache.FILES, "0")))
+    (root / "zero.failed").symlink_to("/dev/zero")  # a marker that is a device: a marker that holds, not read
+    assert codecache.marker(root / "zero")["reason"] == "failed"
+    for name in ("piped", "piped_so", "sparse"):  # corrupt: deleted, to be built again; never assembled
         assert codecache.load(name, None, None, lambda *a: pytest.fail("assembled")) is None
         assert not (root / name).exists()
     for name, write in (("fifo", lambda p: os.mkfifo(p)), ("garbage", lambda p: p.write_text("{")),

@@ -49,6 +49,8 @@ from typing import Any
 
 import numpy as np
 
+from ...errors import TunerError
+from ...fileio import open_input, read_head, read_json
 from ..cachedir import cache_root, trusted_root
 
 __all__ = ["enabled", "entry_dir", "load", "schedule", "build_entry", "mode", "started", "pending", "status",
@@ -125,28 +127,13 @@ def entry_dir(key: Any, st: Any, space: Any) -> Path:
 
 
 def _sha(path: Path) -> str:
-    return hashlib.sha256(_read_regular(path)).hexdigest()
+    """The SHA-256 of an entry's file, streamed through the bounded reader (:func:`tuner.fileio.open_input`: a
+    regular file of at most :data:`MAX_ENTRY_FILE_BYTES`, never a FIFO or a device that would hold a tune)."""
+    with open_input(path, limit=MAX_ENTRY_FILE_BYTES) as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
-def _open_regular(path: Path) -> int:
-    """A descriptor of ``path`` opened without blocking, if it is a regular file (else OSError): a FIFO or a device
-    put where an entry's file, a marker or a lock belongs must not hold the reader (a tune, the listing, /health)."""
-    import stat
-
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise OSError(f"{path} is not a regular file")
-    except BaseException:
-        os.close(fd)
-        raise
-    return fd
-
-
-def _read_regular(path: Path) -> bytes:
-    """The whole of the regular file ``path`` (:func:`_open_regular`)."""
-    with os.fdopen(_open_regular(path), "rb") as f:
-        return f.read()
+MAX_ENTRY_FILE_BYTES = 256 << 20  # an entry's shared library, far above any a shape under MAX_SOURCE_BYTES makes
 
 
 def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
@@ -162,7 +149,7 @@ def load(key: Any, st: Any, space: Any, assemble: Any) -> Any:
     try:
         import casadi as cs
 
-        sums = json.loads(_read_regular(d / "sums.json"))
+        sums = read_json(d / "sums.json", limit=1 << 16)
         if any(_sha(d / f) != sums[f] for f in FILES):  # (regular files only: a FIFO there would hold the tune)
             raise ValueError("checksum")
         meta = np.load(d / "meta.npz")
@@ -179,8 +166,8 @@ def _lock_stale(lock: Path) -> bool:
     try:
         if time.time() - lock.stat().st_mtime > STALE_LOCK_S:
             return True
-        text = _read_small(lock, 64).strip()
-    except (OSError, UnicodeDecodeError):
+        text = read_head(lock, 64).decode().strip()
+    except (OSError, TunerError, UnicodeDecodeError):
         return False  # gone (or unreadable, or not a file): not ours to remove
     if not (text.isascii() and text.isdigit()) or len(text) > 10:
         return False  # (being written, or written before locks held a pid, or not a pid: the age decides)
@@ -191,17 +178,6 @@ def _lock_stale(lock: Path) -> bool:
     except (OSError, OverflowError, ValueError):
         return False  # alive, another user's (or no pid the system knows: the age decides)
     return False
-
-
-def _read_small(path: Path, limit: int) -> str:
-    """The first ``limit`` bytes of the regular file ``path`` as text: opened without blocking and checked to be a
-    regular file first, so that a FIFO or a device put where a marker or a lock belongs cannot hold the reader (the
-    service's ``/health`` reads them). OSError if it is not a regular file or cannot be read."""
-    fd = _open_regular(path)
-    try:
-        return os.read(fd, limit).decode()
-    finally:
-        os.close(fd)
 
 
 def schedule(key: Any, st: Any, space: Any) -> bool:
@@ -293,10 +269,11 @@ def marker(d: Path) -> dict[str, Any] | None:
     it reads as ``too_large`` with the least size that rounds to it (``legacy``: its text). Never raises: whatever is
     there (garbage, a directory, a FIFO, deep JSON) is a ``failed`` marker."""
     try:
-        text = _read_small(d.with_name(d.name + ".failed"), MARKER_MAX_BYTES)
-    except FileNotFoundError:
-        return None
-    except (OSError, UnicodeDecodeError):
+        path = d.with_name(d.name + ".failed")
+        if not os.path.lexists(path):
+            return None
+        text = read_head(path, MARKER_MAX_BYTES).decode()  # (the bounded reader: a regular file only)
+    except (OSError, TunerError, UnicodeDecodeError):
         text = ""
     try:
         info = json.loads(text)
@@ -460,10 +437,10 @@ def build_entry(key: Any, st: Any, space: Any, build: Any, *, timeout_s: float =
             except subprocess.TimeoutExpired:
                 raise  # (not marked: a machine too busy to give the compile its CPU; a later use asks again)
             except (subprocess.SubprocessError, OSError) as e:  # not asked for again with this compiler (schedule)
-                prev = marker(d)  # (the compilers that failed before with these flags: kept)
+                prev, now = marker(d), _compiler_id()  # (the compilers that failed before with these flags: kept)
                 ids = _failed_compilers(prev) if isinstance(prev, dict) and prev.get("cflags") == list(CFLAGS) else []
                 _mark(d, {"reason": "compile_failed", "cflags": list(CFLAGS),
-                          "compilers": [*[c for c in ids if c != _compiler_id()], _compiler_id()][-8:],
+                          "compilers": [*[c for c in ids if c != now], now][-8:],
                           "error": f"{type(e).__name__}: {e}"[:500]})
                 raise
             t3 = time.perf_counter()
@@ -518,10 +495,10 @@ def _main(argv: list[str]) -> int:
     entries = sorted(root.glob("*/build.json")) if root.exists() else []
     for b in entries:
         try:
-            info = json.loads(_read_small(b, 1 << 16))
+            info = read_json(b, limit=1 << 16)
             line = f"build {float(info['build_s']):.1f} s  generate {float(info['generate_s']):.1f} s  " \
                    f"compile {float(info['compile_s']):.1f} s  {info['key']}"
-        except (OSError, ValueError, RecursionError, KeyError, TypeError, ArithmeticError) as e:
+        except (TunerError, KeyError, TypeError, ValueError, ArithmeticError) as e:
             line = f"its build.json cannot be read ({type(e).__name__})"
         _print(f"{b.parent.name}  {line}")
     marks = sorted(root.glob("*.failed")) if root.exists() else []
